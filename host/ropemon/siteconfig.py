@@ -1,0 +1,94 @@
+"""`ropemon config SITE.toml [--out node.json]`: the node config for a site.
+
+SITE.toml -> ropemon.site (validated site, `physical` section with the pipe loss
+tables) -> ropemon.nodeconfig.make_node_json (fixed-point `node` section, every
+integer proved within +-2**30, schema, CRC) -> node.json. A site file or friction
+fit that cannot be used is refused with the field and the reason, exit 1.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from ropemon.site import Site, SiteError, load_site, physical_from_site
+
+
+def node_json_from_site(site: Site, friction: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The complete node.json document for a site (friction from its [friction] file unless given)."""
+    from ropemon.nodeconfig import make_node_json
+
+    physical = physical_from_site(site, friction)
+    try:
+        return make_node_json(physical)
+    except ValueError as e:
+        # nodeconfig names the physical field; say which site input it came from.
+        raise SiteError(f"{e} (node config built from {site.path})") from None
+
+
+def site_warnings(site: Site, doc: dict[str, Any], friction_doc: dict[str, Any] | None) -> list[str]:
+    """Things that are allowed but that the commissioning engineer should look at."""
+    out = []
+    if friction_doc and isinstance(friction_doc.get("pressure_range_MPa"), list):
+        lo, hi = friction_doc["pressure_range_MPa"]
+        if hi < site.rated_pressure_MPa:
+            out.append(f"friction: the test bed went up to {hi:g} MPa, below the rated-tension pressure "
+                       f"{site.rated_pressure_MPa:.2f} MPa: the node extrapolates the lines there")
+        for w in friction_doc.get("warnings", []):
+            out.append(f"friction fit: {w}")
+    if site.sensors.temperature is None:
+        temps = site.oil.table_temps_C
+        out.append(f"oil: no temperature input: losses are compensated at {site.oil.temp_assumed_C:g} C; "
+                   f"the table covers {temps[0]:g}..{temps[-1]:g} C for a node with an input")
+    return out
+
+
+def describe(site: Site, doc: dict[str, Any]) -> str:
+    ph = doc["physical"]
+    loss = ph["loss"]
+    i_assumed = loss["temps_C"].index(ph["oil_temp_assumed_C"])
+    q_max = loss["flow_m3_s"][-1]
+    worst = max(r[i_assumed][-1] for r in loss["dp_Pa"])
+    h = site.hoist
+    return "\n".join([
+        f"site {site.name}: node {ph['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
+        f"{ph['frame_hz']} Hz frames",
+        f"rated rope tension {h.rated_rope_tension_N / 1e3:.1f} kN = {site.rated_pressure_MPa:.2f} MPa; "
+        f"empty cage at the pithead {h.empty_load_N / 1e3:.1f} kN",
+        f"pipe loss at {q_max * 6e4:.1f} L/min and {ph['oil_temp_assumed_C']:g} C: up to {worst / 1e6:.3f} MPa "
+        f"({worst * min(ph['cylinder_area_m2']) / 1e3:.2f} kN of rope tension)",
+        f"config CRC 0x{doc['crc']:04x}, schema {doc['schema']}",
+    ])
+
+
+def add_arguments(p) -> None:
+    p.add_argument("site", metavar="SITE.toml", help="site description (docs/commissioning.md)")
+    p.add_argument("--out", default="node.json", help="node config to write (default: node.json)")
+    p.add_argument("--friction", metavar="FRICTION.json",
+                   help="friction fit to use instead of the site's [friction] file")
+
+
+def run(args) -> int:
+    friction = None
+    try:
+        site = load_site(args.site)
+        fpath = Path(args.friction) if args.friction else site.friction_path
+        friction_doc = None
+        if fpath is not None:
+            try:
+                friction_doc = json.loads(fpath.read_text())
+            except (OSError, json.JSONDecodeError) as e:
+                raise SiteError(f"friction.file: cannot read {fpath}: {e}") from None
+            friction = friction_doc
+        doc = node_json_from_site(site, friction)
+    except SiteError as e:
+        print(f"config: error: {e}", file=sys.stderr)
+        return 1
+    for w in site_warnings(site, doc, friction_doc):
+        print(f"config: warning: {w}", file=sys.stderr)
+    out = Path(args.out)
+    out.write_text(json.dumps(doc, indent=1) + "\n")
+    print(describe(site, doc))
+    print(f"wrote {out}")
+    return 0

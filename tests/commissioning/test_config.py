@@ -1,0 +1,119 @@
+"""`ropemon config`: SITE.toml -> node.json that the node accepts; bad input refused, nothing written."""
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from ropemon.cli import main as ropemon
+from ropemon.firmware import node_module
+from ropemon.site import load_site, physical_from_site
+
+ROOT = Path(__file__).resolve().parents[2]
+SCEN = ROOT / "scenarios"
+
+# docs/config.md, "physical keys": the contract with the node and the float reference
+PHYSICAL_KEYS = {"node_id", "key_hex", "ropes", "sample_hz", "frame_hz", "rated_rope_tension_N", "imbalance_frac",
+                 "battery_low_V", "cylinder_area_m2", "adc_bits", "pressure_channels", "displacement_channels",
+                 "speed_m_per_pulse", "hall_marks_m", "battery_V_per_count", "temperature", "oil_temp_assumed_C",
+                 "velocity_cutoff_hz", "friction", "loss"}
+
+
+@pytest.fixture
+def site_dir(tmp_path) -> Path:
+    for name in ("paper-site.toml", "paper-friction.json"):
+        shutil.copy(SCEN / name, tmp_path / name)
+    return tmp_path
+
+
+def test_paper_site_gives_a_node_json_the_node_accepts(site_dir, capsys):
+    out = site_dir / "node.json"
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert set(doc) == {"schema", "physical", "node", "crc"}
+    ph = doc["physical"]
+    assert PHYSICAL_KEYS <= set(ph)
+    cfg = node_module("config").parse(doc)  # the firmware's own check: schema, CRC, every range
+    assert cfg is not None
+    # the friction lines are the fit's, unchanged
+    fit = json.loads((site_dir / "paper-friction.json").read_text())
+    for key in ("Fs", "Fc", "vs", "sigma2"):
+        assert ph["friction"][key] == {"slope": fit[key]["slope"], "intercept": fit[key]["intercept"]}
+    assert (ph["friction"]["sigma0"], ph["friction"]["sigma1"]) == (fit["sigma0"], fit["sigma1"])
+    # per-rope sensor scales and the loss table in the documented shape
+    assert ph["pressure_channels"][0]["range_Pa"] == [0.0, 25e6]
+    loss = ph["loss"]
+    assert len(loss["dp_Pa"]) == 4 and len(loss["dp_Pa"][0]) == len(loss["temps_C"])
+    assert ph["oil_temp_assumed_C"] in loss["temps_C"]
+    printed = capsys.readouterr().out
+    assert f"config CRC 0x{doc['crc']:04x}" in printed and "wrote" in printed
+
+
+def test_node_loss_table_is_the_physical_one_in_newtons(site_dir):
+    site = load_site(site_dir / "paper-site.toml")
+    from ropemon.nodeconfig import make_node_json
+    doc = make_node_json(physical_from_site(site))
+    ph, nd = doc["physical"], doc["node"]
+    area = ph["cylinder_area_m2"][0]
+    dp = ph["loss"]["dp_Pa"][0]
+    assert nd["loss"]["force_n"][0] == [[round(x * area) for x in row] for row in dp]
+
+
+def test_same_site_same_bytes(site_dir):
+    a, b = site_dir / "a.json", site_dir / "b.json"
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(a)]) == 0
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(b)]) == 0
+    assert a.read_bytes() == b.read_bytes()
+
+
+def refused(site_dir, capsys, *extra) -> str:
+    out = site_dir / "node.json"
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(out), *extra]) == 1
+    assert not out.exists()
+    return capsys.readouterr().err
+
+
+def test_invalid_site_is_refused_with_field_and_reason(site_dir, capsys):
+    p = site_dir / "paper-site.toml"
+    p.write_text(p.read_text().replace("bore_m = 0.100", "bore_m = -0.1"))
+    assert "config: error: cylinders.bore_m: must be > 0, got -0.1" in refused(site_dir, capsys)
+
+
+def test_missing_friction_file_is_refused(site_dir, capsys):
+    (site_dir / "paper-friction.json").unlink()
+    assert "friction.file: cannot read" in refused(site_dir, capsys)
+
+
+def test_friction_that_goes_unphysical_within_the_sensor_range_is_refused(site_dir, capsys):
+    fr = json.loads((site_dir / "paper-friction.json").read_text())
+    fr["vs"]["slope"] = -fr["vs"]["intercept"] / 20  # vs reaches 0 at 20 MPa, the sensors read 25
+    (site_dir / "bad.json").write_text(json.dumps(fr))
+    err = refused(site_dir, capsys, "--friction", str(site_dir / "bad.json"))
+    assert "friction.vs: must be > 0 over 0..25.00 MPa" in err
+
+
+def test_node_builder_limits_are_reported_not_hidden(site_dir, capsys):
+    # a 4 m bore at 25 MPa is a tension no 32-bit node integer can hold: the builder's refusal
+    # comes back as a config error, not a traceback
+    p = site_dir / "paper-site.toml"
+    text = p.read_text().replace("bore_m = 0.100", "bore_m = 0.9").replace("max_speed_m_s = 0.05", "max_speed_m_s = 0.001")
+    p.write_text(text)
+    err = refused(site_dir, capsys)
+    assert err.startswith("config: error: physical") and "node config built from" in err
+
+
+def test_friction_extrapolation_is_warned(site_dir, capsys):
+    fr = json.loads((site_dir / "paper-friction.json").read_text())
+    fr["pressure_range_MPa"] = [2.0, 6.0]
+    (site_dir / "low.json").write_text(json.dumps(fr))
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(site_dir / "n.json"),
+                    "--friction", str(site_dir / "low.json")]) == 0
+    assert "the test bed went up to 6 MPa, below the rated-tension pressure 10.19 MPa" in capsys.readouterr().err
+
+
+def test_rated_pressure_is_tension_over_area():
+    site = load_site(SCEN / "paper-site.toml")
+    assert site.rated_pressure_MPa == pytest.approx(80e3 / (math.pi * 0.1 ** 2 / 4) / 1e6)
