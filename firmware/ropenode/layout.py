@@ -77,3 +77,13 @@ def ropes_in(length):
     if body < 0 or body % ROPE_LEN:
         return -1
     return body // ROPE_LEN
+
+# A rope with no healthy sample in the frame window (its loop failed, see
+# fault_mask) carries these instead of values: never a made-up tension.
+TENSION_ABSENT = const(-32768)   # mean_dan, min_dan, max_dan
+RAW_KPA_ABSENT = const(0xFFFF)   # raw_kpa
+
+# fault_mask (header): bit i = pressure loop of rope i outside NAMUR NE43,
+# bit 4+i = displacement channel of rope i out of range.
+FAULT_PRESSURE_SHIFT = const(0)
+FAULT_DISPLACEMENT_SHIFT = const(4)

@@ -1,0 +1,6 @@
+# Freeze the node into an ESP32 firmware image (ports/esp32: make FROZEN_MANIFEST=<this file>).
+# Frozen bytecode runs from flash, so the ~35 KB of module bytecode that an
+# import of .mpy files puts on the heap stays off it; /node.json stays on the
+# filesystem. main.py is copied to the filesystem by `ropemon deploy`.
+include("$(PORT_DIR)/boards/manifest.py")
+package("ropenode")

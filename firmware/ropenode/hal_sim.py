@@ -1,0 +1,84 @@
+"""Simulation HAL for the unix port: .rsens samples in from a stream, radio bytes out.
+
+    MICROPYPATH=firmware micropython -m ropenode.sim_main CONFIG RSENS OUT
+
+or from Python (CPython with the ropemon shim, or MicroPython):
+
+    from ropenode.hal_sim import run_sim
+    samples, frames = run_sim("firmware/node.json", "in.rsens", "out.bin")
+
+OUT receives exactly the bytes the node would hand to its radio: COBS frames,
+each ended by 0x00 (docs/protocol.md). A missing or invalid CONFIG does not
+stop the run: the node sends config-fault status frames, as on the cage, and
+the reason goes to stderr.
+"""
+import array
+import struct
+import sys
+
+from ropenode import config as _config
+from ropenode.node import Node
+
+RSENS_MAGIC = b"RSNS"
+RSENS_HEADER = "<4sHHHH"
+RSENS_HEADER_LEN = 12
+
+
+class SimHal:
+    """Reads records of one .rsens stream into a preallocated array('H')."""
+
+    def __init__(self, stream):
+        head = stream.read(RSENS_HEADER_LEN)
+        if head is None or len(head) < RSENS_HEADER_LEN:
+            raise ValueError("sensor stream: too short for a .rsens header")
+        magic, version, ropes, hz, _ = struct.unpack(RSENS_HEADER, head)
+        if magic != RSENS_MAGIC or version != 1:
+            raise ValueError("sensor stream: not a version-1 .rsens stream")
+        if not 1 <= ropes <= 4 or hz == 0:
+            raise ValueError("sensor stream: %d ropes at %d Hz is not valid" % (ropes, hz))
+        self.stream = stream
+        self.ropes = ropes
+        self.sample_hz = hz
+        self.rec = array.array("H", bytes(2 * (2 * ropes + 4)))
+        self.rec_bytes = 2 * len(self.rec)
+
+    def read(self):
+        """Fill self.rec with the next record; False at the end of the stream."""
+        n = self.stream.readinto(self.rec)
+        return n == self.rec_bytes
+
+
+def _load(config_path):
+    """(cfg or None, fallback node id, reason or None)."""
+    try:
+        return _config.load(config_path), 255, None
+    except _config.ConfigError as e:
+        reason = "config %s refused: %s: %s" % (config_path, e.field, e.reason)
+    except (OSError, ValueError) as e:
+        reason = "config %s unreadable: %r" % (config_path, e)
+    return None, 255, reason
+
+
+def run_sim(config_path, rsens_path, out_path):
+    """Run the node over a whole .rsens file; return (samples, frames written)."""
+    cfg, fallback_id, reason = _load(config_path)
+    if reason:
+        print("ropenode:", reason, "- sending config-fault status frames", file=sys.stderr)
+    with open(rsens_path, "rb") as src:
+        hal = SimHal(src)
+        if cfg is not None and (cfg.ropes != hal.ropes or cfg.sample_hz != hal.sample_hz):
+            raise ValueError("sensor stream has %d ropes at %d Hz, config says %d at %d"
+                             % (hal.ropes, hal.sample_hz, cfg.ropes, cfg.sample_hz))
+        node = Node(cfg, fallback_id)
+        wire = bytearray(64)
+        wmv = memoryview(wire)
+        samples = frames = 0
+        rec = hal.rec
+        with open(out_path, "wb") as out:
+            while hal.read():
+                samples += 1
+                if node.sample(rec):
+                    n = node.frame_into(wire)
+                    out.write(wmv[:n])
+                    frames += 1
+    return samples, frames

@@ -1,0 +1,461 @@
+"""Build the integer `node` section of node.json from the SI `physical` section.
+
+`build_node_section(physical)` computes every fixed-point constant and table
+the firmware uses (scales in docs/model.md, "Fixed-point scales") and proves
+that no integer the node computes leaves +-2**30 over the declared ranges; a
+physical value that would break that raises ValueError naming the field.
+`make_node_json(physical)` adds schema and CRC; `example_physical()` is the
+documented default for the paper's field hoist, shipped as firmware/node.json
+(regenerate: `python -m ropemon.nodeconfig > firmware/node.json`).
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+from typing import Any
+
+from ropemon.firmware import node_module
+
+I30 = 1 << 30
+SCHEMA = 1
+GEXP_STEP = 1 / 32          # u step of the exp(-u^2) table
+GEXP_POINTS = 129
+
+# Defaults for physical keys that docs/config.md does not list (see docs/model.md).
+DEFAULTS = {
+    "piston_speed_max_m_s": 0.2,   # velocity estimate saturates here
+    "hoist_speed_max_m_s": 20.0,   # larger counter jumps are glitches
+    "hall_snap_m": 2.0,            # a Hall mark snaps depth only within this distance
+    "start_depth_m": 0.0,          # depth assumed at boot (pithead landing)
+}
+
+PRESSURE_Q_MAX = 1 << 14    # |count difference| <= 65535: a mul below 2**14 keeps d * mul < 2**30
+
+
+def namur_limits(c4: int, c20: int) -> tuple[int, int]:
+    """(lowest good count, highest good count) of a 4-20 mA loop per NAMUR NE43.
+
+    Below 3.6 mA or above 21 mA is a failed signal; counts are linear in current.
+    """
+    span = c20 - c4
+    lo = math.ceil(c4 - span * 0.4 / 16 - 1e-9)
+    hi = math.floor(c4 + span * 17 / 16 + 1e-9)
+    return max(lo, 0), min(hi, 65535)
+
+
+def fit_mul_shift(value: float, max_in: float, field: str, mul_max: int = PRESSURE_Q_MAX,
+                  shift_max: int = 24) -> tuple[int, int]:
+    """(mul, shift) with mul / 2**shift ~ value, |mul| < mul_max and |mul| * max_in < 2**30.
+
+    The largest shift that fits is taken (best precision).
+    """
+    if not math.isfinite(value):
+        raise ValueError(f"{field}: not a finite number")
+    best = None
+    for sh in range(0, shift_max + 1):
+        m = round(value * (1 << sh))
+        if abs(m) >= mul_max or abs(m) * max_in >= I30:
+            break
+        best = (m, sh)
+    if best is None:
+        raise ValueError(f"{field}: {value!r} too large for a fixed-point multiplier")
+    m, sh = best
+    if value != 0 and abs(m / (1 << sh) / value - 1) > 1e-3:
+        raise ValueError(f"{field}: {value!r} cannot be represented to 0.1 % "
+                         f"(best {m}/2**{sh})")
+    return best
+
+
+def _get(ph: dict, key: str) -> Any:
+    if key in ph:
+        return ph[key]
+    if key in DEFAULTS:
+        return DEFAULTS[key]
+    raise ValueError(f"physical.{key}: missing")
+
+
+def _num(ph: dict, key: str, lo: float, hi: float) -> float:
+    v = _get(ph, key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"physical.{key}: must be a number")
+    if not lo <= v <= hi:
+        raise ValueError(f"physical.{key}: {v} out of range {lo}..{hi}")
+    return float(v)
+
+
+def _per_rope(ph: dict, key: str, n: int) -> list:
+    v = _get(ph, key)
+    if not isinstance(v, list) or len(v) != n:
+        raise ValueError(f"physical.{key}: must be a list of {n} entries (one per rope)")
+    return v
+
+
+def _check(field: str, value: float, limit: float = I30) -> None:
+    if not -limit < value < limit:
+        raise ValueError(f"{field}: the node would compute {value:.0f}, beyond +-{limit:.0f}")
+
+
+def pressure_max_pa(chan: dict) -> float:
+    """Sensor pressure at the highest good count (21 mA)."""
+    lo, hi = chan["range_Pa"]
+    return lo + (hi - lo) * 17 / 16
+
+
+def physical_params(ph: dict) -> dict:
+    """The SI quantities both the builder and the float reference derive from `physical`."""
+    n = int(_num(ph, "ropes", 1, 4))
+    fs = _num(ph, "sample_hz", 1, 1000)
+    fc_hz = _num(ph, "velocity_cutoff_hz", 0.01, fs / 2)
+    return {
+        "ropes": n,
+        "alpha": 1 - math.exp(-2 * math.pi * fc_hz / fs),
+        "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
+        "p_max_pa": max(pressure_max_pa(c) for c in _per_rope(ph, "pressure_channels", n)),
+    }
+
+
+def build_node_section(ph: dict) -> dict:
+    """The integer node section for physical section `ph` (raises ValueError naming the field)."""
+    if not isinstance(ph, dict):
+        raise ValueError("physical: must be an object")
+    pp = physical_params(ph)
+    n = pp["ropes"]
+    fs = int(_num(ph, "sample_hz", 1, 1000))
+    frame_hz = int(_num(ph, "frame_hz", 1, fs))
+    if fs != _get(ph, "sample_hz") or frame_hz != _get(ph, "frame_hz") or fs % frame_hz:
+        raise ValueError("physical.frame_hz: sample_hz and frame_hz must be integers, "
+                         "sample_hz a multiple of frame_hz")
+    key_hex = _get(ph, "key_hex")
+    try:
+        key = bytes.fromhex(key_hex)
+    except (TypeError, ValueError):
+        raise ValueError("physical.key_hex: not a hex string") from None
+    if not 16 <= len(key) <= 32:
+        raise ValueError(f"physical.key_hex: {len(key)} bytes, need 16..32")
+    areas = _per_rope(ph, "cylinder_area_m2", n)
+    for i, a in enumerate(areas):
+        if not isinstance(a, (int, float)) or not 1e-4 <= a <= 0.1:
+            raise ValueError(f"physical.cylinder_area_m2[{i}]: {a!r} out of range 1e-4..0.1 m^2")
+    rated = _num(ph, "rated_rope_tension_N", 1e3, 3e5)
+    p_max_pa = pp["p_max_pa"]
+    p_kpa_max = math.ceil(p_max_pa / 1000)
+    _check("physical.pressure_channels", p_kpa_max, 100000)
+    tension_limit = 1 << 19  # N: config.py TENSION_MAX_N
+
+    nd: dict[str, Any] = {
+        "node_id": int(_num(ph, "node_id", 0, 255)),
+        "key": list(key),
+        "ropes": n,
+        "sample_hz": fs,
+        "frame_hz": frame_hz,
+        "rated_rope_tension_n": round(rated),
+        "imbalance_permille": round(_num(ph, "imbalance_frac", 0, 1) * 1000),
+        "battery_low_mv": round(_num(ph, "battery_low_V", 0, 65) * 1000),
+        "p_kpa_max": p_kpa_max,
+    }
+    bm, bs = fit_mul_shift(_num(ph, "battery_V_per_count", 1e-6, 1e-2) * 1000, 65535,
+                           "physical.battery_V_per_count")
+    nd["battery_mv_mul"], nd["battery_mv_shift"] = bm, bs
+
+    pressure = []
+    raw_t_max = 0.0
+    for i, ch in enumerate(_per_rope(ph, "pressure_channels", n)):
+        f = f"physical.pressure_channels[{i}]"
+        try:
+            c4, c20 = int(ch["counts_4mA"]), int(ch["counts_20mA"])
+            lo, hi = (float(x) for x in ch["range_Pa"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{f}: needs counts_4mA, counts_20mA, range_Pa [lo, hi]") from None
+        if not 0 <= c4 < c20 <= 65535 or not hi > lo:
+            raise ValueError(f"{f}: need 0 <= counts_4mA < counts_20mA <= 65535 and hi > lo")
+        flo, fhi = namur_limits(c4, c20)
+        pa_per_count = (hi - lo) / (c20 - c4)
+        km, ks = fit_mul_shift(pa_per_count / 1000, 65535, f + ".range_Pa")
+        tm, ts = fit_mul_shift(pa_per_count * areas[i], 65535, f + ".range_Pa*cylinder_area_m2")
+        for c in (flo, fhi):
+            t = lo * areas[i] + (c - c4) * pa_per_count * areas[i]
+            _check(f"physical.cylinder_area_m2[{i}] x {f[9:]}.range_Pa (tension at the NAMUR "
+                   "limits)", t, tension_limit)
+            raw_t_max = max(raw_t_max, abs(t))
+        pressure.append({"counts_4ma": c4, "fault_lo_counts": flo, "fault_hi_counts": fhi,
+                         "kpa_at_4ma": round(lo / 1000), "kpa_mul": km, "kpa_shift": ks,
+                         "tension_n_at_4ma": round(lo * areas[i]), "tension_n_mul": tm,
+                         "tension_n_shift": ts})
+    nd["pressure"] = pressure
+
+    displacement = []
+    for i, ch in enumerate(_per_rope(ph, "displacement_channels", n)):
+        f = f"physical.displacement_channels[{i}]"
+        try:
+            clo, chi = int(ch["counts_lo"]), int(ch["counts_hi"])
+            lo, hi = (float(x) for x in ch["range_m"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{f}: needs counts_lo, counts_hi, range_m [lo, hi]") from None
+        if not 0 <= clo < chi <= 65535 or not hi > lo:
+            raise ValueError(f"{f}: need 0 <= counts_lo < counts_hi <= 65535 and hi > lo")
+        flo, fhi = namur_limits(clo, chi)
+        q8_per_count = (hi - lo) / (chi - clo) * 256e6
+        dm, ds = fit_mul_shift(q8_per_count, 65535, f + ".range_m")
+        for c in (flo, fhi):
+            _check(f + " (position at the fault limits, um/256)",
+                   lo * 256e6 + (c - clo) * q8_per_count, 1 << 25)
+        displacement.append({"counts_lo": clo, "fault_lo_counts": flo, "fault_hi_counts": fhi,
+                             "q8um_at_lo": round(lo * 256e6), "q8um_mul": dm, "q8um_shift": ds})
+    nd["displacement"] = displacement
+
+    v_max = pp["v_max"]
+    dx_max = round(v_max / fs * 256e6)
+    _check("physical.piston_speed_max_m_s (dx_max * sample_hz)", dx_max * fs, 1 << 28)
+    v_max_um_s = (dx_max * fs + 128) >> 8
+    nd["velocity"] = {"alpha_q14": max(1, round(pp["alpha"] * 16384)), "dx_max_q8um": dx_max}
+
+    fr = _get(ph, "friction")
+    if not isinstance(fr, dict):
+        raise ValueError("physical.friction: must be an object")
+
+    def fnum(key: str) -> float:
+        v = fr.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"physical.friction.{key}: must be a number")
+        return float(v)
+
+    def flin(key: str) -> tuple[float, float]:
+        v = fr.get(key)
+        if not isinstance(v, dict) or "slope" not in v or "intercept" not in v:
+            raise ValueError(f"physical.friction.{key}: must be {{slope, intercept}}")
+        return float(v["intercept"]), float(v["slope"])
+
+    sigma0 = fnum("sigma0")
+    sigma1 = fnum("sigma1")
+    if sigma0 <= 0 or sigma1 < 0:
+        raise ValueError("physical.friction.sigma0: must be > 0 (and sigma1 >= 0)")
+    s0m, s0s = fit_mul_shift(sigma0 / 16e6, dx_max, "physical.friction.sigma0", mul_max=1 << 11)
+    _check("physical.friction.sigma0 (sigma0 * dx_max, N/16)", (dx_max * s0m) >> s0s, 1 << 19)
+    c1 = sigma1 / (sigma0 / fs)
+    c1m, c1s = fit_mul_shift(c1, 1 << 10, "physical.friction.sigma1 (sigma1 fs / sigma0)",
+                             mul_max=1 << 19)
+    if c1s < 10:
+        raise ValueError(f"physical.friction.sigma1: sigma1 fs / sigma0 = {c1:g} too large (max 512)")
+    lin = {}
+    for key, node_key, scale, lo_lim, hi_lim in (("Fs", "fs_n", 1.0, 64, 32767),
+                                                 ("Fc", "fc_n", 1.0, 64, 32767),
+                                                 ("vs", "vs_um_s", 1e6, 10, 1 << 20)):
+        a, b = flin(key)
+        for p_mpa in (0.0, p_kpa_max / 1000):
+            val = (a + b * p_mpa) * scale
+            if not lo_lim <= val <= hi_lim:
+                raise ValueError(f"physical.friction.{key}: {val / scale:g} at {p_mpa:g} MPa "
+                                 f"out of range {lo_lim / scale:g}..{hi_lim / scale:g}")
+        m, s = fit_mul_shift(b * scale / 1000, p_kpa_max, f"physical.friction.{key}.slope",
+                             mul_max=1 << 15) if b else (0, 0)
+        lin[node_key] = {"at_0": round(a * scale), "slope_mul": m, "slope_shift": s}
+        if node_key == "fc_n":
+            fs0, fs1 = flin("Fs")
+            for p_mpa in (0.0, p_kpa_max / 1000):
+                if a + b * p_mpa > fs0 + fs1 * p_mpa:
+                    raise ValueError(f"physical.friction.Fc: above Fs at {p_mpa:g} MPa")
+    a2, b2 = flin("sigma2")
+    s2max = max(a2 + b2 * p for p in (0.0, p_kpa_max / 1000)) * 16e-6  # N/16 per um/s
+    if min(a2 + b2 * p for p in (0.0, p_kpa_max / 1000)) < 0:
+        raise ValueError("physical.friction.sigma2: negative within the pressure range")
+    s2sh = 0
+    while s2sh < 24 and s2max * (1 << (s2sh + 1)) < (1 << 18) - 1:
+        s2sh += 1
+    if s2sh < 9:
+        raise ValueError("physical.friction.sigma2: too large for the node's sigma2 scale")
+    q = 16e-6 * (1 << s2sh)
+    m2, sh2 = fit_mul_shift(b2 * q / 1000, p_kpa_max, "physical.friction.sigma2.slope",
+                            mul_max=1 << 15) if b2 else (0, 0)
+    lin["sigma2_q"] = {"at_0": round(a2 * q), "slope_mul": m2, "slope_shift": sh2}
+    _check("physical.friction.sigma2 (sigma2 * v_max, N/16)", s2max * v_max_um_s, 1 << 19)
+    gexp = [round(math.exp(-(k * GEXP_STEP) ** 2) * 16384) for k in range(GEXP_POINTS)]
+    gexp[-1] = 0
+    nd["friction"] = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s,
+                      **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
+    fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p for p in (0.0, p_kpa_max / 1000))
+    f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous
+
+    loss = _get(ph, "loss")
+    try:
+        temps = [float(t) for t in loss["temps_C"]]
+        flows = [float(q) for q in loss["flow_m3_s"]]
+        dps = loss["dp_Pa"]
+    except (KeyError, TypeError, ValueError):
+        raise ValueError("physical.loss: needs temps_C, flow_m3_s, dp_Pa") from None
+    if flows[0] != 0 or any(b <= a for a, b in zip(flows, flows[1:])) or len(flows) > 32:
+        raise ValueError("physical.loss.flow_m3_s: must start at 0, ascend, at most 32 points")
+    if any(b <= a for a, b in zip(temps, temps[1:])) or not 1 <= len(temps) <= 8:
+        raise ValueError("physical.loss.temps_C: must ascend, 1..8 points")
+    if not isinstance(dps, list) or len(dps) != n:
+        raise ValueError(f"physical.loss.dp_Pa: must have {n} rope entries")
+    v_rows, f_rows = [], []
+    loss_max = 0.0
+    for i in range(n):
+        v_row = [round(q / areas[i] * 1e6) for q in flows]
+        if any(b <= a for a, b in zip(v_row, v_row[1:])) or v_row[-1] >= 1 << 19:
+            raise ValueError(f"physical.loss.flow_m3_s: piston speeds of rope {i} not "
+                             "distinct in um/s or beyond 0.5 m/s")
+        v_rows.append(v_row)
+        if not isinstance(dps[i], list) or len(dps[i]) != len(temps):
+            raise ValueError(f"physical.loss.dp_Pa[{i}]: needs {len(temps)} temperature rows")
+        rows = []
+        for t, row in enumerate(dps[i]):
+            if not isinstance(row, list) or len(row) != len(flows):
+                raise ValueError(f"physical.loss.dp_Pa[{i}][{t}]: needs {len(flows)} values")
+            fr_row = [round(float(dp) * areas[i]) for dp in row]
+            if fr_row[0] != 0:
+                raise ValueError(f"physical.loss.dp_Pa[{i}][{t}][0]: loss at zero flow must be 0")
+            for x in fr_row:
+                _check(f"physical.loss.dp_Pa[{i}][{t}] (force)", x, 1 << 16)
+                loss_max = max(loss_max, abs(x))
+            rows.append(fr_row)
+        f_rows.append(rows)
+    nd["loss"] = {"temps_cc": [round(t * 100) for t in temps], "v_um_s": v_rows,
+                  "force_n": f_rows}
+
+    t_max = raw_t_max + loss_max + f_max
+    _check("physical (largest tension: raw + loss + friction)", t_max, tension_limit)
+    _check("physical.frame_hz (tension sums over a window)", t_max * (fs // frame_hz), I30)
+
+    temp = _get(ph, "temperature")
+    assumed = round(_num(ph, "oil_temp_assumed_C", -50, 150) * 100)
+    if temp is None:
+        nd["temperature"] = {"fitted": 0, "counts_at_0c": 0, "cc_mul": 0, "cc_shift": 0,
+                             "fault_lo_counts": 0, "fault_hi_counts": 0, "assumed_cc": assumed}
+    else:
+        try:
+            c0 = float(temp["counts_at_0C"])
+            cpc = float(temp["counts_per_C"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError("physical.temperature: needs counts_at_0C, counts_per_C") from None
+        if cpc == 0:
+            raise ValueError("physical.temperature.counts_per_C: must not be 0")
+        tm_, ts_ = fit_mul_shift(100 / cpc, 65535, "physical.temperature.counts_per_C")
+        ends = sorted((c0 - 40 * cpc, c0 + 125 * cpc))  # a reading outside -40..125 C is a fault
+        nd["temperature"] = {"fitted": 1, "counts_at_0c": round(c0), "cc_mul": tm_,
+                             "cc_shift": ts_,
+                             "fault_lo_counts": max(0, math.ceil(ends[0])),
+                             "fault_hi_counts": min(65534, math.floor(ends[1])),
+                             "assumed_cc": assumed}
+
+    mpp = _num(ph, "speed_m_per_pulse", 1e-5, 10)
+    mmpp_q16 = round(mpp * 1000 * 65536)
+    max_pulses = math.ceil(_num(ph, "hoist_speed_max_m_s", 0.1, 50) / mpp / fs) + 1
+    _check("physical.speed_m_per_pulse (pulses per sample * mm per pulse, Q16)",
+           max_pulses * mmpp_q16, 1 << 28)
+    _check("physical.speed_m_per_pulse (travel per frame window, Q16)",
+           max_pulses * mmpp_q16 * (fs // frame_hz), 1 << 29)
+    marks = _get(ph, "hall_marks_m")
+    if not isinstance(marks, list) or len(marks) > 64:
+        raise ValueError("physical.hall_marks_m: must be a list of at most 64 depths")
+    marks_mm = [round(float(m) * 1000) for m in marks]
+    if any(b <= a for a, b in zip(marks_mm, marks_mm[1:])):
+        raise ValueError("physical.hall_marks_m: must ascend")
+    nd["shaft"] = {"mm_per_pulse_q16": mmpp_q16, "max_pulses_per_sample": max_pulses,
+                   "marks_mm": marks_mm, "snap_mm": round(_num(ph, "hall_snap_m", 0, 100) * 1000),
+                   "start_depth_mm":
+                       round(_num(ph, "start_depth_m", -100, 5000) * 1000)}
+
+    # Last line of defence: the node's own validator must accept what we built.
+    cfg_mod = node_module("config")
+    try:
+        cfg_mod.parse_node(nd)
+    except cfg_mod.ConfigError as e:
+        raise ValueError(f"built {e.field}: {e.reason}") from None
+    return nd
+
+
+def make_node_json(physical: dict) -> dict:
+    """A complete node.json document: schema, physical, node, crc."""
+    nd = build_node_section(physical)
+    cfg_mod = node_module("config")
+    crc16 = node_module("crc16").crc16
+    return {"schema": SCHEMA, "physical": physical, "node": nd,
+            "crc": crc16(cfg_mod.canonical(nd))}
+
+
+def _walther_cst(temp_c: float) -> float:
+    """ISO VG46 kinematic viscosity (cSt) by the Walther/ASTM D341 fit of the domain brief."""
+    return 10 ** (10 ** (9.32 - 3.65 * math.log10(temp_c + 273.15))) - 0.7
+
+
+def example_loss_pa(flow_m3_s: float, temp_c: float) -> float:
+    """The example tap line's loss: 3 m of 12 mm bore (laminar Hagen-Poiseuille or
+    Blasius) plus fittings zeta = 3, VG46 at temp_c, density 870 kg/m^3."""
+    d, length, zeta, rho = 0.012, 3.0, 3.0, 870.0
+    nu = _walther_cst(temp_c) * 1e-6
+    area = math.pi * d * d / 4
+    u = flow_m3_s / area
+    if u <= 0:
+        return 0.0
+    re = u * d / nu
+    lam = 64 / re if re < 2300 else 0.3164 * re ** -0.25
+    return (lam * length / d + zeta) * rho * u * u / 2
+
+
+def example_physical() -> dict:
+    """The default physical section: the paper's field hoist (4 ropes, 8.18 t cage, 810 m).
+
+    Choices, documented in docs/model.md ("Shipped default"):
+    - bore 100 mm (A = 7.854e-3 m^2); empty cage at the pithead 185.4 kN, 46.4 kN
+      per rope = 5.9 MPa; rated rope tension 100 kN (12.7 MPa).
+    - 4-20 mA transmitters, 0-25 MPa and +-50 mm, read by ADS1115 across 150 ohm
+      shunts: 4 mA = 9600 counts, 20 mA = 48000 counts (docs/model.md, ADC front end).
+    - LuGre seal: Fs = 1.5 kN + 1.0 kN/MPa (7.4 kN at 5.9 MPa, which holds the
+      pithead reading ~15 % low), Fc = 1.0 kN + 0.6 kN/MPa, vs = 2 mm/s falling
+      0.04 mm/s per MPa, sigma2 = 20 + 2 kN s/m per MPa, sigma0 = 2e7 N/m
+      (pre-sliding ~0.4 mm), sigma1 = 3e4 N s/m.
+    - tap line 3 m x 12 mm with fittings; VG46 at 0/20/40 C (laminar: tenfold in
+      viscosity); temperature input not fitted, 20 C assumed.
+    """
+    area = math.pi * 0.1 ** 2 / 4
+    temps = [0.0, 20.0, 40.0]
+    flows = [0.0, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4, 1.2e-3, 1.6e-3]
+    dp = [[round(example_loss_pa(q, t)) for q in flows] for t in temps]
+    chan_p = {"counts_4mA": 9600, "counts_20mA": 48000, "range_Pa": [0.0, 25e6]}
+    chan_x = {"counts_lo": 9600, "counts_hi": 48000, "range_m": [-0.05, 0.05]}
+    return {
+        "node_id": 1,
+        "key_hex": "6f1d3c0a9b2e47c58a61f0d2e3b4c5a6",
+        "ropes": 4,
+        "sample_hz": 200,
+        "frame_hz": 10,
+        "rated_rope_tension_N": 100000.0,
+        "imbalance_frac": 0.10,
+        "battery_low_V": 10.5,
+        "cylinder_area_m2": [area] * 4,
+        "adc_bits": 16,
+        "pressure_channels": [dict(chan_p) for _ in range(4)],
+        "displacement_channels": [dict(chan_x) for _ in range(4)],
+        "speed_m_per_pulse": 0.01,
+        "hall_marks_m": [5.0, 200.0, 400.0, 600.0, 805.0],
+        "battery_V_per_count": 2e-4,
+        "temperature": None,
+        "oil_temp_assumed_C": 20.0,
+        "velocity_cutoff_hz": 5.0,
+        "piston_speed_max_m_s": 0.2,
+        "hoist_speed_max_m_s": 20.0,
+        "hall_snap_m": 2.0,
+        "start_depth_m": 0.0,
+        "friction": {
+            "Fs": {"intercept": 1500.0, "slope": 1000.0},
+            "Fc": {"intercept": 1000.0, "slope": 600.0},
+            "vs": {"intercept": 0.002, "slope": -0.00004},
+            "sigma2": {"intercept": 20000.0, "slope": 2000.0},
+            "sigma0": 2.0e7,
+            "sigma1": 3.0e4,
+        },
+        "loss": {"temps_C": temps, "flow_m3_s": flows, "dp_Pa": [dp for _ in range(4)]},
+    }
+
+
+def main() -> int:
+    """Print the default node.json (the shipped firmware/node.json)."""
+    json.dump(make_node_json(example_physical()), sys.stdout, indent=1)
+    sys.stdout.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,209 @@
+"""The float64 oracle of the node's compensation (docs/model.md), from the `physical` section.
+
+Same equations as firmware/ropenode, in floating point and SI units, with the
+same discrete-time choices that are part of the model (filtered-position
+velocity with the +-v_max/fs increment clamp, implicit-Euler LuGre step, table
+interpolation of the loss, NAMUR limits, last-good hold on a failed channel):
+
+    T_i = p_tap,i A_i + dp_i(A_i v_i) A_i + F_i
+
+`compensate(physical, records)` returns per-sample arrays; `decimate` the frame
+window values; `run_stream(node_json, rsens_path)` both from files.
+"""
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ropemon.nodeconfig import DEFAULTS, namur_limits, physical_params
+
+RSENS_MAGIC = b"RSNS"
+RSENS_HEADER = struct.Struct("<4sHHHH")
+
+
+@dataclass
+class Compensated:
+    """Per-sample results (rows = samples, columns = ropes); NaN where no tension."""
+
+    tension_n: np.ndarray        # compensated T (N), NaN where the rope is not good
+    raw_tension_n: np.ndarray    # p_tap * A (N), last good value held
+    friction_n: np.ndarray       # LuGre F (N)
+    loss_n: np.ndarray           # dp * A (N)
+    p_pa: np.ndarray             # sensor pressure (Pa), last good value held
+    v_m_s: np.ndarray            # filtered piston velocity
+    good: np.ndarray             # bool: both loops healthy (and read once)
+    fault_mask: np.ndarray       # int: bit i pressure, bit 4+i displacement
+
+
+@dataclass
+class Frames:
+    """Per frame window and rope: tension mean/min/max (N) and raw pressure mean (Pa); NaN if absent."""
+
+    mean_n: np.ndarray
+    min_n: np.ndarray
+    max_n: np.ndarray
+    raw_pa: np.ndarray
+
+
+def read_rsens(path: str | Path) -> tuple[int, int, np.ndarray]:
+    """(ropes, sample_hz, records[k, 2N+4] uint16) of a .rsens file (docs/data-formats.md)."""
+    data = Path(path).read_bytes()
+    magic, version, ropes, hz, _ = RSENS_HEADER.unpack_from(data)
+    if magic != RSENS_MAGIC or version != 1:
+        raise ValueError(f"{path}: not a version-1 .rsens stream")
+    w = 2 * ropes + 4
+    k = (len(data) - RSENS_HEADER.size) // (2 * w)  # a partial last record is ignored
+    body = np.frombuffer(data, dtype="<u2", count=k * w, offset=RSENS_HEADER.size)
+    return ropes, hz, body.reshape(k, w)
+
+
+def _hold(values: np.ndarray, ok: np.ndarray, before: float = 0.0) -> np.ndarray:
+    """Replace values where ~ok by the last ok value (before the first: `before`)."""
+    idx = np.where(ok, np.arange(len(values)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    out = np.where(idx >= 0, values[np.maximum(idx, 0)], before)
+    return out
+
+
+def _temperature_c(ph: dict, counts: np.ndarray) -> np.ndarray:
+    """Oil temperature per sample (C): the input where fitted and plausible, else the assumed."""
+    assumed = float(ph["oil_temp_assumed_C"])
+    t = ph.get("temperature")
+    if t is None:
+        return np.full(counts.shape, assumed)
+    c0, cpc = float(t["counts_at_0C"]), float(t["counts_per_C"])
+    lo, hi = sorted((c0 - 40 * cpc, c0 + 125 * cpc))
+    lo_c, hi_c = max(0, math.ceil(lo)), min(65534, math.floor(hi))
+    c = counts.astype(float)
+    ok = (counts != 0xFFFF) & (c >= lo_c) & (c <= hi_c)
+    return np.where(ok, (c - c0) / cpc, assumed)
+
+
+def _loss_force(ph: dict, i: int, area: float, v: np.ndarray, temp_c: np.ndarray) -> np.ndarray:
+    """dp_i(Q) * A_i: interpolated in flow (held beyond the table), then in temperature."""
+    lo = ph["loss"]
+    temps = np.asarray(lo["temps_C"], float)
+    flows = np.asarray(lo["flow_m3_s"], float)
+    dp = np.asarray(lo["dp_Pa"][i], float)
+    q = np.abs(v) * area
+    rows = np.stack([np.interp(q, flows, dp[t]) for t in range(len(temps))])  # (T, k)
+    if len(temps) == 1:
+        out = rows[0]
+    else:
+        tc = np.clip(temp_c, temps[0], temps[-1])
+        j = np.clip(np.searchsorted(temps, tc, side="right") - 1, 0, len(temps) - 2)
+        w = (tc - temps[j]) / (temps[j + 1] - temps[j])
+        k = np.arange(len(q))
+        out = rows[j, k] * (1 - w) + rows[j + 1, k] * w
+    return np.sign(v) * out * area
+
+
+def compensate(ph: dict, records: np.ndarray) -> Compensated:
+    """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`."""
+    pp = physical_params(ph)
+    n = pp["ropes"]
+    fs = float(ph["sample_hz"])
+    h = 1.0 / fs
+    alpha, v_max, p_max = pp["alpha"], pp["v_max"], pp["p_max_pa"]
+    dx_max = v_max * h
+    areas = [float(a) for a in ph["cylinder_area_m2"]]
+    fr = ph["friction"]
+    sigma0, sigma1 = float(fr["sigma0"]), float(fr["sigma1"])
+    c1 = sigma1 / (sigma0 * h)
+    k = records.shape[0]
+    temp_c = _temperature_c(ph, records[:, 2 * n + 1])
+    shape = (k, n)
+    out = {name: np.zeros(shape) for name in ("tension", "raw", "fric", "loss", "p", "v")}
+    good = np.zeros(shape, bool)
+    fault = np.zeros(k, int)
+    for i in range(n):
+        pc = ph["pressure_channels"][i]
+        c4, c20 = pc["counts_4mA"], pc["counts_20mA"]
+        plo, phi = pc["range_Pa"]
+        flo, fhi = namur_limits(c4, c20)
+        cp = records[:, i].astype(float)
+        p_ok = (cp >= flo) & (cp <= fhi)
+        p = _hold(plo + (cp - c4) * (phi - plo) / (c20 - c4), p_ok)
+        dc = ph["displacement_channels"][i]
+        clo, chi = dc["counts_lo"], dc["counts_hi"]
+        xlo, xhi = dc["range_m"]
+        dlo, dhi = namur_limits(clo, chi)
+        cx = records[:, n + i].astype(float)
+        x_ok = (cx >= dlo) & (cx <= dhi)
+        x = xlo + (cx - clo) * (xhi - xlo) / (chi - clo)
+        fault |= np.where(p_ok, 0, 1 << i) | np.where(x_ok, 0, 16 << i)
+        p_seen = np.maximum.accumulate(p_ok)
+        x_seen = np.maximum.accumulate(x_ok)
+        # Velocity: filtered position, clamped increment; held where x failed.
+        dx = np.zeros(k)
+        xf = None
+        for j, (xj, okj) in enumerate(zip(x.tolist(), x_ok.tolist())):
+            if not okj:
+                continue
+            if xf is None:
+                xf = xj
+                continue
+            step = alpha * (xj - xf)
+            step = dx_max if step > dx_max else (-dx_max if step < -dx_max else step)
+            xf += step
+            dx[j] = step
+        v = dx * fs
+        # LuGre, implicit Euler in zf = sigma0 z.
+        pm = np.clip(p, 0.0, p_max) / 1e6
+        lin = {key: float(fr[key]["intercept"]) + float(fr[key]["slope"]) * pm
+               for key in ("Fs", "Fc", "vs", "sigma2")}
+        g = lin["Fc"] + (lin["Fs"] - lin["Fc"]) * np.exp(-(v / lin["vs"]) ** 2)
+        w = sigma0 * dx
+        zn = np.empty(k)
+        z = 0.0
+        for j, (gj, wj) in enumerate(zip(g.tolist(), w.tolist())):
+            if wj:
+                z = (z + wj) * gj / (gj + abs(wj))
+            zn[j] = z
+        zprev = np.concatenate(([0.0], zn[:-1]))
+        fric = zn + c1 * (zn - zprev) + lin["sigma2"] * v
+        loss = _loss_force(ph, i, areas[i], v, temp_c)
+        raw = p * areas[i]
+        ok = p_ok & x_ok & p_seen & x_seen
+        out["tension"][:, i] = np.where(ok, raw + loss + fric, np.nan)
+        out["raw"][:, i] = raw
+        out["fric"][:, i] = fric
+        out["loss"][:, i] = loss
+        out["p"][:, i] = p
+        out["v"][:, i] = v
+        good[:, i] = ok
+    return Compensated(out["tension"], out["raw"], out["fric"], out["loss"], out["p"],
+                       out["v"], good, fault)
+
+
+def decimate(ph: dict, comp: Compensated) -> Frames:
+    """Frame-window mean/min/max of the good samples (NaN for a window with none)."""
+    win = int(ph["sample_hz"]) // int(ph["frame_hz"])
+    k = comp.tension_n.shape[0] // win * win
+    t = comp.tension_n[:k].reshape(k // win, win, -1)
+    p = np.where(comp.good, comp.p_pa, np.nan)[:k].reshape(k // win, win, -1)
+    with np.errstate(all="ignore"):
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return Frames(np.nanmean(t, axis=1), np.nanmin(t, axis=1), np.nanmax(t, axis=1),
+                          np.nanmean(p, axis=1))
+
+
+def run_stream(node_json: dict, rsens_path: str | Path) -> tuple[Compensated, Frames]:
+    """Compensate and decimate a whole .rsens stream with a node.json's physical section."""
+    ph = node_json["physical"]
+    ropes, hz, recs = read_rsens(rsens_path)
+    if ropes != ph["ropes"] or hz != ph["sample_hz"]:
+        raise ValueError(f"{rsens_path}: {ropes} ropes at {hz} Hz, config says "
+                         f"{ph['ropes']} at {ph['sample_hz']}")
+    comp = compensate(ph, recs)
+    return comp, decimate(ph, comp)
+
+
+__all__ = ["Compensated", "Frames", "compensate", "decimate", "read_rsens", "run_stream",
+           "DEFAULTS"]

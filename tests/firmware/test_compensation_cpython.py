@@ -1,0 +1,106 @@
+"""Fixed-point node vs the float64 reference (ropemon.reference) on long random streams.
+
+Streams cover the full pressure and displacement ranges: rest, slow creep,
+oscillation with reversals, random walks, shock steps, v_max saturation, and
+NAMUR faults. Bound: max |T_fixed - T_ref| <= 0.05 % of the rated rope tension.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from streams_cpython import random_stream, run_node
+
+from ropemon import protocol, reference
+from ropemon.firmware import node_module
+from ropemon.nodeconfig import example_physical, make_node_json
+
+config = node_module("config")
+Node = node_module("node").Node
+L = node_module("layout")
+
+
+def _doc(**changes):
+    ph = example_physical()
+    ph.update(changes)
+    return make_node_json(ph)
+
+
+def _tolerance_n(doc) -> float:
+    return 0.0005 * doc["physical"]["rated_rope_tension_N"]
+
+
+@pytest.mark.parametrize("seed,faults", [(1, False), (2, False), (3, True)])
+def test_fixed_point_matches_reference_per_sample(seed, faults):
+    doc = _doc()
+    ph = doc["physical"]
+    recs = random_stream(ph, 45, seed, faults=faults)
+    ref = reference.compensate(ph, recs)
+    ten, good, _ = run_node(Node(config.parse(doc)), recs)
+    assert (good == ref.good).all()
+    assert good.mean() > (0.9 if faults else 0.99)
+    err = np.abs(ten - ref.tension_n)[good]
+    assert err.max() <= _tolerance_n(doc), err.max()
+    # the stream did exercise friction and loss, so the bound means something
+    assert np.abs(ref.friction_n).max() > 10000 and np.abs(ref.loss_n).max() > 1000
+    assert (np.abs(ref.v_m_s) >= 0.2 - 1e-9).any()  # saturated velocity reached
+    stribeck = (np.abs(ref.v_m_s) > 2e-4) & (np.abs(ref.v_m_s) < 1e-2)
+    assert stribeck.mean() > 0.05  # steady sliding where g(v) is curved
+
+
+def test_fixed_point_matches_reference_with_temperature_input():
+    doc = _doc(temperature={"counts_at_0C": 17280, "counts_per_C": 384.0})
+    ph = doc["physical"]
+    recs = random_stream(ph, 30, 11)
+    k = recs.shape[0]
+    temp_c = 40 * np.sin(np.linspace(0, 6, k)) + 10  # -30 .. 50 C: clamps at both table ends
+    recs[:, 2 * 4 + 1] = np.round(17280 + 384 * temp_c).astype(np.uint16)
+    ref = reference.compensate(ph, recs)
+    ten, good, frames = run_node(Node(config.parse(doc)), recs)
+    err = np.abs(ten - ref.tension_n)[good]
+    assert err.max() <= _tolerance_n(doc), err.max()
+    f = protocol.decode_raw(protocol.decode_wire(frames[-1][:-1]))
+    assert f.oil_temp_cc != L.OIL_TEMP_ABSENT and not f.status & L.ST_TEMP_ABSENT
+
+
+def test_frames_match_reference_decimation_and_authenticate():
+    doc = _doc()
+    ph = doc["physical"]
+    recs = random_stream(ph, 30, 4, faults=True)
+    ref = reference.compensate(ph, recs)
+    dec = reference.decimate(ph, ref)
+    _, _, frames = run_node(Node(config.parse(doc)), recs, per_sample=False)
+    assert len(frames) == dec.mean_n.shape[0]
+    key = bytes.fromhex(ph["key_hex"])
+    tol_dan = _tolerance_n(doc) / 10 + 1  # + rounding to whole daN
+    absent = 0
+    for j, wire in enumerate(frames):
+        assert len(wire) <= L.MAX_WIRE_LEN
+        f = protocol.decode_raw(protocol.decode_wire(wire[:-1]), keys={ph["node_id"]: key})
+        assert f.authenticated and f.seq == j and f.time_ms == (j + 1) * 100
+        for i, r in enumerate(f.ropes):
+            if np.isnan(dec.mean_n[j, i]):
+                assert r.mean_dan == L.TENSION_ABSENT and r.raw_kpa == L.RAW_KPA_ABSENT
+                assert f.fault_mask & (0x11 << i)
+                absent += 1
+                continue
+            assert abs(r.mean_dan - dec.mean_n[j, i] / 10) <= tol_dan
+            assert abs(r.min_dan - dec.min_n[j, i] / 10) <= tol_dan
+            assert abs(r.max_dan - dec.max_n[j, i] / 10) <= tol_dan
+            assert abs(r.raw_kpa - dec.raw_pa[j, i] / 1000) <= 2
+    # faults were in the stream and showed in the masks
+    masks = [protocol.decode_raw(protocol.decode_wire(w[:-1])).fault_mask for w in frames]
+    assert sum(1 for m in masks if m) > len(frames) // 4
+
+
+def test_peaks_survive_decimation():
+    doc = _doc()
+    ph = doc["physical"]
+    recs = random_stream(ph, 2, 5)
+    recs[:, 0] = 20000
+    recs[:, 4] = 30000
+    recs[113, 0] = 45000  # one-sample shock on rope 0
+    _, _, frames = run_node(Node(config.parse(doc)), recs, per_sample=False)
+    f = protocol.decode_raw(protocol.decode_wire(frames[113 // 20][:-1]))
+    shock_dan = (45000 - 9600) * 25e6 / 38400 * 0.00785398 / 10
+    assert abs(f.ropes[0].max_dan - shock_dan) < 2
+    assert f.ropes[0].mean_dan < f.ropes[0].max_dan - 1000

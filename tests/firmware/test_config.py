@@ -1,0 +1,94 @@
+"""Node config: canonical form, CRC, and refusal of bad fields with the field named.
+
+Runs under CPython (pytest) and the real MicroPython (tests/run_micropython.py).
+"""
+from fwtest_util import node_doc
+
+from ropenode import config
+from ropenode.crc16 import crc16
+
+
+def _refused(doc):
+    try:
+        config.parse(doc)
+    except config.ConfigError as e:
+        return e.field, e.reason
+    raise AssertionError("config accepted")
+
+
+def _resealed(doc):
+    doc["crc"] = crc16(config.canonical(doc["node"]))
+    return doc
+
+
+def test_crc16_check_value():
+    assert crc16(b"123456789") == 0x29B1
+
+
+def test_canonical_form_is_sorted_compact_and_int_only():
+    assert config.canonical({"b": [1, -2], "a": {"d": 0, "c": 30}}) == b'{"a":{"c":30,"d":0},"b":[1,-2]}'
+    for bad in (1.5, True, None, "x"):
+        try:
+            config.canonical({"k": [bad]})
+        except config.ConfigError as e:
+            assert e.field == "node.k[0]", e.field
+        else:
+            raise AssertionError("accepted %r" % (bad,))
+
+
+def test_shipped_config_parses():
+    c = config.parse(node_doc())
+    assert c.ropes == 4 and c.sample_hz == 200 and c.window == 20
+    assert len(c.key) == 16
+
+
+def test_crc_mismatch_refused():
+    doc = node_doc()
+    doc["node"]["node_id"] = (doc["node"]["node_id"] + 1) & 0xFF  # not resealed
+    f, r = _refused(doc)
+    assert f == "crc" and "mismatch" in r
+
+
+def test_unknown_schema_refused():
+    doc = node_doc()
+    doc["schema"] = 2
+    assert _refused(doc)[0] == "schema"
+
+
+def test_wrong_field_refused_with_its_name():
+    cases = (
+        (("pressure", 2, "fault_hi_counts"), 70000, "node.pressure[2].fault_hi_counts", "out of range"),
+        (("ropes",), 5, "node.ropes", "out of range"),
+        (("friction", "fs_n", "at_0"), 40000, "node.friction.fs_n.at_0", "out of range"),
+        (("velocity", "alpha_q14"), 0, "node.velocity.alpha_q14", "out of range"),
+        (("frame_hz",), 7, "node.frame_hz", "multiple"),
+        (("shaft", "marks_mm"), [5, 3], "node.shaft.marks_mm[1]", "ascending"),
+        (("displacement", 1, "counts_lo"), "9600", "node.displacement[1].counts_lo", "integer"),
+    )
+    for path, value, field, why in cases:
+        doc = node_doc()
+        d = doc["node"]
+        for p in path[:-1]:
+            d = d[p]
+        d[path[-1]] = value
+        try:
+            _resealed(doc)
+        except config.ConfigError as e:  # canonical refuses non-ints itself
+            assert e.field == field, (e.field, field)
+            continue
+        f, r = _refused(doc)
+        assert f == field and why in r, (f, r, field)
+
+
+def test_missing_field_refused_with_its_name():
+    doc = node_doc()
+    del doc["node"]["loss"]["temps_cc"]
+    f, r = _refused(_resealed(doc))
+    assert f == "node.loss.temps_cc" and r == "missing"
+
+
+def test_friction_out_of_range_at_top_pressure_refused():
+    doc = node_doc()
+    doc["node"]["friction"]["fs_n"]["slope_mul"] = 30000  # Fs beyond 32767 N at p_kpa_max
+    f, r = _refused(_resealed(doc))
+    assert f == "node.friction.fs_n" and "kPa" in r

@@ -1,0 +1,186 @@
+"""Node behaviour: config-fault status frames, NAMUR exclusion, stable LuGre, shaft depth.
+
+Runs under CPython (pytest) and the real MicroPython (tests/run_micropython.py).
+"""
+import array
+import struct
+
+from fwtest_util import cobs_decode, node_doc
+
+from ropenode import layout
+from ropenode.config import ConfigError, parse
+from ropenode.crc16 import crc16
+from ropenode.node import Node
+
+N = 4
+MID = 30000      # mid-scale counts for pressure (~13.4 MPa) and displacement
+
+
+def _rec(p=MID, x=MID, batt=60000, temp=0xFFFF, count=0, hall=0):
+    r = array.array("H", [p] * N + [x] * N + [batt, temp, count & 0xFFFF, hall])
+    return r
+
+
+def _decode(wire, n):
+    assert wire[n - 1] == 0
+    raw = cobs_decode(bytes(wire[:n - 1]))
+    assert crc16(raw, len(raw) - 2) == raw[-2] | (raw[-1] << 8)
+    h = struct.unpack_from(layout.HEADER_FMT, raw, 0)
+    ropes = []
+    o = layout.HEADER_LEN
+    for _ in range(layout.ropes_in(len(raw))):
+        ropes.append(struct.unpack_from(layout.ROPE_FMT, raw, o))
+        o += layout.ROPE_LEN
+    tail = struct.unpack_from(layout.TAIL_FMT, raw, o)
+    return h, ropes, tail
+
+
+def _run(node, rec, samples):
+    buf = bytearray(64)
+    out = []
+    for _ in range(samples):
+        if node.sample(rec):
+            out.append(_decode(buf, node.frame_into(buf)))
+    return out
+
+
+def test_missing_config_sends_status_frames_and_never_crashes():
+    for cfg in (None, ConfigError("crc", "mismatch")):
+        node = Node(cfg)
+        frames = _run(node, _rec(), 100)
+        frames += _run(node, array.array("H", [0xFFFF] * 3), 20)  # wrong length: ignored
+        assert len(frames) == 6
+        for k, (h, ropes, tail) in enumerate(frames):
+            assert h[1] == layout.KIND_STATUS and h[6] & layout.ST_CONFIG_FAULT
+            assert h[4] == k and ropes == []
+            assert h[5] == (k + 1) * 100  # 20 samples at 200 Hz each
+
+
+def test_bad_config_document_gives_status_frames():
+    doc = node_doc()
+    doc["crc"] ^= 1
+    try:
+        cfg = parse(doc)
+    except ConfigError as e:
+        cfg = e
+    frames = _run(Node(cfg), _rec(), 40)
+    assert [f[0][6] & layout.ST_CONFIG_FAULT for f in frames] == [layout.ST_CONFIG_FAULT] * 2
+
+
+def test_steady_input_gives_steady_frames():
+    node = Node(parse(node_doc()))
+    frames = _run(node, _rec(), 200)
+    assert len(frames) == 10
+    h, ropes, tail = frames[-1]
+    assert h[1] == layout.KIND_DATA and h[3] == 0
+    assert h[6] & layout.ST_PRESSURE_FAULT == 0 and h[6] & layout.ST_TEMP_ABSENT
+    # still piston: no flow, no friction: T = p A; mid counts -> 13.4 MPa * 7.854e-3 m^2
+    pa = (MID - 9600) * 25e6 / 38400
+    t_dan = pa * 0.00785398 / 10
+    for mean, lo, hi, kpa in ropes:
+        assert lo == mean == hi and abs(mean - t_dan) <= 1, (mean, t_dan)
+        assert abs(kpa - pa / 1000) <= 1.5  # kPa are truncated
+    assert [f[0][4] for f in frames] == list(range(10))
+    assert tail[2] == 12000  # 60000 counts * 0.2 mV
+
+
+def test_namur_fault_flags_and_excludes_the_rope():
+    node = Node(parse(node_doc()))
+    _run(node, _rec(), 40)
+    rec = _rec()
+    for c in (8639, 50401, 0, 65535):  # below 3.6 mA, above 21 mA, rails
+        rec[1] = c
+        frames = _run(node, rec, 20)
+        h, ropes, tail = frames[0]
+        assert h[3] == 0x02 and h[6] & layout.ST_PRESSURE_FAULT
+        assert ropes[1] == (layout.TENSION_ABSENT,) * 3 + (layout.RAW_KPA_ABSENT,)
+        assert ropes[0][0] == ropes[2][0] == ropes[3][0] != layout.TENSION_ABSENT
+        assert node.comp.good == 0b1101
+    rec[1] = 8640  # 3.6 mA exactly is still a signal
+    frames = _run(node, rec, 20)
+    assert frames[0][0][3] == 0 and frames[0][1][1][0] != layout.TENSION_ABSENT
+
+
+def test_displacement_fault_flags_the_rope():
+    node = Node(parse(node_doc()))
+    rec = _rec()
+    rec[N + 3] = 0
+    h, ropes, tail = _run(node, rec, 20)[0]
+    assert h[3] == 0x80 and h[6] & layout.ST_DISPLACEMENT_FAULT
+    assert ropes[3][0] == layout.TENSION_ABSENT
+
+
+def test_lugre_stays_bounded_where_explicit_euler_diverges():
+    cfg = parse(node_doc())
+    node = Node(cfg)
+    fr = node.comp.fric
+    doc = node_doc()["physical"]["friction"]
+    sigma0 = doc["sigma0"]
+    h = 1 / cfg.sample_hz
+    v = 0.2                      # m/s, the node's velocity limit
+    p_mpa = 13.4
+    fs = doc["Fs"]["intercept"] + doc["Fs"]["slope"] * p_mpa
+    fc = doc["Fc"]["intercept"] + doc["Fc"]["slope"] * p_mpa
+    vs = doc["vs"]["intercept"] + doc["vs"]["slope"] * p_mpa
+    import math
+    g = fc + (fs - fc) * math.exp(-(v / vs) ** 2)
+    assert h * sigma0 * v / g > 2  # explicit Euler is unstable here
+    z = 0.0
+    for _ in range(40):
+        z = z + h * (v - sigma0 * v * z / g)
+    assert abs(sigma0 * z) > 1e6  # explicit Euler blew up (N)
+    p_kpa = array.array("i", [13400] * N)
+    dx = array.array("i", [int(v * h * 256e6)] * N)
+    vv = array.array("i", [int(v * 1e6)] * N)
+    for k in range(400):
+        sign = 1 if (k // 50) % 2 == 0 else -1   # reversals every 50 steps
+        for i in range(N):
+            dx[i] = sign * int(v * h * 256e6)
+            vv[i] = sign * int(v * 1e6)
+        fr.update(p_kpa, dx, vv, 0xF)
+        for i in range(N):
+            assert abs(fr.zf[i]) <= fr.g[i] + 16, (k, fr.zf[i], fr.g[i])
+    # sliding: zf has settled to sgn(v) g within a newton
+    assert abs(fr.zf[0] / 16 + g) < 2, (fr.zf[0] / 16, g)
+
+
+def test_depth_integrates_pulses_and_snaps_at_hall_marks():
+    node = Node(parse(node_doc()))
+    count = 0
+    frames = []
+    buf = bytearray(64)
+    for k in range(600):       # 3 s down at 10 pulses/sample = 20 m/s
+        count += 10
+        if node.sample(_rec(count=count)):
+            frames.append(_decode(buf, node.frame_into(buf)))
+    assert node.shaft.depth_mm == 599 * 10 * 10
+    assert frames[-1][2][1] == 20000  # mm/s
+    node.shaft.depth_mm = 5800       # drifted 0.8 m past the 5 m mark
+    node.sample(_rec(count=count, hall=1))
+    assert node.shaft.depth_mm == 5000
+    node.shaft.depth_mm = 150000     # far from any mark: no snap
+    node.sample(_rec(count=count, hall=0))
+    node.sample(_rec(count=count, hall=3))
+    assert node.shaft.depth_mm == 150000
+
+
+def test_counter_glitch_is_ignored_and_flagged():
+    node = Node(parse(node_doc()))
+    node.sample(_rec(count=100))
+    node.sample(_rec(count=9000))
+    assert node.shaft.depth_mm == 0 and node.shaft.fault
+
+
+def test_config_fault_node_samples_without_allocating():
+    import micropython
+    node = Node(None)
+    rec = _rec()
+    ready = 0
+    micropython.heap_lock()
+    try:
+        for _ in range(200):
+            if node.sample(rec):
+                ready += 1
+    finally:
+        micropython.heap_unlock()
+    assert ready == 10
