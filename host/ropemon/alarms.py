@@ -1,0 +1,271 @@
+"""Operator alarms from decoded frames: thresholds, minimum durations, hysteresis, latching.
+
+Every alarm is one `_Alarm` identified by an id such as "deviation:n1:r2" (kind,
+node, rope). Its condition is debounced: it raises only after the raise
+condition has held for `raise_after_s` over at least `min_frames` consecutive
+evaluations, and clears only after the clear condition (threshold minus
+hysteresis) has held for `clear_after_s` likewise; so one noisy frame neither
+raises nor clears. A raised alarm latches until acknowledged. Every raise, clear
+and acknowledgement is returned as an `AlarmEvent` with time and values (the
+caller logs them, e.g. `Store.add_event`).
+
+Kinds: deviation (a rope vs the mean of the ropes), overload (total vs rated),
+slack (a rope below a floor), sensor_fault (fault bits), config_fault, silent
+(no frame from a node), battery_low, link_integrity (MAC failures or replays).
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+from ropemon.protocol import L, Frame
+
+SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Debounce of one alarm kind."""
+
+    raise_after_s: float = 0.5
+    clear_after_s: float = 2.0
+    min_frames: int = 2
+
+
+@dataclass(frozen=True)
+class AlarmSettings:
+    """Thresholds; a threshold of None disables that alarm."""
+
+    deviation_frac: float = 0.10            # the regulation: +-10 % of the mean tension
+    deviation_hysteresis_frac: float = 0.02
+    deviation_min_mean_dan: int = 100       # below this mean the ropes are unloaded: no check
+    rated_load_dan: int | None = None       # rated total static load (sum of rope tensions)
+    overload_frac: float = 1.0              # raise above rated_load_dan * overload_frac
+    overload_hysteresis_frac: float = 0.05
+    slack_dan: int | None = None            # a rope below this is slack
+    slack_hysteresis_dan: int = 50
+    battery_low_mv: int | None = None       # besides the node's own battery_low status bit
+    battery_hysteresis_mv: int = 100
+    silent_s: float = 5.0                   # no frame from a node for longer than this
+    timing: Timing = Timing()
+    fault_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=2.0, min_frames=2)
+    silent_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=1.0, min_frames=1)
+    link_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=10.0, min_frames=1)
+
+    @classmethod
+    def from_loads(cls, rated_load_dan: int, empty_load_dan: int, n_ropes: int,
+                   slack_frac_of_empty: float = 0.6, **kw) -> "AlarmSettings":
+        """Overload at the rated total load; a rope is slack below `slack_frac_of_empty` of its
+        share of the empty conveyance load (the Quebec S-2.1 r.14 s.253.2 rule: 60 %)."""
+        if n_ropes < 1 or empty_load_dan <= 0 or rated_load_dan <= 0:
+            raise ValueError("rated_load_dan, empty_load_dan and n_ropes must be positive")
+        slack = round(slack_frac_of_empty * empty_load_dan / n_ropes)
+        return cls(rated_load_dan=rated_load_dan, slack_dan=slack, **kw)
+
+
+@dataclass(frozen=True)
+class AlarmEvent:
+    time_s: float
+    action: str          # "raise", "clear" or "ack"
+    alarm: str           # id, e.g. "deviation:n1:r2"
+    kind: str
+    node: int | None
+    rope: int | None
+    value: float | None
+    threshold: float | None
+    message: str
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class _Alarm:
+    id: str
+    kind: str
+    node: int | None
+    rope: int | None
+    timing: Timing
+    present: bool = False        # debounced condition
+    latched: bool = False        # raised and not acknowledged
+    value: float | None = None
+    threshold: float | None = None
+    message: str = ""
+    raised_s: float | None = None
+    since_s: float | None = None  # start of the pending change
+    since_n: int = 0
+
+    @property
+    def active(self) -> bool:
+        return self.present or self.latched
+
+
+@dataclass(frozen=True)
+class ActiveAlarm:
+    """What a display shows: present = condition now, latched = awaiting acknowledgement."""
+
+    id: str
+    kind: str
+    node: int | None
+    rope: int | None
+    present: bool
+    latched: bool
+    value: float | None
+    threshold: float | None
+    message: str
+    raised_s: float | None
+
+
+class AlarmEngine:
+    def __init__(self, settings: AlarmSettings | None = None):
+        self.settings = settings or AlarmSettings()
+        self._alarms: dict[str, _Alarm] = {}
+        self._last_frame_s: dict[int, float] = {}
+        self._link_bad: dict[str, int] = {}
+        self.events: deque[AlarmEvent] = deque(maxlen=10000)  # recent history; the store keeps all
+
+    # -- inputs ---------------------------------------------------------------
+
+    def update(self, frame: Frame, now_s: float) -> list[AlarmEvent]:
+        """Evaluate every frame-based alarm of frame.node at host time now_s."""
+        s = self.settings
+        ev: list[AlarmEvent] = []
+        node = frame.node
+        self._last_frame_s[node] = now_s
+        self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
+                   False, True, 0.0, s.silent_s, "frames arriving")
+        ropes = frame.ropes
+        # Ropes whose sensor gave no healthy sample carry TENSION_ABSENT: they are not judged
+        # (their alarms hold their state; sensor_fault reports them) and not averaged in.
+        present = [(i, r.mean_dan) for i, r in enumerate(ropes) if r.mean_dan != L.TENSION_ABSENT]
+        if present:
+            tensions = [t for _, t in present]
+            mean = sum(tensions) / len(tensions)
+            # Connected cylinders equalise the ropes, so an absent rope is taken at the mean.
+            total = round(mean * len(ropes))
+            estimated = len(present) < len(ropes)
+            if s.deviation_frac is not None and len(present) >= 2:
+                thr = s.deviation_frac
+                for i, t in present:
+                    dev = (t - mean) / mean if mean >= s.deviation_min_mean_dan else 0.0
+                    a = abs(dev)
+                    self._step(ev, f"deviation:n{node}:r{i}", "deviation", node, i, s.timing, now_s,
+                               a > thr, a < thr - s.deviation_hysteresis_frac, round(dev, 4), thr,
+                               f"rope {i} {t} daN is {dev:+.1%} from the mean {mean:.0f} daN")
+            if s.rated_load_dan is not None:
+                limit = s.rated_load_dan * s.overload_frac
+                low = s.rated_load_dan * (s.overload_frac - s.overload_hysteresis_frac)
+                self._step(ev, f"overload:n{node}", "overload", node, None, s.timing, now_s,
+                           total > limit, total < low, total, limit,
+                           f"total load {total} daN{' (estimated: a rope absent)' if estimated else ''} "
+                           f"vs limit {limit:.0f} daN")
+            if s.slack_dan is not None:
+                for i, t in present:
+                    self._step(ev, f"slack:n{node}:r{i}", "slack", node, i, s.timing, now_s,
+                               t < s.slack_dan, t > s.slack_dan + s.slack_hysteresis_dan, t, s.slack_dan,
+                               f"rope {i} {t} daN below slack floor {s.slack_dan} daN")
+        fault = bool(frame.status & SENSOR_FAULT_BITS) or frame.fault_mask != 0
+        flags = ",".join(f for f in frame.status_flags if f.endswith("_fault") and f != "config_fault")
+        self._step(ev, f"sensor_fault:n{node}", "sensor_fault", node, None, s.fault_timing, now_s,
+                   fault, not fault, frame.fault_mask, None,
+                   f"sensor fault {flags or '-'} fault_mask=0x{frame.fault_mask:02x}")
+        cfg = bool(frame.status & L.ST_CONFIG_FAULT) or frame.kind == L.KIND_STATUS
+        self._step(ev, f"config_fault:n{node}", "config_fault", node, None, s.fault_timing, now_s,
+                   cfg, not cfg, None, None, "node reports a config fault: no compensated tension")
+        bit = bool(frame.status & L.ST_BATTERY_LOW)
+        mv = frame.battery_mv
+        if s.battery_low_mv is not None:
+            lo = bit or mv < s.battery_low_mv
+            hi = not bit and mv > s.battery_low_mv + s.battery_hysteresis_mv
+        else:
+            lo, hi = bit, not bit
+        self._step(ev, f"battery_low:n{node}", "battery_low", node, None, s.timing, now_s,
+                   lo, hi, mv, s.battery_low_mv, f"battery {mv} mV low")
+        return self._log(ev)
+
+    def tick(self, now_s: float) -> list[AlarmEvent]:
+        """Time passes without frames: the node-silent alarm."""
+        s = self.settings
+        ev: list[AlarmEvent] = []
+        for node, last in self._last_frame_s.items():
+            quiet = now_s - last
+            self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
+                       quiet > s.silent_s, quiet <= s.silent_s, round(quiet, 3), s.silent_s,
+                       f"no frame from node {node} for {quiet:.1f} s")
+        return self._log(ev)
+
+    def update_link(self, source: str, mac_fail: int, replayed: int, now_s: float,
+                    restarts: int = 0) -> list[AlarmEvent]:
+        """Decoder counts of one receiver (cumulative): any increase raises link_integrity.
+
+        `restarts` (seq restarts accepted after a node reset) count too: the anti-replay
+        window cannot tell a reset from a replayed boot, so the operator is told.
+        """
+        bad = mac_fail + replayed + restarts
+        new = bad - self._link_bad.get(source, 0)
+        self._link_bad[source] = bad
+        ev: list[AlarmEvent] = []
+        self._step(ev, f"link_integrity:{source}", "link_integrity", None, None, self.settings.link_timing,
+                   now_s, new > 0, new <= 0, new, 0,
+                   f"receiver {source}: {mac_fail} MAC failures, {replayed} replays, "
+                   f"{restarts} node seq restarts in total")
+        return self._log(ev)
+
+    def ack(self, name_or_id: str, now_s: float) -> list[AlarmEvent]:
+        """Acknowledge latched alarms by id, by kind, or all with "*"."""
+        ev = []
+        for a in self._alarms.values():
+            if a.latched and name_or_id in ("*", a.id, a.kind):
+                a.latched = False
+                ev.append(self._event(a, now_s, "ack"))
+        return self._log(ev)
+
+    # -- outputs --------------------------------------------------------------
+
+    def active(self) -> list[ActiveAlarm]:
+        """Alarms present or latched, oldest raise first."""
+        out = [ActiveAlarm(a.id, a.kind, a.node, a.rope, a.present, a.latched, a.value, a.threshold,
+                           a.message, a.raised_s) for a in self._alarms.values() if a.active]
+        return sorted(out, key=lambda x: (x.raised_s or 0.0, x.id))
+
+    # -- internals ------------------------------------------------------------
+
+    def _step(self, ev, aid, kind, node, rope, timing: Timing, now_s, raise_cond, clear_cond,
+              value, threshold, message) -> None:
+        a = self._alarms.get(aid)
+        if a is None:
+            if not raise_cond:
+                return  # nothing to track until the condition first appears
+            a = self._alarms[aid] = _Alarm(aid, kind, node, rope, timing)
+        a.value, a.threshold = value, threshold
+        want = clear_cond if a.present else raise_cond
+        if not want:
+            a.since_s, a.since_n = None, 0
+            if a.present:
+                a.message = message
+            return
+        if a.since_s is None:
+            a.since_s, a.since_n = now_s, 0
+        a.since_n += 1
+        hold = timing.clear_after_s if a.present else timing.raise_after_s
+        if now_s - a.since_s < hold or a.since_n < timing.min_frames:
+            return
+        a.since_s, a.since_n = None, 0
+        if a.present:
+            a.present = False
+            ev.append(self._event(a, now_s, "clear", f"cleared: {message}"))
+        else:
+            a.present = True
+            a.latched = True
+            a.raised_s = now_s
+            a.message = message
+            ev.append(self._event(a, now_s, "raise"))
+
+    @staticmethod
+    def _event(a: _Alarm, now_s: float, action: str, message: str | None = None) -> AlarmEvent:
+        return AlarmEvent(now_s, action, a.id, a.kind, a.node, a.rope, a.value, a.threshold,
+                          message if message is not None else a.message)
+
+    def _log(self, ev: list[AlarmEvent]) -> list[AlarmEvent]:
+        self.events.extend(ev)
+        return ev

@@ -1,0 +1,221 @@
+"""Streaming frame decoder: bytes in any chunking -> checked `Frame`s, with counts.
+
+Frames are COBS bodies ended by 0x00. The decoder splits on 0x00, so it
+resynchronises at the next delimiter after any damage. A body longer than the
+longest valid frame is skipped without being buffered (garbage without
+delimiters cannot grow memory). Each rejected body is counted once by cause and
+its bytes, delimiter included, are added to `bytes_discarded`; idle delimiters
+(empty bodies) are neither frames nor discarded bytes. The result does not
+depend on how the input is chunked.
+
+With node keys, a frame whose MAC fails, or whose sequence number was already
+accepted or is older than the anti-replay window, is dropped and counted
+(`mac_fail`, `replayed`). Without keys every frame has authenticated=None and
+`authenticity_checked` is False.
+"""
+from __future__ import annotations
+
+import binascii
+from dataclasses import asdict, dataclass
+
+from cobs import cobs
+
+from ropemon import protocol as P
+
+L = P.L
+
+#: Sequence numbers at most this far behind the newest accepted one may still
+#: arrive late (reordering); older ones are replays. RFC 4303-style bitmap.
+REPLAY_WINDOW = 64
+#: A node restarts its seq at 0 when it resets (firmware/ropenode/node.py). A frame
+#: far behind the newest one whose seq is below this is taken as such a restart.
+RESTART_SEQ_MAX = 64
+
+
+@dataclass(slots=True)
+class DecodeCounts:
+    frames_ok: int = 0
+    crc_fail: int = 0
+    malformed: int = 0
+    mac_fail: int = 0
+    replayed: int = 0
+    bytes_discarded: int = 0
+    restarts: int = 0  # authenticated seq restarts accepted (node reset, or a replay of a boot)
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+    def add(self, other: "DecodeCounts") -> None:
+        for k, v in asdict(other).items():
+            setattr(self, k, getattr(self, k) + v)
+
+
+class ReplayGuard:
+    """Per-node anti-replay window over the 32-bit sequence number.
+
+    A node counts seq from 0 after every reset (firmware v1 keeps no seq across
+    resets), so by default a frame far behind the newest (beyond the window) with
+    seq < RESTART_SEQ_MAX is accepted as a restart and counted in `restarts`:
+    otherwise a watchdog reset would blind the host until the new seq passed the
+    old one. The price: after a restart, recorded frames of the earlier boot with
+    a seq above the new one also pass, until the new seq overtakes them. Every
+    restart is counted and raises link_integrity, so the operator sees the
+    window. With a node that keeps seq increasing across resets, pass
+    accept_restarts=False and replays are refused strictly.
+    """
+
+    def __init__(self, window: int = REPLAY_WINDOW, restart_seq_max: int = RESTART_SEQ_MAX,
+                 accept_restarts: bool = True):
+        self.window = window
+        self.restart_seq_max = restart_seq_max if accept_restarts else -1
+        self.restarts = 0
+        self._top: dict[int, int] = {}
+        self._bits: dict[int, int] = {}
+
+    def accept(self, node: int, seq: int) -> bool:
+        """True and remembered if (node, seq) is fresh or a restart; False if a replay."""
+        top = self._top.get(node)
+        if top is not None and seq < self.restart_seq_max and top - seq >= self.window:
+            self.restarts += 1
+            top = None
+        if top is None or seq > top:
+            shift = seq - top if top is not None else self.window
+            bits = (self._bits.get(node, 0) << shift) | 1 if shift < self.window else 1
+            self._top[node] = seq
+            self._bits[node] = bits & ((1 << self.window) - 1)
+            return True
+        back = top - seq
+        if back >= self.window:
+            return False
+        bits = self._bits[node]
+        if bits >> back & 1:
+            return False
+        self._bits[node] = bits | (1 << back)
+        return True
+
+
+class StreamDecoder:
+    """Feed bytes, get frames. `keys`: node -> HMAC key; None or {} = not checked."""
+
+    def __init__(self, keys: dict[int, bytes] | None = None, max_frame: int = L.MAX_WIRE_LEN,
+                 accept_restarts: bool = True):
+        if max_frame < 2:
+            raise ValueError("max_frame must be at least 2 bytes (body + delimiter)")
+        self.keys = dict(keys) if keys else None
+        self.max_body = max_frame - 1
+        self.counts = DecodeCounts()
+        self.replay = ReplayGuard(accept_restarts=accept_restarts)
+        self._buf = b""
+        self._skipping = 0  # bytes of an overlong body skipped so far (0: not skipping)
+
+    @property
+    def authenticity_checked(self) -> bool:
+        return self.keys is not None
+
+    @property
+    def pending(self) -> int:
+        """Bytes held waiting for a delimiter (always <= max_frame)."""
+        return len(self._buf)
+
+    def feed(self, data: bytes) -> list[P.Frame]:
+        """Decode every frame completed by `data`; keep the unfinished tail."""
+        out: list[P.Frame] = []
+        if not data:
+            return out
+        if type(data) is not bytes:
+            data = bytes(data)  # bytearray/memoryview from a port: frames must own immutable bytes
+        parts = data.split(b"\x00")
+        tail = parts.pop()
+        c = self.counts
+        if parts:
+            first = parts[0]
+            if self._skipping:
+                c.malformed += 1
+                c.bytes_discarded += self._skipping + len(first) + 1
+                self._skipping = 0
+                parts[0] = b""
+            elif self._buf:
+                parts[0] = self._buf + first
+            self._buf = b""
+            self._decode_bodies(parts, out)
+        # The unfinished tail: buffer it, unless it is already too long for a frame.
+        if self._skipping:
+            self._skipping += len(tail)
+        else:
+            tail = self._buf + tail if self._buf else tail
+            if len(tail) > self.max_body:
+                self._skipping = len(tail)
+                self._buf = b""
+            else:
+                self._buf = tail
+        return out
+
+    def _decode_bodies(self, bodies: list[bytes], out: list[P.Frame]) -> None:
+        c = self.counts
+        keys = self.keys
+        max_body = self.max_body
+        cobs_decode = cobs.decode
+        crc = binascii.crc_hqx
+        parse = P._parse
+        ropes_in = L.ropes_in
+        min_len, max_len = P.MIN_RAW_LEN, P.MAX_RAW_LEN
+        for body in bodies:
+            nb = len(body)
+            if not nb:
+                continue
+            if nb > max_body:
+                c.malformed += 1
+                c.bytes_discarded += nb + 1
+                continue
+            try:
+                raw = cobs_decode(body)
+            except cobs.DecodeError:
+                c.malformed += 1
+                c.bytes_discarded += nb + 1
+                continue
+            n = len(raw)
+            if n < min_len or n > max_len:
+                c.malformed += 1
+                c.bytes_discarded += nb + 1
+                continue
+            if crc(raw[:-2], 0xFFFF) != raw[-2] | (raw[-1] << 8):
+                c.crc_fail += 1
+                c.bytes_discarded += nb + 1
+                continue
+            n_ropes = ropes_in(n)
+            try:
+                if n_ropes < 0:
+                    raise P.MalformedError("bad length")
+                f = parse(raw, n_ropes, keys)
+            except P.MacError:
+                c.mac_fail += 1
+                c.bytes_discarded += nb + 1
+                continue
+            except P.MalformedError:
+                c.malformed += 1
+                c.bytes_discarded += nb + 1
+                continue
+            if keys is not None:
+                if not self.replay.accept(f.node, f.seq):
+                    c.replayed += 1
+                    c.bytes_discarded += nb + 1
+                    continue
+                c.restarts = self.replay.restarts
+            c.frames_ok += 1
+            out.append(f)
+
+    def finish(self) -> None:
+        """End of input: an unterminated tail is a truncated frame (malformed, discarded)."""
+        n = self._skipping or len(self._buf)
+        if n:
+            self.counts.malformed += 1
+            self.counts.bytes_discarded += n
+        self._buf, self._skipping = b"", 0
+
+    def summary(self) -> str:
+        """One line for a human: counts and whether authenticity was checked."""
+        c = self.counts
+        auth = "MAC checked" if self.authenticity_checked else "authenticity NOT checked (no keys)"
+        return (f"frames_ok={c.frames_ok} crc_fail={c.crc_fail} malformed={c.malformed} "
+                f"mac_fail={c.mac_fail} replayed={c.replayed} restarts={c.restarts} "
+                f"bytes_discarded={c.bytes_discarded}; {auth}")

@@ -1,0 +1,303 @@
+"""Radio frames on the host: the `Frame` type, encoding (tests, vectors, radio model)
+and decoding of one frame, with a distinct exception per failure.
+
+The byte layout is firmware/ropenode/layout.py, imported here, never restated:
+raw = header + ropes + tail + mac + crc; wire = COBS(raw) + 0x00.
+"""
+from __future__ import annotations
+
+import binascii
+import hashlib
+import hmac
+import json
+import struct
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import NamedTuple
+
+from cobs import cobs
+
+from ropemon.firmware import node_module
+
+L = node_module("layout")
+
+HEADER = struct.Struct(L.HEADER_FMT)
+ROPE = struct.Struct(L.ROPE_FMT)
+TAIL = struct.Struct(L.TAIL_FMT)
+CRC = struct.Struct("<H")
+MAX_RAW_LEN = L.frame_len(L.MAX_ROPES)
+MIN_RAW_LEN = L.frame_len(0)
+#: Longest COBS body between two delimiters a valid frame can have.
+MAX_BODY_LEN = L.MAX_WIRE_LEN - 1
+_NO_MAC = bytes(L.MAC_LEN)
+
+# One struct per rope count: header + ropes + tail in a single unpack.
+_BODY = tuple(
+    struct.Struct("<" + L.HEADER_FMT[1:] + L.ROPE_FMT[1:] * n + L.TAIL_FMT[1:])
+    for n in range(L.MAX_ROPES + 1)
+)
+_NH = len(L.HEADER_FIELDS)
+_NR = len(L.ROPE_FIELDS)
+
+DAN_TO_N = 10  # 1 daN = 10 N
+
+
+class FrameError(ValueError):
+    """A frame that must not be used as data."""
+
+
+class CrcError(FrameError):
+    """CRC-16 mismatch: bytes were corrupted on the way."""
+
+
+class MalformedError(FrameError):
+    """Intact CRC (or not checkable) but not a frame this host understands."""
+
+
+class MacError(FrameError):
+    """MAC mismatch or no key for the node while keys are configured."""
+
+
+class Rope(NamedTuple):
+    """One rope's record in a frame (units as in docs/protocol.md).
+
+    A NamedTuple, not a dataclass: it is built four times per frame on the hot path.
+    """
+
+    mean_dan: int   # compensated tension, window mean; TENSION_ABSENT: no healthy sample
+    min_dan: int
+    max_dan: int
+    raw_kpa: int    # uncompensated tap pressure, window mean; RAW_KPA_ABSENT: none
+
+    @property
+    def absent(self) -> bool:
+        """The rope's sensor gave no healthy sample in the window: no tension to show."""
+        return self.mean_dan == L.TENSION_ABSENT
+
+    @property
+    def mean_n(self) -> int | None:
+        return None if self.mean_dan == L.TENSION_ABSENT else self.mean_dan * DAN_TO_N
+
+
+@dataclass(slots=True)
+class Frame:
+    """One decoded radio frame. `authenticated` is None when no key was configured.
+
+    Treat as read-only; not frozen because a frozen dataclass costs ~1 us more per frame.
+    """
+
+    version: int
+    kind: int
+    node: int
+    fault_mask: int
+    seq: int
+    time_ms: int
+    status: int
+    ropes: tuple[Rope, ...]
+    depth_mm: int
+    speed_mm_s: int
+    battery_mv: int
+    oil_temp_cc: int
+    authenticated: bool | None = None
+    mac: bytes = field(default=_NO_MAC, repr=False)
+
+    @property
+    def status_flags(self) -> list[str]:
+        """Names of the set status bits (layout.STATUS_BITS order)."""
+        return [name for name, bit in L.STATUS_BITS if self.status & bit]
+
+    @property
+    def tensions_n(self) -> list[int | None]:
+        """Compensated mean tension of each rope in N; None for an absent rope."""
+        return [r.mean_n for r in self.ropes]
+
+    @property
+    def total_dan(self) -> int | None:
+        """Sum of the rope tensions; None when a rope is absent (the sum would be wrong)."""
+        if any(r.mean_dan == L.TENSION_ABSENT for r in self.ropes):
+            return None
+        return sum(r.mean_dan for r in self.ropes)
+
+    @property
+    def oil_temp_c(self) -> float | None:
+        """Oil temperature in degC, None when the node has no temperature input."""
+        if self.oil_temp_cc == L.OIL_TEMP_ABSENT:
+            return None
+        return self.oil_temp_cc / 100
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready form: every payload field, ropes as a list of dicts."""
+        return {
+            "node": self.node,
+            "seq": self.seq,
+            "version": self.version,
+            "kind": self.kind,
+            "time_ms": self.time_ms,
+            "status": self.status,
+            "status_flags": self.status_flags,
+            "fault_mask": self.fault_mask,
+            "ropes": [
+                {"mean_dan": r.mean_dan, "min_dan": r.min_dan, "max_dan": r.max_dan, "raw_kpa": r.raw_kpa,
+                 "absent": r.mean_dan == L.TENSION_ABSENT}
+                for r in self.ropes
+            ],
+            "depth_mm": self.depth_mm,
+            "speed_mm_s": self.speed_mm_s,
+            "battery_mv": self.battery_mv,
+            "oil_temp_cc": self.oil_temp_cc,
+            "authenticated": self.authenticated,
+            "mac": self.mac.hex(),
+        }
+
+    def same_payload(self, other: "Frame") -> bool:
+        """True when both carry the same bytes on the radio (authenticity aside)."""
+        return (self.node, self.seq, self.mac, self.ropes, self._rest()) == (
+            other.node, other.seq, other.mac, other.ropes, other._rest())
+
+    def _rest(self) -> tuple:
+        return (self.version, self.kind, self.fault_mask, self.time_ms, self.status,
+                self.depth_mm, self.speed_mm_s, self.battery_mv, self.oil_temp_cc)
+
+
+_make_rope = partial(tuple.__new__, Rope)
+_ROPE_SLICES = tuple(tuple(slice(i, i + _NR) for i in range(_NH, _NH + _NR * n, _NR))
+                     for n in range(L.MAX_ROPES + 1))
+
+
+KEY_LEN_MIN, KEY_LEN_MAX = 16, 32  # docs/config.md: physical.key_hex
+
+
+def parse_key(text: str) -> tuple[int, bytes]:
+    """A command-line node key, "NODE:HEX" (or "NODE=HEX") -> (node, key). ValueError names the fault."""
+    sep = ":" if ":" in text else "="
+    node_s, found, hex_s = text.partition(sep)
+    if not found:
+        raise ValueError(f"key {text!r}: expected NODE:HEX")
+    try:
+        node = int(node_s, 0)
+    except ValueError:
+        raise ValueError(f"key {text!r}: node {node_s!r} is not an integer") from None
+    if not 0 <= node <= 255:
+        raise ValueError(f"key {text!r}: node {node} outside 0..255")
+    try:
+        key = bytes.fromhex(hex_s)
+    except ValueError:
+        raise ValueError(f"key {text!r}: key is not hex") from None
+    if not KEY_LEN_MIN <= len(key) <= KEY_LEN_MAX:
+        raise ValueError(f"key {text!r}: key is {len(key)} bytes, expected {KEY_LEN_MIN}..{KEY_LEN_MAX}")
+    return node, key
+
+
+def load_node_keys(path) -> dict[int, bytes]:
+    """node id -> key from a node.json (physical.node_id, physical.key_hex). ValueError names the fault."""
+    try:
+        phys = json.loads(Path(path).read_text())["physical"]
+        return dict([parse_key(f"{int(phys['node_id'])}:{phys['key_hex']}")])
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read: {e.strerror or e}") from None
+    except (KeyError, TypeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: not a node.json with physical.node_id and physical.key_hex ({e})") from None
+
+
+def mac_of(key: bytes, body: bytes) -> bytes:
+    """Truncated HMAC-SHA256 of everything before the MAC field."""
+    return hmac.digest(key, body, hashlib.sha256)[: L.MAC_LEN]
+
+
+def crc16(data: bytes | bytearray) -> int:
+    """CRC-16/CCITT-FALSE, same as ropenode.crc16."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def encode_frame(
+    *,
+    node: int,
+    seq: int,
+    time_ms: int = 0,
+    ropes: tuple | list = (),
+    status: int = 0,
+    fault_mask: int = 0,
+    depth_mm: int = 0,
+    speed_mm_s: int = 0,
+    battery_mv: int = 0,
+    oil_temp_cc: int = L.OIL_TEMP_ABSENT,
+    kind: int | None = None,
+    version: int = L.VERSION,
+    key: bytes | None = None,
+) -> tuple[bytes, bytes]:
+    """Build one frame; return (raw, wire). `ropes` items: Rope or 4-tuples.
+
+    kind defaults to DATA when ropes are given, STATUS otherwise. Without a key
+    the MAC field is zero (a host-side test aid: real nodes always have a key).
+    """
+    if kind is None:
+        kind = L.KIND_DATA if ropes else L.KIND_STATUS
+    body = bytearray(HEADER.pack(version, kind, node, fault_mask, seq, time_ms, status))
+    for r in ropes:
+        body += ROPE.pack(*(r.mean_dan, r.min_dan, r.max_dan, r.raw_kpa) if isinstance(r, Rope) else r)
+    body += TAIL.pack(depth_mm, speed_mm_s, battery_mv, oil_temp_cc)
+    body += mac_of(key, bytes(body)) if key is not None else _NO_MAC
+    body += CRC.pack(crc16(body))
+    raw = bytes(body)
+    return raw, cobs.encode(raw) + b"\x00"
+
+
+def decode_wire(body: bytes) -> bytes:
+    """COBS body (between delimiters, without the 0x00) -> raw frame bytes."""
+    if len(body) > MAX_BODY_LEN:
+        raise MalformedError(f"frame too long: {len(body)} bytes > {MAX_BODY_LEN}")
+    try:
+        return cobs.decode(body)
+    except cobs.DecodeError as e:
+        raise MalformedError(f"bad COBS: {e}") from None
+
+
+def decode_raw(raw: bytes, keys: dict[int, bytes] | None = None) -> Frame:
+    """Check and parse one raw frame (COBS already removed).
+
+    Raises CrcError, MalformedError or MacError. With `keys` (node -> key) the MAC
+    must match and a node without a key is refused; without keys the frame's
+    `authenticated` is None (authenticity not checked).
+    """
+    n = len(raw)
+    if n < MIN_RAW_LEN:
+        raise MalformedError(f"frame too short: {n} bytes < {MIN_RAW_LEN}")
+    if n > MAX_RAW_LEN:
+        raise MalformedError(f"frame too long: {n} bytes > {MAX_RAW_LEN}")
+    if binascii.crc_hqx(raw[:-2], 0xFFFF) != raw[-2] | (raw[-1] << 8):
+        raise CrcError("CRC mismatch")
+    n_ropes = L.ropes_in(n)
+    if n_ropes < 0:
+        raise MalformedError(f"length {n} is not {MIN_RAW_LEN} + {L.ROPE_LEN} x ropes")
+    return _parse(raw, n_ropes, keys)
+
+
+def _parse(raw: bytes, n_ropes: int, keys: dict[int, bytes] | None) -> Frame:
+    """Fields of a CRC-checked raw frame of n_ropes ropes; semantic and MAC checks."""
+    v = _BODY[n_ropes].unpack_from(raw)
+    version, kind, node = v[0], v[1], v[2]
+    if version != L.VERSION:
+        raise MalformedError(f"unknown frame version {version}")
+    if kind == L.KIND_DATA:
+        if n_ropes == 0:
+            raise MalformedError("data frame without ropes")
+    elif kind == L.KIND_STATUS:
+        if n_ropes:
+            raise MalformedError("status frame with rope records")
+    else:
+        raise MalformedError(f"unknown frame kind {kind}")
+    mac_at = len(raw) - L.MAC_LEN - L.CRC_LEN
+    mac = raw[mac_at: mac_at + L.MAC_LEN]
+    authenticated = None
+    if keys:
+        key = keys.get(node)
+        if key is None:
+            raise MacError(f"no key configured for node {node}")
+        if not hmac.compare_digest(mac_of(key, raw[:mac_at]), mac):
+            raise MacError(f"MAC mismatch for node {node}")
+        authenticated = True
+    t = _NH + _NR * n_ropes
+    ropes = tuple(map(_make_rope, map(v.__getitem__, _ROPE_SLICES[n_ropes])))
+    return Frame(version, kind, node, v[3], v[4], v[5], v[6], ropes,
+                 v[t], v[t + 1], v[t + 2], v[t + 3], authenticated, mac)

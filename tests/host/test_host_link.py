@@ -1,0 +1,171 @@
+"""Serial links: loop://, a pty whose "adapter" is unplugged and plugged back, two receivers merged."""
+from __future__ import annotations
+
+import os
+import pty
+import threading
+import time
+import tty
+
+from host_framegen import frame_set
+from ropemon.link import FrameHub, SerialReceiver
+
+
+def wait_for(cond, timeout=5.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.01)
+    return cond()
+
+
+class Sink:
+    def __init__(self):
+        self.data = bytearray()
+        self.lock = threading.Lock()
+
+    def __call__(self, b: bytes) -> None:
+        with self.lock:
+            self.data += b
+
+
+def open_pty() -> tuple[int, str]:
+    """A pty pair in raw mode: (master fd, slave path). The slave plays the USB adapter."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    os.close(slave)
+    return master, path
+
+
+def test_loop_url_round_trip():
+    sink = Sink()
+    rx = SerialReceiver("loop://", "loop", sink).start()
+    try:
+        assert wait_for(lambda: rx.connected)
+        payload = b"".join(w for _, w in frame_set(1, 20, False))
+        rx.write(payload)
+        assert wait_for(lambda: len(sink.data) == len(payload))
+        assert bytes(sink.data) == payload
+    finally:
+        rx.stop()
+    assert not rx.connected
+
+
+def test_pty_reconnects_after_adapter_unplug(tmp_path):
+    link = tmp_path / "ttyUSB-receiver"   # like /dev/serial/by-id/...: stable name, changing device
+    m1, p1 = open_pty()
+    os.symlink(p1, link)
+    sink = Sink()
+    rx = SerialReceiver(str(link), "pithead", sink, backoff_s=0.02, backoff_max_s=0.1).start()
+    try:
+        assert wait_for(lambda: rx.connected)
+        os.write(m1, b"first\x00")
+        assert wait_for(lambda: bytes(sink.data) == b"first\x00")
+        # Unplug: the device goes away and its name with it.
+        os.unlink(link)
+        os.close(m1)
+        assert wait_for(lambda: not rx.connected)
+        time.sleep(0.2)  # a few failed reopen attempts
+        assert rx.last_error is not None
+        assert not rx.connected
+        # Plug back in: a new device node under the same name.
+        m2, p2 = open_pty()
+        os.symlink(p2, link)
+        assert wait_for(lambda: rx.connected)
+        assert rx.reconnects == 1
+        os.write(m2, b"second\x00")
+        assert wait_for(lambda: bytes(sink.data) == b"first\x00second\x00")
+        os.close(m2)
+    finally:
+        rx.stop()
+
+
+def test_two_receivers_merged_through_the_hub():
+    frames = frame_set(9, 60, False)
+    hub = FrameHub()
+    masters = {}
+    for name in ("pithead", "midshaft"):
+        m, path = open_pty()
+        masters[name] = m
+        hub.add_port(path, name)
+    hub.start()
+    try:
+        assert wait_for(lambda: all(r.connected for r in hub.receivers.values()))
+        # pithead hears the first 40 frames, midshaft the last 40: 20 heard by both
+        os.write(masters["pithead"], b"".join(w for _, w in frames[:40]))
+        os.write(masters["midshaft"], b"".join(w for _, w in frames[20:]))
+        got = []
+        assert wait_for(lambda: (got.extend(iter(lambda: hub.get(0), None)) or len(got) >= 80), timeout=10)
+    finally:
+        hub.stop()
+        for m in masters.values():
+            os.close(m)
+    new = [(r.frame.node, r.frame.seq) for r in got if r.is_new]
+    assert len(new) == 60 == len(set(new))
+    assert sum(not r.is_new for r in got) == 20
+    st = hub.merge_stats()
+    assert sum(s["duplicates"] for s in st.values()) == 20
+    for node, s in st.items():
+        seqs = [seq for n, seq in new if n == node]
+        assert s["lost"] == max(seqs) - min(seqs) + 1 - len(seqs)  # frame_set skips some seqs
+
+
+def test_socket_url_reconnects_when_the_server_drops():
+    import socket
+    srv = socket.create_server(("127.0.0.1", 0))
+    port = srv.getsockname()[1]
+    done = threading.Event()
+
+    def serve():
+        for msg in (b"one\x00", b"two\x00"):
+            conn, _ = srv.accept()
+            time.sleep(0.2)  # pyserial's socket:// open() flushes whatever has already arrived
+            conn.sendall(msg)
+            if msg == b"two\x00":
+                done.wait(5)
+            conn.close()
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    sink = Sink()
+    rx = SerialReceiver(f"socket://127.0.0.1:{port}", "tcp", sink, backoff_s=0.02).start()
+    try:
+        assert wait_for(lambda: bytes(sink.data) == b"one\x00two\x00"), (bytes(sink.data), rx.last_error)
+        assert rx.reconnects == 1 and rx.connected
+    finally:
+        done.set()
+        rx.stop()
+        srv.close()
+
+
+def test_rs485_mode_refused_by_the_port_is_reported_not_fatal():
+    m, path = open_pty()
+    rx = SerialReceiver(path, "rs485", Sink(), rs485=True, backoff_s=0.02).start()
+    try:
+        assert wait_for(lambda: rx.last_error is not None)
+        assert not rx.connected and "RS485" in rx.last_error
+    finally:
+        rx.stop()
+        os.close(m)
+
+
+def test_a_failing_consumer_does_not_end_the_link():
+    got = []
+
+    def consumer(b: bytes) -> None:
+        if b"!" in b:
+            raise RuntimeError("consumer bug")
+        got.append(b)
+
+    rx = SerialReceiver("loop://", "loop", consumer).start()
+    try:
+        assert wait_for(lambda: rx.connected)
+        rx.write(b"!")
+        assert wait_for(lambda: rx.callback_errors == 1)
+        rx.write(b"good\x00")
+        assert wait_for(lambda: b"".join(got) == b"good\x00")
+        assert "consumer bug" in rx.last_error and rx.connected
+    finally:
+        rx.stop()

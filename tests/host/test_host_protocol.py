@@ -1,0 +1,159 @@
+"""Frame encoding/decoding, the test-vector file, and the decoder's counts per failure."""
+from __future__ import annotations
+
+import hashlib
+import hmac
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+from host_framegen import KEYS, frame_set
+from ropemon.decoder import ReplayGuard, StreamDecoder
+from ropemon.firmware import node_module
+from ropemon.protocol import (L, CrcError, MacError, MalformedError, Rope, crc16, decode_raw,
+                              decode_wire, encode_frame)
+
+ROOT = Path(__file__).resolve().parents[2]
+VECTORS = ROOT / "tests" / "vectors" / "frames.json"
+
+
+def load_vectors() -> dict:
+    return json.loads(VECTORS.read_text())
+
+
+def test_vector_file_is_what_the_generator_writes():
+    spec = importlib.util.spec_from_file_location("make_frame_vectors", ROOT / "tools" / "make_frame_vectors.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert VECTORS.read_text() == mod.render(), "run tools/make_frame_vectors.py"
+
+
+@pytest.mark.parametrize("v", load_vectors()["good"], ids=lambda v: v["name"])
+def test_good_vectors_decode_to_their_fields_and_match_the_node_code(v):
+    key = bytes.fromhex(v["key_hex"])
+    raw, wire = bytes.fromhex(v["raw_hex"]), bytes.fromhex(v["wire_hex"])
+    fields = v["fields"]
+    f = decode_raw(raw, {fields["node"]: key})
+    for k, want in fields.items():
+        got = [list(r) for r in f.ropes] if k == "ropes" else getattr(f, k)
+        assert got == want, k
+    assert f.authenticated is True
+    assert len(wire) <= L.MAX_WIRE_LEN and wire[-1] == 0 and 0 not in wire[:-1]
+    assert decode_wire(wire[:-1]) == raw
+    # Independent checks with the node's own CRC and COBS and plain hmac.
+    assert node_module("crc16").crc16(raw[:-2]) == int.from_bytes(raw[-2:], "little")
+    dst = bytearray(len(raw) + len(raw) // 254 + 2)
+    n = node_module("cobs").encode_into(raw, len(raw), dst)
+    assert bytes(dst[:n]) == wire
+    mac_at = len(raw) - L.MAC_LEN - L.CRC_LEN
+    assert raw[mac_at: mac_at + L.MAC_LEN] == hmac.new(key, raw[:mac_at], hashlib.sha256).digest()[:4]
+
+
+def test_bad_vectors_land_in_their_count():
+    vec = load_vectors()
+    keys = {v["fields"]["node"]: bytes.fromhex(v["key_hex"]) for v in vec["good"]}
+    for v in vec["bad"]:
+        dec = StreamDecoder(keys)
+        assert dec.feed(bytes.fromhex(v["wire_hex"])) == [], v["name"]
+        assert getattr(dec.counts, v["count"]) == 1, (v["name"], dec.counts)
+        assert dec.counts.frames_ok == 0
+
+
+def test_crc16_check_value():
+    assert crc16(b"123456789") == 0x29B1
+
+
+def test_decode_raw_errors_are_specific():
+    raw, _ = encode_frame(node=1, seq=5, ropes=[(1, 2, 3, 4)], key=KEYS[1])
+    assert decode_raw(raw, KEYS).authenticated is True
+    assert decode_raw(raw).authenticated is None
+    bad = bytearray(raw)
+    bad[5] ^= 1
+    with pytest.raises(CrcError):
+        decode_raw(bytes(bad))
+    with pytest.raises(MalformedError):
+        decode_raw(raw[:20])
+    with pytest.raises(MacError, match="MAC mismatch"):
+        decode_raw(raw, {1: bytes(16)})
+    with pytest.raises(MacError, match="no key"):
+        decode_raw(raw, {2: KEYS[2]})
+    # Valid CRC, impossible length (one byte too many).
+    odd = raw[:-2] + b"\x00"
+    odd += crc16(odd).to_bytes(2, "little")
+    with pytest.raises(MalformedError):
+        decode_raw(odd)
+    # Status frame carrying ropes is refused.
+    wrong_kind, _ = encode_frame(node=1, seq=5, ropes=[(1, 2, 3, 4)], kind=L.KIND_STATUS)
+    with pytest.raises(MalformedError, match="status frame"):
+        decode_raw(wrong_kind)
+
+
+def test_frame_conveniences():
+    raw, _ = encode_frame(node=1, seq=5, ropes=[Rope(100, 90, 110, 5), Rope(200, 190, 210, 6)],
+                          status=L.ST_BATTERY_LOW | L.ST_IMBALANCE, oil_temp_cc=-150)
+    f = decode_raw(raw)
+    assert f.status_flags == ["battery_low", "imbalance"]
+    assert f.tensions_n == [1000, 2000]
+    assert f.total_dan == 300
+    assert f.oil_temp_c == -1.5
+    d = f.to_dict()
+    assert d["node"] == 1 and d["seq"] == 5 and d["ropes"][1]["raw_kpa"] == 6
+    assert d["ropes"][1]["absent"] is False
+    raw, _ = encode_frame(node=1, seq=6)
+    assert decode_raw(raw).oil_temp_c is None and decode_raw(raw).kind == L.KIND_STATUS
+
+
+def test_replayed_and_forged_frames_are_dropped_and_counted():
+    frames = frame_set(11, 6, keyed=True)
+    dec = StreamDecoder(KEYS)
+    assert len(dec.feed(b"".join(w for _, w in frames))) == 6
+    assert dec.feed(frames[2][1]) == []  # replay of an old frame
+    assert dec.counts.replayed == 1
+    forged, wire = encode_frame(node=1, seq=10**6, ropes=[(1, 1, 1, 1)], key=bytes(16))
+    assert dec.feed(wire) == []
+    assert dec.counts.mac_fail == 1
+    stranger = encode_frame(node=9, seq=1, key=KEYS[1])[1]
+    assert dec.feed(stranger) == []
+    assert dec.counts.mac_fail == 2
+    assert dec.authenticity_checked and "MAC checked" in dec.summary()
+    plain = StreamDecoder()
+    assert [f.authenticated for f in plain.feed(frames[0][1] * 2)] == [None, None]  # no replay check without keys
+    assert "NOT checked" in plain.summary()
+
+
+def test_replay_guard_window():
+    g = ReplayGuard(window=8)
+    assert g.accept(1, 100)
+    assert g.accept(1, 98)          # late, inside the window
+    assert not g.accept(1, 98)      # twice
+    assert not g.accept(1, 92)      # older than the window
+    assert g.accept(1, 93)
+    assert g.accept(1, 200)         # a jump
+    assert not g.accept(1, 100)
+    assert g.accept(2, 0)           # nodes are independent
+
+
+def test_finish_counts_an_unterminated_tail():
+    _, wire = encode_frame(node=1, seq=1, ropes=[(1, 2, 3, 4)])
+    dec = StreamDecoder()
+    assert dec.feed(wire + wire[:10]) != []
+    dec.finish()
+    assert dec.counts.malformed == 1 and dec.counts.bytes_discarded == 10
+
+
+def test_node_reset_is_accepted_as_a_counted_restart():
+    key = KEYS[1]
+    dec = StreamDecoder(KEYS)
+    wires = [encode_frame(node=1, seq=s, ropes=[(1, 1, 1, 1)], key=key)[1] for s in range(200)]
+    assert len(dec.feed(b"".join(wires))) == 200
+    after_reset = [encode_frame(node=1, seq=s, time_ms=5, ropes=[(2, 2, 2, 2)], key=key)[1] for s in range(3)]
+    assert [f.seq for f in dec.feed(b"".join(after_reset))] == [0, 1, 2]
+    assert dec.counts.restarts == 1 and dec.counts.replayed == 0
+    assert dec.feed(after_reset[1]) == []      # replay within the new boot
+    assert dec.counts.replayed == 1
+    strict = StreamDecoder(KEYS, accept_restarts=False)
+    assert len(strict.feed(b"".join(wires))) == 200
+    assert strict.feed(b"".join(after_reset)) == [] and strict.counts.replayed == 3
+    assert strict.counts.restarts == 0

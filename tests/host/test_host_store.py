@@ -1,0 +1,162 @@
+"""SQLite store: round trip, trips, events, CSV export, restart, and SIGKILL durability."""
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from host_framegen import frame_set
+from ropemon.alarms import AlarmEngine
+from ropemon.decoder import StreamDecoder
+from ropemon.protocol import encode_frame
+from ropemon.store import SCHEMA_VERSION, Store, StoreError
+
+HOST = Path(__file__).resolve().parents[2] / "host"
+
+
+def decoded(count=30, seed=1):
+    return StreamDecoder().feed(b"".join(w for _, w in frame_set(seed, count, keyed=False)))
+
+
+def test_frames_round_trip(tmp_path):
+    frames = decoded()
+    with Store(tmp_path / "a.db") as s:
+        for i, f in enumerate(frames):
+            s.add_frame("pithead", f, 100.0 + i)
+    with Store(tmp_path / "a.db") as s:
+        back = s.frames()
+        assert [b.frame for b in back] == frames
+        assert [b.rx_time for b in back] == [100.0 + i for i in range(len(frames))]
+        assert {b.receiver for b in back} == {"pithead"}
+        node1 = s.frames(node=1, t0=105, t1=120)
+        assert node1 and all(b.frame.node == 1 and 105 <= b.rx_time <= 120 for b in node1)
+
+
+def test_restart_continues_the_same_database(tmp_path):
+    p = tmp_path / "a.db"
+    frames = decoded(10)
+    with Store(p) as s:
+        ids1 = [s.add_frame("a", f, i) for i, f in enumerate(frames[:5])]
+    with Store(p) as s:
+        assert s.committed_frames == 5
+        ids2 = [s.add_frame("a", f, 5 + i) for i, f in enumerate(frames[5:])]
+        assert min(ids2) > max(ids1)
+        assert [b.frame for b in s.frames()] == frames
+
+
+def test_newer_schema_and_foreign_files_are_refused(tmp_path):
+    p = tmp_path / "a.db"
+    Store(p).close()
+    db = sqlite3.connect(p)
+    db.execute("UPDATE meta SET value=? WHERE key='schema_version'", (str(SCHEMA_VERSION + 1),))
+    db.commit()
+    db.close()
+    with pytest.raises(StoreError, match="newer"):
+        Store(p)
+    junk = tmp_path / "junk.db"
+    junk.write_bytes(b"this is not sqlite" * 100)
+    with pytest.raises(StoreError, match="not a usable"):
+        Store(junk)
+
+
+def test_trips_from_speed(tmp_path):
+    # rest 5 s, move down 10 s, rest 5 s, move up 10 s, rest 5 s; 10 frames/s
+    plan = [(0, 50), (10000, 100), (0, 50), (-10000, 100), (0, 50)]
+    with Store(tmp_path / "a.db", trip_rest_s=3.0) as s:
+        seq, t, depth = 0, 0.0, 0
+        for speed, n in plan:
+            for _ in range(n):
+                _, w = encode_frame(node=1, seq=seq, ropes=[(5000, 4990, 5010, 6000)] * 4,
+                                    speed_mm_s=speed, depth_mm=depth)
+                s.add_frame("a", StreamDecoder().feed(w)[0], t)
+                seq += 1
+                t += 0.1
+                depth += speed // 10
+        trips = s.trips()
+        assert len(trips) == 2
+        down, up = trips
+        assert down.start_time == pytest.approx(5.0) and down.end_time == pytest.approx(15.0)
+        assert down.start_depth_mm == 0 and down.end_depth_mm == 100_000
+        assert up.end_depth_mm == 0
+        inside = s.frames(trip=down)
+        assert len(inside) == 101 and all(b.frame.speed_mm_s == 10000 for b in inside[:-1])
+
+
+def test_events_link_stats_and_csv_export(tmp_path):
+    eng = AlarmEngine()
+    frames = []
+    for i in range(10):
+        _, w = encode_frame(node=1, seq=i, ropes=[(5000, 0, 0, 0)] * 3 + [(7000, 0, 0, 0)])
+        frames.append(StreamDecoder().feed(w)[0])
+    with Store(tmp_path / "a.db") as s:
+        for i, f in enumerate(frames):
+            s.add_frame("a", f, i * 0.1)
+            for e in eng.update(f, i * 0.1):
+                s.add_event(e)
+        s.add_link_stats(1.0, "a", {"frames_ok": 10, "crc_fail": 2}, node=1, merged={"share": 0.9, "lost": 1})
+        paths = s.export_csv(tmp_path / "csv")
+        assert s.events()[0]["alarm"] == "deviation:n1:r3"
+    names = sorted(p.name for p in paths)
+    assert names == ["events.csv", "frames.csv", "link_stats.csv", "trips.csv"]
+    rows = list(csv.DictReader((tmp_path / "csv" / "frames.csv").open()))
+    assert len(rows) == 10 and rows[3]["seq"] == "3" and rows[3]["r3_mean_dan"] == "7000"
+    ev = list(csv.DictReader((tmp_path / "csv" / "events.csv").open()))
+    assert ev[0]["action"] == "raise" and float(ev[0]["value"]) > 0.1
+    ls = list(csv.DictReader((tmp_path / "csv" / "link_stats.csv").open()))
+    assert ls[0]["crc_fail"] == "2" and ls[0]["share"] == "0.9"
+
+
+WRITER = textwrap.dedent("""
+    import sys, time
+    sys.path.insert(0, {host!r})
+    from ropemon.firmware import install_shim; install_shim()
+    from ropemon.decoder import StreamDecoder
+    from ropemon.protocol import encode_frame
+    from ropemon.store import Store
+    s = Store(sys.argv[1], batch_frames=7, max_latency_s=10)
+    start = int(sys.argv[2])
+    queued = []
+    for seq in range(start, start + 100000):
+        _, w = encode_frame(node=1, seq=seq, ropes=[(seq % 30000, 0, 0, 0)] * 4)
+        s.add_frame("a", StreamDecoder().feed(w)[0], time.time())
+        queued.append(seq)
+        if s.pending_frames == 0:          # add_frame committed the batch: report it stored
+            print(" ".join(map(str, queued)), flush=True)
+            queued = []
+""")
+
+
+def test_sigkill_loses_no_frame_reported_stored(tmp_path):
+    db = tmp_path / "k.db"
+    script = tmp_path / "writer.py"
+    script.write_text(WRITER.format(host=str(HOST)))
+    reported: set[int] = set()
+    start = 0
+    for round_ in range(3):  # kill, restart on the same file, kill again
+        proc = subprocess.Popen([sys.executable, str(script), str(db), str(start)],
+                                stdout=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 20
+        lines = 0
+        while lines < 40 + 17 * round_ and time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            reported.update(int(x) for x in line.split())
+            lines += 1
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        assert proc.returncode == -signal.SIGKILL
+        assert lines > 0
+        start = max(reported) + 1000
+    with Store(db) as s:
+        stored = {b.frame.seq for b in s.frames()}
+    assert reported <= stored
+    assert len(reported) >= 3 * 40 * 7
