@@ -1,0 +1,451 @@
+"""`ropemon deploy`: arch detection, the host-side build, config checks, and atomic deploys
+end to end with the real mpremote against a virtual node (MicroPython unix port on a pty).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ropemon import deploy as D
+from ropemon.firmware import FIRMWARE_DIR
+from ropemon.virtualnode import VirtualNode, micropython_command
+
+
+# --- arch detection and compatibility
+
+def test_decode_mpy_of_the_unix_port():
+    r = subprocess.run([micropython_command(), "-c", "import sys; print(sys.implementation._mpy)"],
+                       capture_output=True, text=True, timeout=10)
+    assert D.decode_mpy(int(r.stdout)) == (6, 3, "x64")
+
+
+@pytest.mark.parametrize("arch", ["armv6m", "armv7emsp", "xtensawin", "rv32imc"])
+def test_decode_mpy_of_mcu_ports(arch):
+    sys_mpy = 6 | (3 << 8) | (D.MPY_ARCHES.index(arch) << 10)
+    assert D.decode_mpy(sys_mpy) == (6, 3, arch)
+
+
+def test_decode_mpy_without_native_emitter_and_unknown_arch():
+    assert D.decode_mpy(6 | (3 << 8)) == (6, 3, None)
+    with pytest.raises(D.DeployError, match="unknown native arch 13"):
+        D.decode_mpy(6 | (13 << 10))
+
+
+def _info(mpy_version=6, sub=3, arch="armv7emsp"):
+    return D.NodeInfo(version="1.29.0", platform="rp2", mpy_version=mpy_version, mpy_sub=sub,
+                      arch=arch, cwd="/", free_bytes=None, journal=None)
+
+
+def test_choose_arch_follows_the_node():
+    assert D.choose_arch(_info(), None, as_py=False) == "armv7emsp"
+    assert D.choose_arch(_info(), None, as_py=True) is None
+
+
+def test_a_wrong_arch_or_mpy_version_is_refused():
+    with pytest.raises(D.DeployError, match="--arch xtensawin given, but the node's native arch is armv7emsp"):
+        D.choose_arch(_info(), "xtensawin", as_py=False)
+    with pytest.raises(D.DeployError, match=r"loads \.mpy v5\.2.*use --py"):
+        D.choose_arch(_info(mpy_version=5, sub=2), None, as_py=False)
+    # A node too old to report _mpy needs the arch from the user.
+    with pytest.raises(D.DeployError, match="give --arch"):
+        D.choose_arch(_info(mpy_version=None, sub=None, arch=None), None, as_py=False)
+
+
+# --- the host-side build
+
+def _tree(root: Path, version: str, pad_bytes: int = 0) -> Path:
+    """A firmware tree: this repo's firmware/ with FIRMWARE_VERSION set to `version`.
+
+    `pad_bytes` adds a module of that size so a copy takes many raw-paste windows.
+    """
+    shutil.copytree(FIRMWARE_DIR, root, ignore=shutil.ignore_patterns("__pycache__"))
+    init = root / "ropenode" / "__init__.py"
+    text = init.read_text()
+    assert 'FIRMWARE_VERSION = "' in text
+    init.write_text(text.replace(f'FIRMWARE_VERSION = "{_repo_version()}"', f'FIRMWARE_VERSION = "{version}"'))
+    if pad_bytes:
+        (root / "ropenode" / "padding.py").write_text(
+            "TABLE = (\n" + "".join(f"    {i},\n" for i in range(pad_bytes // 10)) + ")\n")
+    return root
+
+
+def _repo_version() -> str:
+    for line in (FIRMWARE_DIR / "ropenode" / "__init__.py").read_text().splitlines():
+        if line.startswith("FIRMWARE_VERSION"):
+            return line.split('"')[1]
+    raise AssertionError("no FIRMWARE_VERSION in firmware/ropenode/__init__.py")
+
+
+def test_build_compiles_the_package_and_keeps_top_level_files_as_source(tmp_path):
+    fw = _tree(tmp_path / "fw", "9.9.9")
+    out = tmp_path / "out"
+    out.mkdir()
+    hashes = D.build(fw, out, "armv6m", as_py=False, config=None)
+    assert "main.py" in hashes and (out / "main.py").read_bytes() == (fw / "main.py").read_bytes()
+    assert "ropenode/layout.mpy" in hashes and "ropenode/layout.py" not in hashes
+    assert "manifest.py" not in hashes  # a freezing manifest is for building images, not for the node
+    assert (out / "ropenode" / "layout.mpy").read_bytes()[:2] == b"M\x06"
+    for rel, h in hashes.items():
+        assert hashlib.sha256((out / rel).read_bytes()).hexdigest() == h
+
+
+def test_build_with_py_copies_sources(tmp_path):
+    fw = _tree(tmp_path / "fw", "9.9.9")
+    out = tmp_path / "out"
+    out.mkdir()
+    hashes = D.build(fw, out, None, as_py=True, config=None)
+    assert "ropenode/layout.py" in hashes and not any(p.endswith(".mpy") for p in hashes)
+
+
+def test_build_names_the_file_mpy_cross_rejects(tmp_path):
+    fw = _tree(tmp_path / "fw", "9.9.9")
+    (fw / "ropenode" / "broken.py").write_text("def f(:\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(D.DeployError, match=r"mpy-cross failed on ropenode/broken\.py"):
+        D.build(fw, out, "armv6m", as_py=False, config=None)
+
+
+def test_a_tree_without_main_py_is_refused(tmp_path):
+    fw = _tree(tmp_path / "fw", "9.9.9")
+    (fw / "main.py").unlink()
+    with pytest.raises(D.DeployError, match="no main.py"):
+        D.firmware_sources(fw)
+
+
+# --- config checks (before anything touches the node)
+
+SITE = FIRMWARE_DIR.parent / "scenarios" / "paper-site.toml"
+
+
+@pytest.fixture(scope="module")
+def node_json(tmp_path_factory) -> Path:
+    """node.json of the paper's hoist, made by `ropemon config` as a user would."""
+    from ropemon.cli import main
+    out = tmp_path_factory.mktemp("config") / "node.json"
+    assert main(["config", str(SITE), "--out", str(out)]) == 0
+    return out
+
+
+def _edited(tmp_path: Path, node_json: Path, edit) -> Path:
+    doc = json.loads(node_json.read_text())
+    edit(doc)
+    p = tmp_path / "edited.json"
+    p.write_text(json.dumps(doc))
+    return p
+
+
+def test_the_generated_config_passes(node_json):
+    assert D.check_config(node_json)["crc"] == json.loads(node_json.read_text())["crc"]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.pop("crc"), "field 'crc'"),
+    (lambda d: d.update(schema=2), "field 'schema': unknown schema 2"),
+    (lambda d: d["node"].update(ropes=3), "field 'crc': mismatch"),  # edited after `ropemon config`
+    (lambda d: d.update(node=[]), "field 'node'"),
+])
+def test_bad_configs_are_refused_naming_the_field(tmp_path, node_json, edit, message):
+    with pytest.raises(D.DeployError, match=message):
+        D.check_config(_edited(tmp_path, node_json, edit))
+
+
+def test_a_bad_config_is_refused_before_connecting(tmp_path, node_json, capsys):
+    from ropemon.cli import main
+    bad = _edited(tmp_path, node_json, lambda d: d["node"].update(ropes=3))
+    assert main(["deploy", "--port", "/dev/ropemon-no-such-port", "--config", str(bad)]) == 1
+    err = capsys.readouterr().err
+    assert "field 'crc'" in err and "port" not in err
+
+
+def test_a_config_that_is_not_json_is_refused(tmp_path):
+    p = tmp_path / "bad.json"
+    p.write_text('{"schema": 1,')
+    with pytest.raises(D.DeployError, match="not JSON"):
+        D.check_config(p)
+
+
+# --- end to end against the virtual node
+
+def _live_hashes(root: Path) -> dict[str, str]:
+    """sha256 of every file the node would boot from (staging and journal excluded)."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        rel = p.relative_to(root)
+        if p.is_file() and rel.parts[0] not in (D.STAGED_DIR, D.PREV_DIR, D.JOURNAL):
+            out[rel.as_posix()] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+def _boot(root: Path, code: str) -> str:
+    """Start a fresh micropython in the node directory (a reboot) and run `code`."""
+    r = subprocess.run([micropython_command(), "-c", code], cwd=root, capture_output=True, text=True,
+                       timeout=20, env={"MICROPYPATH": ""})
+    assert r.returncode == 0, r.stdout + r.stderr
+    return r.stdout
+
+
+def _version_on(root: Path) -> str:
+    return _boot(root, "import ropenode; print(ropenode.FIRMWARE_VERSION)").strip()
+
+
+def test_deploy_cli_end_to_end(tmp_path, node_json):
+    fw = _tree(tmp_path / "fw", "1.0.0-test")
+    cfg = node_json
+    with VirtualNode(tmp_path / "node") as node:
+        # Exactly as on a board: no --resume, so every mpremote run soft-resets the node first.
+        r = subprocess.run([sys.executable, "-m", "ropemon.cli", "deploy", "--port", node.port,
+                            "--firmware", str(fw), "--config", str(cfg)],
+                           capture_output=True, text=True, timeout=60)
+        resets = node.soft_resets
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert resets == 4  # probe, stage, swap, report
+    doc = json.loads(cfg.read_text())
+    crc, node_id = doc["crc"], doc["node"]["node_id"]
+    assert "arch x64" in r.stdout
+    assert f"firmware 1.0.0-test, config CRC {crc} (0x{crc:04x}), node id {node_id}" in r.stdout
+    root = tmp_path / "node"
+    assert (root / "node.json").read_bytes() == cfg.read_bytes()
+    assert (root / "ropenode" / "__init__.mpy").exists() and not (root / "ropenode" / "__init__.py").exists()
+    assert not (root / D.STAGED_DIR).exists() and not (root / D.PREV_DIR).exists()
+    assert not (root / D.JOURNAL).exists()
+    assert _version_on(root) == "1.0.0-test"
+
+
+def test_a_config_the_deployed_firmware_refuses_fails_the_deploy(tmp_path, node_json):
+    """The read-back uses the node's own config loader: a refusal there is an error, not a success."""
+    fw = _tree(tmp_path / "fw", "1.0.0")
+    with open(fw / "ropenode" / "config.py", "a") as f:
+        f.write('\n\ndef parse(doc):\n    raise ConfigError("node.ropes", "refused by this test build")\n')
+    with VirtualNode(tmp_path / "node") as node:
+        r = subprocess.run([sys.executable, "-m", "ropemon.cli", "deploy", "--port", node.port, "--resume",
+                            "--firmware", str(fw), "--config", str(node_json)],
+                           capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "firmware 1.0.0, node.json REFUSED by the node: node.ropes: refused by this test build" in r.stdout
+
+
+def test_redeploy_replaces_the_whole_package(tmp_path):
+    """Going from .py to .mpy must not leave a .py that would shadow the new .mpy."""
+    v1, v2 = _tree(tmp_path / "v1", "1.0.0"), _tree(tmp_path / "v2", "2.0.0")
+    (v1 / "ropenode" / "old_only.py").write_text("X = 1\n")
+    with VirtualNode(tmp_path / "node") as node:
+        D.deploy(node.port, v1, as_py=True, resume=True, log=lambda s: None)
+        assert (node.root / "ropenode" / "__init__.py").exists()
+        report = D.deploy(node.port, v2, resume=True, log=lambda s: None)
+    assert report["firmware_version"] == "2.0.0"
+    root = tmp_path / "node"
+    assert sorted(p.name for p in (root / "ropenode").iterdir()) == sorted(
+        p.stem + ".mpy" for p in (v2 / "ropenode").glob("*.py"))
+    assert _version_on(root) == "2.0.0"
+
+
+def test_port_not_found_and_node_not_answering(tmp_path):
+    fw = _tree(tmp_path / "fw", "1.0.0")
+    with pytest.raises(D.DeployError, match="port /dev/ropemon-no-such-port not found"):
+        D.deploy("/dev/ropemon-no-such-port", fw, resume=True, log=lambda s: None)
+    # A port with nothing behind it: a pty whose other end never answers.
+    import os
+    import pty
+    master, slave = pty.openpty()
+    try:
+        with pytest.raises(D.DeployError, match="did not answer within 1 s"):
+            D.deploy(os.ttyname(slave), fw, resume=True, timeout_s=1, log=lambda s: None)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def _deploy_counting_bytes(node: VirtualNode, fw: Path) -> tuple[int, int]:
+    """Deploy; return the host->node byte counts where staging starts and where it is verified."""
+    marks: dict[str, int] = {}
+
+    def log(line: str) -> None:
+        if line.startswith("built "):
+            marks["staging"] = node.host_to_node_bytes
+        elif "staged files match" in line:
+            marks["verified"] = node.host_to_node_bytes
+
+    D.deploy(node.port, fw, resume=True, log=log)
+    return marks["staging"], marks["verified"]
+
+
+@pytest.fixture(scope="module")
+def two_versions(tmp_path_factory, node_json):
+    """Firmware v1 and v2 (v2 padded by ~12 kB), a node directory with v1 and node.json
+    deployed, and where in the host->node byte stream of a v1 -> v2 deploy the staging
+    starts and is verified (from an undisturbed run on a copy of that node)."""
+    base = tmp_path_factory.mktemp("versions")
+    v1 = _tree(base / "v1", "1.0.0")
+    v2 = _tree(base / "v2", "2.0.0", pad_bytes=12000)
+    with VirtualNode(base / "v1-node") as node:
+        D.deploy(node.port, v1, config=node_json, resume=True, log=lambda s: None)
+    shutil.copytree(base / "v1-node", base / "scratch")
+    with VirtualNode(base / "scratch") as node:
+        start, end = _deploy_counting_bytes(node, v2)
+    assert end - start > 12000
+    return v1, v2, base / "v1-node", start, end
+
+
+@pytest.mark.parametrize("where", [0.02, 0.5, 0.98])
+def test_a_transfer_broken_midway_leaves_the_previous_firmware(tmp_path, two_versions, node_json, where):
+    """Power cut near the start, in the middle and near the end of staging (prepare, copy, hash)."""
+    v1, v2, v1_node, stage_start, stage_end = two_versions
+    root = tmp_path / "node"
+    shutil.copytree(v1_node, root)
+    before = _live_hashes(root)
+
+    with VirtualNode(root) as node:
+        node.break_after(int(stage_start + where * (stage_end - stage_start)))
+        with pytest.raises(D.DeployError, match="the live firmware on the node is unchanged"):
+            D.deploy(node.port, v2, resume=True, log=lambda s: None)
+        assert not node.running()
+    if where == 0.5:  # the cut came mid-copy: part of v2 is on the node, beside v1
+        staged = [p for p in (root / D.STAGED_DIR).rglob("*") if p.is_file()]
+        assert 0 < len(staged) < len(list(v2.rglob("*.py")))
+
+    # Reboot: the node boots v1 exactly as before, and it still frames the sensor stream.
+    assert _live_hashes(root) == before
+    assert _version_on(root) == "1.0.0"
+    _run_sim_on_node(root, tmp_path, json.loads(node_json.read_text()), [9.0e6] * 4)
+
+    if where != 0.5:
+        return
+    # The next deploy clears the half-staged leftovers and completes.
+    with VirtualNode(root) as node:
+        report = D.deploy(node.port, v2, resume=True, log=lambda s: None)
+    assert report["firmware_version"] == "2.0.0"
+    assert not (root / D.STAGED_DIR).exists()
+    assert _version_on(root) == "2.0.0"
+
+
+def test_a_hash_mismatch_stops_before_the_swap(tmp_path, monkeypatch):
+    v1, v2 = _tree(tmp_path / "v1", "1.0.0"), _tree(tmp_path / "v2", "2.0.0")
+    root = tmp_path / "node"
+    real_build = D.build
+
+    def build_with_a_wrong_hash(*a, **k):
+        hashes = real_build(*a, **k)
+        hashes["ropenode/layout.mpy"] = "0" * 64  # what a corrupted transfer looks like from here
+        return hashes
+
+    with VirtualNode(root) as node:
+        D.deploy(node.port, v1, resume=True, log=lambda s: None)
+        before = _live_hashes(root)
+        monkeypatch.setattr(D, "build", build_with_a_wrong_hash)
+        with pytest.raises(D.DeployError, match=r"hash mismatch on the node for ropenode/layout\.mpy; "
+                                                r"the live firmware on the node is unchanged"):
+            D.deploy(node.port, v2, resume=True, log=lambda s: None)
+    assert _live_hashes(root) == before
+    assert _version_on(root) == "1.0.0"
+
+
+def test_too_little_flash_is_refused_before_staging(tmp_path, monkeypatch):
+    import dataclasses
+    fw = _tree(tmp_path / "fw", "1.0.0")
+    real_probe = D.probe
+    monkeypatch.setattr(D, "probe", lambda mp: dataclasses.replace(real_probe(mp), free_bytes=1000))
+    with VirtualNode(tmp_path / "node") as node:
+        with pytest.raises(D.DeployError, match=r"the node has 1000 bytes free, the new files need \d+; "
+                                                r"the live firmware on the node is unchanged"):
+            D.deploy(node.port, fw, resume=True, log=lambda s: None)
+    assert list((tmp_path / "node").iterdir()) == []
+
+
+def test_a_swap_cut_by_a_power_loss_is_rolled_forward(tmp_path):
+    """The state a power cut leaves between two renames of the swap is finished by the next deploy."""
+    v1, v2 = _tree(tmp_path / "v1", "1.0.0"), _tree(tmp_path / "v2", "2.0.0")
+    root = tmp_path / "node"
+    with VirtualNode(root) as node:
+        D.deploy(node.port, v1, resume=True, log=lambda s: None)
+    # v2 staged and verified, journal written, `ropenode` swapped, `main.py` not yet.
+    staged = root / D.STAGED_DIR
+    staged.mkdir()
+    D.build(v2, staged, "x64", as_py=False, config=None)
+    (root / D.JOURNAL).write_text(json.dumps(["main.py", "ropenode"]))
+    (root / D.PREV_DIR).mkdir()
+    (root / "ropenode").rename(root / D.PREV_DIR / "ropenode")
+    (staged / "ropenode").rename(root / "ropenode")
+
+    logged: list[str] = []
+    with VirtualNode(root) as node:
+        report = D.deploy(node.port, v2, resume=True, log=logged.append)
+    assert any("cut during its swap" in line for line in logged)
+    assert report["firmware_version"] == "2.0.0"
+    assert not (root / D.JOURNAL).exists() and not staged.exists() and not (root / D.PREV_DIR).exists()
+    assert _version_on(root) == "2.0.0"
+
+
+# --- the deployed firmware runs: frames a short simulated stream
+
+def _rsens(path: Path, phys: dict, pressures_pa: list[float], seconds: float) -> int:
+    """A .rsens stream (docs/data-formats.md) of a cage at rest: constant pressures,
+    pistons mid-stroke, battery healthy, no temperature input. Returns the sample count."""
+    import struct
+    n, hz = phys["ropes"], phys["sample_hz"]
+    words = []
+    for ch, p in zip(phys["pressure_channels"], pressures_pa):
+        lo, hi = ch["range_Pa"]
+        words.append(round(ch["counts_4mA"] + (p - lo) / (hi - lo) * (ch["counts_20mA"] - ch["counts_4mA"])))
+    words += [(ch["counts_lo"] + ch["counts_hi"]) // 2 for ch in phys["displacement_channels"]]
+    words += [round(2 * phys["battery_low_V"] / phys["battery_V_per_count"]), 0xFFFF, 0, 0]
+    samples = int(seconds * hz)
+    record = struct.pack(f"<{2 * n + 4}H", *words)
+    path.write_bytes(struct.pack("<4sHHHH", b"RSNS", 1, n, hz, 0) + record * samples)
+    return samples
+
+
+def test_the_deployed_firmware_frames_a_simulated_stream(tmp_path, node_json):
+    from ropemon.replay import replay
+
+    doc = json.loads(node_json.read_text())
+    phys = doc["physical"]
+    fw = _tree(tmp_path / "fw", _repo_version())  # this repo's firmware, as released
+    root = tmp_path / "node"
+    with VirtualNode(root) as node:
+        report = D.deploy(node.port, fw, config=node_json, resume=True, log=lambda s: None)
+    assert report["firmware_version"] == _repo_version() and report["node_id"] == doc["node"]["node_id"]
+    assert [p.name for p in root.rglob("*.py")] == ["main.py"]
+
+    pressures_pa = [8.0e6, 9.0e6, 10.0e6, 11.0e6]
+    frames = _run_sim_on_node(root, tmp_path, doc, pressures_pa)
+    # At rest (no piston motion, no flow) friction and pipe loss are zero: tension = p * A.
+    for rope, p, area in zip(frames[-1].ropes, pressures_pa, phys["cylinder_area_m2"]):
+        assert rope.mean_n == pytest.approx(p * area, rel=0.005)
+
+    # The deployed .mpy build sends exactly the bytes of the source firmware in the repo.
+    replay(tmp_path / "rest.rsens", tmp_path / "radio_src.bin", node_json)
+    assert (tmp_path / "radio.bin").read_bytes() == (tmp_path / "radio_src.bin").read_bytes()
+
+
+def _run_sim_on_node(root: Path, tmp_path: Path, doc: dict, pressures_pa: list[float]) -> list:
+    """Boot the node's deployed firmware with the sim HAL on 2 s at rest; decode and check its frames."""
+    from ropemon.decoder import StreamDecoder
+
+    phys = doc["physical"]
+    samples = _rsens(tmp_path / "rest.rsens", phys, pressures_pa, seconds=2.0)
+    r = subprocess.run([micropython_command(), "-m", "ropenode.sim_main", "node.json",
+                        str(tmp_path / "rest.rsens"), str(tmp_path / "radio.bin")],
+                       cwd=root, env={"MICROPYPATH": ""}, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+    n_frames = samples // (phys["sample_hz"] // phys["frame_hz"])
+    assert r.stdout.split()[-4:] == ["samples", str(samples), "frames", str(n_frames)]
+
+    dec = StreamDecoder(keys={doc["node"]["node_id"]: bytes.fromhex(phys["key_hex"])})
+    frames = dec.feed((tmp_path / "radio.bin").read_bytes())
+    dec.finish()
+    c = dec.counts
+    assert (c.frames_ok, c.crc_fail, c.malformed, c.mac_fail, c.bytes_discarded) == (n_frames, 0, 0, 0, 0)
+    assert [f.seq for f in frames] == list(range(frames[0].seq, frames[0].seq + n_frames))
+    assert all(f.node == doc["node"]["node_id"] and len(f.ropes) == phys["ropes"] for f in frames)
+    # No temperature input is fitted; imbalance only where a rope is beyond +-10 % of the mean.
+    mean = sum(pressures_pa) / len(pressures_pa)
+    expected = {"temp_absent"} | ({"imbalance"} if any(abs(p / mean - 1) > 0.1 for p in pressures_pa) else set())
+    assert all(set(f.status_flags) == expected for f in frames[1:]), [f.status_flags for f in frames]
+    return frames
