@@ -5,7 +5,8 @@ and the presence, type and range of every field of the integer `node` section,
 and returns a `Config`; a bad file raises `ConfigError(field, reason)` naming
 the field. The host builds the section (`ropemon.nodeconfig`) and uses
 `canonical` from here, so both sides hash the same bytes. Runs at boot only:
-allocation is fine here, never in the sample path.
+allocation is fine here, never in the sample path. Validation is driven by
+the tables below (less code resident on the node than one call per field).
 """
 import array
 
@@ -18,6 +19,79 @@ MAX_LOSS_POINTS = 32
 MAX_LOSS_TEMPS = 8
 MAX_MARKS = 64
 TENSION_MAX_N = 1 << 19  # |T| bound the builder proves; window sums stay below 2**30
+
+# The int fields, one per line: [section.]key lo hi (section of "node"); each
+# becomes the Config attribute `key`. A string costs less resident heap than tuples.
+_FIELDS = """
+node_id 0 255
+ropes 1 4
+sample_hz 1 1000
+frame_hz 1 1000
+rated_rope_tension_n 1 524288
+imbalance_permille 0 1000
+battery_low_mv 0 65535
+battery_mv_mul 0 16384
+battery_mv_shift 0 30
+p_kpa_max 1 100000
+velocity.alpha_q14 1 16384
+velocity.dx_max_q8um 1 268435
+friction.sigma0_mul 0 2048
+friction.sigma0_shift 0 30
+friction.c1_mul 0 524287
+friction.c1_shift 10 30
+friction.sigma2_shift 9 30
+temperature.fitted 0 1
+temperature.counts_at_0c 0 65535
+temperature.cc_mul -16384 16384
+temperature.cc_shift 0 30
+temperature.fault_lo_counts 0 65535
+temperature.fault_hi_counts 0 65535
+temperature.assumed_cc -5000 15000
+shaft.mm_per_pulse_q16 1 4194304
+shaft.max_pulses_per_sample 1 32767
+shaft.snap_mm 0 100000
+shaft.start_depth_mm -100000 5000000
+"""
+# Per-rope channel entries, stored in this order (9 and 6 ints per rope); the
+# 2nd and 3rd (fault limits) must bracket the 1st (4 mA / lowest counts).
+# Multipliers of a 16-bit count stay <= 2**14 so products stay below 2**30.
+_PRESSURE = """
+counts_4ma 0 65535
+fault_lo_counts 0 65535
+fault_hi_counts 0 65535
+kpa_at_4ma -100000 100000
+kpa_mul 0 16384
+kpa_shift 0 30
+tension_n_at_4ma -524288 524288
+tension_n_mul 0 16384
+tension_n_shift 0 30
+"""
+_DISPLACEMENT = """
+counts_lo 0 65535
+fault_lo_counts 0 65535
+fault_hi_counts 0 65535
+q8um_at_lo -67108864 67108864
+q8um_mul 0 16384
+q8um_shift 0 30
+"""
+# Friction parameters linear in sensor pressure, {at_0, slope_mul, slope_shift}:
+# key, lo and hi of at_0, lo over 0..p_kpa_max; each becomes the attribute `key` = (at0, mul, shift).
+_LINEAR = """
+fs_n 1 32767 64
+fc_n 1 32767 64
+vs_um_s 1 1048576 10
+sigma2_q 0 262143 0
+"""
+
+
+def _table(text):
+    """Rows of a table above: [name, int, int, ...]."""
+    rows = []
+    for line in text.split("\n"):
+        if line:
+            w = line.split()
+            rows.append([w[0]] + [int(x) for x in w[1:]])
+    return rows
 
 
 class ConfigError(Exception):
@@ -67,6 +141,11 @@ def canonical(obj):
     return b"".join(out)
 
 
+def _range(f, v, lo, hi):
+    if v < lo or v > hi:
+        raise ConfigError(f, "%d out of range %d..%d" % (v, lo, hi))
+
+
 def _get(d, key, path):
     if type(d) is not dict:
         raise ConfigError(path, "must be an object")
@@ -80,50 +159,55 @@ def _int(d, key, path, lo, hi):
     v = _get(d, key, path)
     if type(v) is not int:
         raise ConfigError(f, "must be an integer, got %s" % type(v).__name__)
-    if v < lo or v > hi:
-        raise ConfigError(f, "%d out of range %d..%d" % (v, lo, hi))
-    return v
-
-
-def _list(d, key, path, n_lo, n_hi):
-    f = path + "." + key if path else key
-    v = _get(d, key, path)
-    if type(v) is not list:
-        raise ConfigError(f, "must be a list")
-    if len(v) < n_lo or len(v) > n_hi:
-        raise ConfigError(f, "length %d out of range %d..%d" % (len(v), n_lo, n_hi))
+    _range(f, v, lo, hi)
     return v
 
 
 def _ints(d, key, path, n_lo, n_hi, lo, hi, ascending=False):
-    f = path + "." + key if path else key
-    v = _list(d, key, path, n_lo, n_hi)
+    """d[key]: a list of n_lo..n_hi ints in lo..hi, as array('i'); an int key indexes a list."""
+    if type(key) is int:
+        f = "%s[%d]" % (path, key)
+        v = d[key]
+    else:
+        f = path + "." + key
+        v = _get(d, key, path)
+    if type(v) is not list:
+        raise ConfigError(f, "must be a list")
+    if len(v) < n_lo or len(v) > n_hi:
+        raise ConfigError(f, "length %d out of range %d..%d" % (len(v), n_lo, n_hi))
     for i, x in enumerate(v):
         if type(x) is not int:
             raise ConfigError("%s[%d]" % (f, i), "must be an integer")
-        if x < lo or x > hi:
-            raise ConfigError("%s[%d]" % (f, i), "%d out of range %d..%d" % (x, lo, hi))
+        _range("%s[%d]" % (f, i), x, lo, hi)
         if ascending and i and x <= v[i - 1]:
             raise ConfigError("%s[%d]" % (f, i), "must be strictly ascending")
-    return v
+    return array.array("i", v)
 
 
-def _linear(d, key, path, lo, hi):
-    """A parameter linear in sensor pressure: at_0 + (p_kpa * slope_mul >> slope_shift)."""
-    f = path + "." + key
-    v = _get(d, key, path)
-    at0 = _int(v, "at_0", f, lo, hi)
-    mul = _int(v, "slope_mul", f, -(1 << 15), 1 << 15)
-    sh = _int(v, "slope_shift", f, 0, 30)
-    return at0, mul, sh
+def _channels(nd, key, n, spec):
+    """Per-rope channel entries -> array('i') of len(spec) ints per rope."""
+    k = len(spec)
+    out = array.array("i", bytes(4 * k * n))
+    rows = _get(nd, key, "node")
+    if type(rows) is not list or len(rows) != n:
+        raise ConfigError("node." + key, "must be a list of %d entries (one per rope)" % n)
+    for i in range(n):
+        path = "node.%s[%d]" % (key, i)
+        for j in range(k):
+            name, lo, hi = spec[j]
+            out[k * i + j] = _int(rows[i], name, path, lo, hi)
+        base = out[k * i]
+        if out[k * i + 1] > base:
+            _range(path + "." + spec[1][0], out[k * i + 1], 0, base)
+        if out[k * i + 2] <= base:
+            _range(path + "." + spec[2][0], out[k * i + 2], base + 1, 65535)
+    return out
 
 
 class Config:
-    """A validated node section: plain ints and preallocated int arrays."""
-
-
-def _arr(n):
-    return array.array("i", [0] * n)
+    """A validated node section: the attributes named in the tables above, plus
+    key (bytes), window, pressure and displacement (per-rope int arrays),
+    gexp_q14, temps_cc, loss_nt, loss_nv, v_um_s, force_n and marks_mm."""
 
 
 def parse(doc):
@@ -148,158 +232,92 @@ def parse(doc):
 def parse_node(nd):
     """Validate the integer node section alone (the CRC is checked by `parse`)."""
     c = Config()
-    P = "node"
-    c.node_id = _int(nd, "node_id", P, 0, 255)
-    c.key = bytes(_ints(nd, "key", P, 16, 32, 0, 255))
-    n = c.ropes = _int(nd, "ropes", P, 1, 4)
-    c.sample_hz = _int(nd, "sample_hz", P, 1, 1000)
-    c.frame_hz = _int(nd, "frame_hz", P, 1, c.sample_hz)
+    for key, lo, hi in _table(_FIELDS):
+        d = nd
+        path = "node"
+        if "." in key:
+            sec, key = key.split(".")
+            d = _get(nd, sec, path)
+            path += "." + sec
+        setattr(c, key, _int(d, key, path, lo, hi))
+    c.key = bytes(list(_ints(nd, "key", "node", 16, 32, 0, 255)))
+    n = c.ropes
+    _range("node.frame_hz", c.frame_hz, 1, c.sample_hz)
     if c.sample_hz % c.frame_hz:
         raise ConfigError("node.frame_hz", "sample_hz %d is not a multiple of it" % c.sample_hz)
     c.window = c.sample_hz // c.frame_hz
-    c.rated_rope_tension_n = _int(nd, "rated_rope_tension_n", P, 1, TENSION_MAX_N)
-    c.imbalance_permille = _int(nd, "imbalance_permille", P, 0, 1000)
-    c.battery_low_mv = _int(nd, "battery_low_mv", P, 0, 65535)
-    c.battery_mv_mul = _int(nd, "battery_mv_mul", P, 0, _I30 // 65536)
-    c.battery_mv_shift = _int(nd, "battery_mv_shift", P, 0, 30)
-
-    pr = _list(nd, "pressure", P, n, n)
-    names = ("counts_4ma", "fault_lo_counts", "fault_hi_counts", "kpa_at_4ma", "kpa_mul",
-             "kpa_shift", "tension_n_at_4ma", "tension_n_mul", "tension_n_shift")
-    c.pressure = _arr(9 * n)  # per rope, the 9 ints in `names` order
-    for i in range(n):
-        path = "node.pressure[%d]" % i
-        e = pr[i]
-        c4 = _int(e, "counts_4ma", path, 0, 65535)
-        lo = _int(e, "fault_lo_counts", path, 0, c4)
-        hi = _int(e, "fault_hi_counts", path, c4 + 1, 65535)
-        vals = (c4, lo, hi,
-                _int(e, "kpa_at_4ma", path, -100000, 100000),
-                _int(e, "kpa_mul", path, 0, _I30 // 65536),
-                _int(e, "kpa_shift", path, 0, 30),
-                _int(e, "tension_n_at_4ma", path, -TENSION_MAX_N, TENSION_MAX_N),
-                _int(e, "tension_n_mul", path, 0, _I30 // 65536),
-                _int(e, "tension_n_shift", path, 0, 30))
-        for j in range(9):
-            c.pressure[9 * i + j] = vals[j]
-    c.p_kpa_max = _int(nd, "p_kpa_max", P, 1, 100000)
-
-    dp = _list(nd, "displacement", P, n, n)
-    c.displacement = _arr(6 * n)
-    for i in range(n):
-        path = "node.displacement[%d]" % i
-        e = dp[i]
-        clo = _int(e, "counts_lo", path, 0, 65535)
-        vals = (clo,
-                _int(e, "fault_lo_counts", path, 0, clo),
-                _int(e, "fault_hi_counts", path, clo + 1, 65535),
-                _int(e, "q8um_at_lo", path, -(1 << 26), 1 << 26),
-                _int(e, "q8um_mul", path, 0, _I30 // 65536),
-                _int(e, "q8um_shift", path, 0, 30))
-        for j in range(6):
-            c.displacement[6 * i + j] = vals[j]
-
-    ve = _get(nd, "velocity", P)
-    c.alpha_q14 = _int(ve, "alpha_q14", "node.velocity", 1, 16384)
-    c.dx_max_q8um = _int(ve, "dx_max_q8um", "node.velocity", 1, (1 << 30) // 1000 // 4)
-    if c.dx_max_q8um * c.sample_hz >= 1 << 28:
-        raise ConfigError("node.velocity.dx_max_q8um", "times sample_hz exceeds 2**28")
-
-    fr = _get(nd, "friction", P)
-    FP = "node.friction"
-    c.sigma0_mul = _int(fr, "sigma0_mul", FP, 0, _I30 >> 19)
-    c.sigma0_shift = _int(fr, "sigma0_shift", FP, 0, 30)
-    if (c.dx_max_q8um * c.sigma0_mul) >> c.sigma0_shift >= 1 << 19:
-        raise ConfigError("node.friction.sigma0_mul", "sigma0 * dx_max beyond 2**19 (32 kN)")
-    c.c1_mul = _int(fr, "c1_mul", FP, 0, (1 << 19) - 1)
-    c.c1_shift = _int(fr, "c1_shift", FP, 10, 30)
-    c.fs = _linear(fr, "fs_n", FP, 1, 32767)
-    c.fc = _linear(fr, "fc_n", FP, 1, 32767)
-    c.vs = _linear(fr, "vs_um_s", FP, 1, 1 << 20)
-    c.s2 = _linear(fr, "sigma2_q", FP, 0, (1 << 18) - 1)
-    c.sigma2_shift = _int(fr, "sigma2_shift", FP, 9, 30)
-    c.gexp_q14 = array.array("i", _ints(fr, "gexp_q14", FP, GEXP_POINTS, GEXP_POINTS, 0, 16384))
-    if c.gexp_q14[GEXP_POINTS - 1] != 0:
-        raise ConfigError("node.friction.gexp_q14[%d]" % (GEXP_POINTS - 1), "must be 0 (table end)")
-    # The parameters at the pressure extremes must stay in range (they are linear).
-    for name, (at0, mul, sh), lo, hi in (("fs_n", c.fs, 64, 32767), ("fc_n", c.fc, 64, 32767),
-                                         ("vs_um_s", c.vs, 10, 1 << 20),
-                                         ("sigma2_q", c.s2, 0, (1 << 18) - 1)):
-        for p in (0, c.p_kpa_max):
-            v = at0 + ((p * mul) >> sh)
-            if v < lo or v > hi:
-                raise ConfigError(FP + "." + name, "%d at %d kPa out of range %d..%d" % (v, p, lo, hi))
-    for p in (0, c.p_kpa_max):
-        fs = c.fs[0] + ((p * c.fs[1]) >> c.fs[2])
-        fc = c.fc[0] + ((p * c.fc[1]) >> c.fc[2])
-        if fc > fs:
-            raise ConfigError("node.friction.fc_n", "Fc above Fs at %d kPa" % p)
-
-    lo_ = _get(nd, "loss", P)
-    LP = "node.loss"
-    temps = _ints(lo_, "temps_cc", LP, 1, MAX_LOSS_TEMPS, -5000, 15000, ascending=True)
-    c.loss_nt = len(temps)
-    c.loss_temps_cc = array.array("i", temps)
-    vrows = _list(lo_, "v_um_s", LP, n, n)
-    nv = -1
-    c.loss_v = None
-    for i in range(n):
-        f = "%s.v_um_s[%d]" % (LP, i)
-        if type(vrows[i]) is not list:
-            raise ConfigError(f, "must be a list")
-        row = _ints({"r": vrows[i]}, "r", "", 2, MAX_LOSS_POINTS, 0, 1 << 19, ascending=True)
-        if row[0] != 0:
-            raise ConfigError(f + "[0]", "must be 0 (zero flow)")
-        if nv < 0:
-            nv = len(row)
-            c.loss_v = _arr(n * nv)
-        elif len(row) != nv:
-            raise ConfigError(f, "length %d differs from rope 0's %d" % (len(row), nv))
-        for j in range(nv):
-            c.loss_v[i * nv + j] = row[j]
-    c.loss_nv = nv
-    frows = _list(lo_, "force_n", LP, n, n)
-    c.loss_force_n = _arr(n * c.loss_nt * nv)
-    for i in range(n):
-        f = "%s.force_n[%d]" % (LP, i)
-        if type(frows[i]) is not list or len(frows[i]) != c.loss_nt:
-            raise ConfigError(f, "must be a list of %d rows (one per temperature)" % c.loss_nt)
-        for t in range(c.loss_nt):
-            ft = "%s[%d]" % (f, t)
-            if type(frows[i][t]) is not list or len(frows[i][t]) != nv:
-                raise ConfigError(ft, "must be a list of %d ints (one per flow point)" % nv)
-            row = _ints({"r": frows[i][t]}, "r", "", nv, nv, -(1 << 16), 1 << 16)
-            if row[0] != 0:
-                raise ConfigError(ft + "[0]", "must be 0 (no loss at zero flow)")
-            for j in range(nv):
-                c.loss_force_n[(i * c.loss_nt + t) * nv + j] = row[j]
-
-    te = _get(nd, "temperature", P)
-    TP = "node.temperature"
-    c.temp_fitted = _int(te, "fitted", TP, 0, 1)
-    c.temp_counts_at_0c = _int(te, "counts_at_0c", TP, 0, 65535)
-    c.temp_cc_mul = _int(te, "cc_mul", TP, -(_I30 // 65536), _I30 // 65536)
-    c.temp_cc_shift = _int(te, "cc_shift", TP, 0, 30)
-    c.temp_fault_lo = _int(te, "fault_lo_counts", TP, 0, 65535)
-    c.temp_fault_hi = _int(te, "fault_hi_counts", TP, c.temp_fault_lo, 65535)
-    c.oil_temp_assumed_cc = _int(te, "assumed_cc", TP, -5000, 15000)
-
-    sh = _get(nd, "shaft", P)
-    SP = "node.shaft"
-    c.mm_per_pulse_q16 = _int(sh, "mm_per_pulse_q16", SP, 1, 1 << 22)
-    c.max_pulses_per_sample = _int(sh, "max_pulses_per_sample", SP, 1, 32767)
-    if c.max_pulses_per_sample * c.mm_per_pulse_q16 >= 1 << 28:
-        raise ConfigError("node.shaft.max_pulses_per_sample", "times mm_per_pulse_q16 exceeds 2**28")
-    if c.max_pulses_per_sample * c.mm_per_pulse_q16 * c.window >= 1 << 29:
-        raise ConfigError("node.shaft.max_pulses_per_sample", "a frame window's travel exceeds 2**29")
-    c.marks_mm = array.array("i", _ints(sh, "marks_mm", SP, 0, MAX_MARKS, -100000, 5000000,
-                                        ascending=True))
-    c.snap_mm = _int(sh, "snap_mm", SP, 0, 100000)
-    c.start_depth_mm = _int(sh, "start_depth_mm", SP, -100000, 5000000)
-
     # Window sums must stay small ints: the largest tension times the window.
     if c.window * TENSION_MAX_N >= _I30:
         raise ConfigError("node.frame_hz", "window of %d samples too long for the tension sums" % c.window)
+    _range("node.temperature.fault_hi_counts", c.fault_hi_counts, c.fault_lo_counts, 65535)
+    c.pressure = _channels(nd, "pressure", n, _table(_PRESSURE))
+    c.displacement = _channels(nd, "displacement", n, _table(_DISPLACEMENT))
+    if c.dx_max_q8um * c.sample_hz >= 1 << 28:
+        raise ConfigError("node.velocity.dx_max_q8um", "times sample_hz exceeds 2**28")
+
+    FP = "node.friction"
+    fr = _get(nd, "friction", "node")
+    if (c.dx_max_q8um * c.sigma0_mul) >> c.sigma0_shift >= 1 << 19:
+        raise ConfigError(FP + ".sigma0_mul", "sigma0 * dx_max beyond 2**19 (32 kN)")
+    for key, lo, hi, lo_p in _table(_LINEAR):
+        f = FP + "." + key
+        d = _get(fr, key, FP)
+        at0 = _int(d, "at_0", f, lo, hi)
+        mul = _int(d, "slope_mul", f, -(1 << 15), 1 << 15)
+        sh = _int(d, "slope_shift", f, 0, 30)
+        setattr(c, key, (at0, mul, sh))
+        # linear in pressure: in range at both ends means in range throughout
+        for p in (0, c.p_kpa_max):
+            v = at0 + ((p * mul) >> sh)
+            if v < lo_p or v > hi:
+                raise ConfigError(f, "%d at %d kPa out of range %d..%d" % (v, p, lo_p, hi))
+    for p in (0, c.p_kpa_max):
+        if c.fc_n[0] + ((p * c.fc_n[1]) >> c.fc_n[2]) > c.fs_n[0] + ((p * c.fs_n[1]) >> c.fs_n[2]):
+            raise ConfigError(FP + ".fc_n", "Fc above Fs at %d kPa" % p)
+    c.gexp_q14 = _ints(fr, "gexp_q14", FP, GEXP_POINTS, GEXP_POINTS, 0, 16384)
+    if c.gexp_q14[GEXP_POINTS - 1] != 0:
+        raise ConfigError(FP + ".gexp_q14[%d]" % (GEXP_POINTS - 1), "must be 0 (table end)")
+
+    LP = "node.loss"
+    lo_ = _get(nd, "loss", "node")
+    c.temps_cc = _ints(lo_, "temps_cc", LP, 1, MAX_LOSS_TEMPS, -5000, 15000, True)
+    nt = c.loss_nt = len(c.temps_cc)
+    vrows = _get(lo_, "v_um_s", LP)
+    frows = _get(lo_, "force_n", LP)
+    for f, rows in ((LP + ".v_um_s", vrows), (LP + ".force_n", frows)):
+        if type(rows) is not list or len(rows) != n:
+            raise ConfigError(f, "must be a list of %d entries (one per rope)" % n)
+    nv = 0
+    for i in range(n):
+        f = "%s.v_um_s[%d]" % (LP, i)
+        row = _ints(vrows, i, LP + ".v_um_s", 2, MAX_LOSS_POINTS, 0, 1 << 19, True)
+        if row[0] != 0:
+            raise ConfigError(f + "[0]", "must be 0 (zero flow)")
+        if i == 0:
+            nv = len(row)
+            c.v_um_s = array.array("i", bytes(4 * n * nv))
+            c.force_n = array.array("i", bytes(4 * n * nt * nv))
+        elif len(row) != nv:
+            raise ConfigError(f, "length %d differs from rope 0's %d" % (len(row), nv))
+        for j in range(nv):
+            c.v_um_s[i * nv + j] = row[j]
+        f = "%s.force_n[%d]" % (LP, i)
+        if type(frows[i]) is not list or len(frows[i]) != nt:
+            raise ConfigError(f, "must be a list of %d rows (one per temperature)" % nt)
+        for t in range(nt):
+            row = _ints(frows[i], t, f, nv, nv, -(1 << 16), 1 << 16)
+            if row[0] != 0:
+                raise ConfigError("%s[%d][0]" % (f, t), "must be 0 (no loss at zero flow)")
+            for j in range(nv):
+                c.force_n[(i * nt + t) * nv + j] = row[j]
+    c.loss_nv = nv
+
+    SP = "node.shaft"
+    if c.max_pulses_per_sample * c.mm_per_pulse_q16 >= 1 << 28:
+        raise ConfigError(SP + ".max_pulses_per_sample", "times mm_per_pulse_q16 exceeds 2**28")
+    if c.max_pulses_per_sample * c.mm_per_pulse_q16 * c.window >= 1 << 29:
+        raise ConfigError(SP + ".max_pulses_per_sample", "a frame window's travel exceeds 2**29")
+    c.marks_mm = _ints(_get(nd, "shaft", "node"), "marks_mm", SP, 0, MAX_MARKS, -100000, 5000000, True)
     return c
 
 

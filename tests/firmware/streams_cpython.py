@@ -10,6 +10,10 @@ import array
 
 import numpy as np
 
+from ropemon.firmware import node_module
+
+K = node_module("kernel")  # state offsets (the CPython Node runs the plain kernel)
+
 
 def random_stream(ph: dict, seconds: float, seed: int, faults: bool = False) -> np.ndarray:
     """records[k, 2N+4] uint16: per rope a pressure and a displacement random walk."""
@@ -89,8 +93,8 @@ def run_node(node, recs: np.ndarray, per_sample: bool = True):
         rec[:] = array.array("H", rows[j])
         ready = node.sample(rec)
         if per_sample:
-            ten[j] = node.comp.tension_n
-            g = node.comp.good
+            ten[j] = node.rope(K.TENSION_N)
+            g = node.S[K.GOOD]
             good[j] = [(g >> i) & 1 for i in range(n)]
         if ready:
             m = node.frame_into(buf)

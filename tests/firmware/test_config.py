@@ -92,3 +92,33 @@ def test_friction_out_of_range_at_top_pressure_refused():
     doc["node"]["friction"]["fs_n"]["slope_mul"] = 30000  # Fs beyond 32767 N at p_kpa_max
     f, r = _refused(_resealed(doc))
     assert f == "node.friction.fs_n" and "kPa" in r
+
+
+def test_loss_table_entries_refused_with_their_full_path():
+    cases = ((("v_um_s", 1, 2), 1 << 20, "node.loss.v_um_s[1][2]", "out of range"),
+             (("v_um_s", 0, 0), 5, "node.loss.v_um_s[0][0]", "must be 0"),
+             (("force_n", 2, 0, 3), 1 << 17, "node.loss.force_n[2][0][3]", "out of range"),
+             (("force_n", 3, 0, 0), 7, "node.loss.force_n[3][0][0]", "must be 0"),
+             (("force_n", 1, 0), [0], "node.loss.force_n[1][0]", "length"))
+    for path, value, field, why in cases:
+        doc = node_doc()
+        d = doc["node"]["loss"]
+        for p in path[:-1]:
+            d = d[p]
+        d[path[-1]] = value
+        f, r = _refused(_resealed(doc))
+        assert f == field and why in r, (f, r, field)
+
+
+def test_config_tables_name_every_field_once():
+    """The validation tables are parsed at boot: every row is a name and int bounds lo <= hi."""
+    seen = set()
+    for text, width in ((config._FIELDS, 3), (config._PRESSURE, 3), (config._DISPLACEMENT, 3),
+                        (config._LINEAR, 4)):
+        rows = config._table(text)
+        assert rows
+        for row in rows:
+            assert len(row) == width and row[1] <= row[2], row
+            key = (text, row[0].split(".")[-1])
+            assert key not in seen, row
+            seen.add(key)

@@ -10,7 +10,7 @@ from fwtest_util import cobs_decode, node_doc
 from ropenode import layout
 from ropenode.config import ConfigError, parse
 from ropenode.crc16 import crc16
-from ropenode.node import Node
+from ropenode.node import K, Node
 
 N = 4
 MID = 30000      # mid-scale counts for pressure (~13.4 MPa) and displacement
@@ -95,7 +95,7 @@ def test_namur_fault_flags_and_excludes_the_rope():
         assert h[3] == 0x02 and h[6] & layout.ST_PRESSURE_FAULT
         assert ropes[1] == (layout.TENSION_ABSENT,) * 3 + (layout.RAW_KPA_ABSENT,)
         assert ropes[0][0] == ropes[2][0] == ropes[3][0] != layout.TENSION_ABSENT
-        assert node.comp.good == 0b1101
+        assert node.S[K.GOOD] == 0b1101
     rec[1] = 8640  # 3.6 mA exactly is still a signal
     frames = _run(node, rec, 20)
     assert frames[0][0][3] == 0 and frames[0][1][1][0] != layout.TENSION_ABSENT
@@ -113,15 +113,15 @@ def test_displacement_fault_flags_the_rope():
 def test_lugre_stays_bounded_where_explicit_euler_diverges():
     cfg = parse(node_doc())
     node = Node(cfg)
-    fr = node.comp.fric
-    doc = node_doc()["physical"]["friction"]
-    sigma0 = doc["sigma0"]
+    doc = node_doc()["physical"]
+    fr = doc["friction"]
+    sigma0 = fr["sigma0"]
     h = 1 / cfg.sample_hz
     v = 0.2                      # m/s, the node's velocity limit
     p_mpa = 13.4
-    fs = doc["Fs"]["intercept"] + doc["Fs"]["slope"] * p_mpa
-    fc = doc["Fc"]["intercept"] + doc["Fc"]["slope"] * p_mpa
-    vs = doc["vs"]["intercept"] + doc["vs"]["slope"] * p_mpa
+    fs = fr["Fs"]["intercept"] + fr["Fs"]["slope"] * p_mpa
+    fc = fr["Fc"]["intercept"] + fr["Fc"]["slope"] * p_mpa
+    vs = fr["vs"]["intercept"] + fr["vs"]["slope"] * p_mpa
     import math
     g = fc + (fs - fc) * math.exp(-(v / vs) ** 2)
     assert h * sigma0 * v / g > 2  # explicit Euler is unstable here
@@ -129,19 +129,30 @@ def test_lugre_stays_bounded_where_explicit_euler_diverges():
     for _ in range(40):
         z = z + h * (v - sigma0 * v * z / g)
     assert abs(sigma0 * z) > 1e6  # explicit Euler blew up (N)
-    p_kpa = array.array("i", [13400] * N)
-    dx = array.array("i", [int(v * h * 256e6)] * N)
-    vv = array.array("i", [int(v * 1e6)] * N)
+    # the node: 13.4 MPa, pistons driven end to end at the velocity limit, reversing
+    dc = doc["displacement_channels"][0]
+    c_per_m = (dc["counts_hi"] - dc["counts_lo"]) / (dc["range_m"][1] - dc["range_m"][0])
+    step = int(v * h * c_per_m) + 1  # counts per sample: beyond v_max, so dx is clamped
+    x = MID
+    rec = _rec()
+    saw_max = False
     for k in range(400):
-        sign = 1 if (k // 50) % 2 == 0 else -1   # reversals every 50 steps
+        x += step if (k // 50) % 2 == 0 else -step   # reversals every 50 samples
         for i in range(N):
-            dx[i] = sign * int(v * h * 256e6)
-            vv[i] = sign * int(v * 1e6)
-        fr.update(p_kpa, dx, vv, 0xF)
+            rec[N + i] = x
+        node.sample(rec)
         for i in range(N):
-            assert abs(fr.zf[i]) <= fr.g[i] + 16, (k, fr.zf[i], fr.g[i])
-    # sliding: zf has settled to sgn(v) g within a newton
-    assert abs(fr.zf[0] / 16 + g) < 2, (fr.zf[0] / 16, g)
+            assert abs(node.S[K.ZF + i]) <= node.S[K.G + i] + 16, (k, node.S[K.ZF + i], node.S[K.G + i])
+        saw_max = saw_max or abs(node.S[K.V_UM_S]) == int(v * 1e6)
+    assert saw_max  # the velocity limit was reached
+    # sliding at the limit: zf has settled to sgn(v) g(v, p) within a few newtons
+    p_mpa = node.S[K.P_KPA] / 1000
+    fs = fr["Fs"]["intercept"] + fr["Fs"]["slope"] * p_mpa
+    fc = fr["Fc"]["intercept"] + fr["Fc"]["slope"] * p_mpa
+    vs = fr["vs"]["intercept"] + fr["vs"]["slope"] * p_mpa
+    g = fc + (fs - fc) * math.exp(-(v / vs) ** 2)
+    assert node.S[K.V_UM_S] == -int(v * 1e6)
+    assert abs(node.S[K.ZF] / 16 + g) < 5, (node.S[K.ZF] / 16, g)
 
 
 def test_depth_integrates_pulses_and_snaps_at_hall_marks():
@@ -153,22 +164,22 @@ def test_depth_integrates_pulses_and_snaps_at_hall_marks():
         count += 10
         if node.sample(_rec(count=count)):
             frames.append(_decode(buf, node.frame_into(buf)))
-    assert node.shaft.depth_mm == 599 * 10 * 10
+    assert node.S[K.DEPTH_MM] == 599 * 10 * 10
     assert frames[-1][2][1] == 20000  # mm/s
-    node.shaft.depth_mm = 5800       # drifted 0.8 m past the 5 m mark
+    node.S[K.DEPTH_MM] = 5800       # drifted 0.8 m past the 5 m mark
     node.sample(_rec(count=count, hall=1))
-    assert node.shaft.depth_mm == 5000
-    node.shaft.depth_mm = 150000     # far from any mark: no snap
+    assert node.S[K.DEPTH_MM] == 5000
+    node.S[K.DEPTH_MM] = 150000     # far from any mark: no snap
     node.sample(_rec(count=count, hall=0))
     node.sample(_rec(count=count, hall=3))
-    assert node.shaft.depth_mm == 150000
+    assert node.S[K.DEPTH_MM] == 150000
 
 
 def test_counter_glitch_is_ignored_and_flagged():
     node = Node(parse(node_doc()))
     node.sample(_rec(count=100))
     node.sample(_rec(count=9000))
-    assert node.shaft.depth_mm == 0 and node.shaft.fault
+    assert node.S[K.DEPTH_MM] == 0 and node.S[K.SHAFT_FAULT]
 
 
 def test_config_fault_node_samples_without_allocating():
@@ -184,3 +195,24 @@ def test_config_fault_node_samples_without_allocating():
     finally:
         micropython.heap_unlock()
     assert ready == 10
+
+
+def test_record_of_the_wrong_length_is_refused():
+    node = Node(parse(node_doc()))
+    for words in (2 * N + 3, 2 * N + 5, 0):
+        try:
+            node.sample(array.array("H", [MID] * words))
+        except ValueError as e:
+            assert "words" in str(e)
+        else:
+            raise AssertionError("accepted a record of %d words" % words)
+    assert node.sample(_rec()) is False  # and the node goes on
+
+
+def test_kernel_copies_of_shared_constants_agree():
+    """kernel.py restates a few constants (viper inlines only its own module's consts)."""
+    from ropenode import config
+    assert (K.TEMP_ABSENT, K.TENSION_ABSENT, K.RAW_KPA_ABSENT) == (
+        layout.OIL_TEMP_ABSENT, layout.TENSION_ABSENT, layout.RAW_KPA_ABSENT)
+    assert K.ROPES_MAX == layout.MAX_ROPES and K.GEXP_POINTS == config.GEXP_POINTS
+    assert K.TEMPS_MAX == config.MAX_LOSS_TEMPS

@@ -1,0 +1,495 @@
+"""The per-sample hot path: one function over flat int arrays (docs/model.md).
+
+    P = pack(cfg)           # config: array('i'), layout below
+    S = state(cfg)          # state and per-sample outputs: array('i')
+    closed = step(rec, P, S, n)   # 1 when a frame window just closed
+
+`step` does, for n ropes: NAMUR check and calibration (channels), filtered
+velocity, pipe-loss table, LuGre implicit-Euler friction, tension, window
+statistics; then oil temperature, depth/speed from the pulse counter and Hall
+marks, node time, and at the end of a frame window the frame's fields (OUT_*).
+Every int stays within +-2**30, nothing is allocated, and `step` is one call
+(a bytecode function with many locals gets its frame from the heap on some
+ports; a viper one keeps it on the C stack).
+
+It is written in the subset of Python that @micropython.viper compiles with
+the same meaning (ints only, no calls, no `not`/`~`/ternaries, arrays read by
+index). kernel_viper.py is generated from this file
+(tests/firmware/kernel_gen_cpython.py): the same `step` decorated for viper,
+with each int32 array read sign-extended (viper reads ptr32 zero-extended on
+64-bit ports). This plain version runs where there is no native emitter
+(WebAssembly port, CPython) and is the reference the viper one is tested
+equal to.
+"""
+import array
+
+from micropython import const
+
+ROPES_MAX = const(4)
+GEXP_POINTS = const(129)
+TEMPS_MAX = const(8)
+TEMP_ABSENT = const(-32768)  # layout.OIL_TEMP_ABSENT
+_BIG = const(0x20000000)     # window min/max start values (|T| < 2**19)
+
+# --- P: config, int32 ---------------------------------------------------------
+_ALPHA = const(0)    # velocity filter gain, Q14
+_DXMAX = const(1)    # |dx| limit, um/256 per sample
+_FSHZ = const(2)     # sample_hz
+_FS0 = const(3)      # Fs(p) = FS0 + (p * FSM >> FSS), N
+_FSM = const(4)
+_FSS = const(5)
+_FC0 = const(6)      # Fc(p), N
+_FCM = const(7)
+_FCS = const(8)
+_VS0 = const(9)      # vs(p), um/s
+_VSM = const(10)
+_VSS = const(11)
+_S20 = const(12)     # sigma2(p)
+_S2M = const(13)
+_S2S = const(14)
+_S2S9 = const(15)    # sigma2_shift - 9
+_S0M = const(16)     # sigma0 dx: (mul, shift)
+_S0S = const(17)
+_C1M = const(18)     # c1: (mul, shift - 10)
+_C1S10 = const(19)
+_PMAX = const(20)    # kPa clamp of the LuGre parameters
+_NV = const(21)      # loss table: velocity points
+_NT = const(22)      # loss table: temperature rows
+_TFIT = const(23)    # oil temperature input fitted (0/1)
+_T0C = const(24)     # counts at 0 C
+_TMUL = const(25)
+_TSH = const(26)
+_TLO = const(27)     # temperature input fault limits, counts
+_THI = const(28)
+_TASSUMED = const(29)  # centi-degC used without a good temperature
+_MMPP = const(30)    # mm per pulse, Q16
+_MAXP = const(31)    # pulses per sample beyond which the counter glitched
+_SNAP = const(32)    # Hall snap distance, mm
+_NMARKS = const(33)
+_WIN = const(34)     # samples per frame window
+_IMB = const(35)     # imbalance limit, per mille of the mean
+_BMUL = const(36)    # battery mV = (counts * BMUL) >> BSH
+_BSH = const(37)
+_BLOW = const(38)    # battery low below this, mV
+_FRHZ = const(39)    # frame_hz
+_OFORCE = const(40)  # offset of the loss forces in P
+_OMARKS = const(41)  # offset of the Hall marks in P
+_PCAL = const(42)    # 9 ints per rope (config.py order)
+_DCAL = const(_PCAL + 9 * ROPES_MAX)     # 6 ints per rope
+_GEXP = const(_DCAL + 6 * ROPES_MAX)     # exp(-u^2), Q14
+_TEMPS = const(_GEXP + GEXP_POINTS)      # loss table temperatures, centi-degC
+_VBP = const(_TEMPS + TEMPS_MAX)         # loss velocity points, then forces, then marks
+
+# --- S: state and outputs, int32 ------------------------------------------------
+SEEN = const(0)        # bit i / 4+i: a good pressure / displacement value was read once
+_STARTED = const(1)    # bit i: filtered position initialised
+FAULTS = const(2)      # this sample's fault mask (bit i pressure, 4+i displacement)
+GOOD = const(3)        # bit i: rope i has a tension this sample
+WFAULTS = const(4)     # OR of the window's fault masks
+BATT_SUM = const(5)    # battery counts summed over the window
+TEMP_CC = const(6)     # oil temperature, centi-degC, or TEMP_ABSENT
+_LT_CC = const(7)      # temperature the loss rows were selected for
+_TROW = const(8)       # lower loss row
+_TW = const(9)         # weight of the upper row, Q10
+DEPTH_MM = const(10)
+_FRAC = const(11)      # depth fraction, mm/65536
+_PREV_COUNT = const(12)  # -1 until the first counter word
+_PREV_HALL = const(13)
+WIN_Q16 = const(14)    # travel this window, mm/65536
+WIN_PULSES = const(15)  # |pulses| this window
+LAST_WIN_PULSES = const(16)
+SHAFT_FAULT = const(17)  # latched until the window closes
+MARKS_SEEN = const(18)
+SUB = const(19)        # node time: samples into the second
+SEC = const(20)        # node time: whole seconds
+IN_WINDOW = const(21)
+P_KPA = const(24)      # per rope (ROPES_MAX each): sensor pressure, kPa
+RAW_N = const(28)      # p_tap A, N
+X_Q8UM = const(32)     # piston position, um/256
+XF_Q8UM = const(36)    # filtered position
+DX_Q8UM = const(40)    # this sample's increment
+V_UM_S = const(44)     # piston velocity
+LOSS_N = const(48)     # dp A, N
+ZF = const(52)         # sigma0 z, N/16
+_WREM = const(56)      # error-feedback remainder of w
+G = const(60)          # g(v), N/16
+FRIC_Q4 = const(64)    # F, N/16
+FRIC_N = const(68)     # F, N
+TENSION_N = const(72)  # compensated tension, N (valid where GOOD)
+SUM_N = const(76)      # window sums, N
+MIN_N = const(80)
+MAX_N = const(84)
+SUM_KPA = const(88)
+COUNT = const(92)      # healthy samples in the window
+OUT_ROPES = const(96)  # the closed window, per rope: mean, min, max (daN), raw p mean (kPa)
+OUT_FLAGS = const(112)  # FLAG_* of the closed window
+OUT_FAULTS = const(113)  # OR of the window's fault masks
+OUT_SPEED = const(114)  # mm/s over the window, clamped to +-32767
+OUT_BATT_MV = const(115)
+OUT_TEMP_CC = const(116)
+OUT_SEC = const(117)   # node time at the window's end
+OUT_SUB = const(118)
+OUT_DEPTH_MM = const(119)
+_S_LEN = const(120)
+
+FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
+FLAG_BATTERY_LOW = const(2)
+FLAG_SPEED_FAULT = const(4)  # counter glitch, or a Hall mark with no pulses
+TENSION_ABSENT = const(-32768)  # layout.TENSION_ABSENT
+RAW_KPA_ABSENT = const(0xFFFF)  # layout.RAW_KPA_ABSENT
+
+
+def pack(c):
+    """The config array P from a validated config.Config."""
+    n = c.ropes
+    nv = c.loss_nv
+    nt = c.loss_nt
+    nm = len(c.marks_mm)
+    p = array.array("i", bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (
+        c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max,
+        nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts,
+        c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window,
+        c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz,
+        _VBP + n * nv, _VBP + n * nv + n * nt * nv)
+    for j in range(len(head)):
+        p[j] = head[j]
+    for src, off in ((c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
+                     (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]),
+                     (c.marks_mm, p[_OMARKS])):
+        for j in range(len(src)):
+            p[off + j] = src[j]
+    return p
+
+
+def state(c):
+    """A fresh state array S for config c (window min/max open, no counter word yet)."""
+    s = array.array("i", bytes(4 * _S_LEN))
+    s[TEMP_CC] = TEMP_ABSENT
+    s[_LT_CC] = -_BIG  # no loss rows selected yet
+    s[DEPTH_MM] = c.start_depth_mm
+    s[_PREV_COUNT] = -1
+    for i in range(ROPES_MAX):
+        s[MIN_N + i] = _BIG
+        s[MAX_N + i] = -_BIG
+    return s
+
+
+def step(rec, P, S, n):
+    """Process one record (2n+4 words); return 1 when a frame window just closed."""
+    # channels: counts -> kPa, N, um/256; NAMUR NE43 limits
+    mask = 0
+    seen = S[SEEN]
+    for i in range(n):
+        c = rec[i]
+        b = _PCAL + 9 * i
+        if c < P[b + 1] or c > P[b + 2]:
+            mask |= 1 << i
+        else:
+            d = c - P[b]
+            S[P_KPA + i] = P[b + 3] + ((d * P[b + 4]) >> P[b + 5])
+            S[RAW_N + i] = P[b + 6] + ((d * P[b + 7]) >> P[b + 8])
+            seen |= 1 << i
+        c = rec[n + i]
+        b = _DCAL + 6 * i
+        if c < P[b + 1] or c > P[b + 2]:
+            mask |= 16 << i
+        else:
+            S[X_Q8UM + i] = P[b + 3] + (((c - P[b]) * P[b + 4]) >> P[b + 5])
+            seen |= 16 << i
+    S[SEEN] = seen
+    S[FAULTS] = mask
+    allb = (1 << n) - 1
+    dgood = ((mask >> 4) ^ allb) & (seen >> 4) & allb
+    good = (mask ^ allb) & dgood & seen & allb
+    S[GOOD] = good
+    S[WFAULTS] |= mask
+
+    # oil temperature (centi-degC) and the loss table rows it selects
+    rb = n << 1  # the words after the ropes: battery, temperature, counter, Hall
+    c = rec[rb + 1]
+    t = TEMP_ABSENT
+    if P[_TFIT] != 0 and c != 0xFFFF and c >= P[_TLO] and c <= P[_THI]:
+        t = ((c - P[_T0C]) * P[_TMUL]) >> P[_TSH]
+    S[TEMP_CC] = t
+    if t == TEMP_ABSENT:
+        t = P[_TASSUMED]
+    nt = P[_NT]
+    if t != S[_LT_CC]:
+        S[_LT_CC] = t
+        if nt == 1 or t <= P[_TEMPS]:
+            S[_TROW] = 0
+            S[_TW] = 0
+        elif t >= P[_TEMPS + nt - 1]:
+            S[_TROW] = nt - 2
+            S[_TW] = 1024
+        else:
+            j = 0
+            while t >= P[_TEMPS + j + 1]:
+                j += 1
+            S[_TROW] = j
+            S[_TW] = ((t - P[_TEMPS + j]) << 10) // (P[_TEMPS + j + 1] - P[_TEMPS + j])
+    row = S[_TROW]
+    tw = S[_TW]
+    S[BATT_SUM] += rec[rb]
+
+    alpha = P[_ALPHA]
+    dxmax = P[_DXMAX]
+    fshz = P[_FSHZ]
+    nv = P[_NV]
+    oforce = P[_OFORCE]
+    pmax = P[_PMAX]
+    s0m = P[_S0M]
+    s0s = P[_S0S]
+    c1m = P[_C1M]
+    c1s10 = P[_C1S10]
+    c1half = (1 << c1s10) >> 1
+    s2s9 = P[_S2S9]
+    s2half = (1 << s2s9) >> 1
+    for i in range(n):
+        # velocity: x_f += alpha (x - x_f), increment clamped to +-dx_max
+        dx = 0
+        v = 0
+        if (dgood >> i) & 1:
+            x = S[X_Q8UM + i]
+            if ((S[_STARTED] >> i) & 1) == 0:
+                S[XF_Q8UM + i] = x
+                S[_STARTED] |= 1 << i
+            e = x - S[XF_Q8UM + i]  # |e| < 2**26: positions are within +-2**25
+            # e * alpha / 2**14 rounded, split so no product exceeds 2**28
+            dx = (e >> 14) * alpha + (((e & 16383) * alpha + 8192) >> 14)
+            if dx > dxmax:
+                dx = dxmax
+            elif dx < -dxmax:
+                dx = -dxmax
+            S[XF_Q8UM + i] += dx
+            v = (dx * fshz + 128) >> 8
+        S[DX_Q8UM + i] = dx
+        S[V_UM_S + i] = v
+        av = v
+        if v < 0:
+            av = -v
+
+        # pipe loss dp A: linear in |v| (flat beyond the table), then in temperature
+        b = _VBP + i * nv
+        if av >= P[b + nv - 1]:
+            j = nv - 2
+            fr = 1024
+        else:
+            j = 0
+            while av >= P[b + j + 1]:
+                j += 1
+            # av < 2**19, so av << 10 < 2**29
+            fr = ((av - P[b + j]) << 10) // (P[b + j + 1] - P[b + j])
+        r = oforce + (i * nt + row) * nv + j
+        f0 = P[r] + (((P[r + 1] - P[r]) * fr + 512) >> 10)
+        if tw != 0:
+            r += nv
+            f1 = P[r] + (((P[r + 1] - P[r]) * fr + 512) >> 10)
+            f0 += ((f1 - f0) * tw + 512) >> 10
+        if v < 0:
+            f0 = -f0
+        S[LOSS_N + i] = f0
+
+        # LuGre: parameters linear in the clamped sensor pressure
+        p = S[P_KPA + i]
+        if p < 0:
+            p = 0
+        elif p > pmax:
+            p = pmax
+        fs = P[_FS0] + ((p * P[_FSM]) >> P[_FSS])
+        fc = P[_FC0] + ((p * P[_FCM]) >> P[_FCS])
+        vs = P[_VS0] + ((p * P[_VSM]) >> P[_VSS])
+        s2 = P[_S20] + ((p * P[_S2M]) >> P[_S2S])
+        u = (av << 9) // vs  # |v| / vs in Q9; av < 2**20
+        eq = 0
+        if u < 2048:
+            k = _GEXP + (u >> 4)
+            eq = P[k] + (((P[k + 1] - P[k]) * (u & 15) + 8) >> 4)
+        g = (fc << 4) + (((fs - fc) * eq + 512) >> 10)
+        S[G + i] = g
+        wf = dx * s0m + S[_WREM + i]
+        w = wf >> s0s
+        S[_WREM + i] = wf - (w << s0s)
+        z = S[ZF + i]
+        zn = z
+        if w != 0:
+            aw = w
+            e = z - g
+            if w < 0:
+                aw = -w
+                e = z + g
+            ea = e
+            if e < 0:
+                ea = -e
+            dd = g + aw
+            # q = round(ea * aw / dd) for ea < 2**20, aw < 2**19, aw < dd < 2**20; aw split
+            # into 9 high and 10 low bits so no intermediate reaches 2**30
+            q = ea * (aw >> 10)
+            q1 = q // dd
+            q = (q - q1 * dd) << 10
+            q2 = q // dd
+            r2 = q - q2 * dd
+            q = ea * (aw & 1023)
+            q3 = q // dd
+            r3 = q - q3 * dd
+            q = (q1 << 10) + q2 + q3 + (r2 + r3 + (dd >> 1)) // dd
+            if e >= 0:
+                zn = z - q
+            else:
+                zn = z + q
+            S[ZF + i] = zn
+        d = zn - z  # |d| < 2**20; c1m < 2**19: split d so no product passes 2**29
+        f = zn + (((d >> 10) * c1m + (((d & 1023) * c1m) >> 10) + c1half) >> c1s10)
+        # sigma2 v: |v| < 2**20 and s2 < 2**18, so v is split at 9 bits
+        f += ((v >> 9) * s2 + (((v & 511) * s2) >> 9) + s2half) >> s2s9
+        S[FRIC_Q4 + i] = f
+        fn = (f + 8) >> 4
+        S[FRIC_N + i] = fn
+
+        # tension and window statistics
+        t = S[RAW_N + i] + f0 + fn
+        S[TENSION_N + i] = t
+        if (good >> i) & 1:
+            S[SUM_N + i] += t
+            S[SUM_KPA + i] += S[P_KPA + i]
+            S[COUNT + i] += 1
+            if t < S[MIN_N + i]:
+                S[MIN_N + i] = t
+            if t > S[MAX_N + i]:
+                S[MAX_N + i] = t
+
+    # depth from the counter's wrapped difference; Hall marks snap it
+    c = rec[rb + 2]
+    prev = S[_PREV_COUNT]
+    S[_PREV_COUNT] = c
+    if prev >= 0:
+        d = (c - prev) & 0xFFFF
+        if d >= 0x8000:
+            d -= 0x10000
+        maxp = P[_MAXP]
+        if d > maxp or d < -maxp:
+            S[SHAFT_FAULT] = 1
+        elif d != 0:
+            t = d * P[_MMPP]
+            S[WIN_Q16] += t
+            if d > 0:
+                S[WIN_PULSES] += d
+            else:
+                S[WIN_PULSES] -= d
+            f = S[_FRAC] + t
+            S[DEPTH_MM] += f >> 16
+            S[_FRAC] = f & 0xFFFF
+    c = rec[rb + 3] & 3
+    if c != 0 and S[_PREV_HALL] == 0:
+        S[MARKS_SEEN] += 1
+        if S[WIN_PULSES] == 0 and S[LAST_WIN_PULSES] == 0:
+            S[SHAFT_FAULT] = 1
+        # snap to the nearest mark within SNAP
+        dep = S[DEPTH_MM]
+        best = -1
+        bd = P[_SNAP] + 1
+        m = P[_OMARKS]
+        for j in range(P[_NMARKS]):
+            d = P[m + j] - dep
+            if d < 0:
+                d = -d
+            if d < bd:
+                bd = d
+                best = j
+        if best >= 0:
+            S[DEPTH_MM] = P[m + best]
+            S[_FRAC] = 0
+    S[_PREV_HALL] = c
+
+    # node time and the frame window
+    c = S[SUB] + 1
+    if c >= fshz:
+        c = 0
+        S[SEC] += 1
+    S[SUB] = c
+    c = S[IN_WINDOW] + 1
+    if c < P[_WIN]:
+        S[IN_WINDOW] = c
+        return 0
+    S[IN_WINDOW] = 0
+
+    # the window closes: its frame fields, then a new window
+    tot = 0
+    used = 0
+    for i in range(n):
+        o = OUT_ROPES + 4 * i
+        c = S[COUNT + i]
+        if c == 0:
+            S[o] = TENSION_ABSENT
+            S[o + 1] = TENSION_ABSENT
+            S[o + 2] = TENSION_ABSENT
+            S[o + 3] = RAW_KPA_ABSENT
+        else:
+            for j in range(3):  # mean, min, max: N -> daN rounded, clamped to int16 (not ABSENT)
+                if j == 0:
+                    t = (S[SUM_N + i] + 5 * c) // (10 * c)
+                elif j == 1:
+                    t = (S[MIN_N + i] + 5) // 10
+                else:
+                    t = (S[MAX_N + i] + 5) // 10
+                if t > 32767:
+                    t = 32767
+                elif t < -32767:
+                    t = -32767
+                S[o + j] = t
+            tot += S[o]
+            used += 1
+            p = (S[SUM_KPA + i] + (c >> 1)) // c
+            if p < 0:
+                p = 0
+            elif p > 65534:
+                p = 65534
+            S[o + 3] = p
+        S[SUM_N + i] = 0
+        S[SUM_KPA + i] = 0
+        S[COUNT + i] = 0
+        S[MIN_N + i] = _BIG
+        S[MAX_N + i] = -_BIG
+    flags = 0
+    if used > 1 and tot > 0:
+        lim = P[_IMB]
+        for i in range(n):
+            m = S[OUT_ROPES + 4 * i]
+            if m != TENSION_ABSENT:
+                d = m * used - tot
+                if d < 0:
+                    d = -d
+                # |m - mean| / mean > lim / 1000, in integers (<= 2**18 * 1000)
+                if d * 1000 > lim * tot:
+                    flags |= FLAG_IMBALANCE
+    # battery: the window's mean counts (< 2**16) to mV
+    c = P[_BSH]
+    t = ((S[BATT_SUM] // P[_WIN]) * P[_BMUL] + ((1 << c) >> 1)) >> c
+    if t < P[_BLOW]:
+        flags |= FLAG_BATTERY_LOW
+    if t > 65535:
+        t = 65535
+    S[OUT_BATT_MV] = t
+    S[BATT_SUM] = 0
+    if S[SHAFT_FAULT] != 0:
+        flags |= FLAG_SPEED_FAULT
+        S[SHAFT_FAULT] = 0
+    # speed over the window, mm/s: win_q16 < 2**29, frame_hz <= 1000
+    t = ((S[WIN_Q16] >> 10) * P[_FRHZ]) >> 6
+    if t > 32767:
+        t = 32767
+    elif t < -32767:
+        t = -32767
+    S[OUT_SPEED] = t
+    S[WIN_Q16] = 0
+    S[LAST_WIN_PULSES] = S[WIN_PULSES]
+    S[WIN_PULSES] = 0
+    S[OUT_FLAGS] = flags
+    S[OUT_FAULTS] = S[WFAULTS]
+    S[WFAULTS] = 0
+    S[OUT_TEMP_CC] = S[TEMP_CC]
+    S[OUT_SEC] = S[SEC]
+    S[OUT_SUB] = S[SUB]
+    S[OUT_DEPTH_MM] = S[DEPTH_MM]
+    return 1

@@ -1,0 +1,437 @@
+"""GENERATED from kernel.py by tests/firmware/kernel_gen_cpython.py: do not edit.
+
+kernel.py with `step` compiled by @micropython.viper (int32 reads sign-extended).
+"""
+import micropython
+import array
+from micropython import const
+ROPES_MAX = const(4)
+GEXP_POINTS = const(129)
+TEMPS_MAX = const(8)
+TEMP_ABSENT = const(-32768)
+_BIG = const(536870912)
+_ALPHA = const(0)
+_DXMAX = const(1)
+_FSHZ = const(2)
+_FS0 = const(3)
+_FSM = const(4)
+_FSS = const(5)
+_FC0 = const(6)
+_FCM = const(7)
+_FCS = const(8)
+_VS0 = const(9)
+_VSM = const(10)
+_VSS = const(11)
+_S20 = const(12)
+_S2M = const(13)
+_S2S = const(14)
+_S2S9 = const(15)
+_S0M = const(16)
+_S0S = const(17)
+_C1M = const(18)
+_C1S10 = const(19)
+_PMAX = const(20)
+_NV = const(21)
+_NT = const(22)
+_TFIT = const(23)
+_T0C = const(24)
+_TMUL = const(25)
+_TSH = const(26)
+_TLO = const(27)
+_THI = const(28)
+_TASSUMED = const(29)
+_MMPP = const(30)
+_MAXP = const(31)
+_SNAP = const(32)
+_NMARKS = const(33)
+_WIN = const(34)
+_IMB = const(35)
+_BMUL = const(36)
+_BSH = const(37)
+_BLOW = const(38)
+_FRHZ = const(39)
+_OFORCE = const(40)
+_OMARKS = const(41)
+_PCAL = const(42)
+_DCAL = const(_PCAL + 9 * ROPES_MAX)
+_GEXP = const(_DCAL + 6 * ROPES_MAX)
+_TEMPS = const(_GEXP + GEXP_POINTS)
+_VBP = const(_TEMPS + TEMPS_MAX)
+SEEN = const(0)
+_STARTED = const(1)
+FAULTS = const(2)
+GOOD = const(3)
+WFAULTS = const(4)
+BATT_SUM = const(5)
+TEMP_CC = const(6)
+_LT_CC = const(7)
+_TROW = const(8)
+_TW = const(9)
+DEPTH_MM = const(10)
+_FRAC = const(11)
+_PREV_COUNT = const(12)
+_PREV_HALL = const(13)
+WIN_Q16 = const(14)
+WIN_PULSES = const(15)
+LAST_WIN_PULSES = const(16)
+SHAFT_FAULT = const(17)
+MARKS_SEEN = const(18)
+SUB = const(19)
+SEC = const(20)
+IN_WINDOW = const(21)
+P_KPA = const(24)
+RAW_N = const(28)
+X_Q8UM = const(32)
+XF_Q8UM = const(36)
+DX_Q8UM = const(40)
+V_UM_S = const(44)
+LOSS_N = const(48)
+ZF = const(52)
+_WREM = const(56)
+G = const(60)
+FRIC_Q4 = const(64)
+FRIC_N = const(68)
+TENSION_N = const(72)
+SUM_N = const(76)
+MIN_N = const(80)
+MAX_N = const(84)
+SUM_KPA = const(88)
+COUNT = const(92)
+OUT_ROPES = const(96)
+OUT_FLAGS = const(112)
+OUT_FAULTS = const(113)
+OUT_SPEED = const(114)
+OUT_BATT_MV = const(115)
+OUT_TEMP_CC = const(116)
+OUT_SEC = const(117)
+OUT_SUB = const(118)
+OUT_DEPTH_MM = const(119)
+_S_LEN = const(120)
+FLAG_IMBALANCE = const(1)
+FLAG_BATTERY_LOW = const(2)
+FLAG_SPEED_FAULT = const(4)
+TENSION_ABSENT = const(-32768)
+RAW_KPA_ABSENT = const(65535)
+
+def pack(c):
+    """The config array P from a validated config.Config."""
+    n = c.ropes
+    nv = c.loss_nv
+    nt = c.loss_nt
+    nm = len(c.marks_mm)
+    p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv)
+    for j in range(len(head)):
+        p[j] = head[j]
+    for src, off in ((c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
+        for j in range(len(src)):
+            p[off + j] = src[j]
+    return p
+
+def state(c):
+    """A fresh state array S for config c (window min/max open, no counter word yet)."""
+    s = array.array('i', bytes(4 * _S_LEN))
+    s[TEMP_CC] = TEMP_ABSENT
+    s[_LT_CC] = -_BIG
+    s[DEPTH_MM] = c.start_depth_mm
+    s[_PREV_COUNT] = -1
+    for i in range(ROPES_MAX):
+        s[MIN_N + i] = _BIG
+        s[MAX_N + i] = -_BIG
+    return s
+
+@micropython.viper
+def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
+    """Process one record (2n+4 words); return 1 when a frame window just closed."""
+    s31 = 1 << 29
+    s31 <<= 2
+    mask = 0
+    seen = (S[SEEN] ^ s31) - s31
+    for i in range(n):
+        c = rec[i]
+        b = _PCAL + 9 * i
+        if c < (P[b + 1] ^ s31) - s31 or c > (P[b + 2] ^ s31) - s31:
+            mask |= 1 << i
+        else:
+            d = c - ((P[b] ^ s31) - s31)
+            S[P_KPA + i] = (P[b + 3] ^ s31) - s31 + (d * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31)
+            S[RAW_N + i] = (P[b + 6] ^ s31) - s31 + (d * ((P[b + 7] ^ s31) - s31) >> (P[b + 8] ^ s31) - s31)
+            seen |= 1 << i
+        c = rec[n + i]
+        b = _DCAL + 6 * i
+        if c < (P[b + 1] ^ s31) - s31 or c > (P[b + 2] ^ s31) - s31:
+            mask |= 16 << i
+        else:
+            S[X_Q8UM + i] = (P[b + 3] ^ s31) - s31 + ((c - ((P[b] ^ s31) - s31)) * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31)
+            seen |= 16 << i
+    S[SEEN] = seen
+    S[FAULTS] = mask
+    allb = (1 << n) - 1
+    dgood = (mask >> 4 ^ allb) & seen >> 4 & allb
+    good = (mask ^ allb) & dgood & seen & allb
+    S[GOOD] = good
+    S[WFAULTS] |= mask
+    rb = n << 1
+    c = rec[rb + 1]
+    t = TEMP_ABSENT
+    if (P[_TFIT] ^ s31) - s31 != 0 and c != 65535 and (c >= (P[_TLO] ^ s31) - s31) and (c <= (P[_THI] ^ s31) - s31):
+        t = (c - ((P[_T0C] ^ s31) - s31)) * ((P[_TMUL] ^ s31) - s31) >> (P[_TSH] ^ s31) - s31
+    S[TEMP_CC] = t
+    if t == TEMP_ABSENT:
+        t = (P[_TASSUMED] ^ s31) - s31
+    nt = (P[_NT] ^ s31) - s31
+    if t != (S[_LT_CC] ^ s31) - s31:
+        S[_LT_CC] = t
+        if nt == 1 or t <= (P[_TEMPS] ^ s31) - s31:
+            S[_TROW] = 0
+            S[_TW] = 0
+        elif t >= (P[_TEMPS + nt - 1] ^ s31) - s31:
+            S[_TROW] = nt - 2
+            S[_TW] = 1024
+        else:
+            j = 0
+            while t >= (P[_TEMPS + j + 1] ^ s31) - s31:
+                j += 1
+            S[_TROW] = j
+            S[_TW] = (t - ((P[_TEMPS + j] ^ s31) - s31) << 10) // ((P[_TEMPS + j + 1] ^ s31) - s31 - ((P[_TEMPS + j] ^ s31) - s31))
+    row = (S[_TROW] ^ s31) - s31
+    tw = (S[_TW] ^ s31) - s31
+    S[BATT_SUM] += rec[rb]
+    alpha = (P[_ALPHA] ^ s31) - s31
+    dxmax = (P[_DXMAX] ^ s31) - s31
+    fshz = (P[_FSHZ] ^ s31) - s31
+    nv = (P[_NV] ^ s31) - s31
+    oforce = (P[_OFORCE] ^ s31) - s31
+    pmax = (P[_PMAX] ^ s31) - s31
+    s0m = (P[_S0M] ^ s31) - s31
+    s0s = (P[_S0S] ^ s31) - s31
+    c1m = (P[_C1M] ^ s31) - s31
+    c1s10 = (P[_C1S10] ^ s31) - s31
+    c1half = 1 << c1s10 >> 1
+    s2s9 = (P[_S2S9] ^ s31) - s31
+    s2half = 1 << s2s9 >> 1
+    for i in range(n):
+        dx = 0
+        v = 0
+        if dgood >> i & 1:
+            x = (S[X_Q8UM + i] ^ s31) - s31
+            if (S[_STARTED] ^ s31) - s31 >> i & 1 == 0:
+                S[XF_Q8UM + i] = x
+                S[_STARTED] |= 1 << i
+            e = x - ((S[XF_Q8UM + i] ^ s31) - s31)
+            dx = (e >> 14) * alpha + ((e & 16383) * alpha + 8192 >> 14)
+            if dx > dxmax:
+                dx = dxmax
+            elif dx < -dxmax:
+                dx = -dxmax
+            S[XF_Q8UM + i] += dx
+            v = dx * fshz + 128 >> 8
+        S[DX_Q8UM + i] = dx
+        S[V_UM_S + i] = v
+        av = v
+        if v < 0:
+            av = -v
+        b = _VBP + i * nv
+        if av >= (P[b + nv - 1] ^ s31) - s31:
+            j = nv - 2
+            fr = 1024
+        else:
+            j = 0
+            while av >= (P[b + j + 1] ^ s31) - s31:
+                j += 1
+            fr = (av - ((P[b + j] ^ s31) - s31) << 10) // ((P[b + j + 1] ^ s31) - s31 - ((P[b + j] ^ s31) - s31))
+        r = oforce + (i * nt + row) * nv + j
+        f0 = (P[r] ^ s31) - s31 + (((P[r + 1] ^ s31) - s31 - ((P[r] ^ s31) - s31)) * fr + 512 >> 10)
+        if tw != 0:
+            r += nv
+            f1 = (P[r] ^ s31) - s31 + (((P[r + 1] ^ s31) - s31 - ((P[r] ^ s31) - s31)) * fr + 512 >> 10)
+            f0 += (f1 - f0) * tw + 512 >> 10
+        if v < 0:
+            f0 = -f0
+        S[LOSS_N + i] = f0
+        p = (S[P_KPA + i] ^ s31) - s31
+        if p < 0:
+            p = 0
+        elif p > pmax:
+            p = pmax
+        fs = (P[_FS0] ^ s31) - s31 + (p * ((P[_FSM] ^ s31) - s31) >> (P[_FSS] ^ s31) - s31)
+        fc = (P[_FC0] ^ s31) - s31 + (p * ((P[_FCM] ^ s31) - s31) >> (P[_FCS] ^ s31) - s31)
+        vs = (P[_VS0] ^ s31) - s31 + (p * ((P[_VSM] ^ s31) - s31) >> (P[_VSS] ^ s31) - s31)
+        s2 = (P[_S20] ^ s31) - s31 + (p * ((P[_S2M] ^ s31) - s31) >> (P[_S2S] ^ s31) - s31)
+        u = (av << 9) // vs
+        eq = 0
+        if u < 2048:
+            k = _GEXP + (u >> 4)
+            eq = (P[k] ^ s31) - s31 + (((P[k + 1] ^ s31) - s31 - ((P[k] ^ s31) - s31)) * (u & 15) + 8 >> 4)
+        g = (fc << 4) + ((fs - fc) * eq + 512 >> 10)
+        S[G + i] = g
+        wf = dx * s0m + ((S[_WREM + i] ^ s31) - s31)
+        w = wf >> s0s
+        S[_WREM + i] = wf - (w << s0s)
+        z = (S[ZF + i] ^ s31) - s31
+        zn = z
+        if w != 0:
+            aw = w
+            e = z - g
+            if w < 0:
+                aw = -w
+                e = z + g
+            ea = e
+            if e < 0:
+                ea = -e
+            dd = g + aw
+            q = ea * (aw >> 10)
+            q1 = q // dd
+            q = q - q1 * dd << 10
+            q2 = q // dd
+            r2 = q - q2 * dd
+            q = ea * (aw & 1023)
+            q3 = q // dd
+            r3 = q - q3 * dd
+            q = (q1 << 10) + q2 + q3 + (r2 + r3 + (dd >> 1)) // dd
+            if e >= 0:
+                zn = z - q
+            else:
+                zn = z + q
+            S[ZF + i] = zn
+        d = zn - z
+        f = zn + ((d >> 10) * c1m + ((d & 1023) * c1m >> 10) + c1half >> c1s10)
+        f += (v >> 9) * s2 + ((v & 511) * s2 >> 9) + s2half >> s2s9
+        S[FRIC_Q4 + i] = f
+        fn = f + 8 >> 4
+        S[FRIC_N + i] = fn
+        t = (S[RAW_N + i] ^ s31) - s31 + f0 + fn
+        S[TENSION_N + i] = t
+        if good >> i & 1:
+            S[SUM_N + i] += t
+            S[SUM_KPA + i] += (S[P_KPA + i] ^ s31) - s31
+            S[COUNT + i] += 1
+            if t < (S[MIN_N + i] ^ s31) - s31:
+                S[MIN_N + i] = t
+            if t > (S[MAX_N + i] ^ s31) - s31:
+                S[MAX_N + i] = t
+    c = rec[rb + 2]
+    prev = (S[_PREV_COUNT] ^ s31) - s31
+    S[_PREV_COUNT] = c
+    if prev >= 0:
+        d = c - prev & 65535
+        if d >= 32768:
+            d -= 65536
+        maxp = (P[_MAXP] ^ s31) - s31
+        if d > maxp or d < -maxp:
+            S[SHAFT_FAULT] = 1
+        elif d != 0:
+            t = d * ((P[_MMPP] ^ s31) - s31)
+            S[WIN_Q16] += t
+            if d > 0:
+                S[WIN_PULSES] += d
+            else:
+                S[WIN_PULSES] -= d
+            f = (S[_FRAC] ^ s31) - s31 + t
+            S[DEPTH_MM] += f >> 16
+            S[_FRAC] = f & 65535
+    c = rec[rb + 3] & 3
+    if c != 0 and (S[_PREV_HALL] ^ s31) - s31 == 0:
+        S[MARKS_SEEN] += 1
+        if (S[WIN_PULSES] ^ s31) - s31 == 0 and (S[LAST_WIN_PULSES] ^ s31) - s31 == 0:
+            S[SHAFT_FAULT] = 1
+        dep = (S[DEPTH_MM] ^ s31) - s31
+        best = -1
+        bd = (P[_SNAP] ^ s31) - s31 + 1
+        m = (P[_OMARKS] ^ s31) - s31
+        for j in range((P[_NMARKS] ^ s31) - s31):
+            d = (P[m + j] ^ s31) - s31 - dep
+            if d < 0:
+                d = -d
+            if d < bd:
+                bd = d
+                best = j
+        if best >= 0:
+            S[DEPTH_MM] = (P[m + best] ^ s31) - s31
+            S[_FRAC] = 0
+    S[_PREV_HALL] = c
+    c = (S[SUB] ^ s31) - s31 + 1
+    if c >= fshz:
+        c = 0
+        S[SEC] += 1
+    S[SUB] = c
+    c = (S[IN_WINDOW] ^ s31) - s31 + 1
+    if c < (P[_WIN] ^ s31) - s31:
+        S[IN_WINDOW] = c
+        return 0
+    S[IN_WINDOW] = 0
+    tot = 0
+    used = 0
+    for i in range(n):
+        o = OUT_ROPES + 4 * i
+        c = (S[COUNT + i] ^ s31) - s31
+        if c == 0:
+            S[o] = TENSION_ABSENT
+            S[o + 1] = TENSION_ABSENT
+            S[o + 2] = TENSION_ABSENT
+            S[o + 3] = RAW_KPA_ABSENT
+        else:
+            for j in range(3):
+                if j == 0:
+                    t = ((S[SUM_N + i] ^ s31) - s31 + 5 * c) // (10 * c)
+                elif j == 1:
+                    t = ((S[MIN_N + i] ^ s31) - s31 + 5) // 10
+                else:
+                    t = ((S[MAX_N + i] ^ s31) - s31 + 5) // 10
+                if t > 32767:
+                    t = 32767
+                elif t < -32767:
+                    t = -32767
+                S[o + j] = t
+            tot += (S[o] ^ s31) - s31
+            used += 1
+            p = ((S[SUM_KPA + i] ^ s31) - s31 + (c >> 1)) // c
+            if p < 0:
+                p = 0
+            elif p > 65534:
+                p = 65534
+            S[o + 3] = p
+        S[SUM_N + i] = 0
+        S[SUM_KPA + i] = 0
+        S[COUNT + i] = 0
+        S[MIN_N + i] = _BIG
+        S[MAX_N + i] = -_BIG
+    flags = 0
+    if used > 1 and tot > 0:
+        lim = (P[_IMB] ^ s31) - s31
+        for i in range(n):
+            m = (S[OUT_ROPES + 4 * i] ^ s31) - s31
+            if m != TENSION_ABSENT:
+                d = m * used - tot
+                if d < 0:
+                    d = -d
+                if d * 1000 > lim * tot:
+                    flags |= FLAG_IMBALANCE
+    c = (P[_BSH] ^ s31) - s31
+    t = ((S[BATT_SUM] ^ s31) - s31) // ((P[_WIN] ^ s31) - s31) * ((P[_BMUL] ^ s31) - s31) + (1 << c >> 1) >> c
+    if t < (P[_BLOW] ^ s31) - s31:
+        flags |= FLAG_BATTERY_LOW
+    if t > 65535:
+        t = 65535
+    S[OUT_BATT_MV] = t
+    S[BATT_SUM] = 0
+    if (S[SHAFT_FAULT] ^ s31) - s31 != 0:
+        flags |= FLAG_SPEED_FAULT
+        S[SHAFT_FAULT] = 0
+    t = ((S[WIN_Q16] ^ s31) - s31 >> 10) * ((P[_FRHZ] ^ s31) - s31) >> 6
+    if t > 32767:
+        t = 32767
+    elif t < -32767:
+        t = -32767
+    S[OUT_SPEED] = t
+    S[WIN_Q16] = 0
+    S[LAST_WIN_PULSES] = (S[WIN_PULSES] ^ s31) - s31
+    S[WIN_PULSES] = 0
+    S[OUT_FLAGS] = flags
+    S[OUT_FAULTS] = (S[WFAULTS] ^ s31) - s31
+    S[WFAULTS] = 0
+    S[OUT_TEMP_CC] = (S[TEMP_CC] ^ s31) - s31
+    S[OUT_SEC] = (S[SEC] ^ s31) - s31
+    S[OUT_SUB] = (S[SUB] ^ s31) - s31
+    S[OUT_DEPTH_MM] = (S[DEPTH_MM] ^ s31) - s31
+    return 1
