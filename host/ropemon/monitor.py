@@ -1,0 +1,616 @@
+"""`ropemon monitor`: the hoist-room live dashboard from one or more receiver ports.
+
+Bytes from each receiver -> decoder -> merger (duplicates dropped) -> alarms,
+SQLite log and the view. The view fits an 80x24 terminal (ssh from the hoist
+room): per rope compensated and raw tension, deviation from the mean, a trend,
+total load against rated, alarms (with the terminal bell), link quality per
+receiver and the node's battery. Key `a` acknowledges the alarms, `n` shows
+the next cage node (each cage has its own), `q` quits.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import select
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from rich import box
+from rich.console import Console, Group, RenderableType
+from rich.table import Table
+from rich.text import Text
+
+from ropemon.alarms import ActiveAlarm, AlarmEngine, AlarmEvent, AlarmSettings
+from ropemon.decoder import StreamDecoder
+from ropemon.link import FrameHub
+from ropemon.protocol import DAN_TO_N, Frame, L
+
+TENSION_ABSENT = L.TENSION_ABSENT   # a rope whose sensor failed for the whole window
+
+SPARK = "▁▂▃▄▅▆▇█"
+TREND_LEN = 24           # frames in the sparkline (2.4 s at 10 frames/s)
+BELL_REPEAT_S = 5.0      # ring again while an alarm stays unacknowledged
+
+
+def sparkline(values: Iterable[float], lo: float, hi: float) -> str:
+    """One block character per value, scaled between lo and hi."""
+    span = hi - lo
+    out = []
+    for v in values:
+        k = 0 if span <= 0 else int((v - lo) / span * (len(SPARK) - 1) + 0.5)
+        out.append(SPARK[max(0, min(len(SPARK) - 1, k))])
+    return "".join(out)
+
+
+@dataclass
+class SiteFigures:
+    """What the view needs to know about the hoist beyond the frames."""
+
+    cylinder_area_m2: list[float] = field(default_factory=list)  # per rope; empty: raw shown in kPa
+    rated_rope_tension_n: float | None = None
+    rated_load_n: float | None = None        # total of all ropes; default ropes x rated rope
+    imbalance_frac: float = 0.10
+    battery_low_v: float | None = None
+
+    @classmethod
+    def from_node_json(cls, path: str | Path) -> "SiteFigures":
+        """The figures from a node.json's `physical` section (docs/config.md)."""
+        try:
+            phys = json.loads(Path(path).read_text())["physical"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise ValueError(f"{path}: cannot read the physical section of a node config: {e}") from None
+        area = phys.get("cylinder_area_m2", [])
+        ropes = int(phys.get("ropes", len(area) if isinstance(area, list) else 4))
+        if not isinstance(area, list):
+            area = [float(area)] * ropes
+        rated = phys.get("rated_rope_tension_N")
+        return cls(
+            cylinder_area_m2=[float(a) for a in area],
+            rated_rope_tension_n=float(rated) if rated is not None else None,
+            rated_load_n=float(rated) * ropes if rated is not None else None,
+            imbalance_frac=float(phys.get("imbalance_frac", 0.10)),
+            battery_low_v=phys.get("battery_low_V"),
+        )
+
+
+def node_keys_from_json(path: str | Path) -> dict[int, bytes]:
+    """node id -> HMAC key from a node.json."""
+    phys = json.loads(Path(path).read_text())["physical"]
+    return {int(phys["node_id"]): bytes.fromhex(phys["key_hex"])}
+
+
+def parse_key(text: str) -> tuple[int, bytes]:
+    """`NODE:HEX` -> (node, key)."""
+    try:
+        node, hexkey = text.split(":", 1)
+        key = bytes.fromhex(hexkey)
+        n = int(node)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--key {text!r}: expected NODE:HEXKEY, e.g. 1:00112233...") from None
+    if not 0 <= n <= 255 or not 16 <= len(key) <= 32:
+        raise argparse.ArgumentTypeError(f"--key {text!r}: node 0..255 and a 16..32 byte key")
+    return n, key
+
+
+@dataclass
+class NodeView:
+    """What the view remembers of one cage node."""
+
+    last: Frame
+    last_at_s: float
+    trend: list[deque[float]] = field(default_factory=list)
+
+
+class MonitorView:
+    """The operator's picture of the hoist, updated by merged frames, drawn by `render`.
+
+    Each cage carries its own node; the view shows one node at a time (key `n`
+    switches) and a line on the others, so two cages still fit 80x24.
+    """
+
+    def __init__(self, site: SiteFigures | None = None, trend_len: int = TREND_LEN) -> None:
+        self.site = site or SiteFigures()
+        self.nodes: dict[int, NodeView] = {}
+        self.shown: int | None = None
+        self.trend_len = trend_len
+        self.link_rows: list[tuple[str, str]] = []   # (receiver, figures text)
+        self.merge_text = ""
+        self.alarm_rows: list[tuple[str, bool]] = []  # (text, acknowledged)
+        self.frames = 0
+
+    def on_frame(self, frame: Frame, now_s: float) -> None:
+        """A new (merged, not duplicate) frame."""
+        self.frames += 1
+        nv = self.nodes.get(frame.node)
+        if nv is None:
+            nv = self.nodes[frame.node] = NodeView(frame, now_s)
+            if self.shown is None:
+                self.shown = frame.node
+        nv.last, nv.last_at_s = frame, now_s
+        if frame.ropes:
+            while len(nv.trend) < len(frame.ropes):
+                nv.trend.append(deque(maxlen=self.trend_len))
+            for i, r in enumerate(frame.ropes):
+                if r.mean_dan != TENSION_ABSENT:
+                    nv.trend[i].append(r.mean_dan * DAN_TO_N)
+
+    def next_node(self) -> None:
+        """Show the next node (key `n`)."""
+        ids = sorted(self.nodes)
+        if ids:
+            k = ids.index(self.shown) + 1 if self.shown in ids else 0
+            self.shown = ids[k % len(ids)]
+
+    @property
+    def _node(self) -> NodeView | None:
+        return self.nodes.get(self.shown) if self.shown is not None else None
+
+    @property
+    def last(self) -> Frame | None:
+        nv = self._node
+        return nv.last if nv else None
+
+    @property
+    def last_at_s(self) -> float | None:
+        nv = self._node
+        return nv.last_at_s if nv else None
+
+    @property
+    def trend(self) -> list[deque[float]]:
+        nv = self._node
+        return nv.trend if nv else []
+
+    # -- figures ------------------------------------------------------------
+    def raw_n(self, rope: int, raw_kpa: int) -> float | None:
+        """Uncompensated tension p_tap x A, None without the cylinder area."""
+        a = self.site.cylinder_area_m2
+        if rope < len(a):
+            return raw_kpa * 1000.0 * a[rope]
+        return None
+
+    # -- drawing ------------------------------------------------------------
+    def render(self, now_s: float) -> RenderableType:
+        parts: list[RenderableType] = [self._header(now_s), self._ropes()]
+        if len(self.nodes) > 1:
+            parts.append(self._others(now_s))
+        keys = "a: acknowledge alarms   " + ("n: next node   " if len(self.nodes) > 1 else "") + "q: quit"
+        parts += [self._alarms(), self._links(), Text(keys, style="dim")]
+        return Group(*parts)
+
+    def _others(self, now_s: float) -> Text:
+        t = Text(" other nodes:", style="bold")
+        for node, nv in sorted(self.nodes.items()):
+            if node == self.shown:
+                continue
+            f = nv.last
+            used = [r.mean_dan for r in f.ropes if r.mean_dan != TENSION_ABSENT]
+            total = f"{sum(used) * DAN_TO_N / 1000:.1f} kN" if used else "no tension"
+            t.append(f"  node {node}: {total}, {f.depth_mm / 1000:.0f} m, {now_s - nv.last_at_s:.1f} s ago")
+        return t
+
+    def _header(self, now_s: float) -> Text:
+        t = Text()
+        t.append(" ROPEMON ", style="bold reverse")
+        f = self.last
+        if f is None:
+            t.append("  waiting for frames ...", style="yellow")
+            return t
+        age = now_s - (self.last_at_s or now_s)
+        t.append(f" node {f.node} seq {f.seq} t {f.time_ms / 1000:.1f}s")
+        t.append(f"  depth {f.depth_mm / 1000:6.1f} m  speed {f.speed_mm_s / 1000:+5.2f} m/s")
+        bat_v = f.battery_mv / 1000
+        low = self.site.battery_low_v is not None and bat_v < self.site.battery_low_v
+        t.append("\n")
+        t.append(f" battery {bat_v:.2f} V", style="bold red" if low else "")
+        temp = f.oil_temp_c
+        t.append(f"  oil {temp:.1f} C" if temp is not None else "  oil -- C")
+        t.append(f"  last frame {age:4.1f} s ago", style="bold red reverse" if age > 2.0 else "")
+        flags = [n for n in f.status_flags if n != "temp_absent"]
+        if flags:
+            t.append("  " + " ".join(flags), style="bold yellow")
+        return t
+
+    def _ropes(self) -> Table:
+        kn = "kN"
+        table = Table(box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, expand=False,
+                      show_edge=False)
+        table.add_column("rope", justify="right")
+        table.add_column(f"comp {kn}", justify="right")
+        table.add_column(f"raw {kn}", justify="right")
+        table.add_column("dev %", justify="right")
+        table.add_column(f"min..max {kn}", justify="right")
+        table.add_column(f"trend ({self.trend_len / 10:.1f} s)", justify="left", no_wrap=True)
+        f = self.last
+        if f is None or not f.ropes:
+            why = "no frame yet" if f is None else "STATUS ONLY: node not compensating"
+            table.add_row("-", "-", "-", "-", "-", Text(why, style="bold red" if f else "yellow"))
+            return table
+        ok = [r.mean_dan != TENSION_ABSENT for r in f.ropes]
+        comp = [r.mean_dan * DAN_TO_N if good else 0 for r, good in zip(f.ropes, ok)]
+        used = [c for c, good in zip(comp, ok) if good]
+        mean = sum(used) / len(used) if used else 0.0
+        lim = self.site.imbalance_frac
+        # Each rope on its own scale (the shape of its last seconds), but never
+        # finer than 1 % of rated, so sensor noise does not look like a swing.
+        min_span = 0.01 * (self.site.rated_rope_tension_n or max(comp) or 1.0)
+        raw_sum = 0.0
+        raw_ok = True
+        for i, r in enumerate(f.ropes):
+            if not ok[i]:
+                table.add_row(str(i + 1), Text("FAULT", style="bold red reverse"), "-", "-", "-",
+                              Text("sensor failed: no tension", style="bold red"))
+                raw_ok = False
+                continue
+            dev = (comp[i] - mean) / mean if mean > 0 else 0.0
+            style = "bold red reverse" if abs(dev) > lim else ("yellow" if abs(dev) > 0.8 * lim else "")
+            raw = self.raw_n(i, r.raw_kpa)
+            if raw is None:
+                raw_ok = False
+                raw_txt = f"{r.raw_kpa}kPa"
+            else:
+                raw_sum += raw
+                raw_txt = f"{raw / 1000:.1f}"
+            table.add_row(str(i + 1), f"{comp[i] / 1000:.1f}", raw_txt, Text(f"{dev * 100:+.1f}", style=style),
+                          f"{r.min_dan * DAN_TO_N / 1000:.1f}..{r.max_dan * DAN_TO_N / 1000:.1f}",
+                          self._spark(i, min_span))
+        total = sum(used)
+        rated = self.site.rated_load_n
+        load = Text(f"load of rated {rated / 1000:.0f} kN: {total / rated * 100:.0f} %" if rated else "")
+        if rated and total > rated:
+            load.stylize("bold red reverse")
+        if not all(ok):
+            load = Text(f"{ok.count(False)} rope(s) missing from the sum", style="bold red")
+        table.add_row("sum", Text(f"{total / 1000:.1f}", style="bold"),
+                      f"{raw_sum / 1000:.1f}" if raw_ok else "-", "", "", load)
+        return table
+
+    def _spark(self, rope: int, min_span: float) -> str:
+        if rope >= len(self.trend) or not self.trend[rope]:
+            return ""
+        d = self.trend[rope]
+        lo, hi = min(d), max(d)
+        mid, half = (lo + hi) / 2, max(hi - lo, min_span) / 2
+        return sparkline(d, mid - half, mid + half)
+
+    def _alarms(self) -> Text:
+        t = Text()
+        if not self.alarm_rows:
+            t.append(" alarms: none", style="green")
+            return t
+        t.append(" ALARMS", style="bold red reverse")
+        shown = self.alarm_rows[:5]
+        for text, acked in shown:
+            t.append("\n ")
+            t.append(("  ack " if acked else "! NEW ") + text[:70],
+                     style="yellow" if acked else "bold red")
+        if len(self.alarm_rows) > len(shown):
+            t.append(f"\n  ... and {len(self.alarm_rows) - len(shown)} more")
+        return t
+
+    def _links(self) -> Text:
+        t = Text(" link ", style="bold")
+        parts = [f"{name}: {fig}" for name, fig in self.link_rows] or ["no receiver data"]
+        t.append("  ".join(parts))
+        if self.merge_text:
+            t.append("\n      " + self.merge_text)
+        return t
+
+
+def link_figures(merger_stats: dict, counts: dict[str, Any],
+                 down: dict[str, str] | None = None) -> list[tuple[str, str]]:
+    """Per receiver: share of the node's frames it delivered, and its rejects;
+    `down` names the receivers whose port is not open (with the reason)."""
+    rows = []
+    down = down or {}
+    names = list(counts)
+    for node_stats in merger_stats.values():
+        for r in node_stats["receivers"]:
+            if r not in names:
+                names.append(r)
+    for name in names:
+        shares = [s["receivers"][name]["share"] for s in merger_stats.values()
+                  if name in s["receivers"] and s["receivers"][name]["share"] is not None]
+        share = f"{100 * sum(shares) / len(shares):.0f} %" if shares else "-- %"
+        c = counts.get(name)
+        bad = f" crc {c.crc_fail} bad {c.malformed + c.mac_fail + c.replayed}" if c is not None else ""
+        state = "  PORT DOWN" if name in down else ""
+        rows.append((name, share + bad + state))
+    return rows
+
+
+def merge_figures(merger_stats: dict) -> str:
+    unique = sum(s["unique"] for s in merger_stats.values())
+    lost = sum(s["lost"] for s in merger_stats.values())
+    dup = sum(s["duplicates"] for s in merger_stats.values())
+    sent = unique + lost
+    pct = f" ({100 * lost / sent:.1f} %)" if sent else ""
+    return f"frames {unique}  lost {lost}{pct}  duplicates dropped {dup}"
+
+
+def alarm_text(a: ActiveAlarm) -> str:
+    """One line for the operator; ropes numbered from 1 as on the cage."""
+    rope = f" rope {a.rope + 1}" if a.rope is not None else ""
+    v, thr = a.value, a.threshold
+    if a.kind == "deviation" and v is not None and thr is not None:
+        what = f"{v * 100:+.1f} % from mean (limit {thr * 100:.0f} %)"
+    elif a.kind == "overload" and v is not None and thr is not None:
+        what = f"total {v * DAN_TO_N / 1000:.1f} kN > {thr * DAN_TO_N / 1000:.1f} kN"
+    elif a.kind == "slack" and v is not None and thr is not None:
+        what = f"{v * DAN_TO_N / 1000:.1f} kN < {thr * DAN_TO_N / 1000:.1f} kN"
+    elif a.kind == "battery_low" and v is not None:
+        what = f"{v / 1000:.2f} V"
+    elif a.kind == "silent" and v is not None:
+        what = f"no frame for {v:.1f} s"
+    else:
+        what = a.message
+    state = "" if a.present else " (cleared)"
+    return f"{a.kind.upper().replace('_', ' ')}{rope}: {what}{state}"
+
+
+class HostSession:
+    """The host's data path: receivers -> `FrameHub` (decode, merge) -> alarms, log, view.
+
+    Reader threads decode and merge (the hub); `pump`, on the main loop's
+    thread, which also owns the SQLite store, consumes the merged frames.
+    Only new frames (not duplicates) reach the alarms, the log and the view.
+    """
+
+    LINK_LOG_S = 10.0   # link statistics go to the log this often
+
+    def __init__(self, keys: dict[int, bytes] | None = None, settings: AlarmSettings | None = None,
+                 store: Any = None, view: MonitorView | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.keys = keys
+        self.hub = FrameHub(keys)
+        self.alarms = AlarmEngine(settings)
+        self.store = store
+        self.view = view
+        self.clock = clock
+        self.new_raises = 0          # raise events since the view last rang the bell
+        self.frames: list[Frame] = []
+        self.keep_frames = False     # the demo keeps them to compare with the truth
+        self._feeders: dict[str, Callable[[bytes], None]] = {}
+        self._link_logged_s: float | None = None
+
+    @property
+    def decoders(self) -> dict[str, StreamDecoder]:
+        return self.hub.decoders
+
+    def add_receiver(self, name: str) -> Callable[[bytes], None]:
+        """The byte sink of receiver `name` (thread-safe: decodes and merges)."""
+        if name not in self._feeders:
+            self._feeders[name] = self.hub.feeder(name)
+        return self._feeders[name]
+
+    def add_port(self, url: str, name: str, **kw: Any) -> Any:
+        """Read receiver `name` from a serial port (pyserial URL); returns the SerialReceiver."""
+        rx = self.hub.add_port(url, name, **kw)
+        self._feeders[name] = rx.on_bytes
+        return rx
+
+    def feed(self, receiver: str, data: bytes) -> None:
+        """Bytes of one receiver, processed at once (tests, captures)."""
+        self.add_receiver(receiver)(data)
+        self.pump()
+
+    def pump(self) -> int:
+        """Consume every merged frame the hub has queued; return how many."""
+        n = 0
+        while True:
+            item = self.hub.get(timeout=0)
+            if item is None:
+                break
+            n += 1
+            if not item.is_new:
+                continue
+            f = item.frame
+            now = self.clock()
+            self._events(self.alarms.update(f, now))
+            if self.store is not None:
+                self.store.add_frame(item.receiver, f, item.rx_time)
+            if self.keep_frames:
+                self.frames.append(f)
+            if self.view is not None:
+                self.view.on_frame(f, now)
+        if self.keys:
+            now = self.clock()
+            for name, dec in list(self.hub.decoders.items()):
+                c = dec.counts
+                self._events(self.alarms.update_link(name, c.mac_fail, c.replayed, now))
+        return n
+
+    def tick(self) -> None:
+        """Time passes: silent alarm, store flush and link log, view figures."""
+        now = self.clock()
+        self._events(self.alarms.tick(now))
+        if self.store is not None:
+            self.store.flush()
+            if self._link_logged_s is None or now - self._link_logged_s >= self.LINK_LOG_S:
+                self.log_link_stats()
+                self._link_logged_s = now
+        self._refresh_view()
+
+    def ack_all(self) -> None:
+        self._events(self.alarms.ack("*", self.clock()))
+        self._refresh_view()
+
+    def log_link_stats(self) -> None:
+        """Decoder counts and merge shares of every receiver into the store."""
+        if self.store is None:
+            return
+        t = time.time()
+        stats = self.hub.merge_stats()
+        for name, dec in list(self.decoders.items()):
+            self.store.add_link_stats(t, name, dec.counts.as_dict())
+            for node, st in stats.items():
+                r = st["receivers"].get(name)
+                if r is not None:
+                    self.store.add_link_stats(t, name, None, node, {
+                        "delivered": r["delivered"], "share": r["share"],
+                        "lost": st["lost"], "duplicates": st["duplicates"]})
+
+    def close(self) -> None:
+        """Stop the ports, process what is queued, log the link figures, commit."""
+        self.hub.stop()
+        self.pump()
+        if self.store is not None:
+            self.log_link_stats()
+            self.store.commit()
+
+    def _events(self, events: list[AlarmEvent]) -> None:
+        for e in events:
+            if e.action == "raise":
+                self.new_raises += 1
+            if self.store is not None:
+                self.store.add_event(e)
+
+    def _refresh_view(self) -> None:
+        if self.view is None:
+            return
+        stats = self.hub.merge_stats()
+        down = {n: r.last_error or "not open" for n, r in list(self.hub.receivers.items()) if not r.connected}
+        self.view.link_rows = link_figures(stats, {n: d.counts for n, d in list(self.decoders.items())}, down)
+        self.view.merge_text = merge_figures(stats)
+        if not self.keys:
+            self.view.merge_text += "  NO KEY: not authenticated"
+        if self.hub.dropped:
+            self.view.merge_text += f"  HOST OVERLOADED: {self.hub.dropped} frames not processed"
+        self.view.alarm_rows = [(alarm_text(a), not a.latched) for a in self.alarms.active()]
+
+
+# -- the command -------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--port", action="append", required=True, metavar="URL",
+                   help="receiver serial port (device path or pyserial URL); give twice for two receivers; "
+                        "NAME=URL names the receiver")
+    p.add_argument("--db", help="SQLite log to append frames and alarm events to")
+    p.add_argument("--config", help="node.json: cylinder areas, rated tension, thresholds and the node key")
+    p.add_argument("--key", action="append", type=parse_key, default=[], metavar="NODE:HEX",
+                   help="HMAC key of a node (repeatable); without keys authenticity is not checked")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate of the receiver lines")
+    p.add_argument("--rs485", action="store_true",
+                   help="half-duplex RS485 mode for adapters whose driver needs it (RTS switching)")
+    p.add_argument("--refresh-hz", type=float, default=4.0, help="screen refreshes per second")
+    p.add_argument("--silent-s", type=float, default=5.0, help="node-silent alarm after this many seconds")
+
+
+def receiver_names(ports: list[str]) -> list[tuple[str, str]]:
+    """[(name, url)]: `NAME=URL` or default names pithead, mid-shaft, rx3, ..."""
+    default = ["pithead", "mid-shaft"]
+    out = []
+    for i, spec in enumerate(ports):
+        name, sep, url = spec.partition("=")
+        if not sep or "://" in name or name.startswith("/"):
+            name, url = (default[i] if i < len(default) else f"rx{i + 1}"), spec
+        out.append((name, url))
+    return out
+
+
+def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
+    """Alarm thresholds from the node config's figures (regulation defaults otherwise)."""
+    return AlarmSettings(
+        deviation_frac=site.imbalance_frac,
+        rated_load_dan=int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None,
+        battery_low_mv=int(site.battery_low_v * 1000) if site.battery_low_v else None,
+        silent_s=silent_s,
+    )
+
+
+class KeyReader:
+    """Single key presses from a terminal's stdin (cbreak mode), restored on exit."""
+
+    def __init__(self) -> None:
+        self.fd: int | None = None
+        self._saved: Any = None
+        if sys.stdin.isatty():
+            import termios
+            import tty
+            self.fd = sys.stdin.fileno()
+            self._saved = termios.tcgetattr(self.fd)
+            tty.setcbreak(self.fd)
+
+    def read(self, timeout_s: float) -> str:
+        if self.fd is None:
+            time.sleep(timeout_s)
+            return ""
+        r, _, _ = select.select([self.fd], [], [], timeout_s)
+        return os.read(self.fd, 16).decode(errors="ignore") if r else ""
+
+    def close(self) -> None:
+        if self.fd is not None:
+            import termios
+            termios.tcsetattr(self.fd, termios.TCSADRAIN, self._saved)
+            self.fd = None
+
+
+def live_loop(session: HostSession, console: Console, refresh_hz: float,
+              done: Callable[[], bool] = lambda: False) -> None:
+    """Draw the view until `q` or `done()`; `a` acknowledges; bell on new alarms."""
+    from rich.live import Live
+
+    view = session.view
+    assert view is not None
+    keys = KeyReader()
+    last_bell = 0.0
+    try:
+        with Live(view.render(session.clock()), console=console, screen=console.is_terminal,
+                  auto_refresh=False, transient=False) as live:
+            while not done():
+                k = keys.read(1.0 / refresh_hz)
+                if "q" in k.lower():
+                    break
+                if "a" in k.lower():
+                    session.ack_all()
+                if "n" in k.lower():
+                    view.next_node()
+                session.pump()
+                session.tick()
+                now = session.clock()
+                unacked = any(not acked for _, acked in view.alarm_rows)
+                ring = session.new_raises > 0 or (unacked and now - last_bell > BELL_REPEAT_S)
+                session.new_raises = 0
+                live.update(view.render(now), refresh=True)
+                if ring and (unacked or last_bell == 0.0):
+                    console.bell()
+                    last_bell = now
+    finally:
+        keys.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    site = SiteFigures()
+    keys = dict(args.key)
+    if args.config:
+        try:
+            site = SiteFigures.from_node_json(args.config)
+            if not keys:
+                keys = node_keys_from_json(args.config)
+        except (ValueError, KeyError) as e:
+            print(f"ropemon monitor: {e}", file=sys.stderr)
+            return 2
+    store = None
+    if args.db:
+        from ropemon.store import Store, StoreError
+        try:
+            store = Store(args.db)
+        except StoreError as e:
+            print(f"ropemon monitor: {e}", file=sys.stderr)
+            return 2
+    view = MonitorView(site)
+    session = HostSession(keys or None, alarm_settings(site, args.silent_s), store, view)
+    try:
+        for name, url in receiver_names(args.port):
+            session.add_port(url, name, baudrate=args.baud, rs485=args.rs485).start()
+        live_loop(session, Console(), args.refresh_hz)
+    finally:
+        session.close()
+        if store is not None:
+            store.close()
+    return 0

@@ -1,0 +1,119 @@
+"""The host data path behind the monitor: two receivers, duplicates, corruption, alarms, ack."""
+import io
+
+from rich.console import Console
+
+from ropemon.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
+from ropemon.protocol import Rope, encode_frame
+
+KEY = bytes(range(16))
+SITE = SiteFigures([0.0314] * 4, 80_000, 320_000, 0.10, 3.4)
+
+
+class Clock:
+    t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def wire(seq, dan=(4600, 4600, 4600, 4600), key=KEY):
+    return encode_frame(node=1, seq=seq, time_ms=seq * 100, key=key, battery_mv=3900,
+                        ropes=[Rope(d, d, d, 1300) for d in dan])[1]
+
+
+def session(keys={1: KEY}):
+    clk = Clock()
+    s = HostSession(keys, alarm_settings(SITE), view=MonitorView(SITE), clock=clk)
+    s.keep_frames = True
+    return s, clk
+
+
+def screen(s):
+    c = Console(width=80, height=24, record=True, file=io.StringIO(), color_system=None)
+    c.print(s.view.render(s.clock()))
+    return c.export_text()
+
+
+def test_duplicates_from_both_receivers_reach_the_view_once_and_corruption_is_dropped():
+    s, clk = session()
+    for seq in range(20):
+        clk.t = seq * 0.1
+        w = wire(seq)
+        if seq != 7:
+            s.feed("pithead", w)
+        if seq >= 5:
+            bad = bytearray(w)
+            bad[10] ^= 0x40
+            s.feed("mid-shaft", bytes(bad) if seq == 12 else w)
+    assert [f.seq for f in s.frames] == list(range(20))           # 7 only via mid-shaft
+    assert s.decoders["mid-shaft"].counts.crc_fail == 1
+    s.tick()
+    text = screen(s)
+    assert "pithead: 95 %" in text and "mid-shaft: 70 % crc 1" in text
+    assert "frames 20  lost 0 (0.0 %)  duplicates dropped 13" in text  # 14 copies, one was new
+    assert s.view.frames == 20
+
+
+def test_deviation_alarm_raises_rings_and_is_acknowledged():
+    s, clk = session()
+    for seq in range(30):
+        clk.t = seq * 0.1
+        s.feed("pithead", wire(seq, dan=(4600, 4600, 5600, 4600)))  # rope 3 +16 %
+    s.tick()
+    assert s.new_raises == 1
+    text = screen(s)
+    assert "! NEW DEVIATION rope 3" in text
+    s.ack_all()
+    assert "ack DEVIATION rope 3" in screen(s)
+    assert [e.action for e in s.alarms.events] == ["raise", "ack"]
+
+
+def test_wrong_key_frames_are_refused_and_raise_link_integrity():
+    s, clk = session()
+    s.feed("pithead", wire(1, key=b"x" * 16))
+    assert s.frames == [] and s.decoders["pithead"].counts.mac_fail == 1
+    assert any(a.kind == "link_integrity" for a in s.alarms.active())
+
+
+def test_node_silent_alarm_when_frames_stop():
+    s, clk = session()
+    s.feed("pithead", wire(1))
+    clk.t = 10.0
+    s.tick()
+    assert "NODE" in screen(s) or "SILENT" in screen(s)
+
+
+def test_a_receiver_whose_port_is_missing_is_shown_down():
+    s, clk = session()
+    rx = s.add_port("/dev/does-not-exist-ropemon", "pithead", backoff_s=0.01)
+    rx.start()
+    try:
+        import time
+        time.sleep(0.1)
+        s.tick()
+        assert "pithead: -- % crc 0 bad 0  PORT DOWN" in screen(s)
+    finally:
+        s.close()
+
+
+def test_live_loop_rings_the_bell_on_a_new_alarm_and_draws_the_screen():
+    from ropemon.monitor import live_loop
+    s, clk = session()
+    for seq in range(30):
+        clk.t = seq * 0.1
+        s.feed("pithead", wire(seq, dan=(4600, 4600, 5600, 4600)))
+    out = io.StringIO()
+    con = Console(width=80, height=24, file=out, force_terminal=True, color_system=None)
+    calls = []
+    live_loop(s, con, refresh_hz=50.0, done=lambda: calls.append(1) or len(calls) > 3)
+    text = out.getvalue()
+    assert text.count("\a") == 1                   # once for the raise, not per refresh
+    assert "DEVIATION rope 3" in text
+
+
+def test_without_keys_the_screen_says_frames_are_not_authenticated():
+    s, clk = session(keys=None)
+    s.feed("pithead", wire(1))
+    s.tick()
+    assert "NO KEY: not authenticated" in screen(s) and len(s.frames) == 1

@@ -1,0 +1,59 @@
+"""`ropemon monitor` as a user runs it: two receiver ports (ptys read with pyserial),
+a log, a deviation alarm; Ctrl-C ends it with everything committed."""
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from ropemon.protocol import Rope, encode_frame
+from ropemon.vserial import VirtualPort
+
+KEY = bytes(range(16))
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def wait_open(pid, paths, timeout_s=30.0):
+    """Until process `pid` has every path open (pyserial flushes input on open)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        fds = Path(f"/proc/{pid}/fd")
+        try:
+            opened = {os.readlink(fd) for fd in fds.iterdir()}
+        except OSError:
+            opened = set()
+        if set(paths) <= opened:
+            time.sleep(0.1)           # open() returns after its input flush
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"monitor did not open {paths}")
+
+
+def test_monitor_logs_frames_once_and_the_alarm(tmp_path):
+    db = tmp_path / "hoist.db"
+    with VirtualPort("pit") as a, VirtualPort("mid") as b:
+        p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "monitor", "--port", f"pithead={a.port}",
+                              "--port", f"mid-shaft={b.port}", "--db", str(db), "--key", "1:" + KEY.hex(),
+                              "--refresh-hz", "20"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        try:
+            wait_open(p.pid, [a.port, b.port])
+            for seq in range(40):
+                w = encode_frame(node=1, seq=seq, time_ms=seq * 100, key=KEY, battery_mv=3900,
+                                 ropes=[Rope(4600, 4600, 4600, 1300)] * 3 + [Rope(5600, 5600, 5600, 1500)])[1]
+                a.write(w)
+                if seq % 2:
+                    b.write(w)                 # duplicates from the second receiver
+                time.sleep(0.02)
+            time.sleep(1.5)
+        finally:
+            p.send_signal(signal.SIGINT)
+            out, err = p.communicate(timeout=20)
+    assert p.returncode == 130, err
+    assert "DEVIATION rope 4" in out and "frames 40  lost 0" in out
+    con = sqlite3.connect(db)
+    assert con.execute("SELECT count(*), count(DISTINCT seq) FROM frames").fetchone() == (40, 40)
+    assert con.execute("SELECT action, kind, rope FROM events").fetchall() == [("raise", "deviation", 3)]
+    assert con.execute("SELECT count(*) FROM link_stats WHERE receiver='mid-shaft'").fetchone()[0] >= 1

@@ -1,0 +1,108 @@
+"""The live dashboard drawn at 80x24 (an ssh terminal in the hoist room)."""
+import io
+import math
+
+from rich.console import Console
+
+from ropemon.monitor import MonitorView, SiteFigures, sparkline
+from ropemon.protocol import Rope, decode_raw, encode_frame
+
+AREA = 0.0314
+SITE = SiteFigures([AREA] * 4, rated_rope_tension_n=80_000, rated_load_n=320_000,
+                   imbalance_frac=0.10, battery_low_v=3.4)
+
+
+def frame(seq, dan=(4600, 4600, 4600, 4600), raw_kpa=1300, battery_mv=3710, status=0, ropes=True):
+    rs = [Rope(d, max(d - 100, -32768), min(d + 100, 32767), raw_kpa) for d in dan] if ropes else []
+    raw, _ = encode_frame(node=1, seq=seq, time_ms=seq * 100, ropes=rs, depth_mm=412_300,
+                          speed_mm_s=-9_800, battery_mv=battery_mv, status=status)
+    return decode_raw(raw)
+
+
+def draw(view, now_s=10.0):
+    c = Console(width=80, height=24, record=True, file=io.StringIO(), color_system=None)
+    c.print(view.render(now_s))
+    text = c.export_text()
+    lines = text.splitlines()
+    assert len(lines) <= 24, text
+    assert max(len(line) for line in lines) <= 80, text
+    return text
+
+
+def rows(text):
+    return {ln.split()[0]: ln.split() for ln in text.splitlines() if ln.split()}
+
+
+def test_waiting_screen_fits():
+    assert "waiting for frames" in draw(MonitorView(SITE))
+
+
+def test_each_rope_compensated_raw_deviation_and_total():
+    v = MonitorView(SITE)
+    v.on_frame(frame(1, dan=(4600, 4400, 5200, 4600), raw_kpa=1300), 9.9)
+    r = rows(draw(v))
+    mean = (46 + 44 + 52 + 46) / 4
+    assert r["3"][1] == "52.0"                                   # compensated kN
+    assert r["3"][2] == f"{1300e3 * AREA / 1000:.1f}"            # raw = p x A
+    assert r["3"][3] == f"{(52 - mean) / mean * 100:+.1f}"       # deviation from the mean
+    assert r["sum"][1] == "188.0" and r["sum"][2] == f"{4 * 1300e3 * AREA / 1000:.1f}"
+    assert "59 %" in " ".join(r["sum"])                          # 188 of 320 kN rated
+
+
+def test_worst_case_screen_still_fits_80x24():
+    v = MonitorView(SITE)
+    for k in range(40):
+        v.on_frame(frame(k, dan=(32000, -32000, 32767, 0), raw_kpa=65535, battery_mv=0, status=0x1FF), 9.0)
+    v.link_rows = [("pithead", "97.1 % crc 3 bad 1"), ("mid-shaft", "45.0 % crc 12 bad 0")]
+    v.merge_text = "frames 123456  lost 12  dup 600"
+    v.alarm_rows = [(f"alarm {i} " + "x" * 90, i % 2 == 0) for i in range(9)]
+    text = draw(v, now_s=99.0)
+    assert "and 4 more" in text and "last frame" in text
+
+
+def test_trend_and_alarms_and_stale_link_are_shown():
+    v = MonitorView(SITE)
+    for k in range(30):
+        v.on_frame(frame(k, dan=(4600 + int(200 * math.sin(k / 3)), 4600, 4600, 4600)), 1.0 + k * 0.1)
+    v.alarm_rows = [("deviation rope 3 +12.1 %", False), ("battery low 3.30 V", True)]
+    text = draw(v, now_s=10.0)
+    line1 = rows(text)["1"]
+    assert len(set(line1[-1])) > 3                               # a moving rope has a shaped sparkline
+    assert set(rows(text)["2"][-1]) <= set("▁▂▃▄▅▆▇█") and len(set(rows(text)["2"][-1])) == 1
+    assert "! NEW deviation rope 3" in text and "ack battery low" in text
+    assert "6.1 s ago" in text                                   # last frame at 3.9 s, now 10 s
+
+
+def test_status_frame_says_not_compensating():
+    v = MonitorView(SITE)
+    v.on_frame(frame(1, ropes=False, status=0x0004), 1.0)
+    text = draw(v)
+    assert "not compensating" in text and "config_fault" in text
+
+
+def test_sparkline_scales():
+    assert sparkline([0, 5, 10], 0, 10) == "▁▅█"
+    assert sparkline([3, 3], 3, 3) == "▁▁"
+
+
+def test_failed_sensor_rope_is_shown_as_fault_and_left_out_of_the_sum():
+    v = MonitorView(SITE)
+    v.on_frame(frame(1, dan=(4600, -32768, 4600, 4600)), 1.0)
+    r = rows(draw(v))
+    assert r["2"][1] == "FAULT"
+    assert r["sum"][1] == "138.0" and "missing" in " ".join(r["sum"])
+    assert r["1"][3] == "+0.0"
+
+
+def test_two_cage_nodes_one_shown_the_other_summarised_and_switchable():
+    v = MonitorView(SITE)
+    v.on_frame(frame(1, dan=(4600,) * 4), 1.0)
+    raw, _ = encode_frame(node=2, seq=1, time_ms=100, ropes=[Rope(3000, 3000, 3000, 900)] * 4,
+                          depth_mm=800_000, battery_mv=3800)
+    v.on_frame(decode_raw(raw), 1.5)
+    text = draw(v, now_s=2.0)
+    assert "node 1 seq 1" in text and "node 2: 120.0 kN, 800 m, 0.5 s ago" in text and "n: next node" in text
+    v.next_node()
+    text = draw(v, now_s=2.0)
+    assert "node 2 seq 1" in text and "node 1: 184.0 kN" in text
+    assert rows(text)["sum"][1] == "120.0"

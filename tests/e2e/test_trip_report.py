@@ -1,0 +1,138 @@
+"""`ropemon report`: per-trip table (raw and compensated at the pithead and the bottom,
+sum against the theoretical load) and PNG plots, from a log written through the Store."""
+import numpy as np
+import pytest
+
+from ropemon.cli import main
+from ropemon.protocol import Rope, decode_raw, encode_frame
+from ropemon.report import HoistLoad, trip_table, trips_from_store
+from ropemon.store import Store
+
+AREA = 0.0314
+LOAD = HoistLoad(cage_kg=8180, tail_ropes=2, tail_kg_per_m=6.62, shaft_m=810)
+
+
+def wind(store, t0_s=0.0, seq0=0, down=True):
+    """10 s rest, a 100 s wind at 9 m/s, 10 s rest; tensions per phase known."""
+    seq = seq0
+    top = [46_300, 46_400, 46_200, 46_500]          # N, compensated at the pithead
+    bottom = [30_000, 30_100, 29_900, 30_000]
+    for k in range(1200):
+        t = k * 0.1
+        moving = 10.0 <= t < 110.0
+        frac = min(max((t - 10.0) / 100.0, 0.0), 1.0)
+        frac = frac if down else 1 - frac
+        depth_m = 810 * frac
+        comp = top if frac < 0.5 else bottom
+        raw_kpa = [int(0.83 * c / AREA / 1000) for c in comp]   # raw reads 17 % low
+        ropes = [Rope(c // 10, c // 10 - 5, c // 10 + 5, p) for c, p in zip(comp, raw_kpa)]
+        raw, _ = encode_frame(node=3, seq=seq, time_ms=int((t0_s + t) * 1000), ropes=ropes,
+                              depth_mm=int(depth_m * 1000), speed_mm_s=(9000 if down else -9000) if moving else 0,
+                              battery_mv=3900)
+        store.add_frame("pithead", decode_raw(raw), t0_s + t)
+        seq += 1
+    return seq
+
+
+def test_two_winds_give_two_trips_with_the_papers_table(tmp_path):
+    db = tmp_path / "log.db"
+    with Store(db) as st:
+        seq = wind(st, 0.0, 0, down=True)
+        wind(st, 200.0, seq, down=False)
+    with Store(db) as st:
+        trips = trips_from_store(st, [AREA] * 4, 810)
+    assert [t.direction for t in trips] == ["pithead -> bottom", "bottom -> pithead"]
+    pit = trips[0].rest_at("pithead")
+    assert pit.comp_n == pytest.approx([46_300, 46_400, 46_200, 46_500])
+    assert pit.raw_n.sum() == pytest.approx(0.83 * 185_400, rel=2e-3)
+    text = trip_table(trips[0], LOAD)
+    lines = {ln.split()[0]: ln.split() for ln in text.splitlines()[1:] if ln.split()}
+    raw_sum_kn = sum(int(0.83 * c / AREA / 1000) for c in (46_300, 46_400, 46_200, 46_500)) * AREA
+    assert lines["sum"][1:3] == [f"{raw_sum_kn:.1f}", "185.4"]     # pithead raw, compensated
+    th = LOAD.load_n(0)                                            # (8180 + 2 x 6.62 x 810) x 9.81
+    assert lines["theoretical"][1] == f"{th / 1000:.1f}"
+    assert lines["error"][2:4] == [f"{(raw_sum_kn * 1000 - th) / th * 100:+.1f}", f"{(185_400 - th) / th * 100:+.1f}"]
+    assert float(lines["error"][2]) == pytest.approx(-17.0, abs=0.2)
+
+
+def test_report_command_writes_pngs_and_text(tmp_path, capsys):
+    db = tmp_path / "log.db"
+    with Store(db) as st:
+        wind(st)
+    out = tmp_path / "rep"
+    assert main(["report", str(db), "--out", str(out), "--area-m2", str(AREA)]) == 0
+    printed = capsys.readouterr().out
+    assert "trip 1 (node 3): pithead -> bottom" in printed
+    png = out / "trip001-node3.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    assert (out / "report.txt").read_text().startswith("trip 1")
+
+
+def test_report_refuses_missing_db_and_missing_area(tmp_path, capsys):
+    assert main(["report", str(tmp_path / "nope.db"), "--area-m2", "0.03"]) == 2
+    assert "no such file" in capsys.readouterr().err
+    db = tmp_path / "log.db"
+    Store(db).close()
+    assert main(["report", str(db)]) == 2
+    assert "piston area" in capsys.readouterr().err
+
+
+def test_theoretical_load_matches_the_paper():
+    assert LOAD.load_n(0.0) == pytest.approx(185.4e3, rel=1e-3)
+    assert LOAD.load_n(810.0, payload_kg=10_000) == pytest.approx((8180 + 10_000) * 9.81)
+
+
+def test_rest_figure_is_taken_on_arrival_not_after_unloading(tmp_path):
+    """Loading/unloading later in a rest must not blur the arrival figure."""
+    db = tmp_path / "log.db"
+    with Store(db) as st:
+        seq = 0
+        for k in range(900):
+            t = k * 0.1
+            moving = 5.0 <= t < 55.0
+            depth = 810 * min(max((t - 5.0) / 50.0, 0.0), 1.0)
+            comp = 60_000 if t < 70.0 else 40_000       # unloaded 15 s after arrival
+            raw, _ = encode_frame(node=1, seq=seq, time_ms=int(t * 1000), depth_mm=int(depth * 1000),
+                                  speed_mm_s=16000 if moving else 0, battery_mv=3900,
+                                  ropes=[Rope(comp // 10, comp // 10, comp // 10, 1000)] * 4)
+            st.add_frame("pithead", decode_raw(raw), t)
+            seq += 1
+    with Store(db) as st:
+        (trip,) = trips_from_store(st, [AREA] * 4, 810)
+    assert trip.direction == "pithead -> bottom"
+    assert trip.end.comp_n == pytest.approx([60_000] * 4)
+    assert trip.end.frames == 50
+
+
+def test_creep_while_loading_is_not_a_trip(tmp_path):
+    db = tmp_path / "log.db"
+    with Store(db) as st:
+        seq = 0
+        for k in range(300):          # 30 s at the bottom, rope stretch creeps the cage 2 cm
+            t = k * 0.1
+            raw, _ = encode_frame(node=1, seq=seq, time_ms=int(t * 1000), depth_mm=810_000 + (k // 10),
+                                  speed_mm_s=150 if 100 <= k < 105 else 0, battery_mv=3900,
+                                  ropes=[Rope(3000, 3000, 3000, 1000)] * 4)
+            st.add_frame("pithead", decode_raw(raw), t)
+            seq += 1
+        assert len(st.trips()) == 1    # the store saw motion ...
+        assert trips_from_store(st, [AREA] * 4, 810) == []   # ... the report sees no wind
+
+
+def test_a_failed_sensor_rope_is_left_out_not_averaged_as_minus_32768(tmp_path):
+    db = tmp_path / "log.db"
+    with Store(db) as st:
+        for k in range(900):
+            t = k * 0.1
+            moving = 5.0 <= t < 55.0
+            depth = 810 * min(max((t - 5.0) / 50.0, 0.0), 1.0)
+            r2 = Rope(-32768, -32768, -32768, 0xFFFF) if k % 2 else Rope(5000, 5000, 5000, 1500)
+            raw, _ = encode_frame(node=1, seq=k, time_ms=int(t * 1000), depth_mm=int(depth * 1000),
+                                  speed_mm_s=16000 if moving else 0, battery_mv=3900,
+                                  ropes=[Rope(5000, 5000, 5000, 1500), r2, Rope(5000, 5000, 5000, 1500),
+                                         Rope(5000, 5000, 5000, 1500)])
+            st.add_frame("pithead", decode_raw(raw), t)
+    with Store(db) as st:
+        (trip,) = trips_from_store(st, [AREA] * 4, 810)
+    assert trip.end.comp_n == pytest.approx([50_000] * 4)
+    assert trip.end.raw_n[1] == pytest.approx(1500e3 * AREA)
