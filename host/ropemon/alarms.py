@@ -151,7 +151,7 @@ class AlarmEngine:
                     a = abs(dev)
                     self._step(ev, f"deviation:n{node}:r{i}", "deviation", node, i, s.timing, now_s,
                                a > thr, a < thr - s.deviation_hysteresis_frac, round(dev, 4), thr,
-                               f"rope {i} {t} daN is {dev:+.1%} from the mean {mean:.0f} daN")
+                               f"rope {i + 1} {t} daN is {dev:+.1%} from the mean {mean:.0f} daN")
             if s.rated_load_dan is not None:
                 limit = s.rated_load_dan * s.overload_frac
                 low = s.rated_load_dan * (s.overload_frac - s.overload_hysteresis_frac)
@@ -163,7 +163,7 @@ class AlarmEngine:
                 for i, t in present:
                     self._step(ev, f"slack:n{node}:r{i}", "slack", node, i, s.timing, now_s,
                                t < s.slack_dan, t > s.slack_dan + s.slack_hysteresis_dan, t, s.slack_dan,
-                               f"rope {i} {t} daN below slack floor {s.slack_dan} daN")
+                               f"rope {i + 1} {t} daN below slack floor {s.slack_dan} daN")
         fault = bool(frame.status & SENSOR_FAULT_BITS) or frame.fault_mask != 0
         flags = ",".join(f for f in frame.status_flags if f.endswith("_fault") and f != "config_fault")
         self._step(ev, f"sensor_fault:n{node}", "sensor_fault", node, None, s.fault_timing, now_s,

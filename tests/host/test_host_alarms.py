@@ -46,6 +46,8 @@ def test_single_noisy_frame_neither_raises_nor_clears():
     # raised only once the condition held for raise_after_s (0.5 s)
     assert ev[0].time_s == 10 + 0.5
     assert ev[0].value > 0.1 and ev[0].threshold == 0.1 and ev[0].rope == 3
+    # operators count ropes from 1: the logged message names the fourth rope "rope 4"
+    assert ev[0].message.startswith("rope 4 ")
     one_good = run(eng, [dev_row(0.2)] * 3 + [dev_row(0.0)] + [dev_row(0.2)] * 3, t0=20)
     assert one_good == []
 
