@@ -1,10 +1,27 @@
-"""Cage node boot: run the board loop; a bad /node.json gives status frames, never a crash loop.
+"""Cage node boot: finish an interrupted deploy swap, then run the board loop.
 
-An unexpected exception is printed and the loop is restarted after a pause
-(the watchdog, fed only while sampling is healthy, covers a hang).
+The swap is completed (deployswap.finish) before ropenode is imported, so a
+power cut during `ropemon deploy` never boots a mix of old and new files. A
+bad /node.json gives status frames, never a crash loop: an unexpected
+exception is printed and the loop is restarted after a pause (the watchdog,
+fed only while sampling is healthy, covers a hang).
 """
 import sys
 import time
+
+
+def _finish_deploy_swap():
+    import deployswap  # swapped in before main.py (names in sorted order), and a file is never missing
+
+    done = deployswap.finish()
+    if done:
+        print("deployswap: an interrupted deploy swap was rolled", done)
+
+
+try:
+    _finish_deploy_swap()
+except Exception as e:  # never keep the node from sampling: the next deploy finishes it too
+    sys.print_exception(e)
 
 while True:
     try:

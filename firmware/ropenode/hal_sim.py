@@ -1,11 +1,15 @@
 """Simulation HAL for the unix port: .rsens samples in from a stream, radio bytes out.
 
-    MICROPYPATH=firmware micropython -m ropenode.sim_main CONFIG RSENS OUT
+    MICROPYPATH=firmware micropython -m ropenode.sim_main [--boot-file F] CONFIG RSENS OUT
 
 or from Python (CPython with the ropemon shim, or MicroPython):
 
     from ropenode.hal_sim import run_sim
-    samples, frames = run_sim("firmware/node.json", "in.rsens", "out.bin")
+    samples, frames = run_sim("firmware/node.json", "in.rsens", "out.bin", boot_file=None)
+
+Frame seq numbers (ropenode.bootseq): without a boot file the boot counter is
+0, so the same input always gives the same bytes (`ropemon replay`); with one,
+each run is a new boot, as a reset is on the cage, and seq keeps increasing.
 
 OUT receives exactly the bytes the node would hand to its radio: COBS frames,
 each ended by 0x00 (docs/protocol.md). A missing or invalid CONFIG does not
@@ -17,6 +21,7 @@ import struct
 import sys
 
 from ropenode import config as _config
+from ropenode.bootseq import FrameSeq
 from ropenode.node import Node
 
 RSENS_MAGIC = b"RSNS"
@@ -59,8 +64,10 @@ def _load(config_path):
     return None, 255, reason
 
 
-def run_sim(config_path, rsens_path, out_path):
-    """Run the node over a whole .rsens file; return (samples, frames written)."""
+def run_sim(config_path, rsens_path, out_path, boot_file=None):
+    """Run the node over a whole .rsens file; return (samples, frames written).
+
+    `boot_file`: the persisted boot counter (incremented by this run), or None for boot 0."""
     cfg, fallback_id, reason = _load(config_path)
     if reason:
         print("ropenode:", reason, "- sending config-fault status frames", file=sys.stderr)
@@ -69,7 +76,7 @@ def run_sim(config_path, rsens_path, out_path):
         if cfg is not None and (cfg.ropes != hal.ropes or cfg.sample_hz != hal.sample_hz):
             raise ValueError("sensor stream has %d ropes at %d Hz, config says %d at %d"
                              % (hal.ropes, hal.sample_hz, cfg.ropes, cfg.sample_hz))
-        node = Node(cfg, fallback_id)
+        node = Node(cfg, fallback_id, seq=FrameSeq(boot_file))
         wire = bytearray(64)
         wmv = memoryview(wire)
         samples = frames = 0

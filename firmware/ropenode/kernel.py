@@ -15,7 +15,7 @@ ports; a viper one keeps it on the C stack).
 It is written in the subset of Python that @micropython.viper compiles with
 the same meaning (ints only, no calls, no `not`/`~`/ternaries, arrays read by
 index). kernel_viper.py is generated from this file
-(tests/firmware/kernel_gen_cpython.py): the same `step` decorated for viper,
+(tools/gen_kernel_viper.py): the same `step` decorated for viper,
 with each int32 array read sign-extended (viper reads ptr32 zero-extended on
 64-bit ports). This plain version runs where there is no native emitter
 (WebAssembly port, CPython) and is the reference the viper one is tested

@@ -1,4 +1,4 @@
-"""GENERATED from kernel.py by tests/firmware/kernel_gen_cpython.py: do not edit.
+"""GENERATED from kernel.py by tools/gen_kernel_viper.py: do not edit.
 
 kernel.py with `step` compiled by @micropython.viper (int32 reads sign-extended).
 """

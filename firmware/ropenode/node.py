@@ -1,6 +1,6 @@
 """The cage node: samples in, compensated and decimated frames out.
 
-    node = Node(cfg)            # cfg from config.parse; None or a ConfigError = config fault
+    node = Node(cfg, seq=FrameSeq(path))  # cfg from config.parse; None or a ConfigError = config fault
     ready = node.sample(rec)    # rec: array('H') of 2N+4 words (docs/data-formats.md)
     n = node.frame_into(buf)    # after ready: COBS frame + 0x00 into bytearray(64)
 
@@ -12,12 +12,15 @@ within +-2**30.
 Without a valid config the node does not compensate: every window it offers a
 KIND_STATUS frame with ST_CONFIG_FAULT (node id `fallback_id`, MAC keyed with
 `fallback_key`, empty by default).
+Frame sequence numbers come from a `bootseq.FrameSeq` (monotonic across resets
+when the HAL gives it a boot-counter file; boot 0 without one).
 """
 import sys
 
 from micropython import const
 
 from ropenode import layout
+from ropenode.bootseq import FrameSeq
 from ropenode.frame import FrameWriter
 
 if sys.implementation.name == "micropython":
@@ -33,11 +36,12 @@ _DEFAULT_SAMPLE_HZ = const(200)
 
 
 class Node:
-    def __init__(self, cfg, fallback_id=255, fallback_key=b"", step=None):
-        """`step` replaces the kernel function (tests compare the viper and plain kernels)."""
+    def __init__(self, cfg, fallback_id=255, fallback_key=b"", step=None, seq=None):
+        """`step` replaces the kernel function (tests compare the viper and plain kernels);
+        `seq` is the FrameSeq of this boot (default: boot 0, not persisted)."""
         self.sticky_status = 0    # set by the HAL, e.g. ST_WATCHDOG_RESET
         self.pending_status = 0   # set by the HAL, cleared by the next frame (ST_OVERRUN)
-        self.seq = 0
+        self.frame_seq = seq if seq is not None else FrameSeq()
         self.ready = False
         self.in_window = 0        # config-fault mode only (the kernel counts otherwise)
         self.sec = 0
@@ -106,7 +110,7 @@ class Node:
         status = self.sticky_status | self.pending_status
         self.pending_status = 0
         if self.S is None:
-            n = wr.pack(layout.KIND_STATUS, 0, self.seq, self._time_ms(),
+            n = wr.pack(layout.KIND_STATUS, 0, self.frame_seq.next(), self._time_ms(),
                         status | layout.ST_CONFIG_FAULT, None, 0, 0, 0, layout.OIL_TEMP_ABSENT)
         else:
             S = self.S
@@ -128,9 +132,8 @@ class Node:
                 status |= layout.ST_SPEED_FAULT
             if t == layout.OIL_TEMP_ABSENT:
                 status |= layout.ST_TEMP_ABSENT
-            n = wr.pack(layout.KIND_DATA, f, self.seq, self._time_ms(), status, ropes, S[K.OUT_DEPTH_MM],
+            n = wr.pack(layout.KIND_DATA, f, self.frame_seq.next(), self._time_ms(), status, ropes, S[K.OUT_DEPTH_MM],
                         S[K.OUT_SPEED], S[K.OUT_BATT_MV], t)
-        self.seq = (self.seq + 1) & 0xFFFFFFFF
         self.ready = False
         return wr.seal_into(n, buf)
 

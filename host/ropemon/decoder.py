@@ -8,28 +8,35 @@ its bytes, delimiter included, are added to `bytes_discarded`; idle delimiters
 (empty bodies) are neither frames nor discarded bytes. The result does not
 depend on how the input is chunked.
 
-With node keys, a frame whose MAC fails, or whose sequence number was already
-accepted or is older than the anti-replay window, is dropped and counted
-(`mac_fail`, `replayed`). Without keys every frame has authenticated=None and
-`authenticity_checked` is False.
+With node keys, a frame whose MAC fails, or whose sequence number is not newer
+than the last one accepted from its node, is dropped and counted (`mac_fail`,
+`replayed`). The node keeps its seq increasing across resets (boot counter in
+the top bits, docs/protocol.md), so a node whose boot counter went backwards
+(flash wiped, counter wrapped) is refused too, and listed in `rewound`, until
+an operator accepts it (`accept_rewound`). Without keys every frame has
+authenticated=None and `authenticity_checked` is False.
 """
 from __future__ import annotations
 
 import binascii
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 
 from cobs import cobs
 
 from ropemon import protocol as P
+from ropemon.firmware import node_module
 
 L = P.L
 
-#: Sequence numbers at most this far behind the newest accepted one may still
-#: arrive late (reordering); older ones are replays. RFC 4303-style bitmap.
+#: Legacy mode (accept_restarts=True) only, for nodes whose seq restarts at 0 on
+#: every reset (firmware before the boot counter): sequence numbers at most this
+#: far behind the newest accepted one may still arrive late (reordering), and a
+#: frame far behind the newest whose seq is below RESTART_SEQ_MAX is a restart.
 REPLAY_WINDOW = 64
-#: A node restarts its seq at 0 when it resets (firmware/ropenode/node.py). A frame
-#: far behind the newest one whose seq is below this is taken as such a restart.
 RESTART_SEQ_MAX = 64
+#: seq = (boot << SEQ_COUNT_BITS) | frame count (firmware/ropenode/bootseq.py).
+SEQ_COUNT_BITS: int = node_module("bootseq").SEQ_COUNT_BITS
 
 
 @dataclass(slots=True)
@@ -40,7 +47,8 @@ class DecodeCounts:
     mac_fail: int = 0
     replayed: int = 0
     bytes_discarded: int = 0
-    restarts: int = 0  # authenticated seq restarts accepted (node reset, or a replay of a boot)
+    restarts: int = 0  # legacy mode only: authenticated seq restarts accepted
+    rewound: int = 0   # frames refused because their node's boot counter went backwards
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -51,29 +59,56 @@ class DecodeCounts:
 
 
 class ReplayGuard:
-    """Per-node anti-replay window over the 32-bit sequence number.
+    """Per-node anti-replay check over the 32-bit sequence number.
 
-    A node counts seq from 0 after every reset (firmware v1 keeps no seq across
-    resets), so by default a frame far behind the newest (beyond the window) with
-    seq < RESTART_SEQ_MAX is accepted as a restart and counted in `restarts`:
-    otherwise a watchdog reset would blind the host until the new seq passed the
-    old one. The price: after a restart, recorded frames of the earlier boot with
-    a seq above the new one also pass, until the new seq overtakes them. Every
-    restart is counted and raises link_integrity, so the operator sees the
-    window. With a node that keeps seq increasing across resets, pass
-    accept_restarts=False and replays are refused strictly.
+    Strict (the default): a frame is accepted only if its seq is newer than the
+    last accepted one of its node. The node's seq never goes back, across resets
+    too: seq = (boot << SEQ_COUNT_BITS) | count, with the boot counter persisted
+    on its flash. A frame of an older boot than the newest accepted is refused
+    and the node is listed in `rewound` {node: (newest boot, that frame's boot)}:
+    either a recording of an earlier boot is being replayed, or the node really
+    lost its boot counter (flash wiped or replaced, or 4096 boots wrapped it).
+    Only an operator can tell: `accept_rewound(node)` (or `accept_rewound` at
+    construction) takes that node's next authenticated frame as its new
+    baseline, once.
+
+    Legacy (accept_restarts=True), for nodes that restart seq at 0 on each reset:
+    a window of REPLAY_WINDOW for reordering, and a frame far behind with seq <
+    RESTART_SEQ_MAX is accepted as a restart and counted in `restarts`; after a
+    restart, recorded frames of the earlier boot with a higher seq also pass.
     """
 
     def __init__(self, window: int = REPLAY_WINDOW, restart_seq_max: int = RESTART_SEQ_MAX,
-                 accept_restarts: bool = True):
+                 accept_restarts: bool = False, accept_rewound: Iterable[int] = ()):
+        self.legacy = accept_restarts
         self.window = window
-        self.restart_seq_max = restart_seq_max if accept_restarts else -1
+        self.restart_seq_max = restart_seq_max
         self.restarts = 0
+        self.rewound: dict[int, tuple[int, int]] = {}
+        self._rebase: set[int] = set(accept_rewound)
         self._top: dict[int, int] = {}
         self._bits: dict[int, int] = {}
 
+    def accept_rewound(self, node: int) -> None:
+        """Operator decision: take `node`'s next frame as its new baseline, even if older."""
+        self._rebase.add(node)
+
     def accept(self, node: int, seq: int) -> bool:
-        """True and remembered if (node, seq) is fresh or a restart; False if a replay."""
+        """True and remembered if (node, seq) is fresh; False if refused (a replay)."""
+        if self.legacy:
+            return self._accept_legacy(node, seq)
+        top = self._top.get(node)
+        if top is None or seq > top or node in self._rebase:
+            self._rebase.discard(node)
+            self.rewound.pop(node, None)
+            self._top[node] = seq
+            return True
+        boot, top_boot = seq >> SEQ_COUNT_BITS, top >> SEQ_COUNT_BITS
+        if boot < top_boot:
+            self.rewound[node] = (top_boot, boot)
+        return False
+
+    def _accept_legacy(self, node: int, seq: int) -> bool:
         top = self._top.get(node)
         if top is not None and seq < self.restart_seq_max and top - seq >= self.window:
             self.restarts += 1
@@ -95,16 +130,18 @@ class ReplayGuard:
 
 
 class StreamDecoder:
-    """Feed bytes, get frames. `keys`: node -> HMAC key; None or {} = not checked."""
+    """Feed bytes, get frames. `keys`: node -> HMAC key; None or {} = not checked.
+
+    `accept_restarts` and `accept_rewound`: see ReplayGuard (strict by default)."""
 
     def __init__(self, keys: dict[int, bytes] | None = None, max_frame: int = L.MAX_WIRE_LEN,
-                 accept_restarts: bool = True):
+                 accept_restarts: bool = False, accept_rewound: Iterable[int] = ()):
         if max_frame < 2:
             raise ValueError("max_frame must be at least 2 bytes (body + delimiter)")
         self.keys = dict(keys) if keys else None
         self.max_body = max_frame - 1
         self.counts = DecodeCounts()
-        self.replay = ReplayGuard(accept_restarts=accept_restarts)
+        self.replay = ReplayGuard(accept_restarts=accept_restarts, accept_rewound=accept_rewound)
         self._buf = b""
         self._skipping = 0  # bytes of an overlong body skipped so far (0: not skipping)
 
@@ -198,6 +235,8 @@ class StreamDecoder:
             if keys is not None:
                 if not self.replay.accept(f.node, f.seq):
                     c.replayed += 1
+                    if f.node in self.replay.rewound:
+                        c.rewound += 1
                     c.bytes_discarded += nb + 1
                     continue
                 c.restarts = self.replay.restarts
@@ -216,6 +255,10 @@ class StreamDecoder:
         """One line for a human: counts and whether authenticity was checked."""
         c = self.counts
         auth = "MAC checked" if self.authenticity_checked else "authenticity NOT checked (no keys)"
-        return (f"frames_ok={c.frames_ok} crc_fail={c.crc_fail} malformed={c.malformed} "
+        line = (f"frames_ok={c.frames_ok} crc_fail={c.crc_fail} malformed={c.malformed} "
                 f"mac_fail={c.mac_fail} replayed={c.replayed} restarts={c.restarts} "
                 f"bytes_discarded={c.bytes_discarded}; {auth}")
+        for node, (top, boot) in sorted(self.replay.rewound.items()):
+            line += (f"; node {node} REFUSED: its boot counter went back from {top} to {boot} "
+                     f"(a replay, or the node lost its counter: an operator must accept node {node})")
+        return line

@@ -11,16 +11,18 @@ four runs per deploy); the steps:
    boots those from source;
 4. stage: copy everything into `.staged/` on the node and hash it there (SHA-256),
    compared with the host's hashes;
-5. swap, in one exec: write the journal `.deploy-swap`, move each live item to
-   `.prev/` and the staged one into place (os.rename, milliseconds), delete the
-   journal, hash the live files;
+5. swap, in one exec: `deployswap.swap` (firmware/deployswap.py, sent as source)
+   writes the journal `.deploy-swap`, moves each live item to `.prev/` and the
+   staged one into place (os.rename, milliseconds), deletes the journal; then
+   the live files are hashed;
 6. delete `.prev/` and read back what the node now holds: firmware version,
    config CRC and node id, through the deployed firmware's own modules.
 
 Until step 5 the live files are untouched, so a deploy broken anywhere before
-it leaves the previous firmware as it was. A swap cut by a power loss is rolled
-forward by the next deploy (the journal's staged files were verified before it
-was written). Paths are relative to the node's current directory: `/` on a
+it leaves the previous firmware as it was. A swap cut by a power loss is
+completed by the node's main.py at the next boot, before it imports ropenode,
+or else by the next deploy: both run the same `deployswap.finish` (roll forward,
+or back to `.prev/` if the staged set is incomplete). Paths are relative to the node's current directory: `/` on a
 board after reset, the node directory on the unix port (docs/commissioning.md).
 """
 from __future__ import annotations
@@ -39,7 +41,10 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from ropemon.firmware import FIRMWARE_DIR, node_module
+from ropemon.firmware import FIRMWARE_DIR, install_shim, node_module
+
+install_shim()
+import deployswap  # noqa: E402  firmware/deployswap.py: the node side of the swap, one copy
 
 # Index = native arch field of sys.implementation._mpy (MP_NATIVE_ARCH_* in
 # py/persistentcode.h); value = mpy-cross -march name (None: no native emitter).
@@ -48,11 +53,12 @@ MPY_ARCHES: tuple[str | None, ...] = (
     "armv7emdp", "xtensa", "xtensawin", "rv32imc", "rv64imc",
 )
 
-STAGED_DIR = ".staged"
-PREV_DIR = ".prev"
-JOURNAL = ".deploy-swap"
+STAGED_DIR = deployswap.STAGED
+PREV_DIR = deployswap.PREV
+JOURNAL = deployswap.JOURNAL
 CONFIG_NAME = "node.json"
 BOOT_FILES = ("boot.py", "main.py")  # MicroPython runs these from source at reset
+SWAP_MODULE = "deployswap.py"         # top level (main.py imports it before ropenode); sent as .mpy
 _MARK = "@@ropemon "  # prefix of the one result line each node snippet prints
 
 
@@ -105,9 +111,13 @@ def _out(v):
     print('@@ropemon ' + json.dumps(v))
 """
 
+# The node side of the swap: firmware/deployswap.py, the same code main.py runs at boot.
+# (Its docstring is dropped: it would only cost REPL transfer time.)
+_SWAP = Path(deployswap.__file__).read_text().split('"""', 2)[2] + "\n"
+
 # Free space counts what a leftover .staged/ or .prev/ holds: staging deletes them
 # first, and a tight flash must not be blocked forever by a broken deploy's files.
-_PROBE = _NODE_LIB + r"""
+_PROBE = _NODE_LIB + _SWAP + r"""
 def _du(p):
     d = _isdir(p)
     if not d:
@@ -118,33 +128,11 @@ try:
     _free = _f[0] * _f[3] + _du('.staged') + _du('.prev')
 except Exception:
     _free = None
-try:
-    _j = json.load(open('.deploy-swap'))
-except OSError:
-    _j = None
+_j = read_journal()
 _out({'version': '.'.join(str(x) for x in sys.implementation.version[:3]),
       'platform': sys.platform, 'mpy': getattr(sys.implementation, '_mpy', None),
       'cwd': os.getcwd(), 'free': _free, 'journal': _j})
 """
-
-# Roll forward, item by item, idempotent: the same code finishes a swap that a
-# power cut interrupted. The journal names the items; its staged files were
-# verified before it was written.
-_SWAP = _NODE_LIB + r"""
-def _swap(names):
-    if _isdir('.prev') is None:
-        os.mkdir('.prev')
-    for n in names:
-        if _isdir('.staged/' + n) is None:
-            continue
-        if _isdir(n) is not None:
-            _rmtree('.prev/' + n)
-            os.rename(n, '.prev/' + n)
-        os.rename('.staged/' + n, n)
-    os.remove('.deploy-swap')
-    _rmtree('.staged')
-"""
-
 
 def _hash_snippet(paths: list[str]) -> str:
     return _NODE_LIB + r"""
@@ -275,7 +263,7 @@ def firmware_sources(firmware_dir: Path) -> list[Path]:
     the boot files and every .py of its packages (not e.g. a freezing manifest.py)."""
     files = sorted(p.relative_to(firmware_dir) for p in firmware_dir.rglob("*.py")
                    if "__pycache__" not in p.parts)
-    files = [f for f in files if len(f.parts) > 1 or f.as_posix() in BOOT_FILES]
+    files = [f for f in files if len(f.parts) > 1 or f.as_posix() in BOOT_FILES + (SWAP_MODULE,)]
     if Path("main.py") not in files:
         raise DeployError(f"{firmware_dir} has no main.py: not a node firmware tree")
     return files
@@ -381,9 +369,10 @@ def deploy(port: str, firmware_dir: Path = FIRMWARE_DIR, config: Path | None = N
     info = probe(mp)
     log(f"node on {port}: MicroPython {info.version} ({info.platform}), "
         f".mpy v{info.mpy_version}.{info.mpy_sub} arch {info.arch or 'none'}, root {info.cwd}")
-    if info.journal:
-        log(f"an earlier deploy was cut during its swap; finishing it: {', '.join(info.journal)}")
-        mp.exec(_SWAP + f"_swap({info.journal!r})\n_out(1)\n", "finishing the interrupted swap")
+    if info.journal is not None:
+        done = mp.exec(_NODE_LIB + _SWAP + "_out(finish())\n", "finishing the interrupted swap")
+        log(f"an earlier deploy was cut during its swap ({', '.join(info.journal) or 'unreadable journal'}); "
+            f"{'rolled forward' if done == 'forward' else 'rolled back to the previous files'}")
     march = choose_arch(info, arch, as_py)
 
     with tempfile.TemporaryDirectory(prefix="ropemon-deploy-") as tmp:
@@ -407,11 +396,12 @@ def deploy(port: str, firmware_dir: Path = FIRMWARE_DIR, config: Path | None = N
     # short step on the node, not spread over several mpremote connections.
     names = sorted({p.split("/")[0] for p in hashes})
     try:
-        live = mp.exec(_SWAP + f"f = open({JOURNAL!r}, 'w')\nf.write(json.dumps({names!r}))\nf.close()\n"
-                       f"_swap({names!r})\n" + _hash_snippet(list(hashes)), "swapping the staged files into place")
+        live = mp.exec(_SWAP + f"swap({names!r})\n" + _hash_snippet(list(hashes)),
+                       "swapping the staged files into place")
     except DeployError as e:
-        raise DeployError(f"{e}; if the node got the swap it is finished or rolled forward by the next "
-                          f"deploy (journal {JOURNAL}), otherwise the previous firmware is still live") from None
+        raise DeployError(f"{e}; if the node got the swap it is finished, or completed (journal {JOURNAL}) "
+                          "at the node's next boot or by the next deploy; otherwise the previous firmware "
+                          "is still live") from None
     assert isinstance(live, dict)
     bad = [p for p in hashes if live.get(p) != hashes[p]]
     if bad:

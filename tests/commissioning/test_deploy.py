@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -358,27 +359,167 @@ def test_too_little_flash_is_refused_before_staging(tmp_path, monkeypatch):
     assert list((tmp_path / "node").iterdir()) == []
 
 
-def test_a_swap_cut_by_a_power_loss_is_rolled_forward(tmp_path):
-    """The state a power cut leaves between two renames of the swap is finished by the next deploy."""
-    v1, v2 = _tree(tmp_path / "v1", "1.0.0"), _tree(tmp_path / "v2", "2.0.0")
-    root = tmp_path / "node"
-    with VirtualNode(root) as node:
-        D.deploy(node.port, v1, resume=True, log=lambda s: None)
-    # v2 staged and verified, journal written, `ropenode` swapped, `main.py` not yet.
-    staged = root / D.STAGED_DIR
-    staged.mkdir()
-    D.build(v2, staged, "x64", as_py=False, config=None)
-    (root / D.JOURNAL).write_text(json.dumps(["main.py", "ropenode"]))
-    (root / D.PREV_DIR).mkdir()
-    (root / "ropenode").rename(root / D.PREV_DIR / "ropenode")
-    (staged / "ropenode").rename(root / "ropenode")
+# --- a swap cut by a power loss: completed at the next boot by main.py (deployswap)
 
+class _PowerCut(Exception):
+    """The node lost power: no further filesystem operation happens."""
+
+
+class _CuttingOs:
+    """os for deployswap under CPython that loses power before its `cut_at`-th change."""
+
+    def __init__(self, cut_at: int) -> None:
+        self.left = cut_at
+        self.changes = 0
+
+    def _change(self, f, *a):
+        if self.left == 0:
+            raise _PowerCut
+        self.left -= 1
+        self.changes += 1
+        return f(*a)
+
+    def rename(self, a, b):
+        return self._change(os.rename, a, b)
+
+    def remove(self, p):
+        return self._change(os.remove, p)
+
+    def rmdir(self, p):
+        return self._change(os.rmdir, p)
+
+    def mkdir(self, p):
+        return self._change(os.mkdir, p)
+
+    stat = staticmethod(os.stat)
+
+    @staticmethod
+    def ilistdir(p):
+        return [(e.name,) for e in os.scandir(p)]
+
+
+def _swap_cut(root: Path, names: list[str], cut_at: int, monkeypatch) -> int:
+    """Run the node's own swap (deployswap.swap) in `root`, cut before change `cut_at`;
+    return the number of changes made."""
+    fake = _CuttingOs(cut_at)
+    with monkeypatch.context() as m:
+        m.chdir(root)
+        m.setattr(D.deployswap, "os", fake)
+        try:
+            D.deployswap.swap(names)
+        except _PowerCut:
+            pass
+    return fake.changes
+
+
+def _boot_main(root: Path) -> str:
+    """Boot the node: run its main.py in the unix port until the board loop starts (here it
+    stops at `machine.I2C`, absent from the unix port, which proves ropenode was imported)."""
+    import select
+    import time
+    proc = subprocess.Popen([micropython_command(), "main.py"], cwd=root, env={"MICROPYPATH": ""},
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    out = b""
+    deadline = time.monotonic() + 20
+    try:
+        while b"can't import name I2C" not in out and time.monotonic() < deadline:
+            if select.select([proc.stdout], [], [], 0.5)[0]:
+                chunk = os.read(proc.stdout.fileno(), 4096)
+                if not chunk:
+                    break
+                out += chunk
+    finally:
+        proc.kill()
+        proc.wait()
+    text = out.decode(errors="replace")
+    assert "ropenode/hal_board.py" in text and "can't import name I2C" in text, text
+    return text
+
+
+@pytest.fixture(scope="module")
+def swap_states(tmp_path_factory, two_versions):
+    """A v1 node with v2 staged and verified (as deploy leaves it before the swap), the swap's
+    item names, and the live files after an uncut swap."""
+    v1, v2, v1_node, _, _ = two_versions
+    base = tmp_path_factory.mktemp("swap")
+    ready = base / "ready"
+    shutil.copytree(v1_node, ready)
+    hashes = D.build(v2, ready / D.STAGED_DIR, "x64", as_py=False, config=None)
+    names = sorted({p.split("/")[0] for p in hashes})
+    assert names == ["deployswap.mpy", "main.py", "ropenode"]
+    done = base / "done"
+    shutil.copytree(ready, done)
+    mp = pytest.MonkeyPatch()
+    try:
+        changes = _swap_cut(done, names, 10**6, mp)
+    finally:
+        mp.undo()
+    return ready, names, changes, _live_hashes(v1_node), _live_hashes(done)
+
+
+def test_main_py_completes_a_swap_cut_at_any_step(tmp_path, swap_states, monkeypatch):
+    ready, names, changes, v1_files, v2_files = swap_states
+    assert v1_files != v2_files and changes >= 2 * len(names)
+    for cut_at in range(changes + 1):
+        root = tmp_path / f"cut{cut_at}"
+        shutil.copytree(ready, root)
+        assert _swap_cut(root, names, cut_at, monkeypatch) == cut_at
+        journal = (root / D.JOURNAL).exists()
+        out = _boot_main(root)
+        if cut_at == 0:  # cut before the journal was in place: nothing was swapped
+            assert not journal and _live_hashes(root) == v1_files
+            continue
+        assert _live_hashes(root) == v2_files, f"cut before change {cut_at}"
+        assert not (root / D.JOURNAL).exists() and not (root / D.STAGED_DIR).exists()
+        assert ("rolled forward" in out) == journal, (cut_at, out)
+        assert _version_on(root) == "2.0.0"
+
+
+def test_main_py_rolls_back_when_the_staged_set_is_incomplete(tmp_path, swap_states, monkeypatch):
+    ready, names, changes, v1_files, _ = swap_states
+    root = tmp_path / "node"
+    shutil.copytree(ready, root)
+    # The swap cut after deployswap.mpy and main.py, with `ropenode` half moved (live -> .prev/)...
+    _swap_cut(root, names, 5, monkeypatch)
+    assert not (root / "ropenode").exists() and (root / D.PREV_DIR / "ropenode").is_dir()
+    assert (root / D.JOURNAL).exists()
+    # ...and its staged copy lost: rolling forward would boot without a package.
+    shutil.rmtree(root / D.STAGED_DIR / "ropenode")
+    out = _boot_main(root)
+    assert "rolled back" in out
+    assert _live_hashes(root) == v1_files
+    assert not any((root / d).exists() for d in (D.JOURNAL, D.STAGED_DIR, D.PREV_DIR))
+    assert _version_on(root) == "1.0.0"
+
+
+def test_an_unreadable_journal_rolls_back_what_prev_holds(tmp_path, swap_states, monkeypatch):
+    ready, names, _, v1_files, _ = swap_states
+    root = tmp_path / "node"
+    shutil.copytree(ready, root)
+    _swap_cut(root, names, 6, monkeypatch)  # ropenode swapped, journal still there
+    (root / D.JOURNAL).write_text('["main.p')
+    assert "rolled back" in _boot_main(root)
+    assert _live_hashes(root) == v1_files
+    assert _version_on(root) == "1.0.0"
+
+
+def test_a_swap_cut_by_a_power_loss_is_finished_by_the_next_deploy(tmp_path, swap_states, two_versions,
+                                                                    monkeypatch):
+    """Without a boot in between (the node is reached over the REPL first), deploy finishes it."""
+    ready, names, _, _, v2_files = swap_states
+    v2 = two_versions[1]
+    root = tmp_path / "node"
+    shutil.copytree(ready, root)
+    _swap_cut(root, names, 4, monkeypatch)
+    assert (root / D.JOURNAL).exists()
     logged: list[str] = []
     with VirtualNode(root) as node:
         report = D.deploy(node.port, v2, resume=True, log=logged.append)
-    assert any("cut during its swap" in line for line in logged)
+    assert any("cut during its swap" in line and "rolled forward" in line for line in logged), logged
     assert report["firmware_version"] == "2.0.0"
-    assert not (root / D.JOURNAL).exists() and not staged.exists() and not (root / D.PREV_DIR).exists()
+    assert not (root / D.JOURNAL).exists() and not (root / D.STAGED_DIR).exists()
+    assert not (root / D.PREV_DIR).exists()
+    assert _live_hashes(root) == v2_files
     assert _version_on(root) == "2.0.0"
 
 

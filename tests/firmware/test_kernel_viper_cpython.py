@@ -1,6 +1,6 @@
 """The viper kernel is the plain kernel: generated from it, and bit-exact on the unix port.
 
-kernel_viper.py must be exactly what kernel_gen_cpython.py makes of kernel.py
+kernel_viper.py must be exactly what tools/gen_kernel_viper.py makes of kernel.py
 (so the two cannot drift), and on the unix port (which has the native
 emitter) the Node must pick it and produce, sample after sample, the same
 state array S and the same frames as the plain kernel, over long random
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-import kernel_gen_cpython as gen  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
+import gen_kernel_viper as gen  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE = ROOT / "firmware"
@@ -129,7 +129,7 @@ def run_compare(tmp_path: Path, step_module: str, samples: int, extra: dict[str,
 
 def test_viper_module_is_generated_from_the_plain_kernel():
     want = gen.generate(gen.KERNEL.read_text())
-    assert gen.VIPER.read_text() == want, "run: .venv/bin/python tests/firmware/kernel_gen_cpython.py"
+    assert gen.VIPER.read_text() == want, "run: .venv/bin/python tools/gen_kernel_viper.py"
 
 
 class _Unextend(ast.NodeTransformer):

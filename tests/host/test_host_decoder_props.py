@@ -54,7 +54,7 @@ def damaged_streams(draw):
     for _ in range(2):
         segs = []  # (frame index or None for junk, bytes, intact?)
         order = list(range(len(frames)))
-        for _ in range(rng.randint(0, 3)):  # local reordering (within the anti-replay window)
+        for _ in range(rng.randint(0, 3)):  # local reordering
             i = rng.randrange(len(order))
             j = min(len(order) - 1, i + rng.randint(1, 3))
             order[i], order[j] = order[j], order[i]
@@ -81,13 +81,20 @@ def damaged_streams(draw):
     return keyed, frames, streams, cuts
 
 
-def recoverable(segs) -> set[int]:
-    """Frames whose unmodified bytes start right after a delimiter (or at the start)."""
+def recoverable(segs, sent, strict: bool) -> set[int]:
+    """Frames whose unmodified bytes start right after a delimiter (or at the start);
+    with `strict` (keys: the default replay check) only those newer than every frame
+    of their node recovered before them in this stream: a receiver delivers in order,
+    so within one stream a frame behind a newer one is a replay."""
     out = set()
+    top: dict[int, int] = {}
     prev_end = b"\x00"
     for i, b, intact in segs:
         if intact and prev_end == b"\x00":
-            out.add(i)
+            f = sent[i]
+            if not strict or f.seq > top.get(f.node, -1):
+                out.add(i)
+                top[f.node] = f.seq
         if b:
             prev_end = b[-1:]
     return out
@@ -115,7 +122,11 @@ def test_damaged_streams_emit_only_intact_frames_each_once_after_merge(case):
                 assert f.authenticated is None
             if merger.add(name, f):
                 new.append((f.node, f.seq))
-        must |= {(sent[i].node, sent[i].seq) for i in recoverable(segs)}
+        must |= {(sent[i].node, sent[i].seq) for i in recoverable(segs, sent, keyed)}
+        if keyed:  # each intact frame behind a newer one of its node was dropped and counted
+            stale = recoverable(segs, sent, False) - recoverable(segs, sent, True)
+            assert dec.counts.replayed >= len(stale)
+            assert not {(sent[i].node, sent[i].seq) for i in stale} & {(f.node, f.seq) for f in got}
     assert len(new) == len(set(new)), "a frame was delivered as new twice"
     assert must <= set(new), "an intact frame was not recovered"
 

@@ -1,6 +1,7 @@
-"""Generate firmware/ropenode/kernel_viper.py from kernel.py (CPython; not a test file).
+"""Generate firmware/ropenode/kernel_viper.py from kernel.py (maintainer script, CPython).
 
-    .venv/bin/python tests/firmware/kernel_gen_cpython.py     # rewrites kernel_viper.py
+    .venv/bin/python tools/gen_kernel_viper.py           # rewrites kernel_viper.py
+    .venv/bin/python tools/gen_kernel_viper.py --check   # exit 1 if it is not up to date
 
 The viper module is kernel.py with `step` compiled by @micropython.viper:
 arguments typed (rec: ptr16, P and S: ptr32, n: int), and every read of P or S
@@ -8,8 +9,8 @@ sign-extended, `((X ^ s31) - s31)` with s31 = 2**31, because viper reads a
 ptr32 element zero-extended on 64-bit ports (on 32-bit ports the expression is
 the identity). Compound assignments to P/S elements stay as they are: they
 use only + - | & ^, which are exact modulo 2**32, and the store keeps 32 bits.
-test_kernel_viper_cpython.py checks the checked-in file is this output and
-that the two kernels agree bit for bit on the unix port.
+tests/firmware/test_kernel_viper_cpython.py checks the checked-in file is this
+output and that the two kernels agree bit for bit on the unix port.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import ast
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 KERNEL = ROOT / "firmware" / "ropenode" / "kernel.py"
 VIPER = ROOT / "firmware" / "ropenode" / "kernel_viper.py"
 FUNC = "step"
@@ -25,7 +26,7 @@ ARG_TYPES = {"rec": "ptr16", "P": "ptr32", "S": "ptr32", "n": "int"}
 INT32_ARRAYS = ("P", "S")
 EXACT_AUG_OPS = (ast.Add, ast.Sub, ast.BitOr, ast.BitAnd, ast.BitXor)
 S31 = "s31"
-HEADER = ('"""GENERATED from kernel.py by tests/firmware/kernel_gen_cpython.py: do not edit.\n\n'
+HEADER = ('"""GENERATED from kernel.py by tools/gen_kernel_viper.py: do not edit.\n\n'
           "kernel.py with `step` compiled by @micropython.viper (int32 reads sign-extended).\n"
           '"""\n')
 
@@ -106,11 +107,22 @@ def generate(src: str, sign_extend: bool = True) -> str:
     return HEADER + ast.unparse(ast.fix_missing_locations(tree)) + "\n"
 
 
-def main() -> int:
-    VIPER.write_text(generate(KERNEL.read_text()))
+def main(argv: list[str]) -> int:
+    want = generate(KERNEL.read_text())
+    if argv == ["--check"]:
+        if VIPER.read_text() == want:
+            print(f"{VIPER.relative_to(ROOT)} is up to date")
+            return 0
+        print(f"{VIPER.relative_to(ROOT)} differs from what kernel.py generates: "
+              "run .venv/bin/python tools/gen_kernel_viper.py", file=sys.stderr)
+        return 1
+    if argv:
+        print("usage: gen_kernel_viper.py [--check]", file=sys.stderr)
+        return 2
+    VIPER.write_text(want)
     print(f"wrote {VIPER.relative_to(ROOT)}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(sys.argv[1:]))
