@@ -1,0 +1,143 @@
+"""Plant simulator benchmark: wall time and real-time factor of the field trip, against scipy's
+solve_ivp (BDF, Radau) on the same model at the same accuracy, measured in the same run.
+
+Accuracy is the largest rope-tension error against a reference run (ROS2 with every step
+quartered). The baseline's rtol is lowered from 1e-2 until its error is no larger than ours.
+"""
+from __future__ import annotations
+
+import os
+import statistics
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from ropemon.plant.kernel import integrate_fast
+from ropemon.plant.scenario import build, load_scenario
+from ropemon.plant.solver import integrate_solve_ivp
+
+SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
+
+
+def _tensions_at(sc, Y, grid_idx, ts):
+    T = sc.plant.outputs(sc.inputs.take(grid_idx), Y)["tension_N"]
+    t = sc.inputs.t[grid_idx]
+    return np.stack([np.interp(ts, t, T[:, i]) for i in range(T.shape[1])], axis=1)
+
+
+def _scaled(path: Path, f: int):
+    with path.open("rb") as fh:
+        doc = tomllib.load(fh)
+    sc0 = build(doc, path)
+    d = dict(doc)
+    d["step_s"] = sc0.step_s / f
+    d["max_step_s"] = sc0.max_step_s / f
+    d["bounce_rad_per_step"] = sc0.bounce_rad_per_step / f
+    return build(d, path)
+
+
+def duty_cycle(trips: int, window_s: float = 60.0) -> dict:
+    """Integrate `trips` winds of scenarios/duty-cycle.toml window by window, keeping only the state
+    (inputs for one window at a time: 100 trips would not fit in memory at once)."""
+    path = SCENARIOS / "duty-cycle.toml"
+    with path.open("rb") as fh:
+        doc = tomllib.load(fh)
+    doc["duty"]["trips"] = trips
+    sc = build(doc, path, eager=False)
+    h = sc.step_s
+    K = sc.grid_points
+    win = int(round(window_s / h))
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    y = None
+    k0 = 0
+    steps = 0
+    while k0 < K - 1:
+        k1 = min(k0 + win, K - 1)
+        u = sc.make_inputs(np.arange(k0, k1 + 1) * h)
+        if y is None:
+            y = sc.plant.rest_state(u)
+        plan = sc.plan_steps(u).tolist()
+        steps += len(plan) - 1
+        y = integrate_fast(sc.plant, u, y, plan, keep=False)[-1]
+        k0 = k1
+    return {"trips": trips, "simulated_s": sc.duration_s, "steps": steps, "wall_s": time.perf_counter() - t0,
+            "cpu_s": time.process_time() - c0}
+
+
+def measure(quick: bool = False) -> dict:
+    name = "short-test" if quick else "paper-field-trip"
+    path = SCENARIOS / f"{name}.toml"
+    repeats = 1 if quick else 3
+    load_before = os.getloadavg()[0]
+    sc = load_scenario(path)
+    y0 = sc.plant.rest_state(sc.inputs)
+    steps = sc.steps.tolist()
+    walls, cpus = [], []
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        Y = integrate_fast(sc.plant, sc.inputs, y0, steps)
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    wall = statistics.median(walls)
+    ts = np.arange(0.0, sc.duration_s, 1.0 / sc.sample_hz)
+    ours = _tensions_at(sc, Y, sc.steps, ts)
+    # reference: every step quartered
+    ref_sc = _scaled(path, 4)
+    Yr = integrate_fast(ref_sc.plant, ref_sc.inputs, ref_sc.plant.rest_state(ref_sc.inputs), ref_sc.steps.tolist())
+    ref = _tensions_at(ref_sc, Yr, ref_sc.steps, ts)
+    err = float(np.abs(ours - ref).max())
+    # convergence: every step halved
+    half_sc = _scaled(path, 2)
+    Yh = integrate_fast(half_sc.plant, half_sc.inputs, half_sc.plant.rest_state(half_sc.inputs), half_sc.steps.tolist())
+    halving = float(np.abs(ours - _tensions_at(half_sc, Yh, half_sc.steps, ts)).max())
+    # baseline: solve_ivp on the numpy model, same inputs, analytic Jacobian
+    base = {}
+    grid = np.arange(len(sc.inputs.t))
+    for method in ("BDF", "Radau"):
+        for rtol in (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7):
+            t0 = time.perf_counter()
+            Yb, nfev = integrate_solve_ivp(sc.plant, sc.inputs, y0, sc.inputs.t, method=method, rtol=rtol)
+            wb = time.perf_counter() - t0
+            eb = float(np.abs(_tensions_at(sc, Yb, grid, ts) - ref).max())
+            if eb <= err or rtol == 1e-7:
+                base[method] = {"wall_s": wb, "rtol": rtol, "error_N": eb, "nfev": int(nfev)}
+                break
+    best = min(base, key=lambda m: base[m]["wall_s"])
+    duty = duty_cycle(2 if quick else 100)
+    return {
+        "scenario": name, "simulated_s": sc.duration_s, "steps": len(steps), "repeats": repeats,
+        "wall_s": wall, "cpu_s": statistics.median(cpus), "realtime_factor": sc.duration_s / wall,
+        "realtime_factor_cpu": sc.duration_s / statistics.median(cpus),
+        "error_N": err, "rated_N": sc.rated_rope_tension_N, "halving_max_dT_N": halving,
+        "duty_cycle": duty,
+        "baseline": best, "baseline_wall_s": base[best]["wall_s"], "baseline_error_N": base[best]["error_N"],
+        "baseline_rtol": base[best]["rtol"], "baselines": base,
+        "speedup_vs_baseline": base[best]["wall_s"] / wall,
+        "loadavg_1min": [load_before, os.getloadavg()[0]], "cpus": os.cpu_count(),
+    }
+
+
+def describe(f: dict) -> str:
+    lines = [
+        f"plant simulator, {f['scenario']} ({f['simulated_s']:.1f} s simulated, {f['steps']} ROS2 steps, "
+        f"median of {f['repeats']}):",
+        f"  ROS2 kernel      {f['wall_s']:7.2f} s wall ({f['realtime_factor']:.0f}x real time; "
+        f"{f['cpu_s']:.2f} s CPU, {f['realtime_factor_cpu']:.0f}x)  max tension error {f['error_N']:.1f} N "
+        f"({100 * f['error_N'] / f['rated_N']:.3f} % of rated)",
+    ]
+    lines.append(f"  convergence: halving every step moves rope tensions by {f['halving_max_dT_N']:.1f} N "
+                 f"({100 * f['halving_max_dT_N'] / f['rated_N']:.3f} % of rated; the limit is 0.1 %)")
+    for m, b in f["baselines"].items():
+        lines.append(f"  solve_ivp {m:<6} {b['wall_s']:7.2f} s wall (rtol {b['rtol']:g}, {b['nfev']} f evals)  "
+                     f"max tension error {b['error_N']:.1f} N")
+    lines.append(f"  ROS2 is {f['speedup_vs_baseline']:.1f}x faster than the best baseline ({f['baseline']}) "
+                 f"at no worse accuracy")
+    d = f["duty_cycle"]
+    lines.append(f"  duty cycle, {d['trips']} trips ({d['simulated_s']:.0f} s simulated, {d['steps']} steps): "
+                 f"{d['wall_s']:.1f} s wall ({d['simulated_s'] / d['wall_s']:.0f}x real time), {d['cpu_s']:.1f} s CPU")
+    lines.append(f"  load average {f['loadavg_1min'][0]:.1f} -> {f['loadavg_1min'][1]:.1f} on {f['cpus']} CPUs "
+                 f"(the machine is shared: wall times rise with load)")
+    return "\n".join(lines)

@@ -1,0 +1,330 @@
+"""The plant's equations as a scalar-Python ROS2 stepper that exploits their structure.
+
+Same equations, same ROS2 method as `model.Plant.rhs` + `solver` (tests check the
+right-hand side and the Jacobian against the numpy model at random states), but
+written for speed: with 4 ropes, numpy's per-call overhead on 4-element arrays
+dominates, so here everything is Python floats, and the linear system of each
+step, W = I - gamma h J, is solved by block elimination instead of a dense
+inverse. Per rope, the x, z and q rows are eliminated into a 2x2 system in (v, p);
+its solution is affine in the three shared unknowns (cage r, rd and junction
+pressure pj), which a 3x3 system gives. W's factors are built once per step and
+serve both stages.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ropemon.plant.friction import CoulombStribeck, LuGre
+from ropemon.plant.model import G
+from ropemon.plant.solver import GAMMA
+
+
+class Stepper:
+    def __init__(self, plant, u):
+        self.plant = plant
+        n = self.n = plant.n
+        self.A = [float(a) for a in plant.A]
+        self.V0 = [float(a) for a in plant.V0]
+        self.m = [float(a) for a in plant.m]
+        self.beta = plant.beta
+        self.bVj = plant.beta / plant.Vj
+        self.delta = [float(a) for a in plant.delta]
+        self.hoist = plant.hoist
+        fr = plant.friction
+        self.lugre = isinstance(fr, LuGre)
+        if not self.lugre and not isinstance(fr, CoulombStribeck):
+            raise TypeError(f"no fast kernel for friction law {type(fr).__name__}")
+        self.fl = tuple(float(v) for v in (fr.Fs.intercept, fr.Fs.slope, fr.Fc.intercept, fr.Fc.slope,
+                                           fr.vs.intercept, fr.vs.slope, fr.sigma2.intercept, fr.sigma2.slope))
+        self.s0 = float(fr.sigma0) if self.lugre else 0.0
+        self.s1 = float(fr.sigma1) if self.lugre else 0.0
+        self.vth = 0.0 if self.lugre else float(fr.v_threshold)
+        ps = plant.to_junction
+        # per rope: laminar coefficients (x mu) and Blasius coefficients (x rho^.75 mu^.25) of its segments
+        self.seg = [[] for _ in range(n)]
+        for i, L, d, a in zip(ps.s_idx, ps.s_L, ps.s_d, ps.s_a):
+            self.seg[int(i)].append((32.0 * L / (d * d * a), 0.3164 * L / (2.0 * d ** 1.25 * a ** 1.75)))
+        # a segment turns Blasius when cb rho^.75 mu^.25 |q|^.75 > mu cl, i.e. |q| > (cl/cb)^(4/3) nu;
+        # below the smallest such flow of a rope all its segments are laminar
+        self.seg_lam_sum = [sum(cl for cl, _ in segs) for segs in self.seg]
+        self.seg_q_turb = [min((cl / cb) ** (4.0 / 3.0) for cl, cb in segs) for segs in self.seg]
+        self.lin_loc = [float(a) for a in ps.lin_loc]
+        self.rope = [(self.A[i], self.m[i], self.delta[i], self.V0[i], self.seg_q_turb[i], self.seg_lam_sum[i],
+                      self.lin_loc[i], float(ps.quad_per_rho[i]), float(ps.inertance_per_rho[i]), tuple(self.seg[i]))
+                     for i in range(n)]
+        self.quad = [float(a) for a in ps.quad_per_rho]
+        self.inert_per_rho = [float(a) for a in ps.inertance_per_rho]
+        self.set_inputs(u)
+
+    def set_inputs(self, u) -> None:
+        """Inputs as Python lists (indexing numpy rows per step is slow); k indexes u's rows."""
+        self.kr = u.k_rope.tolist()
+        self.cr = u.c_rope.tolist()
+        self.fload = u.f_load.tolist()
+        self.yl = u.y_load.tolist()
+        self.ydl = u.ydot_load.tolist()
+        self.aw = u.a_wheel.tolist()
+        self.mw = u.m_weight.tolist()
+        self.mi = u.m_inertia.tolist()
+        self.qp = u.q_pump.tolist()
+        self.rho = u.rho.tolist()
+        self.mu = u.mu.tolist()
+
+    # ------------------------------------------------------------------ right-hand side
+
+    def rhs(self, k, y, jac=False):
+        """f(t_k, y) as a flat list in the model's state order; with jac, also the Jacobian entries."""
+        n = self.n
+        r, rd = y[0], y[1]
+        kr, cr, fl, yl, ydl = self.kr[k], self.cr[k], self.fload[k], self.yl[k], self.ydl[k]
+        rho, mu = self.rho[k], self.mu[k]
+        exp, tanh = math.exp, math.tanh
+        bl_scale = rho ** 0.75 * mu ** 0.25
+        nu = mu / rho
+        fs0, fs1, fc0, fc1, vs0, vs1, s20, s21 = self.fl
+        s0, s1, vth, lugre = self.s0, self.s1, self.vth, self.lugre
+        beta = self.beta
+        pj = y[2 + 5 * n]
+        fx, fv, fz, fp, fq = [], [], [], [], []
+        sumT = 0.0
+        sumq = 0.0
+        J = [] if jac else None
+        shk = shc = 0.0
+        for (A, m, delta, V0, q_turb, lam_sum, lin_loc, quad, inert_pr, seg), x, v, z, p, q, kri, cri, fli, yli, ydli \
+                in zip(self.rope, y[2:2 + n], y[2 + n:2 + 2 * n], y[2 + 2 * n:2 + 3 * n], y[2 + 3 * n:2 + 4 * n],
+                       y[2 + 4 * n:2 + 5 * n], kr, cr, fl, yl, ydl):
+            e = fli + kri * (r + yli - x - delta) + cri * (rd + ydli - v)
+            if e > 0.0:
+                T, hk, hc = e, kri, cri
+            else:
+                T, hk, hc = 0.0, 0.0, 0.0
+            sumT += T
+            # friction
+            if p > 0.0:
+                pm, dpos = p * 1e-6, 1e-6
+            else:
+                pm, dpos = 0.0, 0.0
+            fs, fc, vs = fs0 + fs1 * pm, fc0 + fc1 * pm, vs0 + vs1 * pm
+            s2 = s20 + s21 * pm
+            w = v / vs
+            ex = exp(-w * w)
+            g = fc + (fs - fc) * ex
+            av = v if v >= 0.0 else -v
+            if lugre:
+                zdot = v - s0 * av * z / g
+                F = s0 * z + s1 * zdot + s2 * v
+            else:
+                th = tanh(v / vth)
+                zdot = -z
+                F = g * th + s2 * v
+            # pipe to the junction
+            aq = q if q >= 0.0 else -q
+            if aq <= q_turb * nu:
+                # every segment laminar (the usual case): no fractional power needed
+                lam = mu * lam_sum
+                dp = lam * q
+                ddp = lam
+            else:
+                aq75 = aq ** 0.75
+                dp = 0.0
+                ddp = 0.0
+                for cl, cb in seg:
+                    lam = mu * cl
+                    bla = cb * bl_scale * aq75
+                    if bla > lam:
+                        dp += bla * q
+                        ddp += 1.75 * bla
+                    else:
+                        dp += lam * q
+                        ddp += lam
+            ll = mu * lin_loc
+            qd = quad * rho
+            dp += ll * q + qd * q * aq
+            ddp += ll + 2.0 * qd * aq
+            inert = inert_pr * rho
+            vol = V0 - A * x
+            bv = beta / vol
+            net = A * v - q
+            fx.append(v)
+            fv.append((T - p * A - F) / m)
+            fz.append(zdot)
+            fp.append(bv * net)
+            fq.append((p - pj - dp) / inert)
+            sumq += q
+            if jac:
+                g_v = (fs - fc) * ex * (-2.0 * v / (vs * vs))
+                g_p = fc1 + (fs1 - fc1) * ex + (fs - fc) * ex * (2.0 * v * v / (vs * vs * vs)) * vs1
+                if lugre:
+                    sg = 1.0 if v > 0 else (-1.0 if v < 0 else 0.0)
+                    zd_v = 1.0 - s0 * z * (sg * g - av * g_v) / (g * g)
+                    zd_z = -s0 * av / g
+                    zd_p = s0 * av * z * g_p / (g * g) * dpos
+                    F_v = s1 * zd_v + s2
+                    F_z = s0 + s1 * zd_z
+                    F_p = s1 * zd_p + s21 * v * dpos
+                else:
+                    zd_v, zd_z, zd_p = 0.0, -1.0, 0.0
+                    F_v = g_v * th + g * (1.0 - th * th) / vth + s2
+                    F_z = 0.0
+                    F_p = (g_p * th + s21 * v) * dpos
+                shk += hk
+                shc += hc
+                J.append((hk / m, hc / m, -hk / m, (-hc - F_v) / m, -F_z / m, (-A - F_p) / m,
+                          zd_v, zd_z, zd_p, bv * net * A / vol, bv * A, -bv,
+                          1.0 / inert, -1.0 / inert, -ddp / inert, hk, hc))
+        if self.hoist:
+            M = self.mi[k]
+            f0, f1 = rd, (self.mw[k] * G - sumT) / M - self.aw[k]
+        else:
+            M = 1.0
+            f0 = f1 = 0.0
+        f = [f0, f1] + fx + fv + fz + fp + fq + [self.bVj * (sumq + self.qp[k])]
+        if not jac:
+            return f
+        cage = (1.0 / M, -shk / M, -shc / M) if self.hoist else None
+        return f, (J, cage)
+
+    # ------------------------------------------------------------------ linear solve
+
+    def factor(self, jac, c):
+        """Coefficients of the block elimination of W = I - c J (c = gamma h)."""
+        rows, cage = jac
+        cc = c * c
+        per1, per2 = [], []
+        # sums for the 3x3 system
+        m10 = m11 = m12 = 0.0
+        m20 = m21 = m22 = 0.0
+        hoist = cage is not None
+        if hoist:
+            invM, jrdr, jrdrd = cage
+        for (jvr, jvrd, jvx, jvv, jvz, jvp, jzv, jzz, jzp, jpx, jpv, jpq, jqp, jqpj, jqq, hk, hc) in rows:
+            dz = 1.0 / (1.0 - c * jzz)
+            dq = 1.0 / (1.0 - c * jqq)
+            a11 = 1.0 - c * jvv - cc * jvx - cc * jvz * jzv * dz
+            a12 = -c * jvp - cc * jvz * jzp * dz
+            a21 = -c * jpv - cc * jpx
+            a22 = 1.0 - cc * jpq * jqp * dq
+            det = a11 * a22 - a12 * a21
+            i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
+            e1r, e1rd, e2pj = c * jvr, c * jvrd, cc * jpq * dq * jqpj
+            Vr, Vrd, Vpj = i11 * e1r, i11 * e1rd, i12 * e2pj
+            Pr, Prd, Ppj = i21 * e1r, i21 * e1rd, i22 * e2pj
+            cq = dq * c * jqp
+            Qr, Qrd, Qpj = cq * Pr, cq * Prd, cq * Ppj + dq * c * jqpj
+            jrdx = hk * invM if hoist else 0.0
+            w = (c * hk + hc) * invM if hoist else 0.0   # c jrdx + jrdv
+            m10 += w * Vr
+            m11 += w * Vrd
+            m12 += w * Vpj
+            m20 += Qr
+            m21 += Qrd
+            m22 += Qpj
+            per1.append((dq, i11, i12, i21, i22, c * jvx, c * jvz * dz, c * jpx, c * jpq * dq, cq, w, jrdx))
+            per2.append((dz, dq, cq, Vr, Vrd, Vpj, Pr, Prd, Ppj, c * jzv, c * jzp, dq * c * jqpj))
+        cb = c * self.bVj
+        if hoist:
+            a = ((1.0, -c, 0.0),
+                 (-c * jrdr - c * m10, 1.0 - c * jrdrd - c * m11, -c * m12),
+                 (-cb * m20, -cb * m21, 1.0 - cb * m22))
+        else:
+            a = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-cb * m20, -cb * m21, 1.0 - cb * m22))
+        return per1, per2, _inv3(a), c, cb
+
+    def solve(self, fac, b):
+        per1, per2, ai, c, cb = fac
+        n = self.n
+        bx, bv, bz, bp, bq = b[2:2 + n], b[2 + n:2 + 2 * n], b[2 + 2 * n:2 + 3 * n], b[2 + 3 * n:2 + 4 * n], \
+            b[2 + 4 * n:2 + 5 * n]
+        s_r = 0.0   # sum(jrdx bx + w V0)
+        s_q = 0.0   # sum Q0
+        V0s, P0s = [], []
+        for (dq, i11, i12, i21, i22, cjvx, cjvzdz, cjpx, cjpqdq, cq, w, jrdx), x, v, zz, p, q \
+                in zip(per1, bx, bv, bz, bp, bq):
+            s1 = v + cjvx * x + cjvzdz * zz
+            s2 = p + cjpx * x + cjpqdq * q
+            V0 = i11 * s1 + i12 * s2
+            P0 = i21 * s1 + i22 * s2
+            s_r += jrdx * x + w * V0
+            s_q += dq * q + cq * P0
+            V0s.append(V0)
+            P0s.append(P0)
+        # sum(jrdx X + jrdv V) = sum(jrdx bx) + sum(w V), X = bx + c V, w = c jrdx + jrdv
+        g0 = b[0]
+        g1 = b[1] + c * s_r
+        g2 = b[2 + 5 * n] + cb * s_q
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = ai
+        R = a00 * g0 + a01 * g1 + a02 * g2
+        RD = a10 * g0 + a11 * g1 + a12 * g2
+        PJ = a20 * g0 + a21 * g1 + a22 * g2
+        X, V, Z, P, Q = [], [], [], [], []
+        for (dz, dq, cq, Vr, Vrd, Vpj, Pr, Prd, Ppj, cjzv, cjzp, cqpj), V0, P0, x, zz, q \
+                in zip(per2, V0s, P0s, bx, bz, bq):
+            vv = V0 + Vr * R + Vrd * RD + Vpj * PJ
+            pp = P0 + Pr * R + Prd * RD + Ppj * PJ
+            X.append(x + c * vv)
+            V.append(vv)
+            Z.append(dz * (zz + cjzv * vv + cjzp * pp))
+            P.append(pp)
+            Q.append(dq * q + cq * pp + cqpj * PJ)
+        return [R, RD] + X + V + Z + P + Q + [PJ]
+
+
+def _inv3(a):
+    """Inverse of a 3x3 matrix (tuple of rows) by the adjugate."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    c00 = a11 * a22 - a12 * a21
+    c01 = a12 * a20 - a10 * a22
+    c02 = a10 * a21 - a11 * a20
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    return ((c00 / det, (a02 * a21 - a01 * a22) / det, (a01 * a12 - a02 * a11) / det),
+            (c01 / det, (a00 * a22 - a02 * a20) / det, (a02 * a10 - a00 * a12) / det),
+            (c02 / det, (a01 * a20 - a00 * a21) / det, (a00 * a11 - a01 * a10) / det))
+
+
+def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, keep: bool = True,
+                   chunk: int = 20000):
+    """ROS2 over the grid indices `grid_steps` (ascending, starting at 0); states there, shape (len, n).
+
+    jac_every > 1 keeps W's factors for that many steps of equal size (ROS2 is a W-method: second
+    order with any W; only stability can suffer). keep=False returns only the last state (long
+    benchmark runs). Inputs are turned into Python lists `chunk` steps at a time, so long runs do
+    not hold every grid point as Python floats."""
+    st = Stepper(plant, u.take(np.array(grid_steps[:1])))
+    h0 = float(u.t[1] - u.t[0]) if len(u.t) > 1 else 1.0
+    y = [float(a) for a in y0]
+    nsteps = len(grid_steps) - 1
+    Y = np.empty((nsteps + 1 if keep else 1, len(y)))
+    Y[0] = y
+    every = max(nsteps // 100, 1)
+    rhs, factor, solve = st.rhs, st.factor, st.solve
+    fac = None
+    last_h = 0.0
+    age = 0
+    for j0 in range(0, nsteps, chunk):
+        j1 = min(j0 + chunk, nsteps)
+        st.set_inputs(u.take(np.asarray(grid_steps[j0:j1 + 1])))
+        for j in range(j0, j1):
+            h = (grid_steps[j + 1] - grid_steps[j]) * h0
+            k0, k1 = j - j0, j - j0 + 1          # rows of this chunk's inputs
+            if fac is None or h != last_h or age >= jac_every:
+                f0, jac = rhs(k0, y, True)
+                fac = factor(jac, GAMMA * h)
+                last_h, age = h, 0
+            else:
+                f0 = rhs(k0, y)
+            age += 1
+            s1 = solve(fac, f0)
+            f1 = rhs(k1, [a + h * b for a, b in zip(y, s1)])
+            s2 = solve(fac, [a - 2.0 * b for a, b in zip(f1, s1)])
+            y = [a + h * (1.5 * b + 0.5 * c) for a, b, c in zip(y, s1, s2)]
+            if keep:
+                Y[j + 1] = y
+            if progress is not None and j % every == 0:
+                progress(j, nsteps)
+    if not keep:
+        Y[0] = y
+    if not np.all(np.isfinite(Y[-1])):
+        raise FloatingPointError("the plant state became non-finite: step too large for this scenario?")
+    return Y
