@@ -77,6 +77,30 @@ def test_node_json_is_a_complete_node_config(short_out):
                                    "cage_depth_m", "flow_pipe_m3_s"}
 
 
+def test_node_boots_at_the_cage_start_depth_and_tracks_it(short_out):
+    """The node config starts where the cage starts, so frame depths follow the truth."""
+    from ropemon import reference
+
+    doc = json.loads((short_out / "node.json").read_text())
+    truth = np.load(short_out / "truth.npz")
+    assert doc["physical"]["start_depth_m"] == pytest.approx(truth["cage_depth_m"][0], abs=1e-3)
+    from ropemon.firmware import node_module
+
+    Node = node_module("node").Node
+    parse = node_module("config").parse
+    import array
+
+    node = Node(parse(doc))
+    kernel = node_module("kernel")
+    _, _, rec = reference.read_rsens(short_out / "sensors.rsens")
+    worst = 0.0
+    for k, row in enumerate(rec):
+        node.sample(array.array("H", row.tolist()))
+        if k % 50 == 49:
+            worst = max(worst, abs(node.S[kernel.DEPTH_MM] / 1000.0 - truth["cage_depth_m"][k]))
+    assert worst < 0.5, worst
+
+
 PHYS = {"ropes": 2, "adc_bits": 16, "battery_V_per_count": 0.00025, "temperature": None,
         "speed_m_per_pulse": 0.01, "hall_marks_m": [1.0],
         "pressure_channels": [{"counts_4mA": 4800, "counts_20mA": 24000, "range_Pa": [0.0, 25e6]}] * 2,

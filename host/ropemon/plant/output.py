@@ -71,12 +71,18 @@ def node_physical(res: Result) -> tuple[dict[str, Any], str]:
 
     site = res.scenario.site
     try:
-        return physical_from_site(site), f"site friction file {site.friction_path}"
+        physical, source = physical_from_site(site), f"site friction file {site.friction_path}"
     except SiteError as e:
         fit = getattr(res.scenario.plant.friction, "as_fit", None)
         if fit is None:
             raise
-        return physical_from_site(site, fit()), f"plant's true friction (site friction unusable: {e})"
+        physical = physical_from_site(site, fit())
+        source = f"plant's true friction (site friction unusable: {e})"
+    # The node boots with the cage where the scenario starts it (a site commissions the
+    # node at a known landing); from there it integrates speed and snaps at Hall marks.
+    if "cage_depth_m" in res.truth:
+        physical["start_depth_m"] = round(float(res.truth["cage_depth_m"][0]), 3)
+    return physical, source
 
 
 def _jsonable(x: Any) -> Any:
