@@ -5,8 +5,8 @@ Same rules and same counts as `StreamDecoder` fed the whole file then `finish()`
 grouped by length; for each valid frame length the COBS code chain, the CRC and
 the field parse run as array operations over every body of that length. Bodies
 of any other length cannot be frames and go through the scalar decoder for
-classification only. MAC (hmac per frame) and the anti-replay window (order
-dependent) run per frame, only when keys are given.
+classification only. MAC (hmac per frame) and the anti-replay check (order
+dependent: replayed, rewound, duplicate) run per frame, only when keys are given.
 """
 from __future__ import annotations
 
@@ -175,7 +175,7 @@ def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResu
                  np.zeros((0, L.MAC_LEN), np.uint8))
     keep = np.ones(total, bool)
     if keys is not None:
-        # Per frame: hmac cannot be vectorised, and the replay window depends on order.
+        # Per frame: hmac cannot be vectorised, and the replay check depends on order.
         raw_rows = [row.tobytes() for p in parts for row in p[3]]
         guard = ReplayGuard()
         nodes = columns["node"].tolist()
@@ -186,10 +186,15 @@ def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResu
             ma = len(rawb) - L.MAC_LEN - L.CRC_LEN
             if key is None or P.mac_of(key, rawb[:ma]) != rawb[ma:ma + L.MAC_LEN]:
                 counts.mac_fail += 1
-            elif not guard.accept(nodes[j], seqs[j]):
-                counts.replayed += 1
             else:
-                continue
+                verdict = guard.check(nodes[j], seqs[j], rawb)
+                if verdict is ReplayGuard.ACCEPTED:
+                    continue
+                if verdict is ReplayGuard.DUPLICATE:
+                    counts.duplicate += 1
+                else:
+                    counts.replayed += 1
+                    counts.rewound += int(verdict is ReplayGuard.REWOUND)
             counts.bytes_discarded += len(rawb) + 2
             keep[j] = False
         counts.restarts += guard.restarts

@@ -4,6 +4,8 @@ One JSON object per good frame on stdout (Frame.to_dict: node, seq and every
 payload field); the decoder counts on stderr. Exit 0 when the input was read
 (even if it held no good frame), 2 when it cannot be read or a key is invalid.
 Keys: --key NODE:HEX or --config node.json; without keys authenticity is not checked.
+--accept-rewound NODE: the operator accepts a node whose boot counter went back
+(docs/protocol.md, "Sequence numbers and replay protection").
 """
 from __future__ import annotations
 
@@ -24,6 +26,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="HMAC key of a node (repeat per node); without keys authenticity is not checked")
     p.add_argument("--config", action="append", default=[], metavar="NODE.JSON",
                    help="take the node id and key from a node.json (repeatable)")
+    p.add_argument("--accept-rewound", action="append", type=node_id, default=[], metavar="NODE",
+                   help="operator decision: NODE's boot counter really went back (flash wiped or replaced); "
+                        "take its next authenticated frame as its new baseline (repeatable)")
+
+
+def node_id(text: str) -> int:
+    """A node id argument: 0..255."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if not 0 <= n <= 255:
+        raise argparse.ArgumentTypeError(f"{text!r}: a node id is an integer 0..255")
+    return n
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,7 +50,11 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"ropemon decode: {e}", file=sys.stderr)
         return 2
-    dec = StreamDecoder(keys or None)
+    if args.accept_rewound and not keys:
+        print("ropemon decode: --accept-rewound needs node keys (--key or --config): "
+              "without keys no frame is refused", file=sys.stderr)
+        return 2
+    dec = StreamDecoder(keys or None, accept_rewound=args.accept_rewound)
     out = sys.stdout
     try:
         if args.input == "-":

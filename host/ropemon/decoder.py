@@ -10,7 +10,9 @@ depend on how the input is chunked.
 
 With node keys, a frame whose MAC fails, or whose sequence number is not newer
 than the last one accepted from its node, is dropped and counted (`mac_fail`,
-`replayed`). The node keeps its seq increasing across resets (boot counter in
+`replayed`), except an exact copy of one of the last DUPLICATE_MEMORY frames
+accepted from its node (a radio retry): that is dropped as `duplicate`, not an
+attack, and raises no alarm. The node keeps its seq increasing across resets (boot counter in
 the top bits, docs/protocol.md), so a node whose boot counter went backwards
 (flash wiped, counter wrapped) is refused too, and listed in `rewound`, until
 an operator accepts it (`accept_rewound`). Without keys every frame has
@@ -35,6 +37,9 @@ L = P.L
 #: frame far behind the newest whose seq is below RESTART_SEQ_MAX is a restart.
 REPLAY_WINDOW = 64
 RESTART_SEQ_MAX = 64
+#: Accepted frames remembered per node to tell an exact copy (radio retry) from a replay.
+#: A retry follows its original within milliseconds; 64 frames is 6.4 s at 10 frames/s.
+DUPLICATE_MEMORY = 64
 #: seq = (boot << SEQ_COUNT_BITS) | frame count (firmware/ropenode/bootseq.py).
 SEQ_COUNT_BITS: int = node_module("bootseq").SEQ_COUNT_BITS
 
@@ -48,7 +53,8 @@ class DecodeCounts:
     replayed: int = 0
     bytes_discarded: int = 0
     restarts: int = 0  # legacy mode only: authenticated seq restarts accepted
-    rewound: int = 0   # frames refused because their node's boot counter went backwards
+    rewound: int = 0   # of `replayed`: frames of an older boot than the newest accepted one
+    duplicate: int = 0  # exact copies of a recently accepted frame (radio retry): dropped, not an attack
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -69,8 +75,14 @@ class ReplayGuard:
     either a recording of an earlier boot is being replayed, or the node really
     lost its boot counter (flash wiped or replaced, or 4096 boots wrapped it).
     Only an operator can tell: `accept_rewound(node)` (or `accept_rewound` at
-    construction) takes that node's next authenticated frame as its new
-    baseline, once.
+    construction) takes that node's next authenticated frame of an older boot as
+    its new baseline, once; a replay within the same boot stays refused. An
+    acceptance given while the node was refused is dropped if the node's newer
+    frames come back first (the rewind was a replay, not the node).
+
+    A refused frame whose bytes equal one of the last `memory` frames accepted
+    from its node is a `DUPLICATE` (a radio retry), not a replay; a retry does
+    not use up an operator's acceptance.
 
     Legacy (accept_restarts=True), for nodes that restart seq at 0 on each reset:
     a window of REPLAY_WINDOW for reordering, and a frame far behind with seq <
@@ -78,8 +90,15 @@ class ReplayGuard:
     restart, recorded frames of the earlier boot with a higher seq also pass.
     """
 
+    ACCEPTED, DUPLICATE, REPLAYED, REWOUND = "accepted", "duplicate", "replayed", "rewound"
+
     def __init__(self, window: int = REPLAY_WINDOW, restart_seq_max: int = RESTART_SEQ_MAX,
-                 accept_restarts: bool = False, accept_rewound: Iterable[int] = ()):
+                 accept_restarts: bool = False, accept_rewound: Iterable[int] = (),
+                 memory: int = DUPLICATE_MEMORY):
+        if memory < 1:
+            raise ValueError("memory must be at least 1 frame")
+        self.memory = memory
+        self._recent: dict[int, dict[int, bytes]] = {}  # node -> {seq: frame bytes}, oldest first
         self.legacy = accept_restarts
         self.window = window
         self.restart_seq_max = restart_seq_max
@@ -90,23 +109,56 @@ class ReplayGuard:
         self._bits: dict[int, int] = {}
 
     def accept_rewound(self, node: int) -> None:
-        """Operator decision: take `node`'s next frame as its new baseline, even if older."""
+        """Operator decision: take `node`'s next frame of an older boot as its new baseline."""
         self._rebase.add(node)
 
     def accept(self, node: int, seq: int) -> bool:
         """True and remembered if (node, seq) is fresh; False if refused (a replay)."""
+        return self.check(node, seq) is self.ACCEPTED
+
+    def check(self, node: int, seq: int, frame: bytes | None = None) -> str:
+        """ACCEPTED (and remembered), DUPLICATE, REPLAYED or REWOUND (a replayed
+        frame of an older boot). `frame`: the frame's bytes, to recognise exact
+        copies; None: no duplicate check."""
         if self.legacy:
-            return self._accept_legacy(node, seq)
+            if self._accept_legacy(node, seq):
+                return self._remember(node, seq, frame)
+            return self.DUPLICATE if self._is_copy(node, seq, frame) else self.REPLAYED
         top = self._top.get(node)
-        if top is None or seq > top or node in self._rebase:
+        if top is None or seq > top:
+            if self.rewound.pop(node, None) is not None:
+                # The refusal ended by itself (the node's own newer frames): an acceptance
+                # given for it must not stay pending for a later replay to use.
+                self._rebase.discard(node)
+            return self._take(node, seq, frame)
+        if self._is_copy(node, seq, frame):
+            return self.DUPLICATE
+        boot, top_boot = seq >> SEQ_COUNT_BITS, top >> SEQ_COUNT_BITS
+        if boot >= top_boot:
+            return self.REPLAYED  # same boot, older frame: an acceptance does not cover it
+        if node in self._rebase:
             self._rebase.discard(node)
             self.rewound.pop(node, None)
-            self._top[node] = seq
-            return True
-        boot, top_boot = seq >> SEQ_COUNT_BITS, top >> SEQ_COUNT_BITS
-        if boot < top_boot:
-            self.rewound[node] = (top_boot, boot)
-        return False
+            self._recent.pop(node, None)  # a new baseline: the old boot's frames are not copies of it
+            return self._take(node, seq, frame)
+        self.rewound[node] = (top_boot, boot)
+        return self.REWOUND
+
+    def _take(self, node: int, seq: int, frame: bytes | None) -> str:
+        self._top[node] = seq
+        return self._remember(node, seq, frame)
+
+    def _remember(self, node: int, seq: int, frame: bytes | None) -> str:
+        if frame is not None:
+            recent = self._recent.setdefault(node, {})
+            recent.pop(seq, None)
+            recent[seq] = frame
+            if len(recent) > self.memory:
+                del recent[next(iter(recent))]
+        return self.ACCEPTED
+
+    def _is_copy(self, node: int, seq: int, frame: bytes | None) -> bool:
+        return frame is not None and self._recent.get(node, {}).get(seq) == frame
 
     def _accept_legacy(self, node: int, seq: int) -> bool:
         top = self._top.get(node)
@@ -196,6 +248,7 @@ class StreamDecoder:
         parse = P._parse
         ropes_in = L.ropes_in
         min_len, max_len = P.MIN_RAW_LEN, P.MAX_RAW_LEN
+        ACCEPTED, DUPLICATE, REWOUND = ReplayGuard.ACCEPTED, ReplayGuard.DUPLICATE, ReplayGuard.REWOUND
         for body in bodies:
             nb = len(body)
             if not nb:
@@ -233,10 +286,14 @@ class StreamDecoder:
                 c.bytes_discarded += nb + 1
                 continue
             if keys is not None:
-                if not self.replay.accept(f.node, f.seq):
-                    c.replayed += 1
-                    if f.node in self.replay.rewound:
-                        c.rewound += 1
+                verdict = self.replay.check(f.node, f.seq, raw)
+                if verdict is not ACCEPTED:
+                    if verdict is DUPLICATE:
+                        c.duplicate += 1
+                    else:
+                        c.replayed += 1
+                        if verdict is REWOUND:
+                            c.rewound += 1
                     c.bytes_discarded += nb + 1
                     continue
                 c.restarts = self.replay.restarts
@@ -256,7 +313,8 @@ class StreamDecoder:
         c = self.counts
         auth = "MAC checked" if self.authenticity_checked else "authenticity NOT checked (no keys)"
         line = (f"frames_ok={c.frames_ok} crc_fail={c.crc_fail} malformed={c.malformed} "
-                f"mac_fail={c.mac_fail} replayed={c.replayed} restarts={c.restarts} "
+                f"mac_fail={c.mac_fail} replayed={c.replayed} rewound={c.rewound} duplicate={c.duplicate} "
+                f"restarts={c.restarts} "
                 f"bytes_discarded={c.bytes_discarded}; {auth}")
         for node, (top, boot) in sorted(self.replay.rewound.items()):
             line += (f"; node {node} REFUSED: its boot counter went back from {top} to {boot} "

@@ -18,7 +18,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Iterable
 
 import serial
 import serial.rs485
@@ -134,8 +134,10 @@ class FrameHub:
     """Several receivers -> decoders -> one Merger -> a queue of `Received`."""
 
     def __init__(self, keys: dict[int, bytes] | None = None, merger: Merger | None = None,
-                 clock: Callable[[], float] = time.time, maxsize: int = 100000):
+                 clock: Callable[[], float] = time.time, maxsize: int = 100000,
+                 accept_rewound: Iterable[int] = ()):
         self.keys = keys
+        self._accept_rewound = set(accept_rewound)  # operator decisions, given to every receiver's decoder
         self.merger = merger or Merger()
         self.clock = clock
         self.queue: "queue.Queue[Received]" = queue.Queue(maxsize)
@@ -146,7 +148,9 @@ class FrameHub:
 
     def feeder(self, name: str) -> Callable[[bytes], None]:
         """A callback that decodes bytes of receiver `name` (also usable without a serial port)."""
-        dec = self.decoders.setdefault(name, StreamDecoder(self.keys))
+        dec = self.decoders.get(name)
+        if dec is None:
+            dec = self.decoders[name] = StreamDecoder(self.keys, accept_rewound=self._accept_rewound)
 
         def on_bytes(data: bytes) -> None:
             now = self.clock()
@@ -177,6 +181,23 @@ class FrameHub:
     def stop(self) -> None:
         for r in self.receivers.values():
             r.stop()
+
+    def rewound(self) -> dict[int, tuple[int, int]]:
+        """Nodes refused because their boot counter went back: {node: (newest boot, its frame's boot)},
+        over all receivers."""
+        out: dict[int, tuple[int, int]] = {}
+        for dec in list(self.decoders.values()):
+            out.update(dec.replay.rewound)
+        return out
+
+    def accept_rewound(self, node: int) -> None:
+        """Operator decision: every receiver takes `node`'s next authenticated frame as its new baseline.
+
+        Receivers added later get it too. Called from the consumer thread while
+        readers decode: ReplayGuard only adds to a set, which the GIL makes atomic."""
+        self._accept_rewound.add(node)
+        for dec in list(self.decoders.values()):
+            dec.replay.accept_rewound(node)
 
     def merge_stats(self) -> dict:
         with self._lock:

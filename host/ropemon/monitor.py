@@ -5,11 +5,14 @@ SQLite log and the view. The view fits an 80x24 terminal (ssh from the hoist
 room): per rope compensated and raw tension, deviation from the mean, a trend,
 total load against rated, alarms (with the terminal bell), link quality per
 receiver and the node's battery. Key `a` acknowledges the alarms, `n` shows
-the next cage node (each cage has its own), `q` quits.
+the next cage node (each cage has its own), `r` then `y` accepts a node refused
+because its boot counter went back (logged with who and when), `q` quits.
 """
 from __future__ import annotations
 
 import argparse
+import datetime
+import getpass
 import json
 import os
 import select
@@ -26,6 +29,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ropemon.alarms import ActiveAlarm, AlarmEngine, AlarmEvent, AlarmSettings
+from ropemon.decode_cli import node_id
 from ropemon.decoder import StreamDecoder
 from ropemon.link import FrameHub
 from ropemon.protocol import DAN_TO_N, Frame, L
@@ -121,6 +125,8 @@ class MonitorView:
         self.link_rows: list[tuple[str, str]] = []   # (receiver, figures text)
         self.merge_text = ""
         self.alarm_rows: list[tuple[str, bool]] = []  # (text, acknowledged)
+        self.refused: dict[int, tuple[int, int]] = {}  # node -> (newest boot, refused boot)
+        self.confirm_accept: int | None = None  # node awaiting the operator's `y`
         self.frames = 0
 
     def on_frame(self, frame: Frame, now_s: float) -> None:
@@ -179,8 +185,24 @@ class MonitorView:
         if len(self.nodes) > 1:
             parts.append(self._others(now_s))
         keys = "a: acknowledge alarms   " + ("n: next node   " if len(self.nodes) > 1 else "") + "q: quit"
-        parts += [self._alarms(), self._links(), Text(keys, style="dim")]
+        parts += [self._alarms(), self._links()]
+        if self.refused:
+            parts.append(self._refused())
+        parts.append(Text(keys, style="dim"))
         return Group(*parts)
+
+    def _refused(self) -> Text:
+        """Nodes refused for a boot counter gone back, and how the operator accepts one."""
+        node = min(self.refused)
+        top, boot = self.refused[node]
+        t = Text(f" NODE {node} REFUSED: boot counter went back {top} -> {boot}", style="bold red reverse")
+        if self.confirm_accept is not None:
+            t.append(f"\n accept node {self.confirm_accept} as reset (wiped/replaced)? y: yes, any other key: no",
+                     style="bold yellow")
+        else:
+            t.append(f"\n a replay, or the node lost its counter: check it, then r: accept node {node}",
+                     style="yellow")
+        return t
 
     def _others(self, now_s: float) -> Text:
         t = Text(" other nodes:", style="bold")
@@ -364,9 +386,9 @@ class HostSession:
 
     def __init__(self, keys: dict[int, bytes] | None = None, settings: AlarmSettings | None = None,
                  store: Any = None, view: MonitorView | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, accept_rewound: Iterable[int] = ()) -> None:
         self.keys = keys
-        self.hub = FrameHub(keys)
+        self.hub = FrameHub(keys, accept_rewound=accept_rewound)
         self.alarms = AlarmEngine(settings)
         self.store = store
         self.view = view
@@ -439,6 +461,25 @@ class HostSession:
         self._events(self.alarms.ack("*", self.clock()))
         self._refresh_view()
 
+    def accept_rewound(self, node: int, operator: str, how: str = "interactively") -> AlarmEvent:
+        """The operator accepts `node` although its boot counter went back: every receiver
+        takes its next authenticated frame as the new baseline. Logged (who, when, which
+        node) as an `accept` event: it decides whether frames are trusted."""
+        refused = self.hub.rewound().get(node)
+        self.hub.accept_rewound(node)
+        if self.view is not None and self.view.confirm_accept == node:
+            self.view.confirm_accept = None
+        wall = time.time()
+        when = datetime.datetime.fromtimestamp(wall, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+        was = f" (boot counter went back {refused[0]} -> {refused[1]})" if refused else ""
+        ev = AlarmEvent(wall, "accept", f"rewound:n{node}", "rewound", node, None,
+                        refused[0] if refused else None, refused[1] if refused else None,
+                        f"operator {operator} accepted node {node}{was} {how} at {when}")
+        if self.store is not None:
+            self.store.add_event(ev)
+        self._refresh_view()
+        return ev
+
     def log_link_stats(self) -> None:
         """Decoder counts and merge shares of every receiver into the store."""
         if self.store is None:
@@ -481,6 +522,9 @@ class HostSession:
         if self.hub.dropped:
             self.view.merge_text += f"  HOST OVERLOADED: {self.hub.dropped} frames not processed"
         self.view.alarm_rows = [(alarm_text(a), not a.latched) for a in self.alarms.active()]
+        self.view.refused = self.hub.rewound()
+        if self.view.confirm_accept not in self.view.refused:
+            self.view.confirm_accept = None
 
 
 # -- the command -------------------------------------------------------------------
@@ -494,6 +538,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="node.json: cylinder areas, rated tension, thresholds and the node key")
     p.add_argument("--key", action="append", type=parse_key, default=[], metavar="NODE:HEX",
                    help="HMAC key of a node (repeatable); without keys authenticity is not checked")
+    p.add_argument("--accept-rewound", action="append", type=node_id, default=[], metavar="NODE",
+                   help="operator decision: NODE's boot counter really went back (flash wiped or replaced); "
+                        "take its next authenticated frame as its new baseline (repeatable; logged)")
     p.add_argument("--baud", type=int, default=115200, help="baud rate of the receiver lines")
     p.add_argument("--rs485", action="store_true",
                    help="half-duplex RS485 mode for adapters whose driver needs it (RTS switching)")
@@ -550,26 +597,56 @@ class KeyReader:
             self.fd = None
 
 
+def operator_name() -> str:
+    """Who is at the keyboard, for the log: the login name, and the ssh client when remote."""
+    try:
+        who = getpass.getuser()
+    except (OSError, KeyError):  # no login name in the environment or the password database
+        who = f"uid {os.getuid()}"
+    ssh = os.environ.get("SSH_CLIENT", "").split()
+    return f"{who} (ssh from {ssh[0]})" if ssh else who
+
+
+def handle_keys(session: HostSession, k: str, operator: str) -> bool:
+    """Act on key presses; False when the operator quits. `r` asks to accept the first
+    refused node, `y` confirms it, any other key cancels the question."""
+    view = session.view
+    assert view is not None
+    k = k.lower()
+    if "q" in k:
+        return False
+    if view.confirm_accept is not None:
+        node, view.confirm_accept = view.confirm_accept, None
+        if "y" in k:
+            session.accept_rewound(node, operator)
+        return True
+    if "a" in k:
+        session.ack_all()
+    if "n" in k:
+        view.next_node()
+    if "r" in k and view.refused:
+        view.confirm_accept = min(view.refused)
+    return True
+
+
 def live_loop(session: HostSession, console: Console, refresh_hz: float,
               done: Callable[[], bool] = lambda: False) -> None:
-    """Draw the view until `q` or `done()`; `a` acknowledges; bell on new alarms."""
+    """Draw the view until `q` or `done()`; `a` acknowledges, `r` `y` accepts a refused
+    node; bell on new alarms."""
     from rich.live import Live
 
     view = session.view
     assert view is not None
     keys = KeyReader()
+    operator = operator_name()
     last_bell = 0.0
     try:
         with Live(view.render(session.clock()), console=console, screen=console.is_terminal,
                   auto_refresh=False, transient=False) as live:
             while not done():
                 k = keys.read(1.0 / refresh_hz)
-                if "q" in k.lower():
+                if k and not handle_keys(session, k, operator):
                     break
-                if "a" in k.lower():
-                    session.ack_all()
-                if "n" in k.lower():
-                    view.next_node()
                 session.pump()
                 session.tick()
                 now = session.clock()
@@ -603,8 +680,18 @@ def run(args: argparse.Namespace) -> int:
         except StoreError as e:
             print(f"ropemon monitor: {e}", file=sys.stderr)
             return 2
+    if args.accept_rewound and not keys:
+        print("ropemon monitor: --accept-rewound needs node keys (--key or --config): "
+              "without keys no frame is refused", file=sys.stderr)
+        if store is not None:
+            store.close()
+        return 2
     view = MonitorView(site)
-    session = HostSession(keys or None, alarm_settings(site, args.silent_s), store, view)
+    session = HostSession(keys or None, alarm_settings(site, args.silent_s), store, view,
+                          accept_rewound=args.accept_rewound)
+    operator = operator_name()
+    for node in args.accept_rewound:
+        session.accept_rewound(node, operator, "with --accept-rewound")
     try:
         for name, url in receiver_names(args.port):
             session.add_port(url, name, baudrate=args.baud, rs485=args.rs485).start()

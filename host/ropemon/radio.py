@@ -52,10 +52,10 @@ class RadioParams:
     weak_loss_add: float = 0.05      # extra loss probability at the shaft bottom
     weak_ber_factor: float = 3.0     # BER multiplier at the shaft bottom
     shaft_m: float = 810.0
-    # A receiver delivering the same frame twice (a radio retry whose ack was lost).
-    # Off by default: the host's anti-replay check cannot tell such a copy from a
-    # replayed frame and raises a link-integrity alarm for it.
-    retry_dup: float = 0.0
+    # A receiver delivering the same frame twice (a radio retry whose ack was lost:
+    # about as likely as losing a short ack frame near a receiver). The host's decoder
+    # drops such an exact copy as `duplicate`, without a link-integrity alarm.
+    retry_dup: float = 0.02
     latency_s: float = 0.005         # receiver + RS485 delay per hop
 
     def validate(self) -> None:

@@ -71,7 +71,8 @@ CREATE TABLE IF NOT EXISTS link_stats (
     node INTEGER,
     frames_ok INTEGER, crc_fail INTEGER, malformed INTEGER, mac_fail INTEGER,
     replayed INTEGER, bytes_discarded INTEGER,
-    delivered INTEGER, share REAL, lost INTEGER, duplicates INTEGER
+    delivered INTEGER, share REAL, lost INTEGER, duplicates INTEGER,
+    rewound INTEGER, duplicate INTEGER
 );
 CREATE TABLE IF NOT EXISTS trips (
     id INTEGER PRIMARY KEY,
@@ -88,7 +89,10 @@ CREATE TABLE IF NOT EXISTS trips (
 _FRAME_COLS = ("rx_time", "receiver", "node", "seq", "version", "kind", "time_ms", "status",
                "fault_mask", "depth_mm", "speed_mm_s", "battery_mv", "oil_temp_cc", "authenticated", "mac")
 _LINK_COLS = ("frames_ok", "crc_fail", "malformed", "mac_fail", "replayed", "bytes_discarded",
-              "delivered", "share", "lost", "duplicates")
+              "delivered", "share", "lost", "duplicates", "rewound", "duplicate")
+#: link_stats columns added to schema 1 before its first release; files written
+#: before that get them on open (nullable, so their old rows read as NULL).
+_LINK_COLS_ADDED = ("rewound", "duplicate")
 _EVENT_COLS = ("time_s", "action", "alarm", "kind", "node", "rope", "value", "threshold", "message")
 
 
@@ -145,6 +149,10 @@ class Store:
             self.db.execute("INSERT INTO meta VALUES ('created', ?)", (str(time.time()),))
         elif int(row[0]) > SCHEMA_VERSION:
             raise StoreError(f"{self.path}: schema version {row[0]} is newer than this ropemon ({SCHEMA_VERSION})")
+        have = {r[1] for r in self.db.execute("PRAGMA table_info(link_stats)")}
+        for col in _LINK_COLS_ADDED:
+            if col not in have:
+                self.db.execute(f"ALTER TABLE link_stats ADD COLUMN {col} INTEGER")
         self._trip = _TripDetector(trip_moving_mm_s, trip_rest_s)
         for tid, node in self.db.execute("SELECT id, node FROM trips WHERE end_time IS NULL"):
             self._trip.open[node] = tid

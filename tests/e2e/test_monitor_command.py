@@ -57,3 +57,25 @@ def test_monitor_logs_frames_once_and_the_alarm(tmp_path):
     assert con.execute("SELECT count(*), count(DISTINCT seq) FROM frames").fetchone() == (40, 40)
     assert con.execute("SELECT action, kind, rope FROM events").fetchall() == [("raise", "deviation", 3)]
     assert con.execute("SELECT count(*) FROM link_stats WHERE receiver='mid-shaft'").fetchone()[0] >= 1
+
+
+def test_monitor_accept_rewound_is_logged(tmp_path):
+    db = tmp_path / "hoist.db"
+    with VirtualPort("pit") as a:
+        p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "monitor", "--port", f"pithead={a.port}",
+                              "--db", str(db), "--key", "1:" + KEY.hex(), "--accept-rewound", "1"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                             env={**os.environ, "LOGNAME": "ropemon-test-operator", "USER": "ropemon-test-operator"})
+        try:
+            wait_open(p.pid, [a.port])
+        finally:
+            p.send_signal(signal.SIGINT)
+            out, err = p.communicate(timeout=20)
+    assert p.returncode == 130, err
+    con = sqlite3.connect(db)
+    rows = con.execute("SELECT action, kind, node, message FROM events").fetchall()
+    assert [r[:3] for r in rows] == [("accept", "rewound", 1)]
+    assert "operator ropemon-test-operator accepted node 1" in rows[0][3]
+    r = subprocess.run([sys.executable, "-m", "ropemon.cli", "monitor", "--port", "loop://",
+                        "--accept-rewound", "1"], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert r.returncode == 2 and "needs node keys" in r.stderr

@@ -65,3 +65,20 @@ def test_columns_and_file(tmp_path):
     i = next(i for i, f in enumerate(want) if len(f.ropes) == 4)
     assert r.ropes["mean_dan"][i].tolist() == [x.mean_dan for x in want[i].ropes]
     assert r.authenticated is None
+
+
+def test_rewound_duplicate_and_replayed_counts_match_the_streaming_decoder():
+    from ropemon.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS
+    from ropemon.protocol import encode_frame
+
+    def w(seq, tension=1, node=1):
+        return encode_frame(node=node, seq=seq, ropes=[(tension,) * 4], key=KEYS[node])[1]
+
+    boot7 = [w((7 << SEQ_COUNT_BITS) | k) for k in range(DUPLICATE_MEMORY + 5)]
+    retries = [boot7[-1], boot7[-2], w(3, node=2)]                   # duplicates: 2 (node 2's is new)
+    older = [boot7[0], w((7 << SEQ_COUNT_BITS) | 60, tension=5)]      # replays of boot 7: 2
+    wiped = [w(k) for k in range(3)]                                   # boot 0: rewound, 3
+    data = b"".join(boot7 + retries + older + wiped + [w(3, node=2)])  # and node 2's retry
+    check(data, True)
+    c = decode_bytes(data, KEYS).counts
+    assert (c.frames_ok, c.duplicate, c.replayed, c.rewound) == (len(boot7) + 1, 3, 5, 3)

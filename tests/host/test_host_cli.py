@@ -91,3 +91,26 @@ def test_decode_with_keys_from_node_json(tmp_path):
     (tmp_path / "bad.json").write_text("{}")
     r = ropemon("decode", "-", "--config", str(tmp_path / "bad.json"), stdin=data)
     assert r.returncode == 2 and b"physical.node_id" in r.stderr
+
+
+def test_decode_accept_rewound(tmp_path):
+    from ropemon.decoder import SEQ_COUNT_BITS
+    from ropemon.protocol import encode_frame
+
+    def w(boot, k):
+        return encode_frame(node=1, seq=(boot << SEQ_COUNT_BITS) | k, ropes=[(1, 1, 1, 1)], key=KEYS[1])[1]
+
+    data = b"".join([w(7, 0), w(7, 1), w(0, 0), w(0, 1)])  # node 1's flash was wiped after boot 7
+    keys = [f"--key=1:{KEYS[1].hex()}"]
+    r = ropemon("decode", "-", *keys, stdin=data)
+    assert r.returncode == 0 and len(r.stdout.splitlines()) == 2
+    err = r.stderr.decode()
+    assert "rewound=2" in err and "node 1 REFUSED" in err
+    r = ropemon("decode", "-", *keys, "--accept-rewound", "1", stdin=data)
+    assert r.returncode == 0, r.stderr
+    assert [json.loads(x)["seq"] for x in r.stdout.splitlines()] == [7 << SEQ_COUNT_BITS, (7 << SEQ_COUNT_BITS) | 1, 0, 1]
+    assert "rewound=0" in r.stderr.decode() and "replayed=0" in r.stderr.decode()
+    r = ropemon("decode", "-", "--accept-rewound", "1", stdin=data)
+    assert r.returncode == 2 and b"needs node keys" in r.stderr
+    r = ropemon("decode", "-", *keys, "--accept-rewound", "x", stdin=data)
+    assert r.returncode == 2 and b"node id" in r.stderr

@@ -39,7 +39,8 @@ def test_arbitrary_bytes_never_raise_and_chunking_does_not_matter(data, cuts, ke
     # Every byte is accounted for: in a good frame, an idle delimiter, discarded, or still pending.
     c = whole.counts
     good = sum(len(f.ropes) * L.ROPE_LEN + L.FIXED_LEN + 2 for f in a)  # COBS adds 1, delimiter 1 (< 254 B)
-    idle = data.count(b"\x00") - (c.frames_ok + c.crc_fail + c.malformed + c.mac_fail + c.replayed)
+    idle = data.count(b"\x00") - (c.frames_ok + c.crc_fail + c.malformed + c.mac_fail + c.replayed
+                                       + c.duplicate)
     assert idle >= 0
     assert good + idle + c.bytes_discarded + whole.pending == len(data)
 

@@ -1,5 +1,6 @@
 """Strict replay protection: seq monotonic across node resets (boot counter), refused rewinds,
-operator acceptance, and the firmware's boot counter end to end under `micropython`."""
+operator acceptance, exact copies (radio retries) told from replays, and the firmware's boot
+counter end to end under `micropython`."""
 from __future__ import annotations
 
 import json
@@ -11,14 +12,15 @@ import pytest
 
 from host_framegen import KEYS
 from ropemon.alarms import AlarmEngine, AlarmSettings, Timing
-from ropemon.decoder import SEQ_COUNT_BITS, ReplayGuard, StreamDecoder
+from ropemon.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder
 from ropemon.firmware import FIRMWARE_DIR
 from ropemon.protocol import encode_frame
 from ropemon.virtualnode import micropython_command
 
 
-def wires(node: int, seqs, key: bytes | None = None) -> list[bytes]:
-    return [encode_frame(node=node, seq=s, ropes=[(1, 1, 1, 1)], key=KEYS[node] if key is None else key)[1]
+def wires(node: int, seqs, key: bytes | None = None, tension: int = 1) -> list[bytes]:
+    """Wire frames; frames with another `tension` have the same seq but other bytes."""
+    return [encode_frame(node=node, seq=s, ropes=[(tension,) * 4], key=KEYS[node] if key is None else key)[1]
             for s in seqs]
 
 
@@ -30,9 +32,12 @@ def test_strict_by_default_with_keys():
     dec = StreamDecoder(KEYS)
     w = wires(1, range(10, 20))
     assert [f.seq for f in dec.feed(b"".join(w))] == list(range(10, 20))
-    # Not newer than the last accepted: dropped, even one step back (no reordering window).
-    assert dec.feed(w[-2] + w[-1] + w[0]) == []
+    # Not newer than the last accepted and not a copy of it: dropped, even one step back
+    # (no reordering window).
+    other = wires(1, range(10, 20), tension=2)
+    assert dec.feed(other[-2] + other[-1] + other[0]) == []
     assert dec.counts.replayed == 3 and dec.counts.rewound == 0 and dec.replay.rewound == {}
+    assert dec.counts.duplicate == 0
     assert [f.seq for f in dec.feed(b"".join(wires(1, [25])))] == [25]  # a gap is fine
     assert dec.counts.restarts == 0
     assert [f.seq for f in dec.feed(b"".join(wires(2, [0])))] == [0]  # nodes are independent
@@ -41,15 +46,18 @@ def test_strict_by_default_with_keys():
 def test_a_node_reset_continues_and_a_recorded_earlier_boot_is_refused():
     dec = StreamDecoder(KEYS)
     boot0 = wires(1, [boot(0, k) for k in range(5)])
-    boot1 = wires(1, [boot(1, k) for k in range(3)])
-    assert len(dec.feed(b"".join(boot0 + boot1))) == 8  # the reset needs no special case
+    boot1 = wires(1, [boot(1, k) for k in range(DUPLICATE_MEMORY)])
+    # the reset needs no special case
+    assert len(dec.feed(b"".join(boot0 + boot1))) == 5 + DUPLICATE_MEMORY
     assert dec.feed(b"".join(boot0)) == []              # replaying the recorded first boot
     assert dec.counts.replayed == 5 and dec.counts.rewound == 5
     assert dec.replay.rewound == {1: (1, 0)}
     assert "node 1 REFUSED: its boot counter went back from 1 to 0" in dec.summary()
     assert "an operator must accept node 1" in dec.summary()
-    assert [f.seq for f in dec.feed(boot1[-1] + b"".join(wires(1, [boot(1, 3)])))] == [boot(1, 3)]
-    assert dec.counts.replayed == 6  # the repeated boot-1 frame; the node is fine again
+    nxt = boot(1, DUPLICATE_MEMORY)
+    assert [f.seq for f in dec.feed(boot1[-1] + b"".join(wires(1, [nxt])))] == [nxt]
+    assert dec.counts.replayed == 5 and dec.counts.duplicate == 1  # boot1[-1] again: a retry
+    # the node is fine again
     assert dec.replay.rewound == {}
 
 
@@ -64,9 +72,11 @@ def test_a_wiped_node_is_refused_until_the_operator_accepts_it():
     assert dec.replay.rewound == {}
     assert dec.feed(wiped[0]) == []  # strict again: once accepted, older frames are replays
     assert dec.counts.replayed == 4
-    # The same decision given up front.
+    # The same decision given up front: it waits for the rewind, through normal frames.
     pre = StreamDecoder(KEYS, accept_rewound=[1])
-    assert len(pre.feed(b"".join(wires(1, [boot(7, 0)]) + wiped[:2]))) == 1
+    assert len(pre.feed(b"".join(wires(1, [boot(7, 0), boot(7, 1), boot(2, 0), boot(2, 1)])))) == 4
+    assert pre.counts.replayed == 0
+    assert pre.feed(wiped[0]) == [] and pre.counts.rewound == 1  # once only
     pre2 = StreamDecoder(KEYS)
     pre2.feed(b"".join(wires(1, [boot(7, 0)])))
     pre2.replay.accept_rewound(1)
@@ -77,7 +87,24 @@ def test_a_forged_frame_cannot_use_the_operator_acceptance():
     dec = StreamDecoder(KEYS, accept_rewound=[1])
     assert dec.feed(b"".join(wires(1, [5], key=bytes(16)))) == []  # wrong key: MAC fails first
     assert dec.counts.mac_fail == 1
-    assert len(dec.feed(b"".join(wires(1, [boot(3, 0), boot(2, 0)])))) == 1
+    # the acceptance is still there for the real node's rewind
+    assert len(dec.feed(b"".join(wires(1, [boot(3, 0), boot(2, 0)])))) == 2
+
+
+def test_an_acceptance_covers_only_a_rewind_and_lapses_when_the_node_comes_back():
+    dec = StreamDecoder(KEYS, accept_rewound=[1])
+    w = wires(1, [boot(4, k) for k in range(3)])
+    dec.feed(w[0] + w[2])
+    other = wires(1, [boot(4, 1)], tension=7)[0]
+    assert dec.feed(other) == [] and dec.counts.replayed == 1  # same boot, older: still a replay
+    assert dec.feed(wires(1, [boot(3, 9)])[0]) != []          # the rewind it was given for
+    # Accepted while refused, but the node's own newer frames come first: the acceptance lapses.
+    dec = StreamDecoder(KEYS)
+    dec.feed(b"".join(wires(1, [boot(5, 0), boot(2, 0)])))
+    assert dec.replay.rewound == {1: (5, 2)}
+    dec.replay.accept_rewound(1)
+    assert len(dec.feed(b"".join(wires(1, [boot(5, 1)])))) == 1
+    assert dec.feed(b"".join(wires(1, [boot(2, 1)]))) == [] and dec.counts.rewound == 2
 
 
 def test_refusals_raise_the_link_integrity_alarm():
@@ -99,6 +126,66 @@ def test_without_keys_nothing_is_refused_and_legacy_mode_still_exists():
     assert legacy.accept(1, 500) and legacy.accept(1, 0) and legacy.restarts == 1
     strict = ReplayGuard()
     assert strict.accept(1, 500) and not strict.accept(1, 0) and strict.restarts == 0
+
+
+def test_exact_copies_are_duplicates_and_raise_no_alarm():
+    eng = AlarmEngine(AlarmSettings(link_timing=Timing(raise_after_s=0, clear_after_s=10, min_frames=1)))
+    dec = StreamDecoder(KEYS)
+    w = wires(1, range(100, 100 + DUPLICATE_MEMORY + 10))
+    retried = []
+    for x in w:
+        retried += [x, x]  # every frame retried by the radio
+    got = dec.feed(b"".join(retried))
+    assert [f.seq for f in got] == list(range(100, 100 + DUPLICATE_MEMORY + 10))
+    c = dec.counts
+    assert (c.duplicate, c.replayed, c.rewound) == (len(w), 0, 0)
+    assert c.bytes_discarded == sum(len(x) for x in w)  # the copies, dropped
+    assert eng.update_link("pithead", c.mac_fail, c.replayed, 1.0) == []
+    # The newest DUPLICATE_MEMORY frames are remembered: copies of them are still duplicates ...
+    assert dec.feed(w[-DUPLICATE_MEMORY]) == [] and dec.counts.duplicate == len(w) + 1
+    # ... an older copy is a replay (memory is bounded), and so is another frame with a
+    # remembered seq: same seq, other bytes, valid MAC.
+    assert dec.feed(w[-DUPLICATE_MEMORY - 1]) == [] and dec.counts.replayed == 1
+    assert dec.feed(wires(1, [100 + len(w) - 1], tension=9)[0]) == [] and dec.counts.replayed == 2
+    assert dec.counts.duplicate == len(w) + 1
+    ev = eng.update_link("pithead", dec.counts.mac_fail, dec.counts.replayed, 2.0)
+    assert [(e.action, e.alarm) for e in ev] == [("raise", "link_integrity:pithead")]
+    assert "duplicate=%d" % (len(w) + 1) in dec.summary()
+
+
+def test_copies_are_per_node_and_legacy_mode_tells_them_too():
+    dec = StreamDecoder(KEYS)
+    a, b = wires(1, [5])[0], wires(2, [5])[0]
+    assert len(dec.feed(a + b)) == 2
+    assert dec.feed(b + a) == [] and dec.counts.duplicate == 2
+    legacy = StreamDecoder(KEYS, accept_restarts=True)
+    w = wires(1, [7, 6, 7])
+    assert [f.seq for f in legacy.feed(b"".join(w))] == [7, 6]  # reordering window
+    assert legacy.counts.duplicate == 1 and legacy.counts.replayed == 0
+
+
+def test_a_retry_does_not_use_up_the_operator_acceptance():
+    dec = StreamDecoder(KEYS)
+    seven = wires(1, [boot(7, k) for k in range(3)])
+    dec.feed(b"".join(seven))
+    dec.replay.accept_rewound(1)
+    assert dec.feed(seven[1]) == [] and dec.counts.duplicate == 1  # a late retry of boot 7
+    wiped = wires(1, [boot(0, 0), boot(0, 1)])
+    assert [f.seq for f in dec.feed(b"".join(wiped))] == [boot(0, 0), boot(0, 1)]
+    assert dec.counts.replayed == 0 and dec.counts.rewound == 0
+
+
+def test_guard_memory_is_bounded():
+    g = ReplayGuard(memory=4)
+    raw = [bytes([i]) * 8 for i in range(10)]
+    for i, r in enumerate(raw):
+        assert g.check(1, i, r) is ReplayGuard.ACCEPTED
+    assert len(g._recent[1]) == 4
+    assert g.check(1, 6, raw[6]) is ReplayGuard.DUPLICATE
+    assert g.check(1, 5, raw[5]) is ReplayGuard.REPLAYED
+    assert g.check(1, 9, None) is ReplayGuard.REPLAYED  # no bytes given: no copy check
+    with pytest.raises(ValueError):
+        ReplayGuard(memory=0)
 
 
 # --- the firmware's boot counter, end to end under the real micropython
@@ -137,7 +224,12 @@ def test_sim_runs_with_a_boot_file_are_successive_boots(sim):
     dec = StreamDecoder(keys)
     frames = [f for data in runs for f in dec.feed(data)]
     assert [f.seq for f in frames] == [boot(b, k) for b in range(3) for k in range(5)]
-    assert dec.feed(runs[0]) == [] and dec.counts.replayed == 5 and dec.counts.rewound == 5
+    # To this host the first boot's frames are exact copies of frames it just took: dropped, no alarm.
+    assert dec.feed(runs[0]) == [] and dec.counts.duplicate == 5 and dec.counts.replayed == 0
+    # To a host that did not take them (it came up at the third boot) they are a replayed earlier boot.
+    late = StreamDecoder(keys)
+    assert len(late.feed(runs[2])) == 5
+    assert late.feed(runs[0]) == [] and late.counts.replayed == 5 and late.counts.rewound == 5
 
 
 def test_sim_without_a_boot_file_is_deterministic_and_a_rerun_is_a_replay(sim):
@@ -146,7 +238,12 @@ def test_sim_without_a_boot_file_is_deterministic_and_a_rerun_is_a_replay(sim):
     assert a == b
     dec = StreamDecoder(keys)
     assert [f.seq for f in dec.feed(a)] == list(range(5))
-    assert dec.feed(b) == [] and dec.counts.replayed == 5
+    assert dec.feed(b) == [] and dec.counts.duplicate == 5  # the same bytes just taken: copies
+    # Once the host has taken DUPLICATE_MEMORY newer frames, the rerun is a replay.
+    ((node, key),) = keys.items()
+    newer = wires(node, range(5, 5 + DUPLICATE_MEMORY), key=key)
+    assert len(dec.feed(b"".join(newer))) == DUPLICATE_MEMORY
+    assert dec.feed(b) == [] and dec.counts.replayed == 5 and dec.counts.duplicate == 5
 
 
 def test_sim_main_refuses_a_boot_file_option_without_a_value(sim):

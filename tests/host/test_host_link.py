@@ -169,3 +169,31 @@ def test_a_failing_consumer_does_not_end_the_link():
         assert "consumer bug" in rx.last_error and rx.connected
     finally:
         rx.stop()
+
+
+def test_hub_passes_the_operator_acceptance_to_every_receiver():
+    from host_framegen import KEYS
+    from ropemon.decoder import SEQ_COUNT_BITS
+    from ropemon.protocol import encode_frame
+
+    def w(boot, k):
+        return encode_frame(node=1, seq=(boot << SEQ_COUNT_BITS) | k, ropes=[(1, 1, 1, 1)], key=KEYS[1])[1]
+
+    hub = FrameHub(KEYS)
+    pit, mid = hub.feeder("pithead"), hub.feeder("mid-shaft")
+    pit(w(7, 0) + w(7, 1))
+    mid(w(7, 1))
+    pit(w(0, 0))
+    mid(w(0, 0))
+    assert hub.rewound() == {1: (7, 0)}
+    assert all(d.counts.rewound == 1 for d in hub.decoders.values())
+    hub.accept_rewound(1)
+    pit(w(0, 1))
+    mid(w(0, 1))
+    assert hub.rewound() == {}
+    got = [hub.get(0) for _ in range(hub.queue.qsize())]
+    assert [(r.receiver, r.frame.seq & 0xFFFFF, r.is_new) for r in got][-2:] == [
+        ("pithead", 1, True), ("mid-shaft", 1, False)]
+    # Given up front it reaches receivers created later.
+    pre = FrameHub(KEYS, accept_rewound=[1])
+    assert pre.feeder("rx")(b"") is None and pre.decoders["rx"].replay._rebase == {1}

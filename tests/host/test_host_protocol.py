@@ -109,7 +109,11 @@ def test_replayed_and_forged_frames_are_dropped_and_counted():
     frames = frame_set(11, 6, keyed=True)
     dec = StreamDecoder(KEYS)
     assert len(dec.feed(b"".join(w for _, w in frames))) == 6
-    assert dec.feed(frames[2][1]) == []  # replay of an old frame
+    assert dec.feed(frames[2][1]) == []  # an exact copy of a frame just taken: a radio retry
+    assert dec.counts.duplicate == 1 and dec.counts.replayed == 0
+    old = decode_raw(frames[2][0], KEYS)
+    other = encode_frame(node=old.node, seq=old.seq, ropes=[(1, 1, 1, 1)], key=KEYS[old.node])[1]
+    assert dec.feed(other) == []  # an old seq with other bytes: a replay
     assert dec.counts.replayed == 1
     forged, wire = encode_frame(node=1, seq=10**6, ropes=[(1, 1, 1, 1)], key=bytes(16))
     assert dec.feed(wire) == []
@@ -152,7 +156,9 @@ def test_node_reset_is_accepted_as_a_counted_restart():
     after_reset = [encode_frame(node=1, seq=s, time_ms=5, ropes=[(2, 2, 2, 2)], key=key)[1] for s in range(3)]
     assert [f.seq for f in dec.feed(b"".join(after_reset))] == [0, 1, 2]
     assert dec.counts.restarts == 1 and dec.counts.replayed == 0
-    assert dec.feed(after_reset[1]) == []      # replay within the new boot
+    assert dec.feed(after_reset[1]) == [] and dec.counts.duplicate == 1  # a retry within the new boot
+    replay = encode_frame(node=1, seq=1, time_ms=6, ropes=[(2, 2, 2, 2)], key=key)[1]
+    assert dec.feed(replay) == []      # replay within the new boot
     assert dec.counts.replayed == 1
     strict = StreamDecoder(KEYS, accept_restarts=False)
     assert len(strict.feed(b"".join(wires))) == 200

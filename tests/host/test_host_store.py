@@ -114,6 +114,29 @@ def test_events_link_stats_and_csv_export(tmp_path):
     assert ls[0]["crc_fail"] == "2" and ls[0]["share"] == "0.9"
 
 
+
+def test_link_stats_keep_rewound_and_duplicate_counts(tmp_path):
+    from ropemon.decoder import DecodeCounts
+    counts = DecodeCounts(frames_ok=9, replayed=4, rewound=3, duplicate=2)
+    with Store(tmp_path / "a.db") as s:
+        s.add_link_stats(1.0, "pithead", counts.as_dict())
+        row = s.link_stats()[0]
+    assert (row["replayed"], row["rewound"], row["duplicate"], row["duplicates"]) == (4, 3, 2, None)
+    # A file written before these columns existed (schema 1, pre-release) gets them on open.
+    old = tmp_path / "old.db"
+    with Store(old) as s:
+        s.add_link_stats(1.0, "pithead", {"frames_ok": 5})
+    db = sqlite3.connect(old)
+    db.execute("ALTER TABLE link_stats DROP COLUMN rewound")
+    db.execute("ALTER TABLE link_stats DROP COLUMN duplicate")
+    db.commit()
+    db.close()
+    with Store(old) as s:
+        s.add_link_stats(2.0, "pithead", counts.as_dict())
+        rows = s.link_stats()
+    assert [(r["frames_ok"], r["rewound"], r["duplicate"]) for r in rows] == [(5, None, None), (9, 3, 2)]
+
+
 WRITER = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {host!r})
