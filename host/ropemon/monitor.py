@@ -687,8 +687,10 @@ def run(args: argparse.Namespace) -> int:
             store.close()
         return 2
     view = MonitorView(site)
+    # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
+    # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
     session = HostSession(keys or None, alarm_settings(site, args.silent_s), store, view,
-                          accept_rewound=args.accept_rewound)
+                          clock=time.time, accept_rewound=args.accept_rewound)
     operator = operator_name()
     for node in args.accept_rewound:
         session.accept_rewound(node, operator, "with --accept-rewound")
