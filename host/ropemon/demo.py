@@ -327,7 +327,8 @@ def run(args: argparse.Namespace) -> int:
     plot = plot_demo(acc, out / "demo.png") if acc.get("frames") else None
     summary = summarize(sent, result, session, acc, written)
     summary["files"] = {"database": str(db), "plot": str(plot) if plot else None, "frames": str(frames_bin),
-                        "config": str(node_json), "report": str(out / "report")}
+                        "config": str(node_json), "report": str(out / "report"),
+                        "site": json.loads((sim_dir / "truth.json").read_text()).get("site_file")}
     summary["replay"] = rep
     report_text = trip_report(db, out / "report", site, sim_dir, payload_at_rests(truth, shaft_m))
     if args.json:
@@ -424,7 +425,8 @@ def format_summary(s: dict) -> str:
                          f"{pr['compensated_total_kN']:.1f} kN ({(pr['compensated_total_kN'] - tt) / tt * 100:+.1f} %)")
     f = s.get("files", {})
     lines += ["", f"log: {f.get('database')}   plot: {f.get('plot')}",
-              f"trip table again: ropemon report {f.get('database')} --config {f.get('config')} --site SITE.toml"]
+              f"trip table again: ropemon report {f.get('database')} --config {f.get('config')}"
+              + (f" --site {f['site']}" if f.get("site") else "")]
     return "\n".join(lines)
 
 
