@@ -40,6 +40,8 @@ friction.sigma0_shift 0 30
 friction.c1_mul 0 524287
 friction.c1_shift 10 30
 friction.sigma2_shift 9 30
+friction.alpha_z_q14 1 16384
+friction.play_q8um 0 16777216
 temperature.fitted 0 1
 temperature.counts_at_0c 0 65535
 temperature.cc_mul -16384 16384

@@ -5,7 +5,7 @@
     closed = step(rec, P, S, n)   # 1 when a frame window just closed
 
 `step` does, for n ropes: NAMUR check and calibration (channels), filtered
-velocity, pipe-loss table, LuGre implicit-Euler friction, tension, window
+velocity, pipe-loss table, noise-robust LuGre friction, tension, window
 statistics; then oil temperature, depth/speed from the pulse counter and Hall
 marks, node time, and at the end of a frame window the frame's fields (OUT_*).
 Every int stays within +-2**30, nothing is allocated, and `step` is one call
@@ -74,7 +74,9 @@ _BLOW = const(38)    # battery low below this, mV
 _FRHZ = const(39)    # frame_hz
 _OFORCE = const(40)  # offset of the loss forces in P
 _OMARKS = const(41)  # offset of the Hall marks in P
-_PCAL = const(42)    # 9 ints per rope (config.py order)
+_AZ = const(42)      # LuGre position filter gain, Q14
+_PLAY = const(43)    # LuGre play half-width, um/256
+_PCAL = const(44)    # 9 ints per rope (config.py order)
 _DCAL = const(_PCAL + 9 * ROPES_MAX)     # 6 ints per rope
 _GEXP = const(_DCAL + 6 * ROPES_MAX)     # exp(-u^2), Q14
 _TEMPS = const(_GEXP + GEXP_POINTS)      # loss table temperatures, centi-degC
@@ -130,7 +132,9 @@ OUT_TEMP_CC = const(116)
 OUT_SEC = const(117)   # node time at the window's end
 OUT_SUB = const(118)
 OUT_DEPTH_MM = const(119)
-_S_LEN = const(120)
+XS_Q8UM = const(120)   # per rope: the LuGre's low-passed position, um/256
+XP_Q8UM = const(124)   # its play output
+_S_LEN = const(128)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -151,7 +155,7 @@ def pack(c):
         nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts,
         c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window,
         c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz,
-        _VBP + n * nv, _VBP + n * nv + n * nt * nv)
+        _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
@@ -246,14 +250,21 @@ def step(rec, P, S, n):
     c1half = (1 << c1s10) >> 1
     s2s9 = P[_S2S9]
     s2half = (1 << s2s9) >> 1
+    az = P[_AZ]
+    play = P[_PLAY]
     for i in range(n):
         # velocity: x_f += alpha (x - x_f), increment clamped to +-dx_max
         dx = 0
         v = 0
+        dxs = 0
+        dxp = 0
+        avz = 0
         if (dgood >> i) & 1:
             x = S[X_Q8UM + i]
             if ((S[_STARTED] >> i) & 1) == 0:
                 S[XF_Q8UM + i] = x
+                S[XS_Q8UM + i] = x
+                S[XP_Q8UM + i] = x
                 S[_STARTED] |= 1 << i
             e = x - S[XF_Q8UM + i]  # |e| < 2**26: positions are within +-2**25
             # e * alpha / 2**14 rounded, split so no product exceeds 2**28
@@ -262,8 +273,28 @@ def step(rec, P, S, n):
                 dx = dxmax
             elif dx < -dxmax:
                 dx = -dxmax
-            S[XF_Q8UM + i] += dx
+            xf = S[XF_Q8UM + i] + dx
+            S[XF_Q8UM + i] = xf
             v = (dx * fshz + 128) >> 8
+            # the LuGre's position: x_s += alpha_z (x_f - x_s), then its play output x_p
+            xs = S[XS_Q8UM + i]
+            e = xf - xs
+            dxs = (e >> 14) * az + (((e & 16383) * az + 8192) >> 14)
+            if dxs > dxmax:
+                dxs = dxmax
+            elif dxs < -dxmax:
+                dxs = -dxmax
+            xs += dxs
+            S[XS_Q8UM + i] = xs
+            avz = (dxs * fshz + 128) >> 8  # |v| of x_s, um/s, for g: noise barely moves it
+            if avz < 0:
+                avz = -avz
+            e = S[XP_Q8UM + i]
+            if xs > e + play:
+                dxp = xs - play - e
+            elif xs < e - play:
+                dxp = xs + play - e
+            S[XP_Q8UM + i] = e + dxp
         S[DX_Q8UM + i] = dx
         S[V_UM_S + i] = v
         av = v
@@ -301,27 +332,27 @@ def step(rec, P, S, n):
         fc = P[_FC0] + ((p * P[_FCM]) >> P[_FCS])
         vs = P[_VS0] + ((p * P[_VSM]) >> P[_VSS])
         s2 = P[_S20] + ((p * P[_S2M]) >> P[_S2S])
-        u = (av << 9) // vs  # |v| / vs in Q9; av < 2**20
+        u = (avz << 9) // vs  # |v_s| / vs in Q9; avz < 2**20
         eq = 0
         if u < 2048:
             k = _GEXP + (u >> 4)
             eq = P[k] + (((P[k + 1] - P[k]) * (u & 15) + 8) >> 4)
         g = (fc << 4) + (((fs - fc) * eq + 512) >> 10)
         S[G + i] = g
-        wf = dx * s0m + S[_WREM + i]
+        # elastic step sigma0 dx_s (remainder fed back: no drift), then the implicit
+        # dissipation zf (g / (g + sigma0 |dx_p|)), then |zf| <= g
+        wf = dxs * s0m + S[_WREM + i]
         w = wf >> s0s
         S[_WREM + i] = wf - (w << s0s)
         z = S[ZF + i]
-        zn = z
-        if w != 0:
-            aw = w
-            e = z - g
-            if w < 0:
-                aw = -w
-                e = z + g
-            ea = e
-            if e < 0:
-                ea = -e
+        zn = z + w  # |zn| < 2**20: |z| <= g < 2**19, |w| < 2**19 (config.py)
+        if dxp < 0:
+            dxp = -dxp
+        aw = (dxp * s0m + ((1 << s0s) >> 1)) >> s0s  # <= sigma0 dx_max < 2**19
+        if aw != 0 and zn != 0:
+            ea = zn
+            if zn < 0:
+                ea = -zn
             dd = g + aw
             # q = round(ea * aw / dd) for ea < 2**20, aw < 2**19, aw < dd < 2**20; aw split
             # into 9 high and 10 low bits so no intermediate reaches 2**30
@@ -334,11 +365,15 @@ def step(rec, P, S, n):
             q3 = q // dd
             r3 = q - q3 * dd
             q = (q1 << 10) + q2 + q3 + (r2 + r3 + (dd >> 1)) // dd
-            if e >= 0:
-                zn = z - q
+            if zn > 0:
+                zn -= q
             else:
-                zn = z + q
-            S[ZF + i] = zn
+                zn += q
+        if zn > g:
+            zn = g
+        elif zn < -g:
+            zn = -g
+        S[ZF + i] = zn
         d = zn - z  # |d| < 2**20; c1m < 2**19: split d so no product passes 2**29
         f = zn + (((d >> 10) * c1m + (((d & 1023) * c1m) >> 10) + c1half) >> c1s10)
         # sigma2 v: |v| < 2**20 and s2 < 2**18, so v is split at 9 bits

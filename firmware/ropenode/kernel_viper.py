@@ -52,7 +52,9 @@ _BLOW = const(38)
 _FRHZ = const(39)
 _OFORCE = const(40)
 _OMARKS = const(41)
-_PCAL = const(42)
+_AZ = const(42)
+_PLAY = const(43)
+_PCAL = const(44)
 _DCAL = const(_PCAL + 9 * ROPES_MAX)
 _GEXP = const(_DCAL + 6 * ROPES_MAX)
 _TEMPS = const(_GEXP + GEXP_POINTS)
@@ -106,7 +108,9 @@ OUT_TEMP_CC = const(116)
 OUT_SEC = const(117)
 OUT_SUB = const(118)
 OUT_DEPTH_MM = const(119)
-_S_LEN = const(120)
+XS_Q8UM = const(120)
+XP_Q8UM = const(124)
+_S_LEN = const(128)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -120,7 +124,7 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
@@ -210,13 +214,20 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     c1half = 1 << c1s10 >> 1
     s2s9 = (P[_S2S9] ^ s31) - s31
     s2half = 1 << s2s9 >> 1
+    az = (P[_AZ] ^ s31) - s31
+    play = (P[_PLAY] ^ s31) - s31
     for i in range(n):
         dx = 0
         v = 0
+        dxs = 0
+        dxp = 0
+        avz = 0
         if dgood >> i & 1:
             x = (S[X_Q8UM + i] ^ s31) - s31
             if (S[_STARTED] ^ s31) - s31 >> i & 1 == 0:
                 S[XF_Q8UM + i] = x
+                S[XS_Q8UM + i] = x
+                S[XP_Q8UM + i] = x
                 S[_STARTED] |= 1 << i
             e = x - ((S[XF_Q8UM + i] ^ s31) - s31)
             dx = (e >> 14) * alpha + ((e & 16383) * alpha + 8192 >> 14)
@@ -224,8 +235,27 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 dx = dxmax
             elif dx < -dxmax:
                 dx = -dxmax
-            S[XF_Q8UM + i] += dx
+            xf = (S[XF_Q8UM + i] ^ s31) - s31 + dx
+            S[XF_Q8UM + i] = xf
             v = dx * fshz + 128 >> 8
+            xs = (S[XS_Q8UM + i] ^ s31) - s31
+            e = xf - xs
+            dxs = (e >> 14) * az + ((e & 16383) * az + 8192 >> 14)
+            if dxs > dxmax:
+                dxs = dxmax
+            elif dxs < -dxmax:
+                dxs = -dxmax
+            xs += dxs
+            S[XS_Q8UM + i] = xs
+            avz = dxs * fshz + 128 >> 8
+            if avz < 0:
+                avz = -avz
+            e = (S[XP_Q8UM + i] ^ s31) - s31
+            if xs > e + play:
+                dxp = xs - play - e
+            elif xs < e - play:
+                dxp = xs + play - e
+            S[XP_Q8UM + i] = e + dxp
         S[DX_Q8UM + i] = dx
         S[V_UM_S + i] = v
         av = v
@@ -258,27 +288,25 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         fc = (P[_FC0] ^ s31) - s31 + (p * ((P[_FCM] ^ s31) - s31) >> (P[_FCS] ^ s31) - s31)
         vs = (P[_VS0] ^ s31) - s31 + (p * ((P[_VSM] ^ s31) - s31) >> (P[_VSS] ^ s31) - s31)
         s2 = (P[_S20] ^ s31) - s31 + (p * ((P[_S2M] ^ s31) - s31) >> (P[_S2S] ^ s31) - s31)
-        u = (av << 9) // vs
+        u = (avz << 9) // vs
         eq = 0
         if u < 2048:
             k = _GEXP + (u >> 4)
             eq = (P[k] ^ s31) - s31 + (((P[k + 1] ^ s31) - s31 - ((P[k] ^ s31) - s31)) * (u & 15) + 8 >> 4)
         g = (fc << 4) + ((fs - fc) * eq + 512 >> 10)
         S[G + i] = g
-        wf = dx * s0m + ((S[_WREM + i] ^ s31) - s31)
+        wf = dxs * s0m + ((S[_WREM + i] ^ s31) - s31)
         w = wf >> s0s
         S[_WREM + i] = wf - (w << s0s)
         z = (S[ZF + i] ^ s31) - s31
-        zn = z
-        if w != 0:
-            aw = w
-            e = z - g
-            if w < 0:
-                aw = -w
-                e = z + g
-            ea = e
-            if e < 0:
-                ea = -e
+        zn = z + w
+        if dxp < 0:
+            dxp = -dxp
+        aw = dxp * s0m + (1 << s0s >> 1) >> s0s
+        if aw != 0 and zn != 0:
+            ea = zn
+            if zn < 0:
+                ea = -zn
             dd = g + aw
             q = ea * (aw >> 10)
             q1 = q // dd
@@ -289,11 +317,15 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             q3 = q // dd
             r3 = q - q3 * dd
             q = (q1 << 10) + q2 + q3 + (r2 + r3 + (dd >> 1)) // dd
-            if e >= 0:
-                zn = z - q
+            if zn > 0:
+                zn -= q
             else:
-                zn = z + q
-            S[ZF + i] = zn
+                zn += q
+        if zn > g:
+            zn = g
+        elif zn < -g:
+            zn = -g
+        S[ZF + i] = zn
         d = zn - z
         f = zn + ((d >> 10) * c1m + ((d & 1023) * c1m >> 10) + c1half >> c1s10)
         f += (v >> 9) * s2 + ((v & 511) * s2 >> 9) + s2half >> s2s9

@@ -28,8 +28,14 @@ DEFAULTS = {
     "hoist_speed_max_m_s": 20.0,   # larger counter jumps are glitches
     "hall_snap_m": 2.0,            # a Hall mark snaps depth only within this distance
     "start_depth_m": 0.0,          # depth assumed at boot (pithead landing)
+    # LuGre observer (docs/model.md, "LuGre"): the seal state follows a slower
+    # low-pass of position, through a play of a few noise sigmas for the dissipation.
+    "friction_cutoff_hz": 1.0,     # low-pass of the position that drives the LuGre state
+    "displacement_noise_m": 2e-5,  # rms noise of the displacement channel (transmitter + ADC)
+    "friction_play_sigmas": 2.0,   # play half-width in rms noise of that low-passed position
 }
 
+PLAY_STEP_M = 0.5e-6         # resolution of the LuGre play half-width
 PRESSURE_Q_MAX = 1 << 14    # |count difference| <= 65535: a mul below 2**14 keeps d * mul < 2**30
 
 
@@ -102,14 +108,41 @@ def pressure_max_pa(chan: dict) -> float:
     return lo + (hi - lo) * 17 / 16
 
 
+def filtered_noise_m(noise_m: float, alpha: float, alpha_z: float) -> float:
+    """rms of white position noise `noise_m` after the two low-passes x_f (alpha), x_s (alpha_z)."""
+    # sum of the squared impulse response of the cascade, summed to its 1e-6 tail
+    xf = xs = 0.0
+    acc = 0.0
+    for k in range(int(40 / alpha_z) + 10):
+        xf += alpha * ((1.0 if k == 0 else 0.0) - xf)
+        xs += alpha_z * (xf - xs)
+        acc += xs * xs
+    return noise_m * math.sqrt(acc)
+
+
 def physical_params(ph: dict) -> dict:
     """The SI quantities both the builder and the float reference derive from `physical`."""
     n = int(_num(ph, "ropes", 1, 4))
     fs = _num(ph, "sample_hz", 1, 1000)
     fc_hz = _num(ph, "velocity_cutoff_hz", 0.01, fs / 2)
+    fz_hz = _num(ph, "friction_cutoff_hz", 0.01, fc_hz)
+    alpha = 1 - math.exp(-2 * math.pi * fc_hz / fs)
+    alpha_z = 1 - math.exp(-2 * math.pi * fz_hz / fs)
+    xch = _per_rope(ph, "displacement_channels", n)
+    try:
+        q_m = max((float(c["range_m"][1]) - float(c["range_m"][0]))
+                  / (int(c["counts_hi"]) - int(c["counts_lo"])) for c in xch)
+    except (KeyError, TypeError, ValueError, IndexError, ZeroDivisionError):
+        raise ValueError("physical.displacement_channels: need counts_lo < counts_hi, "
+                         "range_m [lo, hi]") from None
+    noise_m = _num(ph, "displacement_noise_m", 0.0, 1e-3)
     return {
         "ropes": n,
-        "alpha": 1 - math.exp(-2 * math.pi * fc_hz / fs),
+        "alpha": alpha,
+        "alpha_z": alpha_z,
+        # in steps of PLAY_STEP_M: channels that differ by a few counts per metre share a play
+        "play_m": PLAY_STEP_M * round(_num(ph, "friction_play_sigmas", 0.0, 10.0) * filtered_noise_m(
+            math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z) / PLAY_STEP_M),
         "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
         "p_max_pa": max(pressure_max_pa(c) for c in _per_rope(ph, "pressure_channels", n)),
     }
@@ -209,6 +242,8 @@ def build_node_section(ph: dict) -> dict:
     _check("physical.piston_speed_max_m_s (dx_max * sample_hz)", dx_max * fs, 1 << 28)
     v_max_um_s = (dx_max * fs + 128) >> 8
     nd["velocity"] = {"alpha_q14": max(1, round(pp["alpha"] * 16384)), "dx_max_q8um": dx_max}
+    play_q8um = round(pp["play_m"] * 256e6)
+    _check("physical.friction_play_sigmas (play half-width, um/256)", play_q8um, 1 << 24)
 
     fr = _get(ph, "friction")
     if not isinstance(fr, dict):
@@ -272,6 +307,7 @@ def build_node_section(ph: dict) -> dict:
     gexp = [round(math.exp(-(k * GEXP_STEP) ** 2) * 16384) for k in range(GEXP_POINTS)]
     gexp[-1] = 0
     nd["friction"] = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s,
+                      "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
                       **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
     fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p for p in (0.0, p_kpa_max / 1000))
     f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous
@@ -360,7 +396,7 @@ def build_node_section(ph: dict) -> dict:
     # Last line of defence: the node's own validator must accept what we built.
     cfg_mod = node_module("config")
     try:
-        cfg_mod.parse_node(nd)
+        cfg = cfg_mod.parse_node(nd)
     except cfg_mod.ConfigError as e:
         raise ValueError(f"built {e.field}: {e.reason}") from None
     return nd
@@ -438,6 +474,9 @@ def example_physical() -> dict:
         "hoist_speed_max_m_s": 20.0,
         "hall_snap_m": 2.0,
         "start_depth_m": 0.0,
+        "friction_cutoff_hz": 1.0,
+        "displacement_noise_m": 2e-5,
+        "friction_play_sigmas": 2.0,
         "friction": {
             "Fs": {"intercept": 1500.0, "slope": 1000.0},
             "Fc": {"intercept": 1000.0, "slope": 600.0},

@@ -2,7 +2,7 @@
 
 Same equations as firmware/ropenode, in floating point and SI units, with the
 same discrete-time choices that are part of the model (filtered-position
-velocity with the +-v_max/fs increment clamp, implicit-Euler LuGre step, table
+velocity with the +-v_max/fs increment clamp, the noise-robust LuGre observer, table
 interpolation of the loss, NAMUR limits, last-good hold on a failed channel):
 
     T_i = p_tap,i A_i + dp_i(A_i v_i) A_i + F_i
@@ -109,6 +109,7 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
     fs = float(ph["sample_hz"])
     h = 1.0 / fs
     alpha, v_max, p_max = pp["alpha"], pp["v_max"], pp["p_max_pa"]
+    alpha_z, play = pp["alpha_z"], pp["play_m"]
     dx_max = v_max * h
     areas = [float(a) for a in ph["cylinder_area_m2"]]
     fr = ph["friction"]
@@ -138,31 +139,46 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
         fault |= np.where(p_ok, 0, 1 << i) | np.where(x_ok, 0, 16 << i)
         p_seen = np.maximum.accumulate(p_ok)
         x_seen = np.maximum.accumulate(x_ok)
-        # Velocity: filtered position, clamped increment; held where x failed.
+        # Velocity: filtered position, clamped increment; held where x failed. The LuGre
+        # state follows x_s, a slower low-pass of x_f (elastic part), and the play output
+        # x_p of x_s (dissipation), so that noise neither drags nor erases it.
         dx = np.zeros(k)
-        xf = None
+        dxs = np.zeros(k)
+        dxp = np.zeros(k)
+        xf = xs = xp = None
         for j, (xj, okj) in enumerate(zip(x.tolist(), x_ok.tolist())):
             if not okj:
                 continue
             if xf is None:
-                xf = xj
+                xf = xs = xp = xj
                 continue
             step = alpha * (xj - xf)
             step = dx_max if step > dx_max else (-dx_max if step < -dx_max else step)
             xf += step
             dx[j] = step
+            step = alpha_z * (xf - xs)
+            step = dx_max if step > dx_max else (-dx_max if step < -dx_max else step)
+            xs += step
+            dxs[j] = step
+            if xs > xp + play:
+                dxp[j] = xs - play - xp
+            elif xs < xp - play:
+                dxp[j] = xs + play - xp
+            xp += dxp[j]
         v = dx * fs
-        # LuGre, implicit Euler in zf = sigma0 z.
+        # LuGre in zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g.
         pm = np.clip(p, 0.0, p_max) / 1e6
         lin = {key: float(fr[key]["intercept"]) + float(fr[key]["slope"]) * pm
                for key in ("Fs", "Fc", "vs", "sigma2")}
-        g = lin["Fc"] + (lin["Fs"] - lin["Fc"]) * np.exp(-(v / lin["vs"]) ** 2)
-        w = sigma0 * dx
+        # g at the velocity of x_s: g at the noisy v would dip with every noise peak and
+        # the bound |zf| <= g would ratchet zf down
+        g = lin["Fc"] + (lin["Fs"] - lin["Fc"]) * np.exp(-(dxs * fs / lin["vs"]) ** 2)
         zn = np.empty(k)
         z = 0.0
-        for j, (gj, wj) in enumerate(zip(g.tolist(), w.tolist())):
-            if wj:
-                z = (z + wj) * gj / (gj + abs(wj))
+        for j, (gj, wj, wd) in enumerate(zip(g.tolist(), (sigma0 * dxs).tolist(),
+                                             (sigma0 * np.abs(dxp)).tolist())):
+            z = (z + wj) * gj / (gj + wd)
+            z = gj if z > gj else (-gj if z < -gj else z)
             zn[j] = z
         zprev = np.concatenate(([0.0], zn[:-1]))
         fric = zn + c1 * (zn - zprev) + lin["sigma2"] * v

@@ -8,6 +8,10 @@ with measurement noise. Used by the tests, the docs, the example fit
 scenarios/paper-friction.json and the accuracy evaluation.
 
     python -m ropemon.testbed --out bed.csv [--seed N] [--no-presliding]
+    python -m ropemon.testbed --scenario scenarios/paper-field-trip.toml --out bed.csv
+
+With --scenario the bed runs that scenario's hidden seal ([plant.friction], read
+by ropemon.plant), so a site's fit describes the seal its plant actually has.
 """
 from __future__ import annotations
 
@@ -87,6 +91,41 @@ class LuGre:
         return s0 * self.z + s1 * dz + line(pr, "sigma2", p) * v
 
 
+class PlantLaw:
+    """A ropemon.plant friction law without presliding state (e.g. coulomb-stribeck) as a bed law."""
+
+    def __init__(self, law: Any):
+        self.law = law
+
+    def force(self, v: float, p: float, h: float) -> float:
+        out = self.law.evaluate(np.array([v]), np.zeros(1), np.array([p * 1e6]))
+        return float(out.F[0])
+
+
+def scenario_seal(path: Path | str) -> tuple[dict[str, Any] | None, Any]:
+    """(params, law_factory) for `run` from a scenario's hidden [plant.friction] table.
+
+    A LuGre seal gives its parameters (law_factory None: the bed's own LuGre); any
+    other law is wrapped as it is (params None: no lines to scatter about).
+    """
+    import tomllib
+
+    from ropemon.plant import friction as plant_friction
+    from ropemon.plant.scenario import ScenarioError, table
+
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            doc = tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        raise ScenarioError(f"{path}: cannot read a scenario: {e}") from None
+    law = plant_friction.from_table(table(table(doc, "plant", ""), "friction", "plant"),
+                                    "plant.friction")
+    if isinstance(law, plant_friction.LuGre):
+        return law.as_fit(), None
+    return None, lambda _level: PlantLaw(law)
+
+
 def velocity_profile(speeds: tuple[float, ...], hold_s: float, ramp_s: float, dt: float,
                      min_travel_m: float = 2e-3) -> np.ndarray:
     """Constant-velocity runs at every speed, each forward then back, joined by linear ramps.
@@ -113,6 +152,16 @@ def presliding_profile(amplitude_m: float, period_s: float, cycles: int, dt: flo
     return np.concatenate([amplitude_m * w * np.cos(w * t), np.zeros(round(0.5 / dt))])
 
 
+def presliding_period_s(params: dict[str, Any] | None, amplitude_m: float = 4e-4,
+                        pressures_MPa: tuple[float, ...] = PRESSURES_MPA) -> float:
+    """The reversal period that keeps the peak speed below vs/8 at every bed pressure
+    (fit-friction takes only |v| < vs/4 as pre-sliding), at least the default 4 s."""
+    if params is None:
+        return 4.0
+    vs_min = min(line(params, "vs", p) for p in pressures_MPa)
+    return max(4.0, 2 * math.pi * amplitude_m / (vs_min / 8))
+
+
 def run(params: dict[str, Any] | None = None, *, pressures_MPa: tuple[float, ...] = PRESSURES_MPA,
         speeds_m_s: tuple[float, ...] = SPEEDS_M_S, hold_s: float = 2.5, ramp_s: float = 0.2,
         sample_hz: int = 100, presliding: bool = True, presliding_amplitude_m: float = 4e-4,
@@ -126,8 +175,10 @@ def run(params: dict[str, Any] | None = None, *, pressures_MPa: tuple[float, ...
     moves each level's Fs, Fc, vs, sigma2 off their lines by that relative
     standard deviation, as a real seal is not exactly linear in pressure.
     """
-    params = PAPER_SEAL if params is None else params
     make = law_factory or LuGre
+    params = PAPER_SEAL if params is None and law_factory is None else params
+    if seal_scatter and params is None:
+        raise ValueError("seal_scatter needs a seal with pressure lines (params)")
     rng = random.Random(seed)
     dt = 1.0 / sample_hz
     substeps = 16  # the law runs finer than the recorder samples (and than the fitter's model)
@@ -184,12 +235,23 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ropemon.testbed", description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, help="CSV to write")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--scenario", help="run this scenario's hidden seal ([plant.friction]) "
+                    "instead of the example seal PAPER_SEAL")
     ap.add_argument("--no-presliding", action="store_true", help="leave out the slow reversals")
     ap.add_argument("--truth", action="store_true", help="add the noiseless true_* columns")
     ap.add_argument("--scatter", type=float, default=0.0,
                     help="relative scatter of each level's friction parameters about their lines (e.g. 0.03)")
     a = ap.parse_args(argv)
-    data = run(presliding=not a.no_presliding, seed=a.seed, seal_scatter=a.scatter)
+    params, factory = PAPER_SEAL, None
+    if a.scenario:
+        from ropemon.plant.scenario import ScenarioError
+        try:
+            params, factory = scenario_seal(a.scenario)
+        except ScenarioError as e:
+            print(f"python -m ropemon.testbed: {e}", file=sys.stderr)
+            return 2
+    data = run(params, presliding=not a.no_presliding, seed=a.seed, seal_scatter=a.scatter,
+               law_factory=factory, presliding_period_s=presliding_period_s(params))
     write_csv(a.out, data, truth_columns=a.truth)
     print(f"{a.out}: {len(data['time_s'])} records, {len(PRESSURES_MPA)} pressure levels", file=sys.stderr)
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 import csv
 import json
 import math
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,3 +185,52 @@ def test_bed_takes_any_friction_law_and_writes_what_the_fitter_reads(tmp_path):
     rec = calibrate.read_csv(tmp_path / "bed.csv")  # the extra true_* columns are ignored
     assert np.allclose(rec.F, data["friction_N"]) and np.allclose(rec.v, data["velocity_m_s"])
     assert np.allclose(rec.t, data["time_s"], atol=1e-4)
+
+
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "paper-field-trip.toml"
+
+
+def test_bed_runs_the_scenarios_own_seal_and_the_fit_recovers_it(tmp_path):
+    """`--scenario`: the bed plays the plant's hidden seal; fit-friction recovers its lines
+    (the example seal PAPER_SEAL is half as strong: a fit of it would be far off)."""
+    from ropemon.plant.friction import from_table
+
+    doc = tomllib.loads(SCENARIO.read_text())
+    plant = from_table(doc["plant"]["friction"], "plant.friction")
+    bed = tmp_path / "bed.csv"
+    assert testbed.main(["--scenario", str(SCENARIO), "--out", str(bed), "--seed", "3"]) == 0
+    assert ropemon(["fit-friction", str(bed), "--out", str(tmp_path / "f.json")]) == 0
+    fit = json.loads((tmp_path / "f.json").read_text())
+    for key in ("Fs", "Fc", "vs", "sigma2"):
+        for p in (2.0, 6.0, 12.0):
+            want = getattr(plant, key).at(p)
+            assert fit[key]["intercept"] + fit[key]["slope"] * p == pytest.approx(want, rel=0.03), (key, p)
+            assert abs(testbed.line(testbed.PAPER_SEAL, key, p) / want - 1) > 0.03 or key == "sigma2"
+    assert fit["presliding"]["source"].startswith("fitted")
+    assert fit["sigma0"] == pytest.approx(plant.sigma0, rel=0.10)
+
+
+def test_bed_wraps_a_scenario_seal_without_presliding_state(tmp_path):
+    text = SCENARIO.read_text().replace('law = "lugre"', 'law = "coulomb-stribeck"')
+    text = text.replace("sigma0 = 1.0e8", "v_threshold = 1e-4").replace("sigma1 = 5.0e4", "")
+    sc = tmp_path / "cs.toml"
+    sc.write_text(text)
+    params, factory = testbed.scenario_seal(sc)
+    assert params is None
+    law = factory(None)
+    data = testbed.run(params, law_factory=factory, pressures_MPa=(4.0,), speeds_m_s=(0.01,),
+                       presliding=False)
+    moving = np.abs(data["true_velocity_m_s"]) > 0.009
+    want = [law.force(v, 4.0, 0.0) for v in data["true_velocity_m_s"][moving]]
+    assert np.allclose(data["true_friction_N"][moving], want)
+    assert law.force(0.01, 4.0, 0.0) == pytest.approx(
+        2500 + 2000 * 4 + (1700 + 1200 * 4 - 2500 - 2000 * 4) * (1 - math.exp(-(0.01 / 0.0032) ** 2))
+        + (20000 + 2000 * 4) * 0.01, rel=1e-3)
+
+
+def test_bed_refuses_a_bad_scenario_naming_it(tmp_path, capsys):
+    sc = tmp_path / "bad.toml"
+    sc.write_text("[plant.friction]\nlaw = \"lugre\"\nFs = 3\n")
+    assert testbed.main(["--scenario", str(sc), "--out", str(tmp_path / "b.csv")]) == 2
+    assert "plant.friction.Fs" in capsys.readouterr().err
+    assert not (tmp_path / "b.csv").exists()

@@ -104,3 +104,23 @@ def test_peaks_survive_decimation():
     shock_dan = (45000 - 9600) * 25e6 / 38400 * 0.00785398 / 10
     assert abs(f.ropes[0].max_dan - shock_dan) < 2
     assert f.ropes[0].mean_dan < f.ropes[0].max_dan - 1000
+
+
+@pytest.mark.parametrize("sigma0", [2e7, 1e8])
+def test_fixed_point_matches_reference_with_noisy_displacement(sigma0):
+    """Displacement noise of 2 counts rms (the default channel's 20 um) on held, creeping and
+    reversing pistons: the LuGre filter, play and bound take the same path in both."""
+    ph = example_physical()
+    ph["friction"] = dict(ph["friction"], sigma0=sigma0, sigma1=sigma0 * 1e-3)
+    ph["piston_speed_max_m_s"] = 0.05  # sigma0 dx_max stays within the node's 2**19 (N/16)
+    doc = make_node_json(ph)
+    ph = doc["physical"]
+    recs = random_stream(ph, 30, 12)
+    rng = np.random.default_rng(12)
+    x = recs[:, 4:8].astype(float) + rng.normal(0, 2.0, (recs.shape[0], 4))
+    recs[:, 4:8] = np.clip(np.round(x), 0, 65535).astype(np.uint16)
+    ref = reference.compensate(ph, recs)
+    ten, good, _ = run_node(Node(config.parse(doc)), recs)
+    err = np.abs(ten - ref.tension_n)[good]
+    assert err.max() <= _tolerance_n(doc), err.max()
+    assert np.abs(ref.friction_n).max() > 0.5 * sigma0 * 1e-4  # the seal state moved

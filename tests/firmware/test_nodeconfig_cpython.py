@@ -67,3 +67,45 @@ def test_gexp_table():
     t = nd["friction"]["gexp_q14"]
     assert t[0] == 16384 and t[-1] == 0 and t[32] == round(math.exp(-1) * 16384)
     assert all(a >= b for a, b in zip(t, t[1:]))
+
+
+@pytest.mark.parametrize("key,bad", [
+    ("friction_cutoff_hz", 6.0),        # above velocity_cutoff_hz (5 Hz)
+    ("friction_cutoff_hz", 0.0),
+    ("friction_play_sigmas", -1.0),
+    ("friction_play_sigmas", 11.0),
+    ("displacement_noise_m", -1e-6),
+    ("displacement_noise_m", "20 um"),
+])
+def test_lugre_observer_keys_are_range_checked(key, bad):
+    ph = example_physical()
+    ph[key] = bad
+    with pytest.raises(ValueError) as e:
+        build_node_section(ph)
+    assert str(e.value).startswith(f"physical.{key}"), str(e.value)
+
+
+def test_lugre_observer_defaults_and_integers():
+    """Missing keys take the documented defaults; the play is the set sigmas of the
+    position noise after both low-passes (20 um transmitter noise + 10.4 um counts)."""
+    ph = example_physical()
+    for key in ("friction_cutoff_hz", "displacement_noise_m", "friction_play_sigmas"):
+        del ph[key]
+    fr = build_node_section(ph)["friction"]
+    assert fr["alpha_z_q14"] == round((1 - math.exp(-2 * math.pi * 1.0 / 200)) * 16384)
+    # white noise through x_f (5 Hz) then x_s (1 Hz) at 200 Hz: rms gain 0.1134 (by simulation)
+    noise = math.hypot(2e-5, 0.1 / 38400 / math.sqrt(12))
+    assert fr["play_q8um"] == round(2.0 * 0.1134 * noise / 0.5e-6) * 128  # in 0.5 um steps
+
+
+def test_node_runs_the_observer_values_the_reference_uses():
+    """The node packs alpha_z/play from its validated config, not from built-in defaults."""
+    kernel = node_module("kernel")
+    ph = example_physical()
+    ph["friction_play_sigmas"] = 3.0
+    nd = build_node_section(ph)
+    cfg = config.parse_node(nd)
+    assert (cfg.alpha_z_q14, cfg.play_q8um) == (nd["friction"]["alpha_z_q14"], nd["friction"]["play_q8um"])
+    assert cfg.play_q8um != build_node_section(example_physical())["friction"]["play_q8um"]
+    p = kernel.pack(cfg)
+    assert cfg.alpha_z_q14 in p and cfg.play_q8um in p

@@ -4,6 +4,7 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pytest
 
 from ropemon import reference
 from ropemon.nodeconfig import example_physical
@@ -78,3 +79,69 @@ def test_read_rsens(tmp_path):
     p.write_bytes(struct.pack("<4sHHHH", b"RSNS", 1, 4, 200, 0) + r.astype("<u2").tobytes() + b"x")
     ropes, hz, recs = reference.read_rsens(p)
     assert (ropes, hz) == (4, 200) and (recs == r).all()
+
+
+def _lugre_truth(ph, x, p_pa):
+    """The seal's friction along the true (noiseless) position x: exact LuGre, 8 sub-steps."""
+    from ropemon.testbed import LuGre
+
+    fs = ph["sample_hz"]
+    law = LuGre(ph["friction"])
+    v = np.gradient(x) * fs
+    out = np.empty(len(x))
+    for j, vj in enumerate(v):
+        for _ in range(8):
+            law.force(vj, p_pa / 1e6, 1 / fs / 8)
+        out[j] = law.force(vj, p_pa / 1e6, 0.0)
+    return out
+
+
+def _noisy(x, seed, noise_m=2e-5):
+    return x + np.random.default_rng(seed).normal(0.0, noise_m, len(x))
+
+
+def test_friction_holding_at_rest_survives_displacement_noise():
+    """Pulled 2 mm, then 12 s at rest with 20 um rms noise (the default channel's): the
+    held friction stays (the plain implicit-Euler LuGre forgot it within ~1 s)."""
+    ph = example_physical()
+    fs = ph["sample_hz"]
+    t = np.arange(14 * fs) / fs
+    x = np.clip(t, 0, 2) * 1e-3
+    truth = _lugre_truth(ph, x, 6e6)
+    c = reference.compensate(ph, _records(np.full(len(t), 6e6), _noisy(x, 1)))
+    rest = slice(-2 * fs, None)
+    held = truth[rest].mean()
+    assert held > 6000  # the seal really holds ~6.7 kN
+    assert abs(c.friction_n[rest, 0].mean() - held) < 0.05 * held
+    assert np.sqrt(np.mean((c.friction_n[fs:, 0] - truth[fs:]) ** 2)) < 0.05 * held
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+def test_slow_creep_and_presliding_reversals_under_noise(seed):
+    """After a 1 mm pull (a known seal state: the boot state is not), creep at 10 um/s
+    (a twentieth of the velocity noise) or +-60 um reversals in pre-sliding: the
+    estimate follows the true LuGre within 5 % of Fs."""
+    ph = example_physical()
+    fs = ph["sample_hz"]
+    t = np.arange(16 * fs) / fs
+    pull = np.clip(t, 0, 1) * 1e-3
+    after = np.clip(t - 2, 0, None)
+    fs_n = ph["friction"]["Fs"]["intercept"] + 6 * ph["friction"]["Fs"]["slope"]
+    for x in (pull - after * 1e-5, pull + 6e-5 * np.sin(2 * np.pi * after / 7)):
+        truth = _lugre_truth(ph, x, 6e6)
+        c = reference.compensate(ph, _records(np.full(len(t), 6e6), _noisy(x, seed)))
+        err = c.friction_n[3 * fs:, 0] - truth[3 * fs:]
+        assert np.sqrt(np.mean(err ** 2)) < 0.05 * fs_n
+
+
+def test_lugre_state_is_bounded_by_g_whatever_the_input():
+    """|sigma0 z| <= g: full-speed jumps of the displacement count, both ways."""
+    ph = example_physical()
+    rng = np.random.default_rng(4)
+    x = np.cumsum(rng.choice([-1, 1], 2000)) * 2e-3
+    c = reference.compensate(ph, _records(np.full(2000, 20e6), np.clip(x, -0.049, 0.049)))
+    fr = ph["friction"]
+    fs_n = fr["Fs"]["intercept"] + 20 * fr["Fs"]["slope"]
+    s2 = fr["sigma2"]["intercept"] + 20 * fr["sigma2"]["slope"]
+    damp = fr["sigma1"] * ph["sample_hz"] / fr["sigma0"] * 2 * fs_n
+    assert (np.abs(c.friction_n[:, 0] - s2 * c.v_m_s[:, 0]) <= fs_n + damp + 1e-6).all()
