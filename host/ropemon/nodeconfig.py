@@ -144,8 +144,20 @@ def physical_params(ph: dict) -> dict:
         "play_m": PLAY_STEP_M * round(_num(ph, "friction_play_sigmas", 0.0, 10.0) * filtered_noise_m(
             math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z) / PLAY_STEP_M),
         "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
-        "p_max_pa": max(pressure_max_pa(c) for c in _per_rope(ph, "pressure_channels", n)),
+        "p_max_pa": friction_p_max_pa(ph, n),
     }
+
+
+def friction_p_max_pa(ph: dict, n: int) -> float:
+    """Sensor pressure above which the friction lines are held, not extrapolated (Pa).
+
+    The top of the sensor range, or lower with `friction_p_max_MPa` (the highest
+    pressure the friction test bed reached: a fit is not trusted beyond its data).
+    """
+    top = max(pressure_max_pa(c) for c in _per_rope(ph, "pressure_channels", n))
+    if ph.get("friction_p_max_MPa") is None:
+        return top
+    return _num(ph, "friction_p_max_MPa", 0.1, top / 1e6) * 1e6
 
 
 def build_node_section(ph: dict) -> dict:

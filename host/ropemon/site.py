@@ -616,16 +616,17 @@ def check_friction(fr: Any, p_max_MPa: float, name: str = "friction") -> dict[st
     return out
 
 
-def load_friction(path: Path | str, p_max_MPa: float) -> dict[str, Any]:
-    """Read friction.json (from `ropemon fit-friction`) and validate it over 0..p_max_MPa."""
+def _read_friction(path: Path | str) -> Any:
+    """friction.json as written by `ropemon fit-friction` (validated by the caller)."""
     path = Path(path)
     try:
-        fr = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except OSError as e:
         raise SiteError(f"friction.file: cannot read {path}: {e.strerror}") from None
     except json.JSONDecodeError as e:
         raise SiteError(f"friction.file: {path} is not valid JSON: {e}") from None
-    return check_friction(fr, p_max_MPa, f"friction ({path.name})")
+
+
 
 
 # ---------------------------------------------------------------- physical section
@@ -640,13 +641,19 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
     """
     from ropemon import losses  # scipy/fluids only when a config is really built
 
-    p_max = site.sensor_top_MPa
+    name = "friction"
     if friction is None:
         if site.friction_path is None:
             raise SiteError("friction.file: missing (run `ropemon fit-friction` and name its output here)")
-        fr = load_friction(site.friction_path, p_max)
-    else:
-        fr = check_friction(friction, p_max)
+        friction = _read_friction(site.friction_path)
+        name = f"friction ({site.friction_path.name})"
+    # The node holds the friction lines above the highest pressure the test bed reached
+    # (never extrapolates a fit beyond its data), so they are checked up to there.
+    p_max = site.sensor_top_MPa
+    tested = friction.get("pressure_range_MPa") if isinstance(friction, dict) else None
+    if isinstance(tested, list) and len(tested) == 2 and isinstance(tested[1], (int, float)):
+        p_max = min(p_max, float(tested[1]))
+    fr = check_friction(friction, p_max, name)
     s = site.sensors
     table = losses.loss_table(site)
     return {
@@ -674,5 +681,6 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
         "piston_speed_max_m_s": max(c.max_speed_m_s for c in site.cylinders),
         "hoist_speed_max_m_s": site.hoist.max_speed_m_s,
         "friction": fr,
+        "friction_p_max_MPa": p_max,
         "loss": table,
     }

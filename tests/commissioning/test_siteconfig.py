@@ -10,6 +10,7 @@ import pytest
 
 from ropemon.cli import main as ropemon
 from ropemon.firmware import node_module
+from ropemon.nodeconfig import make_node_json
 from ropemon.site import load_site, physical_from_site
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -87,12 +88,22 @@ def test_missing_friction_file_is_refused(site_dir, capsys):
     assert "friction.file: cannot read" in refused(site_dir, capsys)
 
 
-def test_friction_that_goes_unphysical_within_the_sensor_range_is_refused(site_dir, capsys):
+def test_friction_that_goes_unphysical_within_the_tested_range_is_refused(site_dir, capsys):
     fr = json.loads((site_dir / "paper-friction.json").read_text())
-    fr["vs"]["slope"] = -fr["vs"]["intercept"] / 20  # vs reaches 0 at 20 MPa, the sensors read 25
+    top = fr["pressure_range_MPa"][1]
+    fr["vs"]["slope"] = -fr["vs"]["intercept"] / (top - 2)  # vs reaches 0 below the bed's top pressure
     (site_dir / "bad.json").write_text(json.dumps(fr))
     err = refused(site_dir, capsys, "--friction", str(site_dir / "bad.json"))
-    assert "friction.vs: must be > 0 over 0..25.00 MPa" in err
+    assert f"friction.vs: must be > 0 over 0..{top:.2f} MPa" in err
+
+
+def test_friction_lines_are_held_above_the_tested_pressure_not_extrapolated(site_dir):
+    fr = json.loads((site_dir / "paper-friction.json").read_text())
+    top = fr["pressure_range_MPa"][1]
+    fr["vs"]["slope"] = -fr["vs"]["intercept"] / 20  # vs would reach 0 at 20 MPa, beyond the bed's data
+    ph = physical_from_site(load_site(site_dir / "paper-site.toml"), fr)
+    assert ph["friction_p_max_MPa"] == top < 20
+    assert make_node_json(ph)["node"]["p_kpa_max"] == math.ceil(top * 1000)
 
 
 def test_node_builder_limits_are_reported_not_hidden(site_dir, capsys):
