@@ -1,0 +1,785 @@
+"""`ropemon evaluate [SCENARIO ...] [--out DIR] [--json]`: every estimator against simulator truth.
+
+For each scenario: simulate the hoist (`ropemon.plant`), commission the node the
+way a site would (friction fitted by `ropemon.calibrate` on a noisy simulated
+test bed of the plant's seal, pipe tables and the assumed oil temperature from
+the site description), run the sensor stream through every estimator of
+`ropemon.estimators` (LuGre ones through the float reference) and through the
+fixed-point firmware under the real `micropython`, and score them with
+`ropemon.metrics`. docs/accuracy.md explains the figures and holds the results.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ropemon import estimators as E
+from ropemon import metrics as M
+
+REPO = Path(__file__).resolve().parents[2]
+SCENARIO_DIR = REPO / "scenarios"
+FIELD_TRIP = "paper-field-trip"
+
+
+# The scenarios of issue 6 that are variations of the paper's field trip, made here
+# from scenarios/paper-field-trip.toml so the variation is the only difference:
+# name -> (what it tests, change to the scenario document, oil temperature input fitted).
+def _set(path: str, value):
+    def change(doc: dict) -> None:
+        *keys, last = path.split(".")
+        t = doc
+        for k in keys:
+            t = t.setdefault(k, {})
+        t[last] = value
+    return change
+
+
+def _payload(kg: float):
+    def change(doc: dict) -> None:
+        loads = [ph for ph in doc["trip"]["phase"] if ph["kind"] == "load" and ph["payload_kg"] > 0]
+        for ph in loads:
+            ph["payload_kg"] = kg
+    return change
+
+
+def _other_friction(doc: dict) -> None:
+    fr = doc["plant"]["friction"]
+    doc["plant"]["friction"] = {"law": "coulomb-stribeck", **{k: fr[k] for k in ("Fs", "Fc", "vs", "sigma2")},
+                                "v_threshold": 2e-5}
+
+
+def _noisy(doc: dict) -> None:
+    doc.setdefault("sensors", {}).update(pressure_noise_Pa=20e3, displacement_noise_m=4e-5, adc_noise_counts=3.0)
+
+
+def _stuck(doc: dict) -> None:
+    doc.setdefault("sensors", {})["fault"] = [{"kind": "stuck", "channel": "pressure", "rope": 1, "start_s": 30.0}]
+
+
+def _duty(doc: dict) -> None:
+    del doc["trip"]
+    doc["duty"] = {"trips": 50, "payload_kg": [0.0, 12000.0], "oil_temp_C": [0.0, 40.0],
+                   "rest_s": [6.0, 12.0], "load_s": [4.0, 8.0], "v_max_m_s": 10.0, "a_max_m_s2": 0.75,
+                   "jerk_m_s3": 0.5, "seed": 50}
+
+
+VARIANTS = {
+    "payload-0t": ("the field trip with the cage empty both ways", _payload(0.0), False),
+    "payload-12t": ("the field trip with the rated payload (12 t)", _payload(12000.0), False),
+    "oil-0C": ("oil at 0 C, the node assumes 20 C", _set("plant.oil_temp_C", 0.0), False),
+    "oil-20C": ("oil at 20 C, as the node assumes", _set("plant.oil_temp_C", 20.0), False),
+    "oil-40C": ("oil at 40 C, the node assumes 20 C", _set("plant.oil_temp_C", 40.0), False),
+    "oil-0C-temp-input": ("oil at 0 C, node with an oil temperature input", _set("plant.oil_temp_C", 0.0), True),
+    "oil-40C-temp-input": ("oil at 40 C, node with an oil temperature input", _set("plant.oil_temp_C", 40.0), True),
+    "rope-length-5cm": ("rope 1 effectively 5 cm longer than the others",
+                        _set("plant.ropes.offsets_m", [0.05, 0.0, 0.0, 0.0]), False),
+    "sensor-noise": ("pressure noise 20 kPa, displacement noise 40 um, ADC noise 3 counts", _noisy, False),
+    "stuck-sensor": ("rope 2's pressure transmitter sticks at 30 s", _stuck, False),
+    "plant-other-friction": ("the plant's seals follow a Coulomb-Stribeck law, not LuGre", _other_friction, False),
+    "duty-cycle-50": ("50 winds, payload 0-12 t, oil 0-40 C, node assumes 20 C", _duty, False),
+}
+# What `make evaluate` runs when no scenario is named.
+DEFAULT_SCENARIOS = (FIELD_TRIP, *VARIANTS)
+TEMPERATURE_INPUT = "temperature = { counts_at_0C = 8000.0, counts_per_C = 160.0 }"
+FIRMWARE = "firmware"
+
+
+@dataclass
+class Case:
+    """One simulated scenario, commissioned and estimated: what the metrics need."""
+
+    name: str
+    sample_hz: int
+    frame_hz: int
+    rated_n: float
+    truth_n: np.ndarray                 # (samples, ropes) true rope-end tensions
+    phase: np.ndarray                   # (samples,) index into metrics.PHASES
+    excluded: np.ndarray                # (samples,) within SHOCK_HOLD_S after a shock
+    steady: np.ndarray | None = None    # (samples,) payload not being changed (for the pithead total)
+    estimates: dict[str, np.ndarray] = field(default_factory=dict)   # name -> (samples, ropes) N
+    firmware_n: np.ndarray | None = None   # (frames, ropes) window means, N
+    firmware_ref_n: np.ndarray | None = None  # (samples, ropes) float reference with the firmware's config
+    firmware_config: str = "commissioned"     # which node.json the firmware ran with
+    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)  # full compensation fed with truths
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def window(self) -> int:
+        return self.sample_hz // self.frame_hz
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return np.arange(len(self.truth_n)) / self.sample_hz
+
+
+# ---------------------------------------------------------------- scoring
+
+
+def score(case: Case) -> dict:
+    """All figures of one case: per estimator whole wind, by phase, pithead, alarms."""
+    out: dict = {"estimators": {}, "notes": list(case.notes),
+                 "samples": len(case.truth_n), "sample_hz": case.sample_hz,
+                 "excluded_samples": int(case.excluded.sum())}
+    for name, est in case.estimates.items():
+        fig = M.evaluate_estimate(est, case.truth_n, case.rated_n, case.phase, case.excluded, case.steady)
+        fig["alarms"] = M.alarm_assessment(est, case.truth_n, case.excluded, case.window)
+        out["estimators"][name] = fig
+    if case.firmware_n is not None:
+        out["estimators"][FIRMWARE] = score_frames(case)
+    out["diagnostics"] = {name: M.evaluate_estimate(est, case.truth_n, case.rated_n, case.phase, case.excluded,
+                                                    case.steady)
+                          for name, est in case.diagnostics.items()}
+    return out
+
+
+def frame_view(case: Case, per_sample: np.ndarray) -> np.ndarray:
+    """Per-sample values averaged over the node's frame windows."""
+    return M.window_means(per_sample, case.window)
+
+
+def score_frames(case: Case) -> dict:
+    """The firmware's frame means against truth averaged over the same windows,
+    and against the float reference of the same compensation (`vs_reference_*`)."""
+    w = case.window
+    assert case.firmware_n is not None
+    n = min(len(case.firmware_n), len(case.truth_n) // w)
+    fw = case.firmware_n[:n]
+    truth = frame_view(case, case.truth_n)[:n]
+    phase = case.phase[: n * w: w]
+    excluded = M.window_means(case.excluded.astype(float), w)[:n] > 0
+    steady = None if case.steady is None else M.window_means(case.steady.astype(float), w)[:n] == 1.0
+    fig = M.evaluate_estimate(fw, truth, case.rated_n, phase, excluded, steady)
+    fig["alarms"] = M.alarm_assessment(fw, truth, excluded, 1)
+    fig["frames"] = int(n)
+    fig["config"] = case.firmware_config
+    ref = case.firmware_ref_n if case.firmware_ref_n is not None else case.estimates.get(E.FULL_COMPENSATION)
+    if ref is not None:
+        diff = (fw - frame_view(case, ref)[:n]) / case.rated_n * 100.0
+        both = np.isfinite(diff)  # a window where the reference gives no tension (failed loop) is not compared
+        fig["vs_reference_max_pct"] = float(np.max(np.abs(diff[both]))) if both.any() else float("nan")
+        fig["vs_reference_rms_pct"] = float(np.sqrt(np.mean(diff[both] ** 2))) if both.any() else float("nan")
+        fig["vs_reference_frames"] = int(both.all(axis=1).sum())
+    return fig
+
+
+# ---------------------------------------------------------------- report
+
+
+TARGETS = {
+    "pithead_total_pct": 0.3,   # |error| of the total at the pithead rest, % of true total
+    "rope_rms_pct": 1.0,        # whole wind, each rope, % of rated
+    "rope_peak_pct": 3.0,
+    "vs_reference_max_pct": 0.05,
+}
+
+
+def _finite(x) -> bool:
+    return x is not None and math.isfinite(x)
+
+
+def _fmt(x, digits=2) -> str:
+    if not _finite(x):
+        return "-"
+    return f"{x:.{digits}f}"
+
+
+def _mark(value, limit) -> str:
+    if not _finite(value):
+        return ""
+    return " ok" if abs(value) <= limit else " **FAIL**"
+
+
+def summary_table(results: dict) -> str:
+    """One line per scenario: the full compensation against the targets."""
+    full = E.FULL_COMPENSATION
+    lines = [f"| scenario | raw pithead total % | `{full}` pithead total % | `{full}` rope RMS % "
+             f"| `{full}` rope peak % | best simpler (rope RMS %) | firmware vs float max % "
+             f"| `{full}` false @8 % / missed @12 % (frames) |",
+             "|---|---:|---:|---:|---:|---|---:|---|"]
+    for name, sc in results["scenarios"].items():
+        if "error" in sc:
+            lines.append(f"| {name} | not evaluated: {sc['error']} |||||||")
+            continue
+        est = sc["estimators"]
+        f = est.get(full, {})
+        best = _best_simpler(est)
+        fw = est.get(FIRMWARE, {})
+        al = f.get("alarms", {})
+        lines.append(
+            f"| {name} | {_fmt(est.get('raw', {}).get('pithead_total_pct'))} "
+            f"| {_fmt(f.get('pithead_total_pct'))}{_mark(f.get('pithead_total_pct'), TARGETS['pithead_total_pct'])} "
+            f"| {_fmt(f.get('rope_rms_pct'))}{_mark(f.get('rope_rms_pct'), TARGETS['rope_rms_pct'])} "
+            f"| {_fmt(f.get('rope_peak_pct'))}{_mark(f.get('rope_peak_pct'), TARGETS['rope_peak_pct'])} "
+            f"| {'-' if best is None else f'`{best[0]}` {_fmt(best[1])}'}"
+            f"{'' if best is None or not _finite(f.get('rope_rms_pct')) else ' ' + _verdict(f['rope_rms_pct'], best[1])} "
+            f"| {_fmt(fw.get('vs_reference_max_pct'), 4)}{_mark(fw.get('vs_reference_max_pct'), TARGETS['vs_reference_max_pct'])} "
+            f"| {al.get('8', {}).get('false', '-')} / {al.get('12', {}).get('missed', '-')} "
+            f"of {al.get('8', {}).get('frames', '-')} |")
+    return "\n".join(lines)
+
+
+def markdown(results: dict) -> str:
+    """The results as Markdown tables: a summary, then one section per scenario."""
+    lines = ["## Summary", "", summary_table(results), "", "## Per scenario", ""]
+    for name, sc in results["scenarios"].items():
+        lines += [f"### {name}", ""]
+        if "error" in sc:
+            lines += [f"Not evaluated: {sc['error']}", ""]
+            continue
+        for note in sc.get("notes", []):
+            lines.append(f"- {note}")
+        if sc.get("notes"):
+            lines.append("")
+        lines += ["| estimator | rope RMS % | rope peak % | total RMS % | pithead total % "
+                  "| false @8 % | missed @12 % |",
+                  "|---|---:|---:|---:|---:|---:|---:|"]
+        for est, f in sc["estimators"].items():
+            if f.get("config", "commissioned") != "commissioned":
+                est = f"{est} ({f['config']})"
+            al = f.get("alarms", {})
+            fa = al.get("8", {})
+            mi = al.get("12", {})
+            lines.append(
+                f"| {est} | {_fmt(f['rope_rms_pct'])}{_mark(f['rope_rms_pct'], TARGETS['rope_rms_pct'])} "
+                f"| {_fmt(f['rope_peak_pct'])}{_mark(f['rope_peak_pct'], TARGETS['rope_peak_pct'])} "
+                f"| {_fmt(f['total_rms_pct'])} "
+                f"| {_fmt(f['pithead_total_pct'])}{_mark(f['pithead_total_pct'], TARGETS['pithead_total_pct'])} "
+                f"| {fa.get('false', '-')}/{fa.get('frames', '-')} | {mi.get('missed', '-')}/{mi.get('frames', '-')} |")
+        lines.append("")
+        lines += ["Rope RMS % by phase (worst rope; `-` = phase absent):", "",
+                  "| estimator | " + " | ".join(M.PHASES) + " |",
+                  "|---|" + "---:|" * len(M.PHASES)]
+        for est, f in sc["estimators"].items():
+            lines.append(f"| {est} | " + " | ".join(_fmt(f["by_phase"][p]["rope_rms_pct"]) for p in M.PHASES) + " |")
+        lines.append("")
+        fw = sc["estimators"].get(FIRMWARE)
+        if fw and "vs_reference_max_pct" in fw:
+            v = fw["vs_reference_max_pct"]
+            lines += [f"Fixed-point firmware vs float reference (frame means): max {_fmt(v, 4)} % of rated"
+                      f"{_mark(v, TARGETS['vs_reference_max_pct'])}.", ""]
+        if sc.get("diagnostics"):
+            lines += ["Diagnostics: the full compensation given what a node cannot know "
+                      "(not estimators; they locate the error):", "",
+                      "| fed with | rope RMS % | rope peak % | pithead total % |", "|---|---:|---:|---:|"]
+            for d, f in sc["diagnostics"].items():
+                lines.append(f"| {d} | {_fmt(f['rope_rms_pct'])} | {_fmt(f['rope_peak_pct'])} "
+                             f"| {_fmt(f['pithead_total_pct'])} |")
+            lines.append("")
+        best = _best_simpler(sc["estimators"])
+        if best is not None:
+            full = sc["estimators"][E.FULL_COMPENSATION]["rope_rms_pct"]
+            verdict = {"(tie)": f"ties (within {TIE_PCT} %) with", "(full wins)": "beats"}.get(
+                _verdict(full, best[1]), "does NOT beat")
+            lines += [f"`{E.FULL_COMPENSATION}` ({_fmt(full)} %) {verdict} the best simpler estimator "
+                      f"`{best[0]}` ({_fmt(best[1])} %) on whole-wind rope RMS.", ""]
+    return "\n".join(lines)
+
+
+TIE_PCT = 0.01  # RMS figures closer than this (% of rated) are a tie
+
+
+def _verdict(full_pct: float, best_pct: float) -> str:
+    if abs(full_pct - best_pct) < TIE_PCT:
+        return "(tie)"
+    return "(full wins)" if full_pct < best_pct else "**(simpler wins)**"
+
+
+def _best_simpler(estimators: dict):
+    if E.FULL_COMPENSATION not in estimators or not _finite(estimators[E.FULL_COMPENSATION]["rope_rms_pct"]):
+        return None
+    simpler = [(n, f["rope_rms_pct"]) for n, f in estimators.items()
+               if n in E.ESTIMATORS and n != E.FULL_COMPENSATION and _finite(f["rope_rms_pct"])]
+    return min(simpler, key=lambda x: x[1]) if simpler else None
+
+
+def plot(case: Case, out_dir: Path) -> list[Path]:
+    """PNG plots of one case: tensions over the wind and the error of each estimator."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t = case.t_s
+    paths = []
+    shown = [n for n in ("raw", "stribeck+loss", "lugre-const+loss", E.FULL_COMPENSATION) if n in case.estimates]
+    fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
+    axes[0].plot(t, case.truth_n.sum(axis=1) / 1e3, "k", lw=1.5, label="truth")
+    for n in shown:
+        axes[0].plot(t, case.estimates[n].sum(axis=1) / 1e3, lw=0.8, label=n)
+    if case.firmware_n is not None:
+        tf = (np.arange(len(case.firmware_n)) + 0.5) * case.window / case.sample_hz
+        axes[0].plot(tf, case.firmware_n.sum(axis=1) / 1e3, ".", ms=2, label=FIRMWARE)
+    axes[0].set_ylabel("total load, kN")
+    axes[0].legend(fontsize=8, loc="upper left")
+    for n in shown:
+        axes[1].plot(t, (case.estimates[n][:, 0] - case.truth_n[:, 0]) / case.rated_n * 100, lw=0.8, label=n)
+    ymin, ymax = axes[1].get_ylim()
+    axes[1].fill_between(t, ymin, ymax, where=case.excluded, color="0.85", label="after shock (excluded)")
+    axes[1].set_ylabel("rope 1 error, % of rated")
+    axes[1].set_xlabel("time, s")
+    axes[1].legend(fontsize=8, loc="lower left")
+    fig.suptitle(case.name)
+    fig.tight_layout()
+    p = out_dir / f"{case.name}-tension.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def bar_plot(results: dict, out_dir: Path) -> Path:
+    """Whole-wind rope RMS of every estimator, one group per scenario."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [n for n in (*E.ESTIMATORS, FIRMWARE)]
+    scen = [s for s, r in results["scenarios"].items() if "estimators" in r]
+    fig, ax = plt.subplots(figsize=(13, 4 + 0.1 * len(scen)))
+    width = 0.8 / max(1, len(scen))
+    x = np.arange(len(names))
+    for k, s in enumerate(scen):
+        vals = [results["scenarios"][s]["estimators"].get(n, {}).get("rope_rms_pct") for n in names]
+        vals = [v if _finite(v) else np.nan for v in vals]
+        ax.bar(x + k * width, vals, width, label=s)
+    ax.axhline(TARGETS["rope_rms_pct"], color="r", lw=0.8, ls="--", label="target")
+    ax.set_xticks(x + 0.4 - width / 2, names, rotation=45, ha="right")
+    ax.set_yscale("log")
+    ax.set_ylabel("whole-wind rope RMS error, % of rated")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    p = out_dir / "rms-by-estimator.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
+
+
+# ---------------------------------------------------------------- the pipeline
+
+
+class EvaluationError(RuntimeError):
+    """A scenario that could not be evaluated; the message says which step and why."""
+
+
+def scenario_path(name: str) -> Path:
+    """A scenario name (scenarios/NAME.toml or a variant of VARIANTS) or a path to a TOML file."""
+    if name in VARIANTS:
+        return SCENARIO_DIR / f"{FIELD_TRIP}.toml"
+    p = Path(name)
+    if p.suffix == ".toml" and p.exists():
+        return p
+    p = SCENARIO_DIR / f"{name}.toml"
+    if not p.exists():
+        known = sorted(q.stem for q in SCENARIO_DIR.glob("*.toml") if q.stem != "paper-site")
+        raise EvaluationError(f"scenario {name!r}: no {p.relative_to(REPO)} and no variant of that name; "
+                              f"known: {', '.join(known + list(VARIANTS))}")
+    return p
+
+
+def scenario_doc(name: str, work: Path) -> tuple[dict, Path]:
+    """The scenario document to simulate and the path its relative names resolve against."""
+    import tomllib
+
+    path = scenario_path(name)
+    doc = tomllib.loads(path.read_text())
+    if name not in VARIANTS:
+        return doc, path
+    _what, change, temp_input = VARIANTS[name]
+    change(doc)
+    doc["name"] = name
+    if temp_input:
+        site_path = path.parent / doc["site"]
+        text = site_path.read_text()
+        if "# " + TEMPERATURE_INPUT not in text:
+            raise EvaluationError(f"{site_path}: no commented-out `{TEMPERATURE_INPUT}` to fit the input with")
+        text = text.replace("# " + TEMPERATURE_INPUT, TEMPERATURE_INPUT)
+        # the copy lives in `work`: its friction file must still be found
+        text = text.replace('file = "', f'file = "{site_path.parent}/')
+        work.mkdir(parents=True, exist_ok=True)
+        (work / "site-with-temperature.toml").write_text(text)
+        doc["site"] = str((work / "site-with-temperature.toml").resolve())
+    return doc, path
+
+
+def _run_step(what: str, cmd: list[str], timeout_s: float) -> str:
+    import subprocess
+
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise EvaluationError(f"{what}: timed out after {timeout_s:.0f} s: {' '.join(cmd)}") from None
+    if r.returncode != 0:
+        tail = (r.stderr or r.stdout).strip().splitlines()[-5:]
+        raise EvaluationError(f"{what}: exit {r.returncode}: " + " | ".join(tail))
+    return r.stdout
+
+
+def simulate(name: str, out_dir: Path, seed: int) -> None:
+    """Run the plant (ropemon.plant's Python API, as `ropemon simulate` does) into out_dir."""
+    from ropemon.plant.cli import summarize
+    from ropemon.plant.output import write_outputs
+    from ropemon.plant.run import simulate as run_plant
+    from ropemon.plant.scenario import ScenarioError, build
+
+    doc, path = scenario_doc(name, out_dir)
+    try:
+        sc = build(doc, path, seed)
+        res = run_plant(sc)
+    except (ScenarioError, FloatingPointError) as e:
+        raise EvaluationError(f"simulate {name}: {e}") from None
+    write_outputs(res, out_dir, summarize(res))
+
+# Test-bed procedure of the commissioning (ropemon.testbed defaults: 6 pressure
+# levels, 12 speeds each way, pre-sliding reversals).
+BED_DEFAULTS: dict = {}
+# `--quick`: 3 levels, 6 speeds, no pre-sliding reversals (sigma0, sigma1 then take
+# fit-friction's documented defaults): a smoke run, not for the docs.
+BED_QUICK = {"pressures_MPa": (3.0, 7.0, 11.0), "speeds_m_s": (0.001, 0.002, 0.004, 0.008, 0.016, 0.03),
+             "hold_s": 0.6, "presliding": False}
+
+
+class _PlantSealOnBed:
+    """The plant's seal (a law of ropemon.plant.friction without state, the
+    Coulomb-Stribeck law) mounted on the friction test bed, which asks for `force(v, p_MPa, h)`."""
+
+    def __init__(self, law):
+        self.law = law
+
+    def force(self, v_m_s: float, p_mpa: float, h_s: float) -> float:
+        out = self.law.evaluate(np.array([v_m_s]), np.zeros(1), np.array([p_mpa * 1e6]))
+        return float(out.F[0])
+
+
+def fit_plant_seal(plant_friction: dict, work: Path, seed: int, bed: dict | None = None) -> dict:
+    """Fit friction as a site would: the plant's (hidden) seal on the simulated test bed,
+    noisy records to CSV, `ropemon fit-friction`'s fit. Cached in `work` per seal, seed and bed."""
+    import hashlib
+
+    from ropemon import calibrate, testbed
+    from ropemon.plant.friction import LuGre, from_table
+
+    bed = {**BED_DEFAULTS, **(bed or {})}
+    # the cache is keyed by the bed's and the fitter's source too: an edit there refits
+    code = [hashlib.sha256(Path(str(m.__file__)).read_bytes()).hexdigest()
+            for m in (calibrate, testbed)]
+    key = json.dumps([plant_friction, seed, bed, code], sort_keys=True)
+    cache = work / f"friction-{hashlib.sha256(key.encode()).hexdigest()[:12]}.json"
+    if cache.exists():
+        return json.loads(cache.read_text())
+    law = from_table(dict(plant_friction), "plant.friction")
+    if isinstance(law, LuGre):
+        data = testbed.run(law.as_fit(), seed=seed, **bed)
+    else:
+        data = testbed.run(law_factory=lambda _params: _PlantSealOnBed(law), seed=seed, **bed)
+    work.mkdir(parents=True, exist_ok=True)
+    csv_path = cache.with_suffix(".csv")
+    testbed.write_csv(csv_path, data)
+    try:
+        doc, _levels, _warnings = calibrate.fit(calibrate.read_csv(csv_path), source=str(csv_path))
+    except calibrate.FitError as e:
+        raise EvaluationError(f"fit-friction on the simulated test bed: {e}") from None
+    cache.write_text(json.dumps(doc, indent=1))
+    return doc
+
+
+# `physical` keys that define what the sensor stream's counts mean (docs/config.md)
+SENSOR_KEYS = ("ropes", "sample_hz", "adc_bits", "cylinder_area_m2", "pressure_channels",
+               "displacement_channels", "speed_m_per_pulse", "hall_marks_m", "battery_V_per_count",
+               "temperature")
+VS_FLOOR_FRAC = 0.25  # of vs at the middle of the tested pressures
+
+
+def keep_vs_positive(fit: dict, p_max_mpa: float) -> str | None:
+    """Tilt a falling vs line, about the middle of the tested pressures, so that vs stays
+    >= VS_FLOOR_FRAC of its mid value up to p_max (the node evaluates the lines over the
+    whole sensor range and the site check refuses vs <= 0 there). Returns a note, or None.
+
+    A line fitted over 2..12 MPa that falls with pressure can cross zero before the
+    sensor's top; inside the tested range the tilt changes vs little.
+    """
+    vs = fit["vs"]
+    at_max = vs["intercept"] + vs["slope"] * p_max_mpa
+    p_mid = float(np.mean(fit.get("pressure_range_MPa", [0.0, p_max_mpa])))
+    mid = vs["intercept"] + vs["slope"] * p_mid
+    floor = VS_FLOOR_FRAC * mid
+    if at_max >= floor or mid <= 0:
+        return None
+    slope = (floor - mid) / (p_max_mpa - p_mid)
+    note = (f"fitted vs line ({vs['intercept']:.4g} {vs['slope']:+.3g}/MPa) reaches {at_max:.2g} m/s at the "
+            f"{p_max_mpa:g} MPa sensor top; tilted about {p_mid:.1f} MPa to slope {slope:.3g}/MPa for the node")
+    vs["intercept"], vs["slope"] = mid - slope * p_mid, slope
+    return note
+
+
+def _site_physical(truth_meta: dict, friction: dict, notes: list[str]) -> dict:
+    """The node's `physical` section from the scenario's site description and a friction fit."""
+    from ropemon.site import load_site, physical_from_site
+
+    site_file = truth_meta.get("site_file")
+    if not site_file:
+        raise EvaluationError(f"scenario {truth_meta.get('scenario')}: no site file: not a hoist scenario")
+    site = load_site(site_file)
+    friction = json.loads(json.dumps(friction))
+    note = keep_vs_positive(friction, site.sensor_top_MPa)
+    if note:
+        notes.append(note)
+    physical = physical_from_site(site, friction)
+    # The sensor stream was made with the simulator's node config: how counts map to
+    # physical units must be the same. What the simulator sets per run (e.g. the depth
+    # the node boots at) is taken from it, as an installer would set it.
+    plant_ph = truth_meta.get("node_physical") or {}
+    for k, v in plant_ph.items():
+        if k in ("friction", "loss") or physical.get(k) == v:
+            continue
+        if k in SENSOR_KEYS:
+            raise EvaluationError(f"site {site_file}: `{k}` differs from the config the simulator's sensors use")
+        physical[k] = v
+    return physical
+
+
+def _firmware_frames(physical: dict, rsens: Path, work: Path) -> np.ndarray:
+    """Frame means (N) from the fixed-point firmware under `micropython` (`ropemon replay`)."""
+    from ropemon.decoder import StreamDecoder
+    from ropemon.nodeconfig import make_node_json
+
+    node_json = work / "node-evaluated.json"
+    node_json.write_text(json.dumps(make_node_json(physical), indent=1))
+    frames_bin = work / "frames.bin"
+    _run_step("firmware (ropemon replay)", [sys.executable, "-m", "ropemon.cli", "replay", str(rsens),
+                                            "--out", str(frames_bin), "--config", str(node_json)],
+              timeout_s=3600)
+    dec = StreamDecoder({int(physical["node_id"]): bytes.fromhex(physical["key_hex"])})
+    frames = [f for f in dec.feed(frames_bin.read_bytes()) if f.ropes]
+    bad = {k: v for k, v in dec.counts.as_dict().items() if k != "frames_ok" and v}
+    if bad:
+        raise EvaluationError(f"firmware frames did not decode cleanly: {bad}")
+    frames.sort(key=lambda f: f.seq)
+    if frames and [f.seq for f in frames] != list(range(frames[0].seq, frames[0].seq + len(frames))):
+        raise EvaluationError("firmware frames: sequence numbers not consecutive")
+    return np.array([[r.mean_dan * 10.0 for r in f.ropes] for f in frames]).reshape(len(frames), -1)
+
+
+def _standstill(meta: dict, t_s: np.ndarray) -> np.ndarray:
+    """Samples of the scenario's first phase if it is a rest (hoist and load still), else the first 0.5 s."""
+    phases = meta.get("phases") or []
+    if phases and phases[0]["kind"] == "rest":
+        return (t_s >= phases[0]["t0_s"]) & (t_s < phases[0]["t1_s"])
+    return t_s < 0.5
+
+
+def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed: dict | None = None) -> Case:
+    """Simulate, commission and run every estimator on one scenario."""
+    from ropemon import reference
+
+    sim = work / "sim"
+    simulate(name, sim, seed)
+    meta = json.loads((sim / "truth.json").read_text())
+    truth = np.load(sim / "truth.npz")
+    if meta.get("rig") != "hoist":
+        raise EvaluationError(f"scenario {name}: rig {meta.get('rig')!r}, evaluate needs a hoist wind")
+    plant_friction = meta["scenario_doc"]["plant"]["friction"]
+    fit = fit_plant_seal(plant_friction, work.parent, seed, bed)
+    notes: list[str] = []
+    physical = _site_physical(meta, fit, notes)
+    rated = float(physical["rated_rope_tension_N"])
+    _ropes, hz, recs = reference.read_rsens(sim / "sensors.rsens")
+    truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]
+    recs = recs[: len(truth_n)]
+    k = len(truth_n)
+
+    shaft_depth = float(physical["hall_marks_m"][-1])
+    # phases of the wind are the drive's (wheel) motion; the cage bounces on its ropes after a stop
+    phase = M.classify_phases(truth["cage_depth_m"][:k], truth["wheel_speed_m_s"][:k],
+                              truth["wheel_accel_m_s2"][:k], shaft_depth)
+    t_s = np.arange(k) / hz
+    excluded = M.shock_mask(t_s, M.detect_shocks(t_s, truth_n, rated))
+    payload = np.asarray(truth["payload_kg"], float)[:k]
+    steady = np.concatenate([[True], np.diff(payload) == 0])
+    case = Case(name=Path(name).stem, sample_hz=hz, frame_hz=int(physical["frame_hz"]), rated_n=rated,
+                truth_n=truth_n, phase=phase, excluded=excluded, steady=steady, notes=notes)
+    oil = np.asarray(truth["oil_temp_C"], float)
+    case.notes.append(
+        f"node commissioned with friction fitted on the simulated test bed (sigma0/sigma1: "
+        f"{fit.get('presliding', {}).get('source', '?')}); oil {oil.min():.0f}..{oil.max():.0f} C actual, "
+        f"{physical['oil_temp_assumed_C']:g} C assumed, temperature input "
+        f"{'fitted' if physical.get('temperature') else 'none'}")
+
+    p_cal = float(np.mean(fit.get("pressure_range_MPa", [6.0, 6.0])))
+    variants = {
+        "lugre-p": E.no_loss_physical(physical),
+        "lugre-const+loss": E.lugre_const_physical(physical, p_cal),
+        "lugre-const": E.lugre_const_physical(E.no_loss_physical(physical), p_cal),
+    }
+    full = reference.compensate(physical, recs)
+    case.estimates[E.FULL_COMPENSATION] = full.tension_n
+    for est_name, ph in variants.items():
+        case.estimates[est_name] = reference.compensate(ph, recs).tension_n
+    area = np.asarray(physical["cylinder_area_m2"], float)
+    sig = E.Signals(full.p_pa, full.v_m_s, full.loss_n / area)
+    still = _standstill(meta, t_s)
+    deadband = E.deadband_from_standstill(full.v_m_s[still])
+    case.notes.append(f"static laws: velocity dead band {deadband * 1e3:.2f} mm/s "
+                      f"({E.DEADBAND_SIGMAS:g} x the velocity-estimate RMS over {still.sum() / hz:.1f} s of standstill)")
+    for est_name in E.ESTIMATORS:
+        if est_name.partition("+")[0] in E.STATIC_FRICTION_LAWS:
+            est = E.static_estimate_n(est_name, physical, sig, deadband)
+            case.estimates[est_name] = np.where(full.good, est, np.nan)
+    case.estimates = {n: case.estimates[n] for n in E.ESTIMATORS}
+    if firmware:
+        try:
+            case.firmware_n = _firmware_frames(physical, sim / "sensors.rsens", work)
+        except ValueError as e:
+            # The commissioned config does not fit the node's fixed-point ranges. Fixed
+            # point against float is still checked, on the simulator's own node config.
+            case.notes.append(f"firmware NOT run with the commissioned config: {e}; fixed point vs float "
+                              f"checked on the simulator's node.json ({meta.get('node_friction_source')}) instead")
+            case.firmware_n = _firmware_frames(meta["node_physical"], sim / "sensors.rsens", work)
+            case.firmware_ref_n = reference.compensate(meta["node_physical"], recs).tension_n
+            case.firmware_config = "simulator node.json"
+    _add_diagnostics(case, physical, meta, truth, recs)
+    return case
+
+
+IDEAL_DISPLACEMENT_SPAN_M = 0.02  # +-20 mm over the same counts: ~2 um per count
+
+
+def ideal_displacement(physical: dict, recs: np.ndarray, x_true_m: np.ndarray,
+                       span_m: float = IDEAL_DISPLACEMENT_SPAN_M) -> tuple[dict, np.ndarray]:
+    """A config and stream whose displacement channels read the true piston position
+    without noise, on a channel of +-span_m about the piston's middle position (a
+    diagnostic: what a finer sensor would give)."""
+    import copy
+
+    ph = copy.deepcopy(physical)
+    out = recs.copy()
+    n = int(ph["ropes"])
+    for i in range(n):
+        dc = ph["displacement_channels"][i]
+        x = np.asarray(x_true_m[: len(recs), i], float)
+        mid = 0.5 * (x.min() + x.max())
+        dc["range_m"] = [mid - span_m, mid + span_m]
+        frac = (x - mid + span_m) / (2 * span_m)
+        counts = dc["counts_lo"] + frac * (dc["counts_hi"] - dc["counts_lo"])
+        out[:, n + i] = np.clip(np.round(counts), 0, 0xFFFE).astype(out.dtype)
+    return ph, out
+
+
+def _add_diagnostics(case: Case, physical: dict, meta: dict, truth, recs: np.ndarray) -> None:
+    """The full compensation fed with what the node cannot know: the plant's own friction
+    parameters, a noiseless finer displacement, or both. They show where the error comes from."""
+    from ropemon import reference
+    from ropemon.plant.friction import LuGre, from_table
+
+    law = from_table(dict(meta["scenario_doc"]["plant"]["friction"]), "plant.friction")
+    ideal_ph, ideal_recs = ideal_displacement(physical, recs, truth["piston_x_m"])
+    site_span = 0.5 * abs(np.diff(physical["displacement_channels"][0]["range_m"])[0])
+    runs = {"noiseless displacement at the site's resolution":
+            ideal_displacement(physical, recs, truth["piston_x_m"], site_span),
+            "ideal displacement": (ideal_ph, ideal_recs)}
+    if isinstance(law, LuGre):
+        runs["plant friction"] = (dict(physical, friction=law.as_fit()), recs)
+        runs["plant friction, ideal displacement"] = (dict(ideal_ph, friction=law.as_fit()), ideal_recs)
+    for name, (ph, rr) in runs.items():
+        case.diagnostics[f"{E.FULL_COMPENSATION}, {name}"] = reference.compensate(ph, rr).tension_n
+
+
+def jsonable(x):
+    """NaN (a phase or figure that does not exist in a scenario) as null: strict JSON."""
+    if isinstance(x, dict):
+        return {k: jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, np.generic):
+        return jsonable(x.item())
+    return x
+
+
+# ---------------------------------------------------------------- command
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenarios", nargs="*", metavar="SCENARIO",
+                   help="scenario names (scenarios/NAME.toml, or a field-trip variant: "
+                        + ", ".join(VARIANTS) + ") or TOML paths; default: paper-field-trip and every variant")
+    p.add_argument("--out", type=Path, help="write results.json, accuracy.md and PNG plots here")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    p.add_argument("--seed", type=int, default=1, help="simulator and test-bed noise seed (default 1)")
+    p.add_argument("--quick", action="store_true",
+                   help="a short friction test bed (smoke runs and tests, not for the docs)")
+    p.add_argument("--no-firmware", action="store_true",
+                   help="skip the fixed-point run under micropython (float estimators only)")
+
+
+def default_scenarios() -> list[str]:
+    return list(DEFAULT_SCENARIOS)
+
+
+def evaluate(names: list[str], work: Path, seed: int = 1, firmware: bool = True,
+             plots: Path | None = None, log=None, bed: dict | None = None) -> dict:
+    """Evaluate each scenario; one that fails is reported with its error, the others go on."""
+    results: dict = {"scenarios": {}, "seed": seed}
+    for name in names:
+        t0 = time.monotonic()
+        try:
+            case = build_case(name, work / Path(name).stem, seed, firmware, bed)
+            if name in VARIANTS:
+                case.notes.insert(0, f"{FIELD_TRIP} variant: {VARIANTS[name][0]}")
+            res = score(case)
+            if plots is not None:
+                plot(case, plots)
+        except (EvaluationError, OSError, ValueError, KeyError) as e:
+            res = {"error": f"{type(e).__name__}: {e}" if not isinstance(e, EvaluationError) else str(e)}
+        res["wall_s"] = round(time.monotonic() - t0, 1)
+        results["scenarios"][Path(name).stem] = res
+        if log:
+            log(f"{name}: {'ERROR ' + res['error'] if 'error' in res else 'done'} ({res['wall_s']} s)")
+    return results
+
+
+def _command_line(args: argparse.Namespace, names: list[str]) -> str:
+    opts = [f"--out {args.out}", f"--seed {args.seed}"]
+    opts += ["--quick"] * bool(args.quick) + ["--no-firmware"] * bool(args.no_firmware)
+    return " ".join(["ropemon evaluate", *names, *opts])
+
+
+def run(args: argparse.Namespace) -> int:
+    names = args.scenarios or default_scenarios()
+    if not names:
+        print("ropemon evaluate: no scenarios found in scenarios/", file=sys.stderr)
+        return 2
+    try:
+        for n in names:
+            scenario_path(n)
+    except EvaluationError as e:
+        print(f"ropemon evaluate: {e}", file=sys.stderr)
+        return 2
+    log = (lambda s: print(s, file=sys.stderr, flush=True))
+    with tempfile.TemporaryDirectory(prefix="ropemon-evaluate-") as tmp:
+        work = args.out / "runs" if args.out else Path(tmp)
+        results = evaluate(names, work, args.seed, not args.no_firmware, args.out, log,
+                           BED_QUICK if args.quick else None)
+        results["quick"] = bool(args.quick)
+    results = jsonable(results)
+    md = markdown(results)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n")
+        (args.out / "accuracy.md").write_text(
+            f"Made by `{_command_line(args, names)}`\n\n" + md)
+        bar_plot(results, args.out)
+    if args.json:
+        json.dump(results, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(md)
+    return 1 if any("error" in r for r in results["scenarios"].values()) else 0
