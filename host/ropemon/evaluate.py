@@ -1,9 +1,10 @@
 """`ropemon evaluate [SCENARIO ...] [--out DIR] [--json]`: every estimator against simulator truth.
 
 For each scenario: simulate the hoist (`ropemon.plant`), commission the node the
-way a site would (friction fitted by `ropemon.calibrate` on a noisy simulated
-test bed of the plant's seal, pipe tables and the assumed oil temperature from
-the site description), run the sensor stream through every estimator of
+way a site would (friction fitted by `ropemon.calibrate` on the noisy simulated
+test bed of the scenario's own seal, as `python -m ropemon.testbed --scenario`
+runs it; pipe tables and the assumed oil temperature from the site description;
+a failed commissioning is reported, never replaced), run the sensor stream through every estimator of
 `ropemon.estimators` (LuGre ones through the float reference) and through the
 fixed-point firmware under the real `micropython`, and score them with
 `ropemon.metrics`. docs/accuracy.md explains the figures and holds the results.
@@ -106,8 +107,8 @@ class Case:
     steady: np.ndarray | None = None    # (samples,) payload not being changed (for the pithead total)
     estimates: dict[str, np.ndarray] = field(default_factory=dict)   # name -> (samples, ropes) N
     firmware_n: np.ndarray | None = None   # (frames, ropes) window means, N
-    firmware_ref_n: np.ndarray | None = None  # (samples, ropes) float reference with the firmware's config
-    firmware_config: str = "commissioned"     # which node.json the firmware ran with
+    payload_kg: np.ndarray | None = None   # (samples,) payload in the cage (empty-cage pithead rest)
+    commissioning: dict = field(default_factory=dict)  # the fit the node was commissioned from, problems
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)  # full compensation fed with truths
     notes: list[str] = field(default_factory=list)
 
@@ -125,17 +126,18 @@ class Case:
 
 def score(case: Case) -> dict:
     """All figures of one case: per estimator whole wind, by phase, pithead, alarms."""
-    out: dict = {"estimators": {}, "notes": list(case.notes),
+    out: dict = {"estimators": {}, "notes": list(case.notes), "commissioning": dict(case.commissioning),
                  "samples": len(case.truth_n), "sample_hz": case.sample_hz,
                  "excluded_samples": int(case.excluded.sum())}
     for name, est in case.estimates.items():
-        fig = M.evaluate_estimate(est, case.truth_n, case.rated_n, case.phase, case.excluded, case.steady)
+        fig = M.evaluate_estimate(est, case.truth_n, case.rated_n, case.phase, case.excluded, case.steady,
+                                  case.payload_kg)
         fig["alarms"] = M.alarm_assessment(est, case.truth_n, case.excluded, case.window)
         out["estimators"][name] = fig
     if case.firmware_n is not None:
         out["estimators"][FIRMWARE] = score_frames(case)
     out["diagnostics"] = {name: M.evaluate_estimate(est, case.truth_n, case.rated_n, case.phase, case.excluded,
-                                                    case.steady)
+                                                    case.steady, case.payload_kg)
                           for name, est in case.diagnostics.items()}
     return out
 
@@ -156,11 +158,12 @@ def score_frames(case: Case) -> dict:
     phase = case.phase[: n * w: w]
     excluded = M.window_means(case.excluded.astype(float), w)[:n] > 0
     steady = None if case.steady is None else M.window_means(case.steady.astype(float), w)[:n] == 1.0
-    fig = M.evaluate_estimate(fw, truth, case.rated_n, phase, excluded, steady)
+    payload = None if case.payload_kg is None else M.window_means(case.payload_kg, w)[:n]
+    fig = M.evaluate_estimate(fw, truth, case.rated_n, phase, excluded, steady, payload)
     fig["alarms"] = M.alarm_assessment(fw, truth, excluded, 1)
     fig["frames"] = int(n)
-    fig["config"] = case.firmware_config
-    ref = case.firmware_ref_n if case.firmware_ref_n is not None else case.estimates.get(E.FULL_COMPENSATION)
+    # the firmware ran with the commissioned config, the same the float reference used
+    ref = case.estimates.get(E.FULL_COMPENSATION)
     if ref is not None:
         diff = (fw - frame_view(case, ref)[:n]) / case.rated_n * 100.0
         both = np.isfinite(diff)  # a window where the reference gives no tension (failed loop) is not compared
@@ -197,16 +200,32 @@ def _mark(value, limit) -> str:
     return " ok" if abs(value) <= limit else " **FAIL**"
 
 
+def _commissioned(sc: dict) -> str:
+    """The summary's commissioning cell: the fitted sigma0, or FAILED loudly."""
+    c = sc.get("commissioning") or {}
+    if not c:
+        return "-"
+    if not c.get("ok"):
+        return "**FAILED** (see notes)"
+    return f"sigma0 {c['sigma0_N_per_m']:.4g} N/m fitted"
+
+
+def _pithead(f: dict, which: str) -> str:
+    v = f.get(f"pithead_{which}_total_pct")
+    return f"{_fmt(v)}{_mark(v, TARGETS['pithead_total_pct'])}"
+
+
 def summary_table(results: dict) -> str:
     """One line per scenario: the full compensation against the targets."""
     full = E.FULL_COMPENSATION
-    lines = [f"| scenario | raw pithead total % | `{full}` pithead total % | `{full}` rope RMS % "
+    lines = [f"| scenario | commissioning | raw pithead empty % | `{full}` pithead empty % "
+             f"| `{full}` pithead as arrived % | `{full}` rope RMS % "
              f"| `{full}` rope peak % | best simpler (rope RMS %) | firmware vs float max % "
              f"| `{full}` false @8 % / missed @12 % (frames) |",
-             "|---|---:|---:|---:|---:|---|---:|---|"]
+             "|---|---|---:|---:|---:|---:|---:|---|---:|---|"]
     for name, sc in results["scenarios"].items():
         if "error" in sc:
-            lines.append(f"| {name} | not evaluated: {sc['error']} |||||||")
+            lines.append(f"| {name} | not evaluated: {sc['error']} |||||||||")
             continue
         est = sc["estimators"]
         f = est.get(full, {})
@@ -214,21 +233,33 @@ def summary_table(results: dict) -> str:
         fw = est.get(FIRMWARE, {})
         al = f.get("alarms", {})
         lines.append(
-            f"| {name} | {_fmt(est.get('raw', {}).get('pithead_total_pct'))} "
-            f"| {_fmt(f.get('pithead_total_pct'))}{_mark(f.get('pithead_total_pct'), TARGETS['pithead_total_pct'])} "
+            f"| {name} | {_commissioned(sc)} | {_fmt(est.get('raw', {}).get('pithead_empty_total_pct'))} "
+            f"| {_pithead(f, 'empty')} | {_pithead(f, 'arrival')} "
             f"| {_fmt(f.get('rope_rms_pct'))}{_mark(f.get('rope_rms_pct'), TARGETS['rope_rms_pct'])} "
             f"| {_fmt(f.get('rope_peak_pct'))}{_mark(f.get('rope_peak_pct'), TARGETS['rope_peak_pct'])} "
             f"| {'-' if best is None else f'`{best[0]}` {_fmt(best[1])}'}"
             f"{'' if best is None or not _finite(f.get('rope_rms_pct')) else ' ' + _verdict(f['rope_rms_pct'], best[1])} "
-            f"| {_fmt(fw.get('vs_reference_max_pct'), 4)}{_mark(fw.get('vs_reference_max_pct'), TARGETS['vs_reference_max_pct'])} "
+            f"| {'not run' if FIRMWARE not in est else _fmt(fw.get('vs_reference_max_pct'), 4)}"
+            f"{_mark(fw.get('vs_reference_max_pct'), TARGETS['vs_reference_max_pct'])} "
             f"| {al.get('8', {}).get('false', '-')} / {al.get('12', {}).get('missed', '-')} "
             f"of {al.get('8', {}).get('frames', '-')} |")
+    lines += ["", "Pithead totals are the total-load error in % of the true total: *empty* over the pithead "
+              "rest with the cage empty (after unloading: the paper's 185.4 kN measurement, and what "
+              "`pithead_total_pct` reports), *as arrived* over the rest before the payload is first "
+              "changed (the field trip's loaded cage; `pithead_total_pct` where a scenario has no "
+              "empty-cage pithead rest, as `pithead_total_basis` says). `-`: the scenario has no such rest."]
     return "\n".join(lines)
 
 
 def markdown(results: dict) -> str:
     """The results as Markdown tables: a summary, then one section per scenario."""
-    lines = ["## Summary", "", summary_table(results), "", "## Per scenario", ""]
+    lines = ["## Summary", ""]
+    failed = commissioning_failed(results)
+    if failed:
+        lines += [f"**COMMISSIONING FAILED for {', '.join(failed)}**: the node could not be commissioned "
+                  "from a fit of the scenario's own seal (see the scenario's notes); their figures are "
+                  "not evidence.", ""]
+    lines += [summary_table(results), "", "## Per scenario", ""]
     for name, sc in results["scenarios"].items():
         lines += [f"### {name}", ""]
         if "error" in sc:
@@ -238,12 +269,10 @@ def markdown(results: dict) -> str:
             lines.append(f"- {note}")
         if sc.get("notes"):
             lines.append("")
-        lines += ["| estimator | rope RMS % | rope peak % | total RMS % | pithead total % "
-                  "| false @8 % | missed @12 % |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
+        lines += ["| estimator | rope RMS % | rope peak % | total RMS % | pithead empty % "
+                  "| pithead as arrived % | false @8 % | missed @12 % |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
         for est, f in sc["estimators"].items():
-            if f.get("config", "commissioned") != "commissioned":
-                est = f"{est} ({f['config']})"
             al = f.get("alarms", {})
             fa = al.get("8", {})
             mi = al.get("12", {})
@@ -251,7 +280,7 @@ def markdown(results: dict) -> str:
                 f"| {est} | {_fmt(f['rope_rms_pct'])}{_mark(f['rope_rms_pct'], TARGETS['rope_rms_pct'])} "
                 f"| {_fmt(f['rope_peak_pct'])}{_mark(f['rope_peak_pct'], TARGETS['rope_peak_pct'])} "
                 f"| {_fmt(f['total_rms_pct'])} "
-                f"| {_fmt(f['pithead_total_pct'])}{_mark(f['pithead_total_pct'], TARGETS['pithead_total_pct'])} "
+                f"| {_pithead(f, 'empty')} | {_pithead(f, 'arrival')} "
                 f"| {fa.get('false', '-')}/{fa.get('frames', '-')} | {mi.get('missed', '-')}/{mi.get('frames', '-')} |")
         lines.append("")
         lines += ["Rope RMS % by phase (worst rope; `-` = phase absent):", "",
@@ -268,10 +297,11 @@ def markdown(results: dict) -> str:
         if sc.get("diagnostics"):
             lines += ["Diagnostics: the full compensation given what a node cannot know "
                       "(not estimators; they locate the error):", "",
-                      "| fed with | rope RMS % | rope peak % | pithead total % |", "|---|---:|---:|---:|"]
+                      "| fed with | rope RMS % | rope peak % | pithead empty % | pithead as arrived % |",
+                      "|---|---:|---:|---:|---:|"]
             for d, f in sc["diagnostics"].items():
                 lines.append(f"| {d} | {_fmt(f['rope_rms_pct'])} | {_fmt(f['rope_peak_pct'])} "
-                             f"| {_fmt(f['pithead_total_pct'])} |")
+                             f"| {_fmt(f.get('pithead_empty_total_pct'))} | {_fmt(f.get('pithead_arrival_total_pct'))} |")
             lines.append("")
         best = _best_simpler(sc["estimators"])
         if best is not None:
@@ -281,6 +311,12 @@ def markdown(results: dict) -> str:
             lines += [f"`{E.FULL_COMPENSATION}` ({_fmt(full)} %) {verdict} the best simpler estimator "
                       f"`{best[0]}` ({_fmt(best[1])} %) on whole-wind rope RMS.", ""]
     return "\n".join(lines)
+
+
+def commissioning_failed(results: dict) -> list[str]:
+    """Scenarios whose node could not be commissioned from a fit of their own seal."""
+    return [name for name, sc in results["scenarios"].items()
+            if not (sc.get("commissioning") or {}).get("ok", True)]
 
 
 TIE_PCT = 0.01  # RMS figures closer than this (% of rated) are a tie
@@ -437,89 +473,105 @@ def simulate(name: str, out_dir: Path, seed: int) -> None:
         raise EvaluationError(f"simulate {name}: {e}") from None
     write_outputs(res, out_dir, summarize(res))
 
-# Test-bed procedure of the commissioning (ropemon.testbed defaults: 6 pressure
-# levels, 12 speeds each way, pre-sliding reversals).
+# Test-bed procedure of the commissioning: ropemon.testbed's defaults (6 pressure
+# levels, 12 speeds each way, then slow pre-sliding reversals stretched to the seal's vs).
 BED_DEFAULTS: dict = {}
-# `--quick`: 3 levels, 6 speeds, no pre-sliding reversals (sigma0, sigma1 then take
-# fit-friction's documented defaults): a smoke run, not for the docs.
+# `--quick`: 3 levels, 6 speeds, short holds, still with the pre-sliding reversals
+# (sigma0 is fitted, as for the docs): a smoke run, not for the docs.
 BED_QUICK = {"pressures_MPa": (3.0, 7.0, 11.0), "speeds_m_s": (0.001, 0.002, 0.004, 0.008, 0.016, 0.03),
-             "hold_s": 0.6, "presliding": False}
+             "hold_s": 0.6}
+SIGMA0_FITTED = ("fitted", "fitted sigma0, default sigma1")  # calibrate.fit's presliding sources
+REFUSED = "the node refuses the commissioned config"
 
 
-class _PlantSealOnBed:
-    """The plant's seal (a law of ropemon.plant.friction without state, the
-    Coulomb-Stribeck law) mounted on the friction test bed, which asks for `force(v, p_MPa, h)`."""
+def _toml(value) -> str:
+    """A TOML value (the scalars, lists and tables a [plant.friction] table holds)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + " }"
+    raise EvaluationError(f"plant.friction: cannot write {value!r} as TOML")
 
-    def __init__(self, law):
-        self.law = law
 
-    def force(self, v_m_s: float, p_mpa: float, h_s: float) -> float:
-        out = self.law.evaluate(np.array([v_m_s]), np.zeros(1), np.array([p_mpa * 1e6]))
-        return float(out.F[0])
+def write_seal(plant_friction: dict, path: Path) -> Path:
+    """The scenario's hidden seal as a scenario file holding only [plant.friction], so the
+    bed reads it through `ropemon.testbed.scenario_seal` like `python -m ropemon.testbed --scenario`."""
+    import tomllib
+
+    text = "[plant.friction]\n" + "".join(f"{k} = {_toml(v)}\n" for k, v in plant_friction.items())
+    if tomllib.loads(text)["plant"]["friction"] != plant_friction:
+        raise EvaluationError("plant.friction: does not survive writing as TOML")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
 
 
 def fit_plant_seal(plant_friction: dict, work: Path, seed: int, bed: dict | None = None) -> dict:
-    """Fit friction as a site would: the plant's (hidden) seal on the simulated test bed,
-    noisy records to CSV, `ropemon fit-friction`'s fit. Cached in `work` per seal, seed and bed."""
+    """Fit friction as a site would: the scenario's (hidden) seal on the simulated test bed
+    of `python -m ropemon.testbed --scenario` (reversals stretched to the seal's vs), noisy
+    records to CSV, `ropemon fit-friction`'s fit. Cached in `work` per seal, seed and bed."""
     import hashlib
 
     from ropemon import calibrate, testbed
-    from ropemon.plant.friction import LuGre, from_table
+    from ropemon.plant import friction as plant_friction_module
+    from ropemon.plant.scenario import ScenarioError
 
     bed = {**BED_DEFAULTS, **(bed or {})}
-    # the cache is keyed by the bed's and the fitter's source too: an edit there refits
+    # the cache is keyed by the bed's, the seal's and the fitter's source too: an edit there refits
     code = [hashlib.sha256(Path(str(m.__file__)).read_bytes()).hexdigest()
-            for m in (calibrate, testbed)]
+            for m in (calibrate, testbed, plant_friction_module)]
     key = json.dumps([plant_friction, seed, bed, code], sort_keys=True)
     cache = work / f"friction-{hashlib.sha256(key.encode()).hexdigest()[:12]}.json"
     if cache.exists():
         return json.loads(cache.read_text())
-    law = from_table(dict(plant_friction), "plant.friction")
-    if isinstance(law, LuGre):
-        data = testbed.run(law.as_fit(), seed=seed, **bed)
-    else:
-        data = testbed.run(law_factory=lambda _params: _PlantSealOnBed(law), seed=seed, **bed)
-    work.mkdir(parents=True, exist_ok=True)
+    seal = write_seal(plant_friction, cache.with_suffix(".seal.toml"))
+    try:
+        params, law_factory = testbed.scenario_seal(seal)
+    except ScenarioError as e:
+        raise EvaluationError(f"test bed: {e}") from None
+    period_s = testbed.presliding_period_s(params, pressures_MPa=bed.get("pressures_MPa", testbed.PRESSURES_MPA))
+    data = testbed.run(params, seed=seed, law_factory=law_factory, presliding_period_s=period_s, **bed)
     csv_path = cache.with_suffix(".csv")
     testbed.write_csv(csv_path, data)
     try:
-        doc, _levels, _warnings = calibrate.fit(calibrate.read_csv(csv_path), source=str(csv_path))
+        doc, _levels, warnings = calibrate.fit(calibrate.read_csv(csv_path), source=str(csv_path))
     except calibrate.FitError as e:
         raise EvaluationError(f"fit-friction on the simulated test bed: {e}") from None
+    doc["bed"] = {"presliding_period_s": period_s, "warnings": warnings}
     cache.write_text(json.dumps(doc, indent=1))
     return doc
+
+
+def commissioning_problems(fit: dict, physical: dict) -> list[str]:
+    """Why the node could not be commissioned from this fit (empty when it can): sigma0 not
+    fitted (fit-friction fell back to its default), or the config the node refuses."""
+    from ropemon.nodeconfig import make_node_json
+
+    problems = []
+    src = fit.get("presliding", {}).get("source", "?")
+    if src not in SIGMA0_FITTED:
+        problems.append(f"sigma0 NOT fitted on the test bed ({src}): sigma0 = {fit.get('sigma0', float('nan')):.4g} "
+                        f"N/m is fit-friction's default, not this seal's")
+    try:
+        make_node_json(physical)
+    except ValueError as e:
+        problems.append(f"{REFUSED}: {e}")
+    return problems
 
 
 # `physical` keys that define what the sensor stream's counts mean (docs/config.md)
 SENSOR_KEYS = ("ropes", "sample_hz", "adc_bits", "cylinder_area_m2", "pressure_channels",
                "displacement_channels", "speed_m_per_pulse", "hall_marks_m", "battery_V_per_count",
                "temperature")
-VS_FLOOR_FRAC = 0.25  # of vs at the middle of the tested pressures
 
 
-def keep_vs_positive(fit: dict, p_max_mpa: float) -> str | None:
-    """Tilt a falling vs line, about the middle of the tested pressures, so that vs stays
-    >= VS_FLOOR_FRAC of its mid value up to p_max (the node evaluates the lines over the
-    whole sensor range and the site check refuses vs <= 0 there). Returns a note, or None.
-
-    A line fitted over 2..12 MPa that falls with pressure can cross zero before the
-    sensor's top; inside the tested range the tilt changes vs little.
-    """
-    vs = fit["vs"]
-    at_max = vs["intercept"] + vs["slope"] * p_max_mpa
-    p_mid = float(np.mean(fit.get("pressure_range_MPa", [0.0, p_max_mpa])))
-    mid = vs["intercept"] + vs["slope"] * p_mid
-    floor = VS_FLOOR_FRAC * mid
-    if at_max >= floor or mid <= 0:
-        return None
-    slope = (floor - mid) / (p_max_mpa - p_mid)
-    note = (f"fitted vs line ({vs['intercept']:.4g} {vs['slope']:+.3g}/MPa) reaches {at_max:.2g} m/s at the "
-            f"{p_max_mpa:g} MPa sensor top; tilted about {p_mid:.1f} MPa to slope {slope:.3g}/MPa for the node")
-    vs["intercept"], vs["slope"] = mid - slope * p_mid, slope
-    return note
-
-
-def _site_physical(truth_meta: dict, friction: dict, notes: list[str]) -> dict:
+def _site_physical(truth_meta: dict, friction: dict) -> dict:
     """The node's `physical` section from the scenario's site description and a friction fit."""
     from ropemon.site import load_site, physical_from_site
 
@@ -527,10 +579,6 @@ def _site_physical(truth_meta: dict, friction: dict, notes: list[str]) -> dict:
     if not site_file:
         raise EvaluationError(f"scenario {truth_meta.get('scenario')}: no site file: not a hoist scenario")
     site = load_site(site_file)
-    friction = json.loads(json.dumps(friction))
-    note = keep_vs_positive(friction, site.sensor_top_MPa)
-    if note:
-        notes.append(note)
     physical = physical_from_site(site, friction)
     # The sensor stream was made with the simulator's node config: how counts map to
     # physical units must be the same. What the simulator sets per run (e.g. the depth
@@ -587,8 +635,8 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
         raise EvaluationError(f"scenario {name}: rig {meta.get('rig')!r}, evaluate needs a hoist wind")
     plant_friction = meta["scenario_doc"]["plant"]["friction"]
     fit = fit_plant_seal(plant_friction, work.parent, seed, bed)
-    notes: list[str] = []
-    physical = _site_physical(meta, fit, notes)
+    physical = _site_physical(meta, fit)
+    problems = commissioning_problems(fit, physical)
     rated = float(physical["rated_rope_tension_N"])
     _ropes, hz, recs = reference.read_rsens(sim / "sensors.rsens")
     truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]
@@ -604,11 +652,22 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     payload = np.asarray(truth["payload_kg"], float)[:k]
     steady = np.concatenate([[True], np.diff(payload) == 0])
     case = Case(name=Path(name).stem, sample_hz=hz, frame_hz=int(physical["frame_hz"]), rated_n=rated,
-                truth_n=truth_n, phase=phase, excluded=excluded, steady=steady, notes=notes)
+                truth_n=truth_n, phase=phase, excluded=excluded, steady=steady, payload_kg=payload)
+    case.commissioning = {
+        "ok": not problems, "problems": problems,
+        "sigma0_N_per_m": fit.get("sigma0"), "sigma1_N_s_per_m": fit.get("sigma1"),
+        "presliding_source": fit.get("presliding", {}).get("source"),
+        "presliding_period_s": fit.get("bed", {}).get("presliding_period_s"),
+        "fit_warnings": fit.get("bed", {}).get("warnings", []),
+    }
+    for problem in problems:
+        case.notes.append(f"**COMMISSIONING FAILED**: {problem}")
     oil = np.asarray(truth["oil_temp_C"], float)
     case.notes.append(
-        f"node commissioned with friction fitted on the simulated test bed (sigma0/sigma1: "
-        f"{fit.get('presliding', {}).get('source', '?')}); oil {oil.min():.0f}..{oil.max():.0f} C actual, "
+        f"node {'NOT ' if problems else ''}commissioned from a fit of this scenario's own seal on the simulated "
+        f"test bed{' (the float estimators below use the refused fit as it is)' if problems else ''}: "
+        f"sigma0 {fit.get('sigma0', float('nan')):.4g} N/m, sigma1 {fit.get('sigma1', float('nan')):.4g} N s/m "
+        f"({fit.get('presliding', {}).get('source', '?')}); oil {oil.min():.0f}..{oil.max():.0f} C actual, "
         f"{physical['oil_temp_assumed_C']:g} C assumed, temperature input "
         f"{'fitted' if physical.get('temperature') else 'none'}")
 
@@ -633,17 +692,11 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
             est = E.static_estimate_n(est_name, physical, sig, deadband)
             case.estimates[est_name] = np.where(full.good, est, np.nan)
     case.estimates = {n: case.estimates[n] for n in E.ESTIMATORS}
-    if firmware:
-        try:
-            case.firmware_n = _firmware_frames(physical, sim / "sensors.rsens", work)
-        except ValueError as e:
-            # The commissioned config does not fit the node's fixed-point ranges. Fixed
-            # point against float is still checked, on the simulator's own node config.
-            case.notes.append(f"firmware NOT run with the commissioned config: {e}; fixed point vs float "
-                              f"checked on the simulator's node.json ({meta.get('node_friction_source')}) instead")
-            case.firmware_n = _firmware_frames(meta["node_physical"], sim / "sensors.rsens", work)
-            case.firmware_ref_n = reference.compensate(meta["node_physical"], recs).tension_n
-            case.firmware_config = "simulator node.json"
+    if firmware and not any(pr.startswith(REFUSED) for pr in problems):
+        case.firmware_n = _firmware_frames(physical, sim / "sensors.rsens", work)
+    elif firmware:
+        case.notes.append("**firmware NOT run**: the node refuses the commissioned config (above); "
+                          "no fixed-point vs float check for this scenario")
     _add_diagnostics(case, physical, meta, truth, recs)
     return case
 
@@ -742,7 +795,10 @@ def evaluate(names: list[str], work: Path, seed: int = 1, firmware: bool = True,
         res["wall_s"] = round(time.monotonic() - t0, 1)
         results["scenarios"][Path(name).stem] = res
         if log:
-            log(f"{name}: {'ERROR ' + res['error'] if 'error' in res else 'done'} ({res['wall_s']} s)")
+            status = ("ERROR " + res["error"] if "error" in res else
+                      "COMMISSIONING FAILED: " + "; ".join(res["commissioning"]["problems"])
+                      if not res.get("commissioning", {}).get("ok", True) else "done")
+            log(f"{name}: {status} ({res['wall_s']} s)")
     return results
 
 
@@ -782,4 +838,7 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         print(md)
-    return 1 if any("error" in r for r in results["scenarios"].values()) else 0
+    failed = commissioning_failed(results)
+    if failed:
+        print(f"ropemon evaluate: COMMISSIONING FAILED for {', '.join(failed)} (see their notes)", file=sys.stderr)
+    return 1 if failed or any("error" in r for r in results["scenarios"].values()) else 0

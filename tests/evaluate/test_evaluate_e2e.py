@@ -59,6 +59,25 @@ def test_raw_pithead_error_matches_the_truth_files(short_run):
     assert got == pytest.approx(expect, abs=0.05)
 
 
+def test_node_commissioned_from_its_own_fitted_seal(short_run):
+    """The fitted sigma0 (not fit-friction's default) is in the config the firmware ran with."""
+    _, doc, out = short_run
+    c = doc["scenarios"]["short-test"]["commissioning"]
+    assert c["ok"] and c["problems"] == []
+    assert c["presliding_source"] in ev.SIGMA0_FITTED
+    node = json.loads((out / "runs" / "short-test" / "node-evaluated.json").read_text())
+    assert node["physical"]["friction"]["sigma0"] == pytest.approx(c["sigma0_N_per_m"])
+
+
+def test_pithead_total_of_a_scenario_without_an_empty_cage_rest(short_run):
+    """short-test ends loaded at the pithead: no empty-cage rest, so the total is the arrival one."""
+    _, doc, _ = short_run
+    for f in doc["scenarios"]["short-test"]["estimators"].values():
+        assert f["pithead_empty_total_pct"] is None
+        assert f["pithead_total_basis"] == "arrival"
+        assert f["pithead_total_pct"] == f["pithead_arrival_total_pct"]
+
+
 def test_firmware_agrees_with_the_float_reference(short_run):
     _, doc, _ = short_run
     fw = doc["scenarios"]["short-test"]["estimators"]["firmware"]

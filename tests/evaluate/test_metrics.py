@@ -138,3 +138,32 @@ def test_pithead_total_leaves_out_loading():
     est = truth - [[0.0], [2.0], [50.0], [50.0], [2.0]]
     steady = np.array([True, True, False, False, True])  # samples 2, 3: payload being changed
     assert m.pithead_total_pct(est, truth, phase, np.zeros(5, bool), steady) == pytest.approx(-2.0)
+
+
+def test_pithead_figures_split_the_loaded_arrival_from_the_empty_cage():
+    """The field trip's pithead: loaded rest as arrived, unloading, rest empty (the paper's figure)."""
+    phase = np.array([m.CONSTANT_SPEED] + [m.REST_PITHEAD] * 7)
+    payload = np.array([3000.0, 3000.0, 3000.0, 1500.0, 0.0, 0.0, 0.0, 0.0])
+    steady = np.concatenate([[True], np.diff(payload) == 0])   # samples 3, 4: unloading
+    excluded = np.zeros(8, bool)
+    excluded[5] = True                                          # a shock window right after unloading
+    truth = np.full((8, 2), 100.0)
+    est = truth - [[0, 0], [4, 0], [4, 0], [50, 50], [50, 50], [90, 90], [1, 0], [1, 0]]
+    f = m.pithead_figures(est, truth, phase, excluded, steady, payload)
+    assert f["pithead_arrival_total_pct"] == pytest.approx(-2.0)   # samples 1, 2: 196 of 200
+    assert f["pithead_empty_total_pct"] == pytest.approx(-0.5)     # samples 6, 7: 199 of 200
+    assert f["pithead_total_pct"] == f["pithead_empty_total_pct"] and f["pithead_total_basis"] == "empty"
+    # a scenario whose cage stays loaded at the pithead: the arrival rest, and it says so
+    loaded = m.pithead_figures(est, truth, phase, excluded, steady, np.full(8, 3000.0))
+    assert math.isnan(loaded["pithead_empty_total_pct"])
+    assert loaded["pithead_total_basis"] == "arrival"
+    # the whole steady rest after arrival (no payload change seen): samples 1, 2, 6, 7
+    assert loaded["pithead_total_pct"] == pytest.approx(-10.0 / 800 * 100)
+
+
+def test_pithead_figures_of_a_cage_arriving_empty_count_the_whole_rest_as_empty():
+    phase = np.array([m.CONSTANT_SPEED] + [m.REST_PITHEAD] * 3)
+    truth = np.full((4, 1), 200.0)
+    est = truth - [[9.0], [1.0], [1.0], [1.0]]
+    f = m.pithead_figures(est, truth, phase, np.zeros(4, bool), None, np.zeros(4))
+    assert f["pithead_empty_total_pct"] == f["pithead_arrival_total_pct"] == pytest.approx(-0.5)

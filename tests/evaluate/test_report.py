@@ -33,6 +33,7 @@ def test_score_figures_and_json_shape():
     assert e["lugre-p+loss"]["rope_rms_pct"] == pytest.approx(0.1)
     assert e["raw"]["rope_peak_pct"] == pytest.approx(10.0)
     assert e["raw"]["pithead_total_pct"] == pytest.approx(-20.0)
+    assert e["raw"]["pithead_total_basis"] == "arrival"   # no payload given: no empty-cage rest
     assert e["firmware"]["rope_rms_pct"] == pytest.approx(0.11)
     assert e["firmware"]["vs_reference_max_pct"] == pytest.approx(0.01)
     assert e["firmware"]["frames"] == 20
@@ -53,7 +54,7 @@ def test_score_figures_and_json_shape():
 def test_markdown_marks_targets_and_verdict():
     md = ev.markdown({"scenarios": {"hand": ev.score(make_case()),
                                     "broken": {"error": "simulate: exit 1"}}})
-    assert "| lugre-p+loss | 0.10 ok | 0.10 ok |" in md
+    assert "| lugre-p+loss | 0.10 ok | 0.10 ok | 0.10 | - | 0.20 ok |" in md
     assert "| raw | 10.00 **FAIL** | 10.00 **FAIL** |" in md
     assert "`lugre-p+loss` (0.10 %) beats the best simpler estimator `raw` (10.00 %)" in md
     assert "max 0.0100 % of rated ok" in md
@@ -71,5 +72,16 @@ def test_plots_are_written(tmp_path):
 def test_summary_line_per_scenario():
     md = ev.markdown(ev.jsonable({"scenarios": {"hand": ev.score(make_case()), "broken": {"error": "boom"}}}))
     summary = md.split("## Per scenario")[0]
-    assert "| hand | -20.00 | 0.20 ok | 0.10 ok | 0.10 ok | `raw` 10.00 (full wins) | 0.0100 ok | 0 / 0 of 72 |" in summary
+    assert ("| hand | - | - | - | 0.20 ok | 0.10 ok | 0.10 ok | `raw` 10.00 (full wins) | 0.0100 ok "
+            "| 0 / 0 of 72 |") in summary
     assert "| broken | not evaluated: boom |" in summary
+
+
+def test_a_failed_commissioning_is_loud():
+    res = ev.score(make_case())
+    res["commissioning"] = {"ok": False, "problems": ["sigma0 NOT fitted on the test bed (default)"]}
+    results = ev.jsonable({"scenarios": {"hand": res, "fine": ev.score(make_case())}})
+    assert ev.commissioning_failed(results) == ["hand"]
+    md = ev.markdown(results)
+    assert md.split("\n")[2].startswith("**COMMISSIONING FAILED for hand**")
+    assert "| hand | **FAILED** (see notes) |" in md

@@ -46,12 +46,32 @@ def test_other_friction_variant_builds_a_plant_law(tmp_path):
     assert isinstance(from_table(fr, "plant.friction"), CoulombStribeck)
 
 
-def test_keep_vs_positive_tilts_only_a_line_that_crosses_zero():
-    fit = {"vs": {"intercept": 0.004, "slope": -0.0002}, "pressure_range_MPa": [2.0, 12.0]}
-    note = ev.keep_vs_positive(fit, 25.0)
-    assert note and "tilted" in note
-    vs = fit["vs"]
-    assert vs["intercept"] + vs["slope"] * 7.0 == pytest.approx(0.004 - 0.0014)   # unchanged mid value
-    assert vs["intercept"] + vs["slope"] * 25.0 == pytest.approx(0.25 * 0.0026)   # the floor at the top
-    flat = {"vs": {"intercept": 0.004, "slope": -0.0001}, "pressure_range_MPa": [2.0, 12.0]}
-    assert ev.keep_vs_positive(flat, 25.0) is None and flat["vs"]["slope"] == -0.0001
+def test_the_hidden_seal_reaches_the_bed_as_a_scenario_file(tmp_path):
+    """The seal the bed runs is the scenario's own, read by ropemon.testbed.scenario_seal."""
+    from ropemon import testbed
+
+    for name in (ev.FIELD_TRIP, "plant-other-friction"):
+        fr = ev.scenario_doc(name, tmp_path)[0]["plant"]["friction"]
+        params, factory = testbed.scenario_seal(ev.write_seal(fr, tmp_path / f"{name}.seal.toml"))
+        if fr["law"] == "lugre":
+            assert factory is None and params["sigma0"] == fr["sigma0"] and params["vs"] == fr["vs"]
+        else:
+            assert params is None and factory is not None
+
+
+def test_the_node_is_commissioned_from_a_fitted_sigma0(tmp_path):
+    """The quick bed keeps the slow reversals stretched to the seal's vs: sigma0 is fitted
+    (the plant's is 1e8 N/m; fit-friction's default would be 1.65e8) and the node takes the config."""
+    fr = ev.scenario_doc(ev.FIELD_TRIP, tmp_path)[0]["plant"]["friction"]
+    fit = ev.fit_plant_seal(fr, tmp_path, seed=1, bed=ev.BED_QUICK)
+    assert fit["presliding"]["source"] in ev.SIGMA0_FITTED
+    assert fit["sigma0"] == pytest.approx(fr["sigma0"], rel=0.05)
+    assert fit["bed"]["presliding_period_s"] > 4.0   # stretched: vs is 2.9 mm/s at 11 MPa
+    assert fit["vs"]["slope"] == pytest.approx(fr["vs"]["slope"], rel=0.5)   # no tilt: as fitted
+
+
+def test_a_default_sigma0_or_a_refused_config_is_a_commissioning_failure():
+    fit = {"presliding": {"source": "default (no pre-sliding data)"}, "sigma0": 1.65e8}
+    problems = ev.commissioning_problems(fit, {"ropes": 4})
+    assert any("sigma0 NOT fitted" in pr for pr in problems)
+    assert any(pr.startswith("the node refuses the commissioned config: physical.") for pr in problems)
