@@ -148,6 +148,18 @@ def physical_params(ph: dict) -> dict:
     }
 
 
+def sigma0_max(ph: dict) -> float:
+    """The stiffest pre-sliding sigma0 (N/m) the node represents for this config.
+
+    The bristle increment sigma0 * dx of the largest believable per-sample step
+    (piston_speed_max_m_s / sample_hz) must stay below 2**19 * 16 N (a 1 % margin
+    covers the rounding of the multiplier). A stiffer seal is, at the displacement
+    channel's resolution, a seal with no measurable pre-sliding at all.
+    """
+    dx_max_q8um = round(physical_params(ph)["v_max"] / _num(ph, "sample_hz", 1, 1000) * 256e6)
+    return 0.99 * (1 << 19) * 16e6 / dx_max_q8um
+
+
 def friction_p_max_pa(ph: dict, n: int) -> float:
     """Sensor pressure above which the friction lines are held, not extrapolated (Pa).
 

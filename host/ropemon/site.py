@@ -656,7 +656,7 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
     fr = check_friction(friction, p_max, name)
     s = site.sensors
     table = losses.loss_table(site)
-    return {
+    physical = {
         "node_id": site.node_id,
         "key_hex": site.key_hex,
         "ropes": site.hoist.ropes,
@@ -684,3 +684,12 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
         "friction_p_max_MPa": p_max,
         "loss": table,
     }
+    # A seal stiffer in pre-sliding than the node can represent (e.g. a fit of a seal
+    # with no measurable pre-sliding) is commissioned at the node's stiffest sigma0;
+    # `ropemon config` warns about it (siteconfig.site_warnings).
+    from ropemon.nodeconfig import sigma0_max
+
+    s0_max = sigma0_max(physical)
+    if fr["sigma0"] > s0_max:
+        physical["friction"] = dict(fr, sigma0=s0_max)
+    return physical

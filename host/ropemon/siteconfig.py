@@ -34,9 +34,16 @@ def site_warnings(site: Site, doc: dict[str, Any], friction_doc: dict[str, Any] 
         lo, hi = friction_doc["pressure_range_MPa"]
         if hi < site.rated_pressure_MPa:
             out.append(f"friction: the test bed went up to {hi:g} MPa, below the rated-tension pressure "
-                       f"{site.rated_pressure_MPa:.2f} MPa: the node extrapolates the lines there")
+                       f"{site.rated_pressure_MPa:.2f} MPa: above it the node holds the lines at their "
+                       f"{hi:g} MPa values")
         for w in friction_doc.get("warnings", []):
             out.append(f"friction fit: {w}")
+    fitted_s0 = (friction_doc or {}).get("sigma0")
+    used_s0 = doc["physical"]["friction"]["sigma0"]
+    if isinstance(fitted_s0, (int, float)) and fitted_s0 > used_s0:
+        out.append(f"friction: the fitted sigma0 {fitted_s0:.3g} N/m is stiffer than the node represents at "
+                   f"this sample rate and piston speed limit; using {used_s0:.3g} N/m (pre-sliding below "
+                   "the displacement channel's resolution either way)")
     if site.sensors.temperature is None:
         temps = site.oil.table_temps_C
         out.append(f"oil: no temperature input: losses are compensated at {site.oil.temp_assumed_C:g} C; "

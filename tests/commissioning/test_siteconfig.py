@@ -128,3 +128,23 @@ def test_friction_extrapolation_is_warned(site_dir, capsys):
 def test_rated_pressure_is_tension_over_area():
     site = load_site(SCEN / "paper-site.toml")
     assert site.rated_pressure_MPa == pytest.approx(80e3 / (math.pi * 0.1 ** 2 / 4) / 1e6)
+
+
+def test_a_seal_stiffer_than_the_node_represents_is_commissioned_at_its_limit(site_dir, capsys):
+    """A fit with no measurable pre-sliding (sigma0 ~ 5e10 N/m) gets the node's stiffest
+    sigma0 with a warning, and the node accepts the config; a representable one is kept."""
+    from ropemon.nodeconfig import sigma0_max
+
+    fr = json.loads((site_dir / "paper-friction.json").read_text())
+    site = load_site(site_dir / "paper-site.toml")
+    kept = physical_from_site(site, fr)
+    assert kept["friction"]["sigma0"] == fr["sigma0"] < sigma0_max(kept)
+    fr["sigma0"] = 5.4e10
+    ph = physical_from_site(site, fr)
+    assert ph["friction"]["sigma0"] == sigma0_max(ph) < 5.4e10
+    doc = make_node_json(ph)
+    assert node_module("config").parse(doc).ropes == 4
+    (site_dir / "stiff.json").write_text(json.dumps(fr))
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--friction", str(site_dir / "stiff.json"),
+                    "--out", str(site_dir / "stiff-node.json")]) == 0
+    assert "fitted sigma0 5.4e+10 N/m is stiffer than the node represents" in capsys.readouterr().err
