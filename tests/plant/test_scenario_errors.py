@@ -24,6 +24,7 @@ def _field_trip_text(scenarios_dir):
 
 @pytest.mark.parametrize("old,new,field", [
     ("beta_Pa = 0.9e9", "beta_Pa = -1.0", "plant.beta_Pa"),
+    ("step_s = 0.005", 'step_s = 0.005\nmethod = "rk4"', "method"),
     ("beta_Pa = 0.9e9", 'beta_Pa = "stiff"', "plant.beta_Pa"),
     ("EA_N = 7.1e7", "EA_N = 0", "plant.ropes.EA_N"),
     ("offsets_m = [0.012, -0.004, 0.0, -0.010]", "offsets_m = [0.012, 0.0]", "plant.ropes.offsets_m"),

@@ -25,7 +25,8 @@ class Result:
 
 def simulate(sc: Scenario, progress: Callable[[int, int], None] | None = None) -> Result:
     t0 = time.perf_counter()
-    Y = integrate_fast(sc.plant, sc.inputs, sc.plant.rest_state(sc.inputs), sc.steps.tolist(), progress)
+    Y = integrate_fast(sc.plant, sc.inputs, sc.plant.rest_state(sc.inputs), sc.steps.tolist(), progress,
+                       method=sc.method)
     wall = time.perf_counter() - t0
     u = sc.inputs.take(sc.steps)
     grid = sc.plant.outputs(u, Y)

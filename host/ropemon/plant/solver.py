@@ -1,4 +1,7 @@
-"""Fixed-step, linearly implicit 2-stage Rosenbrock method (ROS2) for the stiff plant.
+"""Dense reference integrators on the numpy model: ROS2 and BDF2 (the kernel's default, see
+`kernel.integrate_fast` and docs/simulator.md for why), and the solve_ivp baseline.
+
+Fixed-step, linearly implicit 2-stage Rosenbrock method (ROS2):
 
 ROS2 (Verwer, Spee, Blom, Hundsdorfer, SIAM J. Sci. Comput. 1999), gamma = 1 + 1/sqrt(2):
 
@@ -40,8 +43,11 @@ def state_scale(plant) -> np.ndarray:
 
 
 def integrate(plant, u, h: float, y0: np.ndarray,
-              progress: Callable[[int, int], None] | None = None) -> np.ndarray:
-    """States at every grid time u.t[k] (k = 0..K-1), shape (K, n)."""
+              progress: Callable[[int, int], None] | None = None, method: str = "ros2") -> np.ndarray:
+    """States at every grid time u.t[k] (k = 0..K-1), shape (K, n): dense ROS2, or with method
+    "bdf2" the constant-step form of the kernel's BDF2 (the reference the kernel is tested against)."""
+    if method == "bdf2":
+        return _integrate_bdf2(plant, u, h, y0)
     K = len(u.t)
     n = plant.size
     Y = np.empty((K, n))
@@ -66,6 +72,32 @@ def integrate(plant, u, h: float, y0: np.ndarray,
         Y[k + 1] = y
         if progress is not None and k % every == 0:
             progress(k, K)
+    if not np.all(np.isfinite(Y[-1])):
+        raise FloatingPointError("the plant state became non-finite: step too large for this scenario?")
+    return Y
+
+
+def _integrate_bdf2(plant, u, h: float, y0: np.ndarray) -> np.ndarray:
+    """Constant-step BDF2 y+ - 4/3 y + 1/3 y- = 2/3 h f(t+h, y+), one Newton step from the linear
+    extrapolation 2 y - y-; the first step linearly implicit Euler. Dense scaled solves."""
+    K = len(u.t)
+    n = plant.size
+    Y = np.empty((K, n))
+    Y[0] = y0
+    sc = state_scale(plant)
+    jscale = np.outer(1.0 / sc, sc)
+    eye = np.eye(n)
+    for k in range(K - 1):
+        y = Y[k]
+        if k == 0:
+            f, J = plant.rhs(u, 1, y, True)
+            Y[1] = y + h * sc * np.linalg.solve(eye - h * (J * jscale), f / sc)
+            continue
+        yp = 2.0 * y - Y[k - 1]
+        c = 2.0 / 3.0 * h
+        f, J = plant.rhs(u, k + 1, yp, True)
+        res = c * f - (yp - 4.0 / 3.0 * y + 1.0 / 3.0 * Y[k - 1])
+        Y[k + 1] = yp + sc * np.linalg.solve(eye - c * (J * jscale), res / sc)
     if not np.all(np.isfinite(Y[-1])):
         raise FloatingPointError("the plant state became non-finite: step too large for this scenario?")
     return Y
