@@ -690,6 +690,6 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
     from ropemon.nodeconfig import sigma0_max
 
     s0_max = sigma0_max(physical)
-    if fr["sigma0"] > s0_max:
-        physical["friction"] = dict(fr, sigma0=s0_max)
+    if fr["sigma0"] > s0_max:  # sigma1 keeps its ratio to sigma0 (the bristle damping time)
+        physical["friction"] = dict(fr, sigma0=s0_max, sigma1=fr["sigma1"] * s0_max / fr["sigma0"])
     return physical

@@ -139,9 +139,10 @@ def test_a_seal_stiffer_than_the_node_represents_is_commissioned_at_its_limit(si
     site = load_site(site_dir / "paper-site.toml")
     kept = physical_from_site(site, fr)
     assert kept["friction"]["sigma0"] == fr["sigma0"] < sigma0_max(kept)
-    fr["sigma0"] = 5.4e10
+    fr["sigma0"], fr["sigma1"] = 5.4e10, 5.4e7  # fit-friction's default sigma1 = 1 ms x sigma0
     ph = physical_from_site(site, fr)
     assert ph["friction"]["sigma0"] == sigma0_max(ph) < 5.4e10
+    assert ph["friction"]["sigma1"] == pytest.approx(1e-3 * ph["friction"]["sigma0"])
     doc = make_node_json(ph)
     assert node_module("config").parse(doc).ropes == 4
     (site_dir / "stiff.json").write_text(json.dumps(fr))
