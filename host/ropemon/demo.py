@@ -24,7 +24,7 @@ import numpy as np
 
 from ropemon import radio
 from ropemon.firmware import FIRMWARE_DIR
-from ropemon.protocol import DAN_TO_N, Frame, FrameError, L, decode_raw, decode_wire
+from ropemon.protocol import DAN_TO_N, Frame, FrameError, L, decode_raw, decode_wire, load_node_keys
 from ropemon.report import REST_AVG_S, SETTLE_S
 
 DEFAULT_OUT = "out/demo"
@@ -257,7 +257,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from ropemon.monitor import HostSession, MonitorView, SiteFigures, alarm_settings, node_keys_from_json
+    from ropemon.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
     from ropemon.replay import ReplayError, replay
     from ropemon.store import Store
 
@@ -280,7 +280,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     node_json = sim_dir / "node.json"
     site = SiteFigures.from_node_json(node_json)
-    keys = node_keys_from_json(node_json)
+    keys = load_node_keys(node_json)
     t = step(f"  done in {time.monotonic() - t:.1f} s; running the node firmware ({args.interpreter})")
     frames_bin = out / "frames.bin"
     try:

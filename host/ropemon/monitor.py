@@ -32,7 +32,7 @@ from ropemon.alarms import ActiveAlarm, AlarmEngine, AlarmEvent, AlarmSettings
 from ropemon.decode_cli import node_id
 from ropemon.decoder import StreamDecoder
 from ropemon.link import FrameHub
-from ropemon.protocol import DAN_TO_N, Frame, L
+from ropemon.protocol import DAN_TO_N, Frame, L, load_node_keys, parse_key
 
 TENSION_ABSENT = L.TENSION_ABSENT   # a rope whose sensor failed for the whole window
 
@@ -82,23 +82,12 @@ class SiteFigures:
         )
 
 
-def node_keys_from_json(path: str | Path) -> dict[int, bytes]:
-    """node id -> HMAC key from a node.json."""
-    phys = json.loads(Path(path).read_text())["physical"]
-    return {int(phys["node_id"]): bytes.fromhex(phys["key_hex"])}
-
-
-def parse_key(text: str) -> tuple[int, bytes]:
-    """`NODE:HEX` -> (node, key)."""
+def key_argument(text: str) -> tuple[int, bytes]:
+    """argparse type for `--key NODE:HEX` (ropemon.protocol.parse_key, its message kept)."""
     try:
-        node, hexkey = text.split(":", 1)
-        key = bytes.fromhex(hexkey)
-        n = int(node)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--key {text!r}: expected NODE:HEXKEY, e.g. 1:00112233...") from None
-    if not 0 <= n <= 255 or not 16 <= len(key) <= 32:
-        raise argparse.ArgumentTypeError(f"--key {text!r}: node 0..255 and a 16..32 byte key")
-    return n, key
+        return parse_key(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 @dataclass
@@ -536,7 +525,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "NAME=URL names the receiver")
     p.add_argument("--db", help="SQLite log to append frames and alarm events to")
     p.add_argument("--config", help="node.json: cylinder areas, rated tension, thresholds and the node key")
-    p.add_argument("--key", action="append", type=parse_key, default=[], metavar="NODE:HEX",
+    p.add_argument("--key", action="append", type=key_argument, default=[], metavar="NODE:HEX",
                    help="HMAC key of a node (repeatable); without keys authenticity is not checked")
     p.add_argument("--accept-rewound", action="append", type=node_id, default=[], metavar="NODE",
                    help="operator decision: NODE's boot counter really went back (flash wiped or replaced); "
@@ -668,7 +657,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             site = SiteFigures.from_node_json(args.config)
             if not keys:
-                keys = node_keys_from_json(args.config)
+                keys = load_node_keys(args.config)
         except (ValueError, KeyError) as e:
             print(f"ropemon monitor: {e}", file=sys.stderr)
             return 2

@@ -78,10 +78,11 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
     equal to what the node sent, and nothing corrupted gets through."""
     from ropemon import radio
     from ropemon.demo import DemoClock, play_to_host, read_frames_bin, summarize
-    from ropemon.monitor import HostSession, SiteFigures, alarm_settings, node_keys_from_json
+    from ropemon.monitor import HostSession, SiteFigures, alarm_settings
+    from ropemon.protocol import load_node_keys
 
     out, _, _ = demo_run
-    keys = node_keys_from_json(out / "sim" / "node.json")
+    keys = load_node_keys(out / "sim" / "node.json")
     sent = read_frames_bin(out / "frames.bin", keys)
     t = [f.time_ms / 1000 for f in sent.frames]
     both = (radio.Receiver("pithead", 0.0, 0.0, 100.0), radio.Receiver("mid-shaft", 50.0, 100.0, 100.0))
