@@ -330,7 +330,7 @@ def run(args: argparse.Namespace) -> int:
                         "config": str(node_json), "report": str(out / "report"),
                         "site": json.loads((sim_dir / "truth.json").read_text()).get("site_file")}
     summary["replay"] = rep
-    report_text = trip_report(db, out / "report", site, sim_dir, payload_at_rests(truth, shaft_m))
+    report_text = trip_report(db, out / "report", site, sim_dir, payload_at(truth["payload_kg"], t_truth))
     if args.json:
         json.dump(summary, sys.stdout, indent=1, default=float)
         print()
@@ -430,7 +430,7 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
-def trip_report(db: Path, out_dir: Path, site, sim_dir: Path, payload_kg: dict[str, float]) -> str:
+def trip_report(db: Path, out_dir: Path, site, sim_dir: Path, payload_kg) -> str:
     """The paper's field-test table for the demo's log (report.py)."""
     from ropemon.report import write_report
     from ropemon.store import Store
@@ -455,19 +455,14 @@ def hoist_load_from_truth(sim_dir: Path):
         return None
 
 
-def payload_at_rests(truth: dict[str, np.ndarray], shaft_m: float) -> dict[str, float]:
-    """The payload the cage carried on arrival at the pithead and when it left the
-    bottom (what the report's theoretical load must include)."""
-    depth, speed, payload = truth["cage_depth_m"], truth["cage_speed_m_s"], truth["payload_kg"]
-    moving = np.flatnonzero(np.abs(speed) > 0.05)
-    out: dict[str, float] = {}
-    if moving.size == 0:
-        return out
-    first, last = moving[0], moving[-1]
-    for k in (max(first - 1, 0), min(last + 1, len(depth) - 1)):
-        where = "pithead" if depth[k] < 0.5 * shaft_m else "bottom"
-        out[where] = float(payload[k])
-    return out
+def payload_at(payload: np.ndarray, t: np.ndarray):
+    """The payload in the cage at a node time (the simulator's log of loading), for the
+    report's theoretical load at each rest it averages."""
+
+    def at(t_s: float) -> float:
+        return float(payload[min(int(np.searchsorted(t, t_s)), len(t) - 1)])
+
+    return at
 
 
 def scenario_path(name: str) -> str:

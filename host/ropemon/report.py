@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -100,6 +101,7 @@ class Rest:
     frames: int              # settled frames averaged
     raw_n: np.ndarray        # per rope, mean over the settled rest
     comp_n: np.ndarray
+    t_s: float = 0.0         # node time in the middle of the averaged frames
 
 
 @dataclass
@@ -146,7 +148,8 @@ def rest_of(ft: FrameTable, area_m2: list[float], shaft_m: float, side: str) -> 
     with warnings.catch_warnings():   # a rope failed for the whole rest stays NaN
         warnings.simplefilter("ignore", RuntimeWarning)
         return Rest("pithead" if depth < 0.5 * shaft_m else "bottom", depth, len(sel),
-                    np.nanmean(ft.raw_n(area_m2)[sel], axis=0), np.nanmean(ft.comp_n[sel], axis=0))
+                    np.nanmean(ft.raw_n(area_m2)[sel], axis=0), np.nanmean(ft.comp_n[sel], axis=0),
+                    float(np.median(ft.t_s[sel])))
 
 
 def _travel_m(ft: FrameTable, ids: np.ndarray, tr) -> float:
@@ -186,9 +189,18 @@ def trips_from_store(store, area_m2: list[float], shaft_m: float | None = None) 
     return out
 
 
-def trip_table(trip: Trip, load: HoistLoad | None, payload_kg: dict[str, float] | None = None) -> str:
-    """The paper's table for one trip, as text."""
+def trip_table(trip: Trip, load: HoistLoad | None,
+               payload_kg: dict[str, float] | Callable[[float], float] | None = None) -> str:
+    """The paper's table for one trip, as text.
+
+    `payload_kg` is the payload in the cage at each rest: by landing ("pithead",
+    "bottom"), or a function of the rest's node time (when the log of loading is known).
+    """
     payload_kg = payload_kg or {}
+
+    def payload_in(r: Rest) -> float:
+        return payload_kg(r.t_s) if callable(payload_kg) else payload_kg.get(r.where, 0.0)
+
     # Columns: the rest before and the rest after the wind, named by their landing.
     rests = [(f"{r.where} ({when})", r)
              for when, r in (("left", trip.start), ("arrived", trip.end)) if r is not None]
@@ -213,7 +225,7 @@ def trip_table(trip: Trip, load: HoistLoad | None, payload_kg: dict[str, float] 
     if load is not None:
         row, err = f"{'theoretical':>12}", f"{'error %':>12}"
         for w, r in rests:
-            th = load.load_n(r.depth_m, payload_kg.get(r.where, 0.0))
+            th = load.load_n(r.depth_m, payload_in(r))
             row += f"{th / 1000:22.1f}"
             err += f"{(r.raw_n.sum() - th) / th * 100:+11.1f}{(r.comp_n.sum() - th) / th * 100:+11.1f}"
         lines += [row, err]
@@ -274,7 +286,8 @@ def areas_from(args: argparse.Namespace) -> list[float]:
 
 
 def write_report(store, out_dir: Path, area_m2: list[float], load: HoistLoad | None,
-                 payload_kg: dict[str, float] | None = None, shaft_m: float | None = None) -> tuple[str, list[Path]]:
+                 payload_kg: dict[str, float] | Callable[[float], float] | None = None,
+                 shaft_m: float | None = None) -> tuple[str, list[Path]]:
     """The text report and one PNG per trip; returns (text, files written)."""
     trips = trips_from_store(store, area_m2, shaft_m if shaft_m else (load.shaft_m if load else None))
     if not trips:

@@ -55,6 +55,22 @@ def test_two_winds_give_two_trips_with_the_papers_table(tmp_path):
     assert float(lines["error"][2]) == pytest.approx(-17.0, abs=0.2)
 
 
+def test_theoretical_load_uses_the_payload_at_the_time_of_each_rest(tmp_path):
+    """With a log of loading (payload as a function of node time), each rest's theoretical
+    load takes the payload in the cage while that rest was averaged, not at another time."""
+    db = tmp_path / "log.db"
+    with Store(db) as st:
+        wind(st, 0.0, 0, down=True)
+    with Store(db) as st:
+        trip = trips_from_store(st, [AREA] * 4, 810)[0]
+    t_left, t_arrived = trip.start.t_s, trip.end.t_s
+    assert t_left < t_arrived
+    text = trip_table(trip, LOAD, lambda t: 0.0 if t < (t_left + t_arrived) / 2 else 5000.0)
+    th = {ln.split()[0]: ln.split() for ln in text.splitlines()[1:] if ln.split()}["theoretical"]
+    assert th[1:] == [f"{LOAD.load_n(trip.start.depth_m) / 1000:.1f}",
+                      f"{LOAD.load_n(trip.end.depth_m, 5000.0) / 1000:.1f}"]
+
+
 def test_report_command_writes_pngs_and_text(tmp_path, capsys):
     db = tmp_path / "log.db"
     with Store(db) as st:
