@@ -463,7 +463,7 @@ def example_physical() -> dict:
     - 4-20 mA transmitters, 0-25 MPa and +-50 mm, read by ADS1115 across 150 ohm
       shunts: 4 mA = 9600 counts, 20 mA = 48000 counts (docs/model.md, ADC front end).
     - LuGre seal: Fs = 1.5 kN + 1.0 kN/MPa (7.4 kN at 5.9 MPa, which holds the
-      pithead reading ~15 % low), Fc = 1.0 kN + 0.6 kN/MPa, vs = 2 mm/s falling
+      pithead reading ~16 % low), Fc = 1.0 kN + 0.6 kN/MPa, vs = 2 mm/s falling
       0.04 mm/s per MPa, sigma2 = 20 + 2 kN s/m per MPa, sigma0 = 2e7 N/m
       (pre-sliding ~0.4 mm), sigma1 = 3e4 N s/m.
     - tap line 3 m x 12 mm with fittings; VG46 at 0/20/40 C (laminar: tenfold in

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from ropemon.protocol import DAN_TO_N, L
+from ropemon.site import G_M_S2
 
-G_M_S2 = 9.81
 REST_SPEED_M_S = 0.05   # slower than this: the cage is standing
 SETTLE_S = 1.0          # skip the bounce right after the cage stops
 MIN_REST_S = 2.0        # shorter standstills are not a rest at a landing

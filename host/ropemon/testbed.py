@@ -22,6 +22,7 @@ import random
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
@@ -166,7 +167,8 @@ def run(params: dict[str, Any] | None = None, *, pressures_MPa: tuple[float, ...
         speeds_m_s: tuple[float, ...] = SPEEDS_M_S, hold_s: float = 2.5, ramp_s: float = 0.2,
         sample_hz: int = 100, presliding: bool = True, presliding_amplitude_m: float = 4e-4,
         presliding_period_s: float = 4.0, presliding_cycles: int = 4, noise: Noise = Noise(), seed: int = 0,
-        seal_scatter: float = 0.0, law_factory=None) -> dict[str, np.ndarray]:
+        seal_scatter: float = 0.0,
+        law_factory: Callable[[dict[str, Any]], FrictionLaw] | None = None) -> dict[str, np.ndarray]:
     """Play the test procedure; return the recorded columns (and the noiseless truth).
 
     At each pressure level: constant-velocity runs in both directions at every

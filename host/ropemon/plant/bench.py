@@ -1,8 +1,8 @@
 """Plant simulator benchmark: wall time and real-time factor of the field trip, against scipy's
 solve_ivp (BDF, Radau) on the same model at the same accuracy, measured in the same run.
 
-Accuracy is the largest rope-tension error against a reference run (ROS2 with every step
-quartered). The baseline's rtol is lowered from 1e-2 until its error is no larger than ours.
+Accuracy is the largest rope-tension error against a reference run (the scenario's method,
+BDF2 by default, with every step quartered). The baseline's rtol is lowered from 1e-2 until its error is no larger than ours.
 """
 from __future__ import annotations
 

@@ -30,8 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ropemon.plant.hydraulics import PathSet
+from ropemon.site import G_M_S2
 
-G = 9.81
+G = G_M_S2  # one value of g for the whole package (ropemon.site)
 
 
 @dataclass

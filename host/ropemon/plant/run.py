@@ -8,6 +8,7 @@ from typing import Callable
 import numpy as np
 
 from ropemon.plant.kernel import integrate_fast
+from ropemon.plant.model import G
 from ropemon.plant.scenario import Scenario
 
 
@@ -30,7 +31,7 @@ def simulate(sc: Scenario, progress: Callable[[int, int], None] | None = None) -
     wall = time.perf_counter() - t0
     u = sc.inputs.take(sc.steps)
     grid = sc.plant.outputs(u, Y)
-    grid.update(oil_temp_C=u.oil_temp_C, payload_kg=u.payload_kg, load_N=u.m_weight * 9.81 if sc.rig == "hoist"
+    grid.update(oil_temp_C=u.oil_temp_C, payload_kg=u.payload_kg, load_N=u.m_weight * G if sc.rig == "hoist"
                 else u.f_load.sum(axis=1), pump_m3_s=u.q_pump)
     if sc.rig == "hoist":
         grid.update(wheel_depth_m=u.s_wheel, wheel_speed_m_s=u.u_wheel, wheel_accel_m_s2=u.a_wheel)
