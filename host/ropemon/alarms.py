@@ -10,7 +10,8 @@ and acknowledgement is returned as an `AlarmEvent` with time and values (the
 caller logs them, e.g. `Store.add_event`).
 
 Kinds: deviation (a rope vs the mean of the ropes), overload (total vs rated),
-slack (a rope below a floor), sensor_fault (fault bits), config_fault, silent
+slack (a rope below a floor), sensor_fault (fault bits), sensor_stuck (a rope's
+pressure frozen while the others move, see `_StuckTracker`), config_fault, silent
 (no frame from a node), battery_low, link_integrity (MAC failures or replays).
 """
 from __future__ import annotations
@@ -47,6 +48,12 @@ class AlarmSettings:
     battery_low_mv: int | None = None       # besides the node's own battery_low status bit
     battery_hysteresis_mv: int = 100
     silent_s: float = 5.0                   # no frame from a node for longer than this
+    # sensor_stuck: a rope's raw_kpa stays within +-stuck_deadband_kpa for stuck_s while the mean
+    # of the other ropes' raw_kpa moves by more than stuck_others_kpa (see _StuckTracker).
+    stuck_s: float | None = 5.0
+    stuck_deadband_kpa: int = 5
+    stuck_others_kpa: int = 50
+    stuck_moving_s: float = 1.0             # clear: the rope moved within this, held clear_after_s
     timing: Timing = Timing()
     fault_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=2.0, min_frames=2)
     silent_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=1.0, min_frames=1)
@@ -116,10 +123,76 @@ class ActiveAlarm:
     raised_s: float | None
 
 
+class _StuckTracker:
+    """One node's evidence for sensor_stuck: O(ropes) state, constant work per frame.
+
+    A 4-20 mA transmitter frozen inside the band (electronics hung, diaphragm blocked, a
+    valve closed at the tap) gives a plausible constant: NAMUR NE43 cannot see it. The
+    connected cylinders share the load, so a live rope's tap pressure moves with the
+    others; and a live transmitter's noise moves its window mean. Per rope this keeps an
+    anchor (the raw_kpa it has stayed within +-deadband of, and since when) and the range
+    of the mean of the other present ropes' raw_kpa since that anchor. Stuck = still for
+    stuck_s while the others moved by more than stuck_others_kpa: never at rest (nobody
+    moved), and a live rope moving with the others resets its own anchor.
+
+    The deadband (5 kPa) is wider than the 1 kPa resolution because a frozen loop current
+    still passes the ADC noise: 1 count = 1.3 kPa on a 0-25 MPa, 16-bit channel, and with 3
+    counts of noise (the `sensor-noise` evaluation) the window mean of a frozen reading spans
+    +-3 kPa, which a 1 or 2 kPa deadband takes for movement (missed or flickering alarm).
+    It stays far below the others' 50 kPa: on the evaluation's streams through the firmware
+    (all variants, duty-cycle-50's 50 winds included) no live rope held within +-5 kPa for
+    5 s while the others moved more than 10 kPa.
+    The others' mean, not each other rope, keeps the state O(ropes); when the set of present
+    ropes changes that mean jumps, so every anchor restarts.
+    """
+
+    __slots__ = ("present", "anchor_kpa", "anchor_s", "lo_kpa", "hi_kpa")
+
+    def __init__(self) -> None:
+        self.present: tuple[bool, ...] = ()
+        self.anchor_kpa: list[int] = []
+        self.anchor_s: list[float] = []
+        self.lo_kpa: list[float] = []
+        self.hi_kpa: list[float] = []
+
+    def update(self, raw_kpa: list[int], present: tuple[bool, ...], now_s: float, deadband_kpa: int) -> None:
+        """Take one frame's raw_kpa per rope (present: not RAW_KPA_ABSENT)."""
+        total = 0
+        for p, kpa in zip(present, raw_kpa):
+            if p:
+                total += kpa
+        count = sum(present)
+        if present != self.present:
+            n = len(raw_kpa)
+            self.present = present
+            self.anchor_kpa = list(raw_kpa)
+            self.anchor_s = [now_s] * n
+            self.lo_kpa = [0.0] * n
+            self.hi_kpa = [0.0] * n
+            for i in range(n):
+                if present[i] and count > 1:
+                    self.lo_kpa[i] = self.hi_kpa[i] = (total - raw_kpa[i]) / (count - 1)
+            return
+        if count < 2:
+            return
+        for i, kpa in enumerate(raw_kpa):
+            if not present[i]:
+                continue
+            others = (total - kpa) / (count - 1)
+            if abs(kpa - self.anchor_kpa[i]) > deadband_kpa:
+                self.anchor_kpa[i], self.anchor_s[i] = kpa, now_s
+                self.lo_kpa[i] = self.hi_kpa[i] = others
+            elif others < self.lo_kpa[i]:
+                self.lo_kpa[i] = others
+            elif others > self.hi_kpa[i]:
+                self.hi_kpa[i] = others
+
+
 class AlarmEngine:
     def __init__(self, settings: AlarmSettings | None = None):
         self.settings = settings or AlarmSettings()
         self._alarms: dict[str, _Alarm] = {}
+        self._stuck: dict[int, _StuckTracker] = {}
         self._last_frame_s: dict[int, float] = {}
         self._link_bad: dict[str, int] = {}
         self.events: deque[AlarmEvent] = deque(maxlen=10000)  # recent history; the store keeps all
@@ -164,6 +237,8 @@ class AlarmEngine:
                     self._step(ev, f"slack:n{node}:r{i}", "slack", node, i, s.timing, now_s,
                                t < s.slack_dan, t > s.slack_dan + s.slack_hysteresis_dan, t, s.slack_dan,
                                f"rope {i + 1} {t} daN below slack floor {s.slack_dan} daN")
+        if s.stuck_s is not None:
+            self._check_stuck(ev, node, ropes, now_s, s.stuck_s)
         fault = bool(frame.status & SENSOR_FAULT_BITS) or frame.fault_mask != 0
         flags = ",".join(f for f in frame.status_flags if f.endswith("_fault") and f != "config_fault")
         self._step(ev, f"sensor_fault:n{node}", "sensor_fault", node, None, s.fault_timing, now_s,
@@ -229,6 +304,30 @@ class AlarmEngine:
         return sorted(out, key=lambda x: (x.raised_s or 0.0, x.id))
 
     # -- internals ------------------------------------------------------------
+
+    def _check_stuck(self, ev, node: int, ropes, now_s: float, stuck_s: float) -> None:
+        s = self.settings
+        tr = self._stuck.get(node)
+        if tr is None:
+            tr = self._stuck[node] = _StuckTracker()
+        raw = [r.raw_kpa for r in ropes]
+        present = tuple(k != L.RAW_KPA_ABSENT for k in raw)
+        tr.update(raw, present, now_s, s.stuck_deadband_kpa)
+        if sum(present) < 2:
+            return
+        for i, kpa in enumerate(raw):
+            if not present[i]:
+                continue  # an absent rope holds its alarm state; sensor_fault reports it
+            still_s = now_s - tr.anchor_s[i]
+            moved = tr.hi_kpa[i] - tr.lo_kpa[i]
+            stuck = still_s >= stuck_s and moved > s.stuck_others_kpa
+            aid = f"sensor_stuck:n{node}:r{i}"
+            if not stuck and aid not in self._alarms:
+                continue  # the usual case, as _step would: skip formatting a message per rope and frame
+            self._step(ev, aid, "sensor_stuck", node, i, s.timing, now_s, stuck, still_s < s.stuck_moving_s,
+                       round(still_s, 1), stuck_s,
+                       f"rope {i + 1} pressure {kpa} kPa unchanged (+-{s.stuck_deadband_kpa} kPa) for "
+                       f"{still_s:.1f} s while the other ropes moved {moved:.0f} kPa: transmitter stuck")
 
     def _step(self, ev, aid, kind, node, rope, timing: Timing, now_s, raise_cond, clear_cond,
               value, threshold, message) -> None:

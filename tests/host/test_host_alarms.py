@@ -1,5 +1,8 @@
-"""Alarm logic: thresholds, minimum durations, hysteresis, latching, acknowledgement, events."""
+"""Alarm logic: thresholds, minimum durations, hysteresis, latching, acknowledgement, events;
+the sensor_stuck plausibility check."""
 from __future__ import annotations
+
+import pytest
 
 from ropemon.alarms import AlarmEngine, AlarmSettings, Timing
 from ropemon.decoder import StreamDecoder
@@ -175,3 +178,181 @@ def test_absent_rope_is_not_judged_and_not_averaged():
     assert ids(ev) == [("raise", "overload:n1")] and "estimated" in ev[0].message
     f = frame([5000, A, 5000, 5000])
     assert f.ropes[1].absent and f.tensions_n == [50000, None, 50000, 50000] and f.total_dan is None
+
+
+# -- sensor_stuck: a transmitter frozen at a plausible value inside 4-20 mA ----------------------
+
+def raw_frame(raw_kpas, seq=0, node=1):
+    """Ropes given by raw_kpa (tension taken equal to it, in daN); None = absent rope."""
+    ropes = [(k, k - 10, k + 10, k) if k is not None
+             else (L.TENSION_ABSENT, L.TENSION_ABSENT, L.TENSION_ABSENT, L.RAW_KPA_ABSENT) for k in raw_kpas]
+    _, wire = encode_frame(node=node, seq=seq, ropes=ropes)
+    return StreamDecoder().feed(wire)[0]
+
+
+def run_raw(engine, rows, t0=0.0, kind="sensor_stuck"):
+    """Feed one frame per row of raw_kpa at DT spacing; return the events of `kind`."""
+    ev = []
+    for i, row in enumerate(rows):
+        ev += engine.update(raw_frame(row, seq=i), t0 + i * DT)
+    return [e for e in ev if e.kind == kind]
+
+
+def jitter(i, amp=1):
+    """Deterministic +-amp kPa wobble, like a window mean's last digit."""
+    return (0, amp, -amp, amp, 0, -amp, 0)[i % 7]
+
+
+def ramp_rows(n, frozen=(1,), start=5000, kpa_per_s=40.0, noise=3, frozen_kpa=5000, i0=0, adc=1):
+    """Four ropes: the live ones ramp with noise, the `frozen` ones hold frozen_kpa +- adc kPa."""
+    rows = []
+    for k in range(i0, i0 + n):
+        live = start + round(kpa_per_s * k * DT)
+        rows.append([frozen_kpa + jitter(k, adc) if r in frozen else live + jitter(k + 2 * r, noise)
+                     for r in range(4)])
+    return rows
+
+
+def test_stuck_rope_raises_while_the_others_ramp():
+    eng = AlarmEngine()
+    ev = run_raw(eng, ramp_rows(100))
+    assert ids(ev) == [("raise", "sensor_stuck:n1:r1")]
+    e = ev[0]
+    # still for stuck_s (5 s) with the others 200 kPa away, then the usual raise_after_s (0.5 s)
+    assert abs(e.time_s - 5.5) < 1e-9
+    assert e.rope == 1 and e.node == 1 and e.threshold == 5.0 and e.value >= 5.0
+    assert e.message.startswith("rope 2 pressure 500") and "transmitter stuck" in e.message
+    assert [(a.id, a.present, a.latched) for a in eng.active() if a.kind == "sensor_stuck"] == \
+        [("sensor_stuck:n1:r1", True, True)]
+    assert e in eng.events
+    # ADC noise behind the frozen loop current (+-3 kPa in the window mean) does not hide it
+    assert ids(run_raw(AlarmEngine(), ramp_rows(100, adc=3))) == [("raise", "sensor_stuck:n1:r1")]
+    # a wider wobble is movement (a live transmitter's noise): not called stuck
+    assert run_raw(AlarmEngine(), ramp_rows(100, adc=6)) == []
+
+
+def test_stuck_needs_stuck_s_of_stillness_and_the_others_beyond_the_threshold():
+    # frozen only 4 s before the others' ramp stops being informative: no alarm yet
+    assert run_raw(AlarmEngine(), ramp_rows(45)) == []
+    # the others move 40 kPa in all (below 50): not evidence, however long
+    slow = ramp_rows(200, kpa_per_s=2.0, noise=0)
+    assert run_raw(AlarmEngine(), slow) == []
+    assert ids(run_raw(AlarmEngine(AlarmSettings(stuck_others_kpa=30)), slow)) == \
+        [("raise", "sensor_stuck:n1:r1")]
+    # a longer stuck_s waits longer
+    ev = run_raw(AlarmEngine(AlarmSettings(stuck_s=8.0)), ramp_rows(120))
+    assert [round(e.time_s, 6) for e in ev] == [8.5]
+    assert run_raw(AlarmEngine(AlarmSettings(stuck_s=None)), ramp_rows(200)) == []
+
+
+def test_stuck_not_raised_at_rest():
+    # every rope still (a quiet transmitter's window mean barely moves): nobody moved, no evidence
+    rows = [[5000 + jitter(k + r) for r in range(4)] for k in range(600)]
+    assert run_raw(AlarmEngine(), rows) == []
+    # ropes at rest with a typical transmitter noise: nothing either
+    rows = [[5000 + jitter(k + r, 4) for r in range(4)] for k in range(600)]
+    assert run_raw(AlarmEngine(), rows) == []
+
+
+def test_live_ropes_not_raised_while_winding():
+    # every rope moves with the load, with noise: none is stuck
+    assert run_raw(AlarmEngine(), ramp_rows(300, frozen=())) == []
+    # up and down (acceleration, deceleration), still between: all ropes follow
+    rows = []
+    for k in range(400):
+        phase = (k // 50) % 4
+        base = 5000 + (0, 300, 300, 0)[phase] + ((k % 50) * 6 if phase == 0 else
+                                                   -(k % 50) * 6 if phase == 2 else 0)
+        rows.append([base + jitter(k + r) for r in range(4)])
+    assert run_raw(AlarmEngine(), rows) == []
+
+
+def test_a_quiet_rope_at_rest_that_moves_with_the_others_is_not_stuck():
+    # 20 s at rest (rope 2 perfectly still), then all ropes ramp: rope 2 follows them
+    rest = [[5000 + jitter(k, 3), 5000, 5000 + jitter(k + 3, 3), 5000 + jitter(k + 5, 3)] for k in range(200)]
+    ramp = ramp_rows(100, frozen=(), i0=0)
+    assert run_raw(AlarmEngine(), rest + ramp) == []
+
+
+def test_stuck_clears_with_hysteresis_latches_and_acks():
+    eng = AlarmEngine()
+    run_raw(eng, ramp_rows(100))
+    # one jump of the stuck rope is not recovery: the rope must keep moving for clear_after_s
+    blip = ramp_rows(40, i0=100)
+    blip[0][1] += 20
+    assert run_raw(eng, blip, t0=10.0) == []
+    assert [a.present for a in eng.active() if a.kind == "sensor_stuck"] == [True]
+    # the rope moves with the others again: clears after clear_after_s (2 s), stays latched
+    ev = run_raw(eng, ramp_rows(40, frozen=(), i0=140), t0=14.0)
+    assert ids(ev) == [("clear", "sensor_stuck:n1:r1")]
+    assert abs(ev[0].time_s - 16.0) < 1e-9 and ev[0].message.startswith("cleared: rope 2 ")
+    act = [a for a in eng.active() if a.kind == "sensor_stuck"]
+    assert [(a.present, a.latched) for a in act] == [(False, True)]
+    ack = eng.ack("sensor_stuck", 20.0)
+    assert ids(ack) == [("ack", "sensor_stuck:n1:r1")]
+    assert [a for a in eng.active() if a.kind == "sensor_stuck"] == []
+    assert [e.action for e in eng.events if e.kind == "sensor_stuck"] == ["raise", "clear", "ack"]
+
+
+def test_absent_rope_is_not_judged_stuck_and_the_others_still_are():
+    # rope 2 absent (open loop) while the others ramp: no stuck alarm for it
+    rows = [[r if j != 1 else None for j, r in enumerate(row)] for row in ramp_rows(200, frozen=())]
+    assert run_raw(AlarmEngine(), rows) == []
+    # rope 4 frozen while ropes 1 and 3 ramp and rope 2 is absent: rope 4 is stuck
+    rows = [[r if j != 1 else None for j, r in enumerate(row)] for row in ramp_rows(100, frozen=(3,))]
+    assert ids(run_raw(AlarmEngine(), rows)) == [("raise", "sensor_stuck:n1:r3")]
+    # a rope dropping out and back changes the others' mean: no false alarm, anchors restart
+    rows = ramp_rows(300, frozen=())
+    for k in range(100, 110):
+        rows[k][2] = None
+    assert run_raw(AlarmEngine(), rows) == []
+    # a rope frozen for 3 s that then goes absent while the others ramp: held, not judged absent
+    rows = ramp_rows(130)
+    for k in range(30, 130):
+        rows[k][1] = None
+    assert run_raw(AlarmEngine(), rows) == []
+    # at rest with unequal ropes, rope 3 dropping out shifts the others' mean by 100 kPa: that is
+    # not the others moving, so the still ropes are not called stuck
+    rest = [[5000 + jitter(k), 5000 + jitter(k + 1), 5300 + jitter(k + 2), 4700 + jitter(k + 3)]
+            for k in range(200)]
+    for k in range(50, 70):
+        rest[k][2] = None
+    assert run_raw(AlarmEngine(), rest) == []
+    # only one rope left: nothing to compare it with
+    assert run_raw(AlarmEngine(), [[5000, None, None, None]] * 100 + [[5000, None, None, None]]) == []
+
+
+def test_stuck_is_per_node():
+    eng = AlarmEngine()
+    ev = []
+    stuck, live = ramp_rows(100), ramp_rows(100, frozen=())
+    for i in range(100):
+        ev += eng.update(raw_frame(stuck[i], seq=i, node=1), i * DT)
+        ev += eng.update(raw_frame(live[i], seq=i, node=2), i * DT + 0.01)
+    assert ids([e for e in ev if e.kind == "sensor_stuck"]) == [("raise", "sensor_stuck:n1:r1")]
+
+
+@pytest.mark.parametrize("scenario, expected", [
+    ("stuck-sensor", [("raise", "sensor_stuck:n1:r1")]),   # rope 2 frozen from 30 s on
+    ("paper-field-trip", []),                                # the same wind, every transmitter live
+])
+def test_stuck_on_the_evaluation_streams_through_the_firmware(tmp_path, capsys, scenario, expected):
+    """The accuracy evaluation's wind (128 s), simulated, run through the firmware in micropython."""
+    import json
+
+    from ropemon.cli import main
+    from ropemon.demo import read_frames_bin
+    from ropemon.evaluate import simulate
+
+    simulate(scenario, tmp_path, seed=1)
+    out = tmp_path / "frames.bin"
+    assert main(["replay", str(tmp_path / "sensors.rsens"), "--out", str(out),
+                 "--config", str(tmp_path / "node.json")]) == 0
+    phys = json.loads((tmp_path / "node.json").read_text())["physical"]
+    frames = read_frames_bin(out, {phys["node_id"]: bytes.fromhex(phys["key_hex"])}).frames
+    assert len(frames) > 1000 and all(len(f.ropes) == 4 for f in frames)
+    eng = AlarmEngine()
+    ev = [e for f in frames for e in eng.update(f, f.time_ms / 1000) if e.kind == "sensor_stuck"]
+    assert ids(ev) == expected
+    if expected:
+        assert 35.0 <= ev[0].time_s <= 37.0 and ev[0].message.startswith("rope 2 ")
