@@ -3,10 +3,12 @@
 `parse(doc)` checks the schema version, the CRC over `canonical(doc["node"])`
 and the presence, type and range of every field of the integer `node` section,
 and returns a `Config`; a bad file raises `ConfigError(field, reason)` naming
-the field. The host builds the section (`ropemon.nodeconfig`) and uses
-`canonical` from here, so both sides hash the same bytes. Runs at boot only:
-allocation is fine here, never in the sample path. Validation is driven by
-the tables below (less code resident on the node than one call per field).
+the field. A HAL boots with `load_for_boot`, which never raises and, for a
+refused file, still gives the node identity to sign config-fault frames with.
+The host builds the section (`ropemon.nodeconfig`) and uses `canonical` from
+here, so both sides hash the same bytes. Runs at boot only: allocation is fine
+here, never in the sample path. Validation is driven by the tables below (less
+code resident on the node than one call per field).
 """
 import array
 
@@ -329,3 +331,39 @@ def load(path="/node.json"):
     with open(path) as f:
         doc = json.load(f)
     return parse(doc)
+
+
+def identity(doc):
+    """(node_id, key) of a document's node section when both are valid, else None.
+
+    A refused config usually still names its node; its config-fault status
+    frames then carry that id and MAC so a host holding the node's key accepts
+    them (docs/protocol.md)."""
+    try:
+        nd = _get(doc, "node", "")
+        return _int(nd, "node_id", "node", 0, 255), bytes(list(_ints(nd, "key", "node", 16, 32, 0, 255)))
+    except ConfigError:
+        return None
+
+
+def load_for_boot(path="/node.json"):
+    """(cfg, node_id, key, reason) for a HAL at boot; never raises.
+
+    A valid file gives (Config, its node_id, its key, None). Otherwise cfg is
+    None, reason says why, and node_id, key identify the config-fault status
+    frames: the file's own (`identity`) when readable, else 255 and no key."""
+    import json
+    try:
+        with open(path) as f:
+            doc = json.load(f)
+    except Exception as e:  # missing, unreadable, not JSON: no identity to be had
+        return None, 255, b"", "config %s unreadable: %r" % (path, e)
+    try:
+        cfg = parse(doc)
+        return cfg, cfg.node_id, cfg.key, None
+    except ConfigError as e:
+        reason = "config %s refused: %s: %s" % (path, e.field, e.reason)
+    except Exception as e:  # e.g. nesting too deep for _canon: refused all the same
+        reason = "config %s refused: %r" % (path, e)
+    ident = identity(doc) or (255, b"")
+    return None, ident[0], ident[1], reason

@@ -3,7 +3,8 @@
 Wiring (docs/model.md, "Reference hardware"):
     I2C0  SCL GPIO22, SDA GPIO21, 400 kHz; ADS1115 at 0x48, 0x49, 0x4A, 0x4B
           chip i: AIN0 = pressure loop of rope i, AIN1 = displacement loop of rope i;
-          chip 0 AIN2 = battery divider, chip 1 AIN2 = oil temperature loop (if fitted)
+          chip 0 AIN2 = battery divider, chip 1 AIN2 = oil temperature loop (if fitted:
+          config temperature.fitted; read only then, else the word is 0xFFFF)
           each 4-20 mA loop across a 150 ohm 0.1 % shunt: 4 mA = 0.6 V, PGA +-4.096 V
     speed encoder  pulses GPIO25, direction GPIO26 -> machine.Counter (up/down)
     Hall pair      GPIO32 (sensor A), GPIO33 (sensor B), low = over a mark
@@ -42,6 +43,7 @@ _CONV_US = const(1300)          # one 860 SPS conversion plus margin
 _AUX_EVERY = const(20)          # battery and temperature: one sample in 20
 _WDT_MS = const(2000)
 _HEALTHY_MS = const(500)        # fed only if a sample was processed this recently
+_COUNT_MAX = const(0x3FFFFFFF)  # diagnostic counters saturate here: stay small ints, never allocate
 
 
 def _cfg_bytes(ain):
@@ -52,10 +54,11 @@ def _cfg_bytes(ain):
 class Board:
     """Owns the peripherals; `run_forever` is the node's main loop."""
 
-    def __init__(self, node, ropes, sample_hz):
+    def __init__(self, node, ropes, sample_hz, temp_fitted=False):
         self.node = node
         self.ropes = ropes
         self.sample_hz = sample_hz
+        self.temp_fitted = temp_fitted
         self.i2c = I2C(0, scl=Pin(22), sda=Pin(21), freq=400_000)
         self.uart = UART(1, baudrate=9600, tx=Pin(17), rx=Pin(16))
         self.counter = Counter(0, Pin(25, Pin.IN), direction=Pin(26, Pin.IN))
@@ -64,20 +67,24 @@ class Board:
         self.cfg_ain = [_cfg_bytes(a) for a in range(4)]
         self.conv = bytearray(2)
         self.rec = array.array("H", [0] * (2 * ropes + 4))
-        self.rec[2 * ropes + 1] = 0xFFFF
+        self.rec[2 * ropes + 1] = 0xFFFF  # the temperature word when no input is fitted
         self.wire = bytearray(layout.MAX_WIRE_LEN)
         self.wire_mv = memoryview(self.wire)
         self.tick = False
         self.missed = 0
-        self.k = 0
+        self.k = 0                # sample index modulo _AUX_EVERY
         self.last_ok_ms = time.ticks_ms()
         self.i2c_errors = 0
         self.timer = Timer(0)
         self.wdt: WDT | None = None
 
+    def _bus_error(self):
+        if self.i2c_errors < _COUNT_MAX:
+            self.i2c_errors += 1
+
     def _on_timer(self, _t):
-        # Interrupt context: no allocation, no I2C. Only flags.
-        if self.tick:
+        # Interrupt context: no allocation, no I2C. Only flags. (missed is cleared every loop.)
+        if self.tick and self.missed < _COUNT_MAX:
             self.missed += 1
         self.tick = True
 
@@ -89,7 +96,7 @@ class Board:
         try:
             self.i2c.readfrom_mem_into(_ADS_ADDRS[chip], _REG_CONV, self.conv)
         except OSError:
-            self.i2c_errors += 1
+            self._bus_error()
             return 0  # reads as a failed loop (below 3.6 mA): flagged, never a tension
         v = (self.conv[0] << 8) | self.conv[1]
         if v & 0x8000:
@@ -103,7 +110,7 @@ class Board:
             try:
                 self._start(i, ain)
             except OSError:
-                self.i2c_errors += 1
+                self._bus_error()
         time.sleep_us(_CONV_US)
         for i in range(n):
             words[first + i] = self._read(i)
@@ -114,21 +121,23 @@ class Board:
         rec = self.rec
         self._convert(0, rec, 0)      # pressures
         self._convert(1, rec, n)      # displacements
-        if self.k % _AUX_EVERY == 0:  # slow inputs: battery, temperature
+        if self.k == 0:  # slow inputs: battery, temperature (if fitted)
+            temp = self.temp_fitted
             try:
                 self._start(0, 2)
-                if n > 1:
+                if temp:
                     self._start(1, 2)
             except OSError:
-                self.i2c_errors += 1
+                self._bus_error()
             time.sleep_us(_CONV_US)
             rec[2 * n] = self._read(0)
-            if n > 1:
+            if temp:
                 rec[2 * n + 1] = self._read(1)
         rec[2 * n + 2] = self.counter.value() & 0xFFFF
         # Hall sensors pull low over a mark
         rec[2 * n + 3] = (0 if self.hall_a.value() else 1) | (0 if self.hall_b.value() else 2)
-        self.k += 1
+        k = self.k + 1  # wrapped: a count of all samples would pass 2**30 (62 days) and allocate
+        self.k = 0 if k >= _AUX_EVERY else k
 
     def run_forever(self):
         node = self.node
@@ -166,15 +175,13 @@ def run(config_path="/node.json", boot_file=BOOT_FILE):
     global _frame_seq
     if _frame_seq is None:
         _frame_seq = FrameSeq(boot_file)
-    cfg = None
-    try:
-        cfg = config.load(config_path)
-    except Exception as e:  # missing, unreadable, or refused: keep running, say so
-        print("ropenode: config refused:", e)
+    # Missing, unreadable or refused: keep running, say so, and sign the
+    # config-fault frames with the file's identity where it is still valid.
+    cfg, node_id, key, reason = config.load_for_boot(config_path)
+    node = Node(cfg, node_id, key, seq=_frame_seq)
     if cfg is None:
-        node = Node(None, seq=_frame_seq)
+        print("ropenode:", reason, "- config-fault status frames as node", node_id)
         board = Board(node, 4, 200)
     else:
-        node = Node(cfg, seq=_frame_seq)
-        board = Board(node, cfg.ropes, cfg.sample_hz)
+        board = Board(node, cfg.ropes, cfg.sample_hz, cfg.fitted == 1)
     board.run_forever()

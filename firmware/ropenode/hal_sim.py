@@ -13,8 +13,9 @@ each run is a new boot, as a reset is on the cage, and seq keeps increasing.
 
 OUT receives exactly the bytes the node would hand to its radio: COBS frames,
 each ended by 0x00 (docs/protocol.md). A missing or invalid CONFIG does not
-stop the run: the node sends config-fault status frames, as on the cage, and
-the reason goes to stderr.
+stop the run: the node sends config-fault status frames, as on the cage
+(signed with the file's node_id and key when those are still valid,
+config.load_for_boot), and the reason goes to stderr.
 """
 import array
 import struct
@@ -53,30 +54,20 @@ class SimHal:
         return n == self.rec_bytes
 
 
-def _load(config_path):
-    """(cfg or None, fallback node id, reason or None)."""
-    try:
-        return _config.load(config_path), 255, None
-    except _config.ConfigError as e:
-        reason = "config %s refused: %s: %s" % (config_path, e.field, e.reason)
-    except (OSError, ValueError) as e:
-        reason = "config %s unreadable: %r" % (config_path, e)
-    return None, 255, reason
-
-
 def run_sim(config_path, rsens_path, out_path, boot_file=None):
     """Run the node over a whole .rsens file; return (samples, frames written).
 
     `boot_file`: the persisted boot counter (incremented by this run), or None for boot 0."""
-    cfg, fallback_id, reason = _load(config_path)
+    cfg, node_id, key, reason = _config.load_for_boot(config_path)
     if reason:
-        print("ropenode:", reason, "- sending config-fault status frames", file=sys.stderr)
+        print("ropenode: %s - sending config-fault status frames as node %d, %s"
+              % (reason, node_id, "signed with its key" if key else "unsigned"), file=sys.stderr)
     with open(rsens_path, "rb") as src:
         hal = SimHal(src)
         if cfg is not None and (cfg.ropes != hal.ropes or cfg.sample_hz != hal.sample_hz):
             raise ValueError("sensor stream has %d ropes at %d Hz, config says %d at %d"
                              % (hal.ropes, hal.sample_hz, cfg.ropes, cfg.sample_hz))
-        node = Node(cfg, fallback_id, seq=FrameSeq(boot_file))
+        node = Node(cfg, node_id, key, seq=FrameSeq(boot_file))
         wire = bytearray(64)
         wmv = memoryview(wire)
         samples = frames = 0

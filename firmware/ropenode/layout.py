@@ -47,7 +47,7 @@ ST_CONFIG_FAULT = const(0x0004)       # config missing or invalid: no compensati
 ST_BATTERY_LOW = const(0x0008)
 ST_WATCHDOG_RESET = const(0x0010)     # the last reset was by the watchdog
 ST_IMBALANCE = const(0x0020)          # a rope's window mean deviates beyond the node threshold
-ST_SPEED_FAULT = const(0x0040)        # no speed pulses while Hall marks say the cage moved
+ST_SPEED_FAULT = const(0x0040)        # counter glitch (jump beyond max pulses/sample), or a Hall mark with no speed pulses
 ST_TEMP_ABSENT = const(0x0080)        # no oil temperature input: assumed temperature used
 ST_OVERRUN = const(0x0100)            # samples were missed (processing slower than the timer)
 

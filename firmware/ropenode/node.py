@@ -10,8 +10,10 @@ build (kernel_viper) where the port has a native emitter, else the plain one.
 `sample` never allocates (tests/firmware/test_alloc.py) and keeps every int
 within +-2**30.
 Without a valid config the node does not compensate: every window it offers a
-KIND_STATUS frame with ST_CONFIG_FAULT (node id `fallback_id`, MAC keyed with
-`fallback_key`, empty by default).
+KIND_STATUS frame with ST_CONFIG_FAULT, as node `fallback_id` with its MAC
+keyed by `fallback_key`: the refused file's own identity where it is readable
+(config.load_for_boot), so a host holding the node's key accepts the frames;
+node 255 unkeyed by default.
 Frame sequence numbers come from a `bootseq.FrameSeq` (monotonic across resets
 when the HAL gives it a boot-counter file; boot 0 without one).
 """

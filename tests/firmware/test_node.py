@@ -1,9 +1,10 @@
-"""Node behaviour: config-fault status frames, NAMUR exclusion, stable LuGre, shaft depth,
+"""Node behaviour: config-fault status frames (signed with the refused file's identity), NAMUR exclusion, stable LuGre, shaft depth,
 frame seq monotonic across resets (boot counter file).
 
 Runs under CPython (pytest) and the real MicroPython (tests/run_micropython.py).
 """
 import array
+import json
 import os
 import random
 import struct
@@ -12,8 +13,9 @@ from fwtest_util import cobs_decode, node_doc
 
 from ropenode import bootseq, layout
 from ropenode.bootseq import FrameSeq
-from ropenode.config import ConfigError, parse
+from ropenode.config import ConfigError, canonical, load_for_boot, parse
 from ropenode.crc16 import crc16
+from ropenode.frame import Hmac
 from ropenode.node import K, Node
 
 N = 4
@@ -69,6 +71,96 @@ def test_bad_config_document_gives_status_frames():
         cfg = e
     frames = _run(Node(cfg), _rec(), 40)
     assert [f[0][6] & layout.ST_CONFIG_FAULT for f in frames] == [layout.ST_CONFIG_FAULT] * 2
+
+
+def _write_doc(doc, tag):
+    path = _boot_path("cfg-" + tag)
+    with open(path, "w") as f:
+        f.write(doc if type(doc) is str else json.dumps(doc))
+    return path
+
+
+def _boot_with(doc, tag):
+    """config.load_for_boot on `doc` written to a file (None: no file at all)."""
+    path = _boot_path("cfg-" + tag) if doc is None else _write_doc(doc, tag)
+    try:
+        return load_for_boot(path)
+    finally:
+        _cleanup(path)
+
+
+def _resigned(doc):
+    """doc with its CRC made right again, so the refusal is for the field changed."""
+    doc["crc"] = crc16(canonical(doc["node"]))
+    return doc
+
+
+def _bad_docs_with_identity():
+    """(tag, document refused for another reason than its node_id or key, field named)."""
+    out = []
+    doc = node_doc()
+    doc["crc"] ^= 1
+    out.append(("crc", doc, "crc"))
+    doc = node_doc()
+    doc["node"]["ropes"] = 9
+    out.append(("field", _resigned(doc), "node.ropes"))
+    doc = node_doc()
+    doc["schema"] = 2
+    out.append(("schema", doc, "schema"))
+    doc = node_doc()
+    del doc["node"]["friction"]
+    out.append(("missing", _resigned(doc), "node.friction"))
+    return out
+
+
+def _mac_ok(node, key):
+    """The next frame of `node` carries the MAC of `key` (frame.Hmac, truncated)."""
+    buf = bytearray(64)
+    while not node.sample(_rec()):
+        pass
+    n = node.frame_into(buf)
+    raw = cobs_decode(bytes(buf[:n - 1]))
+    body = len(raw) - layout.MAC_LEN - layout.CRC_LEN
+    return raw[body:body + layout.MAC_LEN] == Hmac(key).digest(raw[:body])[:layout.MAC_LEN]
+
+
+def test_refused_config_still_signs_status_frames_with_its_identity():
+    key = bytes(node_doc()["node"]["key"])
+    for tag, doc, field in _bad_docs_with_identity():
+        cfg, node_id, k, reason = _boot_with(doc, tag)
+        assert cfg is None and (node_id, k) == (1, key), tag
+        assert "refused" in reason and field + ":" in reason, reason
+        frames = _run(Node(cfg, node_id, k), _rec(), 40)
+        assert len(frames) == 2
+        for h, ropes, tail in frames:
+            assert h[1] == layout.KIND_STATUS and h[2] == 1 and h[6] & layout.ST_CONFIG_FAULT
+            assert ropes == []
+        assert _mac_ok(Node(cfg, node_id, k), key) and not _mac_ok(Node(cfg, node_id, k), b"")
+
+
+def test_config_without_a_readable_identity_sends_as_node_255_unkeyed():
+    cases = [("none", None), ("notjson", "{not json"), ("list", "[1, 2]")]
+    for field, bad in (("node_id", 300), ("node_id", "1"), ("key", [1] * 15), ("key", [1] * 15 + [256]),
+                       ("key", "0011")):
+        doc = node_doc()
+        doc["node"][field] = bad
+        cases.append((field, _resigned(doc) if type(bad) is not str else doc))
+    doc = node_doc()
+    doc["node"] = [1]
+    cases.append(("node", doc))
+    for tag, doc in cases:
+        cfg, node_id, key, reason = _boot_with(doc, tag)
+        assert cfg is None and (node_id, key) == (255, b""), tag
+        assert reason, tag
+        frames = _run(Node(cfg, node_id, key), _rec(), 20)
+        assert frames[0][0][2] == 255 and frames[0][0][6] & layout.ST_CONFIG_FAULT
+        assert _mac_ok(Node(cfg, node_id, key), b"")
+
+
+def test_valid_config_boots_with_its_identity():
+    cfg, node_id, key, reason = _boot_with(node_doc(), "ok")
+    assert reason is None and cfg.ropes == N
+    assert (node_id, key) == (1, bytes(node_doc()["node"]["key"]))
 
 
 def test_steady_input_gives_steady_frames():
