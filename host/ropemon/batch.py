@@ -197,7 +197,6 @@ def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResu
                     counts.rewound += int(verdict is ReplayGuard.REWOUND)
             counts.bytes_discarded += len(rawb) + 2
             keep[j] = False
-        counts.restarts += guard.restarts
         columns = {k: v[keep] for k, v in columns.items()}
         n_ropes = n_ropes[keep]
         ropes = {k: v[keep] for k, v in ropes.items()}

@@ -3,7 +3,8 @@
 One JSON object per good frame on stdout (Frame.to_dict: node, seq and every
 payload field); the decoder counts on stderr. Exit 0 when the input was read
 (even if it held no good frame), 2 when it cannot be read or a key is invalid.
-Keys: --key NODE:HEX or --config node.json; without keys authenticity is not checked.
+Keys: --key NODE:HEX and --config node.json, both repeatable and merged
+(protocol.keys_from_options, as `ropemon monitor`); without keys authenticity is not checked.
 --accept-rewound NODE: the operator accepts a node whose boot counter went back
 (docs/protocol.md, "Sequence numbers and replay protection").
 """
@@ -15,7 +16,7 @@ import os
 import sys
 
 from ropemon.decoder import StreamDecoder
-from ropemon.protocol import load_node_keys, parse_key
+from ropemon.protocol import keys_from_options
 
 CHUNK = 1 << 16
 
@@ -44,9 +45,7 @@ def node_id(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        keys = dict(parse_key(k) for k in args.key)
-        for path in args.config:
-            keys.update(load_node_keys(path))
+        keys = keys_from_options(args.key, args.config)
     except ValueError as e:
         print(f"ropemon decode: {e}", file=sys.stderr)
         return 2

@@ -31,12 +31,6 @@ from ropemon.firmware import node_module
 
 L = P.L
 
-#: Legacy mode (accept_restarts=True) only, for nodes whose seq restarts at 0 on
-#: every reset (firmware before the boot counter): sequence numbers at most this
-#: far behind the newest accepted one may still arrive late (reordering), and a
-#: frame far behind the newest whose seq is below RESTART_SEQ_MAX is a restart.
-REPLAY_WINDOW = 64
-RESTART_SEQ_MAX = 64
 #: Accepted frames remembered per node to tell an exact copy (radio retry) from a replay.
 #: A retry follows its original within milliseconds; 64 frames is 6.4 s at 10 frames/s.
 DUPLICATE_MEMORY = 64
@@ -52,7 +46,6 @@ class DecodeCounts:
     mac_fail: int = 0
     replayed: int = 0
     bytes_discarded: int = 0
-    restarts: int = 0  # legacy mode only: authenticated seq restarts accepted
     rewound: int = 0   # of `replayed`: frames of an older boot than the newest accepted one
     duplicate: int = 0  # exact copies of a recently accepted frame (radio retry): dropped, not an attack
 
@@ -67,7 +60,7 @@ class DecodeCounts:
 class ReplayGuard:
     """Per-node anti-replay check over the 32-bit sequence number.
 
-    Strict (the default): a frame is accepted only if its seq is newer than the
+    A frame is accepted only if its seq is newer than the
     last accepted one of its node. The node's seq never goes back, across resets
     too: seq = (boot << SEQ_COUNT_BITS) | count, with the boot counter persisted
     on its flash. A frame of an older boot than the newest accepted is refused
@@ -83,30 +76,18 @@ class ReplayGuard:
     A refused frame whose bytes equal one of the last `memory` frames accepted
     from its node is a `DUPLICATE` (a radio retry), not a replay; a retry does
     not use up an operator's acceptance.
-
-    Legacy (accept_restarts=True), for nodes that restart seq at 0 on each reset:
-    a window of REPLAY_WINDOW for reordering, and a frame far behind with seq <
-    RESTART_SEQ_MAX is accepted as a restart and counted in `restarts`; after a
-    restart, recorded frames of the earlier boot with a higher seq also pass.
     """
 
     ACCEPTED, DUPLICATE, REPLAYED, REWOUND = "accepted", "duplicate", "replayed", "rewound"
 
-    def __init__(self, window: int = REPLAY_WINDOW, restart_seq_max: int = RESTART_SEQ_MAX,
-                 accept_restarts: bool = False, accept_rewound: Iterable[int] = (),
-                 memory: int = DUPLICATE_MEMORY):
+    def __init__(self, accept_rewound: Iterable[int] = (), memory: int = DUPLICATE_MEMORY):
         if memory < 1:
             raise ValueError("memory must be at least 1 frame")
         self.memory = memory
         self._recent: dict[int, dict[int, bytes]] = {}  # node -> {seq: frame bytes}, oldest first
-        self.legacy = accept_restarts
-        self.window = window
-        self.restart_seq_max = restart_seq_max
-        self.restarts = 0
         self.rewound: dict[int, tuple[int, int]] = {}
         self._rebase: set[int] = set(accept_rewound)
         self._top: dict[int, int] = {}
-        self._bits: dict[int, int] = {}
 
     def accept_rewound(self, node: int) -> None:
         """Operator decision: take `node`'s next frame of an older boot as its new baseline."""
@@ -120,10 +101,6 @@ class ReplayGuard:
         """ACCEPTED (and remembered), DUPLICATE, REPLAYED or REWOUND (a replayed
         frame of an older boot). `frame`: the frame's bytes, to recognise exact
         copies; None: no duplicate check."""
-        if self.legacy:
-            if self._accept_legacy(node, seq):
-                return self._remember(node, seq, frame)
-            return self.DUPLICATE if self._is_copy(node, seq, frame) else self.REPLAYED
         top = self._top.get(node)
         if top is None or seq > top:
             if self.rewound.pop(node, None) is not None:
@@ -160,40 +137,20 @@ class ReplayGuard:
     def _is_copy(self, node: int, seq: int, frame: bytes | None) -> bool:
         return frame is not None and self._recent.get(node, {}).get(seq) == frame
 
-    def _accept_legacy(self, node: int, seq: int) -> bool:
-        top = self._top.get(node)
-        if top is not None and seq < self.restart_seq_max and top - seq >= self.window:
-            self.restarts += 1
-            top = None
-        if top is None or seq > top:
-            shift = seq - top if top is not None else self.window
-            bits = (self._bits.get(node, 0) << shift) | 1 if shift < self.window else 1
-            self._top[node] = seq
-            self._bits[node] = bits & ((1 << self.window) - 1)
-            return True
-        back = top - seq
-        if back >= self.window:
-            return False
-        bits = self._bits[node]
-        if bits >> back & 1:
-            return False
-        self._bits[node] = bits | (1 << back)
-        return True
-
 
 class StreamDecoder:
     """Feed bytes, get frames. `keys`: node -> HMAC key; None or {} = not checked.
 
-    `accept_restarts` and `accept_rewound`: see ReplayGuard (strict by default)."""
+    `accept_rewound`: see ReplayGuard."""
 
     def __init__(self, keys: dict[int, bytes] | None = None, max_frame: int = L.MAX_WIRE_LEN,
-                 accept_restarts: bool = False, accept_rewound: Iterable[int] = ()):
+                 accept_rewound: Iterable[int] = ()):
         if max_frame < 2:
             raise ValueError("max_frame must be at least 2 bytes (body + delimiter)")
         self.keys = dict(keys) if keys else None
         self.max_body = max_frame - 1
         self.counts = DecodeCounts()
-        self.replay = ReplayGuard(accept_restarts=accept_restarts, accept_rewound=accept_rewound)
+        self.replay = ReplayGuard(accept_rewound=accept_rewound)
         self._buf = b""
         self._skipping = 0  # bytes of an overlong body skipped so far (0: not skipping)
 
@@ -296,7 +253,6 @@ class StreamDecoder:
                             c.rewound += 1
                     c.bytes_discarded += nb + 1
                     continue
-                c.restarts = self.replay.restarts
             c.frames_ok += 1
             out.append(f)
 
@@ -314,7 +270,6 @@ class StreamDecoder:
         auth = "MAC checked" if self.authenticity_checked else "authenticity NOT checked (no keys)"
         line = (f"frames_ok={c.frames_ok} crc_fail={c.crc_fail} malformed={c.malformed} "
                 f"mac_fail={c.mac_fail} replayed={c.replayed} rewound={c.rewound} duplicate={c.duplicate} "
-                f"restarts={c.restarts} "
                 f"bytes_discarded={c.bytes_discarded}; {auth}")
         for node, (top, boot) in sorted(self.replay.rewound.items()):
             line += (f"; node {node} REFUSED: its boot counter went back from {top} to {boot} "

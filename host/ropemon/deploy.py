@@ -92,34 +92,22 @@ def decode_mpy(sys_mpy: int) -> tuple[int, int, str | None]:
 
 _NODE_LIB = r"""
 import os, sys, json
-def _isdir(p):
-    try:
-        return os.stat(p)[0] & 0x4000 != 0
-    except OSError:
-        return None
-def _rmtree(p):
-    d = _isdir(p)
-    if d is None:
-        return
-    if d:
-        for e in os.ilistdir(p):
-            _rmtree(p + '/' + e[0])
-        os.rmdir(p)
-    else:
-        os.remove(p)
 def _out(v):
     print('@@ropemon ' + json.dumps(v))
 """
 
 # The node side of the swap: firmware/deployswap.py, the same code main.py runs at boot.
-# (Its docstring is dropped: it would only cost REPL transfer time.)
+# (Its docstring is dropped: it would only cost REPL transfer time.) Its `_kind` and
+# `_rmtree` are the one node-side copy of those helpers (the tree is listed before it
+# is deleted: deleting while iterating os.ilistdir may skip entries).
 _SWAP = Path(deployswap.__file__).read_text().split('"""', 2)[2] + "\n"
+_NODE_TOOLS = _NODE_LIB + _SWAP
 
 # Free space counts what a leftover .staged/ or .prev/ holds: staging deletes them
 # first, and a tight flash must not be blocked forever by a broken deploy's files.
-_PROBE = _NODE_LIB + _SWAP + r"""
+_PROBE = _NODE_TOOLS + r"""
 def _du(p):
-    d = _isdir(p)
+    d = _kind(p)
     if not d:
         return os.stat(p)[6] if d is False else 0
     return sum(_du(p + '/' + e[0]) for e in os.ilistdir(p))
@@ -159,7 +147,7 @@ _out(_r)
 
 # What the node holds, read by the deployed firmware itself: its version, and
 # node.json as its own config loader accepts (or refuses) it.
-_REPORT = _NODE_LIB + r"""
+_REPORT = r"""
 for _m in [m for m in sys.modules if m == 'ropenode' or m.startswith('ropenode.')]:
     del sys.modules[_m]
 _r = {}
@@ -168,7 +156,7 @@ try:
     _r['firmware_version'] = ropenode.FIRMWARE_VERSION
 except Exception as e:
     _r['firmware_error'] = repr(e)
-if _isdir('node.json') is None:
+if _kind('node.json') is None:
     _r['config_crc'] = None
 else:
     try:
@@ -370,7 +358,7 @@ def deploy(port: str, firmware_dir: Path = FIRMWARE_DIR, config: Path | None = N
     log(f"node on {port}: MicroPython {info.version} ({info.platform}), "
         f".mpy v{info.mpy_version}.{info.mpy_sub} arch {info.arch or 'none'}, root {info.cwd}")
     if info.journal is not None:
-        done = mp.exec(_NODE_LIB + _SWAP + "_out(finish())\n", "finishing the interrupted swap")
+        done = mp.exec(_NODE_TOOLS + "_out(finish())\n", "finishing the interrupted swap")
         log(f"an earlier deploy was cut during its swap ({', '.join(info.journal) or 'unreadable journal'}); "
             f"{'rolled forward' if done == 'forward' else 'rolled back to the previous files'}")
     march = choose_arch(info, arch, as_py)
@@ -407,7 +395,7 @@ def deploy(port: str, firmware_dir: Path = FIRMWARE_DIR, config: Path | None = N
     if bad:
         raise DeployError("after the swap the live files differ for " + ", ".join(bad)
                           + f"; the previous version is kept in {PREV_DIR}/ on the node")
-    report = mp.exec(_NODE_LIB + f"_rmtree({PREV_DIR!r})\n" + _REPORT, "reading back the deployed version")
+    report = mp.exec(_NODE_TOOLS + f"_rmtree({PREV_DIR!r})\n" + _REPORT, "reading back the deployed version")
     assert isinstance(report, dict)
     report["files"] = len(hashes)
     return report
@@ -417,7 +405,7 @@ def _stage(mp: Mpremote, out: Path, hashes: dict[str, str], size: int) -> dict:
     """Copy the built tree into a fresh STAGED_DIR on the node (live files untouched);
     return the node's SHA-256 of each staged file. One mpremote run."""
     dirs = sorted({Path(p).parent.as_posix() for p in hashes if "/" in p}, key=len)
-    prepare = (_NODE_LIB + f"_rmtree({STAGED_DIR!r})\n_rmtree({PREV_DIR!r})\nos.mkdir({STAGED_DIR!r})\n"
+    prepare = (_NODE_TOOLS + f"_rmtree({STAGED_DIR!r})\n_rmtree({PREV_DIR!r})\nos.mkdir({STAGED_DIR!r})\n"
                + "".join(f"os.mkdir({STAGED_DIR + '/' + d!r})\n" for d in dirs))
     args: list[str] = ["exec", prepare]
     for rel in hashes:

@@ -48,7 +48,8 @@ class SerialReceiver:
         self.reconnects = 0      # successful opens after the first
         self.opens = 0
         self.bytes_read = 0
-        self.callback_errors = 0
+        self.callback_errors = 0                     # exceptions of on_bytes (decoder or consumer)
+        self.last_callback_error: str | None = None  # the latest of them, kept past port errors
         self.last_error: str | None = None
         self.serial: serial.SerialBase | None = None
         self._stop = threading.Event()
@@ -115,7 +116,7 @@ class SerialReceiver:
                             self.on_bytes(data)
                         except Exception as e:  # a consumer bug must not silently end the link
                             self.callback_errors += 1
-                            self.last_error = f"on_bytes: {type(e).__name__}: {e}"
+                            self.last_error = self.last_callback_error = f"on_bytes: {type(e).__name__}: {e}"
             except (serial.SerialException, OSError) as e:
                 self.last_error = f"read {self.url}: {e}"
             finally:

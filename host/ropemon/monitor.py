@@ -31,8 +31,8 @@ from rich.text import Text
 from ropemon.alarms import ActiveAlarm, AlarmEngine, AlarmEvent, AlarmSettings
 from ropemon.decode_cli import node_id
 from ropemon.decoder import StreamDecoder
-from ropemon.link import FrameHub
-from ropemon.protocol import DAN_TO_N, Frame, L, load_node_keys, parse_key
+from ropemon.link import DEFAULT_BAUDRATE, FrameHub
+from ropemon.protocol import DAN_TO_N, Frame, L, keys_from_options
 
 TENSION_ABSENT = L.TENSION_ABSENT   # a rope whose sensor failed for the whole window
 
@@ -60,6 +60,8 @@ class SiteFigures:
     rated_load_n: float | None = None        # total of all ropes; default ropes x rated rope
     imbalance_frac: float = 0.10
     battery_low_v: float | None = None
+    empty_load_n: float | None = None        # empty conveyance at the pithead; None: no slack alarm
+    slack_frac: float = 0.60                 # slack below this share of a rope's part of empty_load_n
 
     @classmethod
     def from_node_json(cls, path: str | Path) -> "SiteFigures":
@@ -73,21 +75,22 @@ class SiteFigures:
         if not isinstance(area, list):
             area = [float(area)] * ropes
         rated = phys.get("rated_rope_tension_N")
+        empty = phys.get("empty_load_N")
+        if empty is not None and (isinstance(empty, bool) or not isinstance(empty, (int, float))
+                                  or not empty > 0):
+            raise ValueError(f"{path}: physical.empty_load_N: {empty!r} is not a positive load in N")
+        slack_frac = phys.get("slack_frac", 0.60)
+        if isinstance(slack_frac, bool) or not isinstance(slack_frac, (int, float)) or not 0 < slack_frac < 1:
+            raise ValueError(f"{path}: physical.slack_frac: {slack_frac!r} is not a fraction between 0 and 1")
         return cls(
             cylinder_area_m2=[float(a) for a in area],
             rated_rope_tension_n=float(rated) if rated is not None else None,
             rated_load_n=float(rated) * ropes if rated is not None else None,
             imbalance_frac=float(phys.get("imbalance_frac", 0.10)),
             battery_low_v=phys.get("battery_low_V"),
+            empty_load_n=float(empty) if empty is not None else None,
+            slack_frac=float(slack_frac),
         )
-
-
-def key_argument(text: str) -> tuple[int, bytes]:
-    """argparse type for `--key NODE:HEX` (ropemon.protocol.parse_key, its message kept)."""
-    try:
-        return parse_key(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 @dataclass
@@ -312,12 +315,14 @@ class MonitorView:
         return t
 
 
-def link_figures(merger_stats: dict, counts: dict[str, Any],
-                 down: dict[str, str] | None = None) -> list[tuple[str, str]]:
+def link_figures(merger_stats: dict, counts: dict[str, Any], down: dict[str, str] | None = None,
+                 errors: dict[str, tuple[int, str | None]] | None = None) -> list[tuple[str, str]]:
     """Per receiver: share of the node's frames it delivered, and its rejects;
-    `down` names the receivers whose port is not open (with the reason)."""
+    `down` names the receivers whose port is not open (with the reason); `errors`
+    those whose decoder or consumer raised (count, last error): bytes were lost there."""
     rows = []
     down = down or {}
+    errors = errors or {}
     names = list(counts)
     for node_stats in merger_stats.values():
         for r in node_stats["receivers"]:
@@ -330,6 +335,9 @@ def link_figures(merger_stats: dict, counts: dict[str, Any],
         c = counts.get(name)
         bad = f" crc {c.crc_fail} bad {c.malformed + c.mac_fail + c.replayed}" if c is not None else ""
         state = "  PORT DOWN" if name in down else ""
+        if errors.get(name, (0, None))[0]:
+            n, last = errors[name]
+            state += f"  ERRORS {n}: {(last or '?')[:48]}"
         rows.append((name, share + bad + state))
     return rows
 
@@ -387,6 +395,7 @@ class HostSession:
         self.keep_frames = False     # the demo keeps them to compare with the truth
         self._feeders: dict[str, Callable[[bytes], None]] = {}
         self._link_logged_s: float | None = None
+        self._link_errors_logged: dict[str, int] = {}  # receiver -> callback_errors already logged
 
     @property
     def decoders(self) -> dict[str, StreamDecoder]:
@@ -469,11 +478,24 @@ class HostSession:
         self._refresh_view()
         return ev
 
+    def link_errors(self) -> dict[str, tuple[int, str | None]]:
+        """Receivers whose decoder or consumer raised: {name: (count, last error)}."""
+        return {n: (r.callback_errors, r.last_callback_error)
+                for n, r in list(self.hub.receivers.items()) if r.callback_errors}
+
     def log_link_stats(self) -> None:
-        """Decoder counts and merge shares of every receiver into the store."""
+        """Decoder counts and merge shares of every receiver into the store, and a
+        `link_error` event for a receiver whose decoder or consumer raised since the
+        last log (link_stats has no text column: the event carries the message)."""
         if self.store is None:
             return
         t = time.time()
+        for name, (n, last) in self.link_errors().items():
+            if n > self._link_errors_logged.get(name, 0):
+                self.store.add_event(AlarmEvent(
+                    t, "error", f"link_error:{name}", "link_error", None, None, n, None,
+                    f"receiver {name}: {n} decoder/consumer errors (bytes lost), last: {last}"))
+                self._link_errors_logged[name] = n
         stats = self.hub.merge_stats()
         for name, dec in list(self.decoders.items()):
             self.store.add_link_stats(t, name, dec.counts.as_dict())
@@ -504,7 +526,8 @@ class HostSession:
             return
         stats = self.hub.merge_stats()
         down = {n: r.last_error or "not open" for n, r in list(self.hub.receivers.items()) if not r.connected}
-        self.view.link_rows = link_figures(stats, {n: d.counts for n, d in list(self.decoders.items())}, down)
+        self.view.link_rows = link_figures(stats, {n: d.counts for n, d in list(self.decoders.items())}, down,
+                                           self.link_errors())
         self.view.merge_text = merge_figures(stats)
         if not self.keys:
             self.view.merge_text += "  NO KEY: not authenticated"
@@ -524,13 +547,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="receiver serial port (device path or pyserial URL); give twice for two receivers; "
                         "NAME=URL names the receiver")
     p.add_argument("--db", help="SQLite log to append frames and alarm events to")
-    p.add_argument("--config", help="node.json: cylinder areas, rated tension, thresholds and the node key")
-    p.add_argument("--key", action="append", type=key_argument, default=[], metavar="NODE:HEX",
+    p.add_argument("--config", action="append", default=[], metavar="NODE.JSON",
+                   help="node.json: cylinder areas, rated tension, alarm thresholds and the node key "
+                        "(repeatable, one per node of the same hoist; merged with --key)")
+    p.add_argument("--key", action="append", default=[], metavar="NODE:HEX",
                    help="HMAC key of a node (repeatable); without keys authenticity is not checked")
     p.add_argument("--accept-rewound", action="append", type=node_id, default=[], metavar="NODE",
                    help="operator decision: NODE's boot counter really went back (flash wiped or replaced); "
                         "take its next authenticated frame as its new baseline (repeatable; logged)")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate of the receiver lines")
+    p.add_argument("--baud", type=int, default=DEFAULT_BAUDRATE,
+                   help=f"baud rate of the receiver lines (default {DEFAULT_BAUDRATE})")
     p.add_argument("--rs485", action="store_true",
                    help="half-duplex RS485 mode for adapters whose driver needs it (RTS switching)")
     p.add_argument("--refresh-hz", type=float, default=4.0, help="screen refreshes per second")
@@ -549,14 +575,33 @@ def receiver_names(ports: list[str]) -> list[tuple[str, str]]:
     return out
 
 
+def site_from_configs(paths: list[str]) -> SiteFigures:
+    """The hoist's figures from its node.json files (defaults without any). The view and the
+    alarms use one set of figures: node configs that disagree on them are refused."""
+    figures = [(p, SiteFigures.from_node_json(p)) for p in paths]
+    for p, f in figures[1:]:
+        if f != figures[0][1]:
+            raise ValueError(f"{p} and {figures[0][0]} describe different hoists (cylinder areas, rated "
+                             "tension, loads or thresholds differ): run one monitor per hoist")
+    return figures[0][1] if figures else SiteFigures()
+
+
 def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
-    """Alarm thresholds from the node config's figures (regulation defaults otherwise)."""
-    return AlarmSettings(
+    """Alarm thresholds from the node config's figures (regulation defaults otherwise).
+
+    With the empty conveyance load (`physical.empty_load_N`, written by `ropemon config`)
+    the slack-rope alarm is on: a rope below `slack_frac` of its share of that load."""
+    kw: dict[str, Any] = dict(
         deviation_frac=site.imbalance_frac,
-        rated_load_dan=int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None,
         battery_low_mv=int(site.battery_low_v * 1000) if site.battery_low_v else None,
         silent_s=silent_s,
     )
+    rated_dan = int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None
+    n_ropes = len(site.cylinder_area_m2)
+    if site.empty_load_n and rated_dan and n_ropes:
+        return AlarmSettings.from_loads(rated_dan, round(site.empty_load_n / DAN_TO_N), n_ropes,
+                                        slack_frac_of_empty=site.slack_frac, **kw)
+    return AlarmSettings(rated_load_dan=rated_dan, **kw)
 
 
 class KeyReader:
@@ -651,16 +696,12 @@ def live_loop(session: HostSession, console: Console, refresh_hz: float,
 
 
 def run(args: argparse.Namespace) -> int:
-    site = SiteFigures()
-    keys = dict(args.key)
-    if args.config:
-        try:
-            site = SiteFigures.from_node_json(args.config)
-            if not keys:
-                keys = load_node_keys(args.config)
-        except (ValueError, KeyError) as e:
-            print(f"ropemon monitor: {e}", file=sys.stderr)
-            return 2
+    try:
+        keys = keys_from_options(args.key, args.config)
+        site = site_from_configs(args.config)
+    except ValueError as e:
+        print(f"ropemon monitor: {e}", file=sys.stderr)
+        return 2
     store = None
     if args.db:
         from ropemon.store import Store, StoreError

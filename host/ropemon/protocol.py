@@ -200,6 +200,22 @@ def load_node_keys(path) -> dict[int, bytes]:
         raise ValueError(f"{path}: not a node.json with physical.node_id and physical.key_hex ({e})") from None
 
 
+def keys_from_options(keys: list[str], configs: list[str]) -> dict[int, bytes]:
+    """node id -> key from the repeatable command-line options `--key NODE:HEX` and
+    `--config node.json`, merged. ValueError names the fault: a bad key, a file that
+    is not a node.json, or one node given two different keys (which one is right
+    cannot be guessed)."""
+    out: dict[int, bytes] = {}
+    sources: dict[int, str] = {}
+    given = [(f"--key {k}", parse_key(k)) for k in keys]
+    given += [(f"--config {p}", kv) for p in configs for kv in load_node_keys(p).items()]
+    for source, (node, key) in given:
+        if node in out and out[node] != key:
+            raise ValueError(f"node {node}: {sources[node]} and {source} give different keys")
+        out[node], sources[node] = key, source
+    return out
+
+
 def mac_of(key: bytes, body: bytes) -> bytes:
     """Truncated HMAC-SHA256 of everything before the MAC field."""
     return hmac.digest(key, body, hashlib.sha256)[: L.MAC_LEN]

@@ -680,6 +680,10 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
         "velocity_cutoff_hz": site.rates.velocity_cutoff_hz,
         "piston_speed_max_m_s": max(c.max_speed_m_s for c in site.cylinders),
         "hoist_speed_max_m_s": site.hoist.max_speed_m_s,
+        # Host-only (the node ignores them, node section and CRC unchanged): the slack-rope alarm
+        # floor is slack_frac of each rope's share of the empty conveyance load.
+        "empty_load_N": site.hoist.empty_load_N,
+        "slack_frac": site.alarms.slack_frac,
         "friction": fr,
         "friction_p_max_MPa": p_max,
         "loss": table,

@@ -590,3 +590,23 @@ def _run_sim_on_node(root: Path, tmp_path: Path, doc: dict, pressures_pa: list[f
     expected = {"temp_absent"} | ({"imbalance"} if any(abs(p / mean - 1) > 0.1 for p in pressures_pa) else set())
     assert all(set(f.status_flags) == expected for f in frames[1:]), [f.status_flags for f in frames]
     return frames
+
+
+# --- the node-side helpers deploy sends over the REPL
+
+def test_node_side_rmtree_is_deployswaps_and_empties_a_wide_tree(tmp_path):
+    """deploy sends firmware/deployswap.py's `_kind`/`_rmtree` (the tree listed before it is
+    deleted), no copy of its own; run under the real `micropython`, a wide nested tree goes."""
+    assert D._NODE_TOOLS.count("def _rmtree(") == 1 and D._NODE_TOOLS.count("def _kind(") == 1
+    assert "list(os.ilistdir(p))" in D._NODE_TOOLS
+    tree = tmp_path / ".staged"
+    for d in ("", "ropenode", "ropenode/sub"):
+        (tree / d).mkdir(exist_ok=True)
+        for i in range(40):
+            (tree / d / f"f{i}.mpy").write_bytes(b"x" * i)
+    script = D._NODE_TOOLS + "_rmtree('.staged')\n_rmtree('absent')\n_out([_kind('.staged'), _kind('absent')])\n"
+    r = subprocess.run([micropython_command(), "-c", script], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=30)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "@@ropemon [null, null]"
+    assert not tree.exists()

@@ -110,3 +110,16 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
     assert set(got) == recoverable
     assert s["host"]["duplicates_dropped"] > 0
     assert sum(r["crc_fail"] + r["malformed"] for r in s["receivers"].values()) > 0
+
+
+def test_demo_runs_with_the_slack_alarm_on_and_no_false_slack(demo_run):
+    """The simulator's node.json (built by `ropemon config`'s code) carries the empty cage
+    load, so the demo's alarms include SLACK; a normal wind must not raise it."""
+    from ropemon.monitor import SiteFigures, alarm_settings
+
+    out, s, _ = demo_run
+    site = SiteFigures.from_node_json(out / "sim" / "node.json")
+    settings = alarm_settings(site)
+    assert site.empty_load_n and settings.slack_dan == round(0.6 * site.empty_load_n / 10 / 4)
+    db = sqlite3.connect(out / "ropemon.db")
+    assert db.execute("SELECT count(*) FROM events WHERE kind = 'slack'").fetchone()[0] == 0

@@ -117,3 +117,47 @@ def test_without_keys_the_screen_says_frames_are_not_authenticated():
     s.feed("pithead", wire(1))
     s.tick()
     assert "NO KEY: not authenticated" in screen(s) and len(s.frames) == 1
+
+
+def test_slack_rope_raises_through_the_settings_built_from_a_node_json(tmp_path):
+    """`ropemon config` writes physical.empty_load_N; the monitor's alarm settings turn it into
+    the slack floor: 60 % of each rope's share of the empty conveyance load."""
+    import json
+
+    doc = {"physical": {"ropes": 4, "cylinder_area_m2": [0.0314] * 4, "rated_rope_tension_N": 80_000,
+                        "imbalance_frac": 0.10, "battery_low_V": 3.4, "empty_load_N": 185_400,
+                        "slack_frac": 0.60}}
+    path = tmp_path / "node.json"
+    path.write_text(json.dumps(doc))
+    site = SiteFigures.from_node_json(path)
+    settings = alarm_settings(site)
+    floor = round(0.6 * 18_540 / 4)                       # daN
+    assert settings.slack_dan == floor and settings.rated_load_dan == 32_000
+    clk = Clock()
+    s = HostSession({1: KEY}, settings, view=MonitorView(site), clock=clk)
+    for seq in range(10):                                 # every rope above the floor: quiet
+        clk.t = seq * 0.1
+        s.feed("pithead", wire(seq, dan=(4600, 4600, 4600, floor + 100)))
+    assert not [a for a in s.alarms.active() if a.kind == "slack"]
+    for seq in range(10, 30):                             # rope 4 just below the floor
+        clk.t = seq * 0.1
+        s.feed("pithead", wire(seq, dan=(4600, 4600, 4600, floor - 20)))
+    slack = [a for a in s.alarms.active() if a.kind == "slack"]
+    assert [(a.rope, a.present) for a in slack] == [(3, True)]
+    s.tick()
+    assert "SLACK rope 4" in screen(s)
+
+
+def test_node_json_without_empty_load_leaves_slack_off_and_a_bad_one_is_refused(tmp_path):
+    import json
+
+    import pytest
+
+    path = tmp_path / "node.json"
+    path.write_text(json.dumps({"physical": {"ropes": 4, "cylinder_area_m2": [0.0314] * 4,
+                                             "rated_rope_tension_N": 80_000}}))
+    assert alarm_settings(SiteFigures.from_node_json(path)).slack_dan is None
+    path.write_text(json.dumps({"physical": {"ropes": 4, "cylinder_area_m2": [0.0314] * 4,
+                                             "rated_rope_tension_N": 80_000, "empty_load_N": -1}}))
+    with pytest.raises(ValueError, match="physical.empty_load_N"):
+        SiteFigures.from_node_json(path)

@@ -79,3 +79,25 @@ def test_monitor_accept_rewound_is_logged(tmp_path):
     r = subprocess.run([sys.executable, "-m", "ropemon.cli", "monitor", "--port", "loop://",
                         "--accept-rewound", "1"], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert r.returncode == 2 and "needs node keys" in r.stderr
+
+
+def test_monitor_refuses_conflicting_keys_and_configs_of_different_hoists(tmp_path, capsys):
+    """--key and --config are merged as in `ropemon decode`; contradictions are refused, not guessed."""
+    import json
+
+    from ropemon.cli import main
+
+    def node_json(name, node, key, area):
+        p = tmp_path / name
+        p.write_text(json.dumps({"physical": {"node_id": node, "key_hex": key.hex(), "ropes": 4,
+                                              "cylinder_area_m2": [area] * 4, "rated_rope_tension_N": 80_000}}))
+        return str(p)
+
+    a = node_json("a.json", 1, KEY, 0.0314)
+    b = node_json("b.json", 2, bytes(range(1, 17)), 0.05)
+    assert main(["monitor", "--port", "loop://", "--config", a, "--key", "1:" + "00" * 16]) == 2
+    assert "node 1: --key 1:00" in capsys.readouterr().err
+    assert main(["monitor", "--port", "loop://", "--config", a, "--config", b]) == 2
+    assert "describe different hoists" in capsys.readouterr().err
+    assert main(["monitor", "--port", "loop://", "--key", "1:zz"]) == 2
+    assert "not hex" in capsys.readouterr().err

@@ -39,7 +39,6 @@ def test_strict_by_default_with_keys():
     assert dec.counts.replayed == 3 and dec.counts.rewound == 0 and dec.replay.rewound == {}
     assert dec.counts.duplicate == 0
     assert [f.seq for f in dec.feed(b"".join(wires(1, [25])))] == [25]  # a gap is fine
-    assert dec.counts.restarts == 0
     assert [f.seq for f in dec.feed(b"".join(wires(2, [0])))] == [0]  # nodes are independent
 
 
@@ -117,15 +116,18 @@ def test_refusals_raise_the_link_integrity_alarm():
     assert [(e.action, e.alarm) for e in ev] == [("raise", "link_integrity:pithead")]
 
 
-def test_without_keys_nothing_is_refused_and_legacy_mode_still_exists():
+def test_without_keys_nothing_is_refused_and_with_them_a_seq_restart_is():
     plain = StreamDecoder()
     w = wires(1, [5, 5, 1])
     assert [f.seq for f in plain.feed(b"".join(w))] == [5, 5, 1]
     assert "NOT checked" in plain.summary()
-    legacy = ReplayGuard(accept_restarts=True)
-    assert legacy.accept(1, 500) and legacy.accept(1, 0) and legacy.restarts == 1
-    strict = ReplayGuard()
-    assert strict.accept(1, 500) and not strict.accept(1, 0) and strict.restarts == 0
+    # There is no mode that takes a seq restarting at 0 as a node reset: the node's boot
+    # counter keeps seq increasing across resets, so a restart is a replay.
+    guard = ReplayGuard()
+    assert guard.accept(1, 500) and not guard.accept(1, 0) and not guard.accept(1, 499)
+    import pytest
+    with pytest.raises(TypeError):
+        ReplayGuard(accept_restarts=True)  # the legacy mode is gone, not silently ignored
 
 
 def test_exact_copies_are_duplicates_and_raise_no_alarm():
@@ -153,15 +155,11 @@ def test_exact_copies_are_duplicates_and_raise_no_alarm():
     assert "duplicate=%d" % (len(w) + 1) in dec.summary()
 
 
-def test_copies_are_per_node_and_legacy_mode_tells_them_too():
+def test_copies_are_per_node():
     dec = StreamDecoder(KEYS)
     a, b = wires(1, [5])[0], wires(2, [5])[0]
     assert len(dec.feed(a + b)) == 2
     assert dec.feed(b + a) == [] and dec.counts.duplicate == 2
-    legacy = StreamDecoder(KEYS, accept_restarts=True)
-    w = wires(1, [7, 6, 7])
-    assert [f.seq for f in legacy.feed(b"".join(w))] == [7, 6]  # reordering window
-    assert legacy.counts.duplicate == 1 and legacy.counts.replayed == 0
 
 
 def test_a_retry_does_not_use_up_the_operator_acceptance():
