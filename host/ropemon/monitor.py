@@ -62,6 +62,7 @@ class SiteFigures:
     battery_low_v: float | None = None
     empty_load_n: float | None = None        # empty conveyance at the pithead; None: no slack alarm
     slack_frac: float = 0.60                 # slack below this share of a rope's part of empty_load_n
+    overload_frac: float = 1.0               # overload above this share of rated_load_n
 
     @classmethod
     def from_node_json(cls, path: str | Path) -> "SiteFigures":
@@ -82,14 +83,22 @@ class SiteFigures:
         slack_frac = phys.get("slack_frac", 0.60)
         if isinstance(slack_frac, bool) or not isinstance(slack_frac, (int, float)) or not 0 < slack_frac < 1:
             raise ValueError(f"{path}: physical.slack_frac: {slack_frac!r} is not a fraction between 0 and 1")
+        rated_load = phys.get("rated_load_N", float(rated) * ropes if rated is not None else None)
+        if rated_load is not None and (isinstance(rated_load, bool) or not isinstance(rated_load, (int, float))
+                                       or not rated_load > 0):
+            raise ValueError(f"{path}: physical.rated_load_N: {rated_load!r} is not a positive load in N")
+        overload_frac = phys.get("overload_frac", 1.0)
+        if isinstance(overload_frac, bool) or not isinstance(overload_frac, (int, float)) or not overload_frac >= 1:
+            raise ValueError(f"{path}: physical.overload_frac: {overload_frac!r} is not a factor >= 1")
         return cls(
             cylinder_area_m2=[float(a) for a in area],
             rated_rope_tension_n=float(rated) if rated is not None else None,
-            rated_load_n=float(rated) * ropes if rated is not None else None,
+            rated_load_n=float(rated_load) if rated_load is not None else None,
             imbalance_frac=float(phys.get("imbalance_frac", 0.10)),
             battery_low_v=phys.get("battery_low_V"),
             empty_load_n=float(empty) if empty is not None else None,
             slack_frac=float(slack_frac),
+            overload_frac=float(overload_frac),
         )
 
 
@@ -595,6 +604,7 @@ def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
         deviation_frac=site.imbalance_frac,
         battery_low_mv=int(site.battery_low_v * 1000) if site.battery_low_v else None,
         silent_s=silent_s,
+        overload_frac=site.overload_frac,
     )
     rated_dan = int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None
     n_ropes = len(site.cylinder_area_m2)

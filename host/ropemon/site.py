@@ -681,9 +681,12 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
         "piston_speed_max_m_s": max(c.max_speed_m_s for c in site.cylinders),
         "hoist_speed_max_m_s": site.hoist.max_speed_m_s,
         # Host-only (the node ignores them, node section and CRC unchanged): the slack-rope alarm
-        # floor is slack_frac of each rope's share of the empty conveyance load.
+        # floor is slack_frac of each rope's share of the empty conveyance load; overload is the
+        # total load above overload_frac of the rated load (empty conveyance + rated payload).
         "empty_load_N": site.hoist.empty_load_N,
         "slack_frac": site.alarms.slack_frac,
+        "rated_load_N": site.hoist.rated_load_N,
+        "overload_frac": site.alarms.overload_frac,
         "friction": fr,
         "friction_p_max_MPa": p_max,
         "loss": table,

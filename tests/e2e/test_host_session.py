@@ -161,3 +161,31 @@ def test_node_json_without_empty_load_leaves_slack_off_and_a_bad_one_is_refused(
                                              "rated_rope_tension_N": 80_000, "empty_load_N": -1}}))
     with pytest.raises(ValueError, match="physical.empty_load_N"):
         SiteFigures.from_node_json(path)
+
+
+def test_overload_threshold_is_the_sites_rated_load_times_its_overload_factor(tmp_path):
+    """`ropemon config` writes physical.rated_load_N and overload_frac; the overload alarm then
+    raises above their product, not above ropes x rated rope tension."""
+    import json
+
+    import pytest
+
+    path = tmp_path / "node.json"
+    phys = {"ropes": 4, "cylinder_area_m2": [0.0314] * 4, "rated_rope_tension_N": 80_000,
+            "empty_load_N": 185_400, "rated_load_N": 263_880, "overload_frac": 1.10}
+    path.write_text(json.dumps({"physical": phys}))
+    settings = alarm_settings(SiteFigures.from_node_json(path))
+    assert settings.rated_load_dan == 26_388 and settings.overload_frac == 1.10
+    clk = Clock()
+    s = HostSession({1: KEY}, settings, view=MonitorView(SiteFigures.from_node_json(path)), clock=clk)
+    for seq in range(10):                                 # 28,400 daN: above rated, below 110 %
+        clk.t = seq * 0.1
+        s.feed("pithead", wire(seq, dan=(7100, 7100, 7100, 7100)))
+    assert not [a for a in s.alarms.active() if a.kind == "overload"]
+    for seq in range(10, 30):                             # 29,200 daN > 1.10 x 26,388
+        clk.t = seq * 0.1
+        s.feed("pithead", wire(seq, dan=(7300, 7300, 7300, 7300)))
+    assert [a.kind for a in s.alarms.active()] == ["overload"]
+    path.write_text(json.dumps({"physical": dict(phys, overload_frac=0.9)}))
+    with pytest.raises(ValueError, match="physical.overload_frac"):
+        SiteFigures.from_node_json(path)
