@@ -60,8 +60,8 @@ class SiteFigures:
     rated_load_n: float | None = None        # total of all ropes; default ropes x rated rope
     imbalance_frac: float = 0.10
     battery_low_v: float | None = None
-    empty_load_n: float | None = None        # empty conveyance at the pithead; None: no slack alarm
-    slack_frac: float = 0.60                 # slack below this share of a rope's part of empty_load_n
+    conveyance_weight_n: float | None = None  # weight of the empty cage alone; None: no slack alarm
+    slack_frac: float = 0.60                 # slack below this share of a rope's part of conveyance_weight_n
     overload_frac: float = 1.0               # overload above this share of rated_load_n
 
     @classmethod
@@ -76,10 +76,10 @@ class SiteFigures:
         if not isinstance(area, list):
             area = [float(area)] * ropes
         rated = phys.get("rated_rope_tension_N")
-        empty = phys.get("empty_load_N")
+        empty = phys.get("conveyance_weight_N")
         if empty is not None and (isinstance(empty, bool) or not isinstance(empty, (int, float))
                                   or not empty > 0):
-            raise ValueError(f"{path}: physical.empty_load_N: {empty!r} is not a positive load in N")
+            raise ValueError(f"{path}: physical.conveyance_weight_N: {empty!r} is not a positive load in N")
         slack_frac = phys.get("slack_frac", 0.60)
         if isinstance(slack_frac, bool) or not isinstance(slack_frac, (int, float)) or not 0 < slack_frac < 1:
             raise ValueError(f"{path}: physical.slack_frac: {slack_frac!r} is not a fraction between 0 and 1")
@@ -96,7 +96,7 @@ class SiteFigures:
             rated_load_n=float(rated_load) if rated_load is not None else None,
             imbalance_frac=float(phys.get("imbalance_frac", 0.10)),
             battery_low_v=phys.get("battery_low_V"),
-            empty_load_n=float(empty) if empty is not None else None,
+            conveyance_weight_n=float(empty) if empty is not None else None,
             slack_frac=float(slack_frac),
             overload_frac=float(overload_frac),
         )
@@ -598,7 +598,7 @@ def site_from_configs(paths: list[str]) -> SiteFigures:
 def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
     """Alarm thresholds from the node config's figures (regulation defaults otherwise).
 
-    With the empty conveyance load (`physical.empty_load_N`, written by `ropemon config`)
+    With the empty conveyance's weight (`physical.conveyance_weight_N`, written by `ropemon config`)
     the slack-rope alarm is on: a rope below `slack_frac` of its share of that load."""
     kw: dict[str, Any] = dict(
         deviation_frac=site.imbalance_frac,
@@ -608,8 +608,8 @@ def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
     )
     rated_dan = int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None
     n_ropes = len(site.cylinder_area_m2)
-    if site.empty_load_n and rated_dan and n_ropes:
-        return AlarmSettings.from_loads(rated_dan, round(site.empty_load_n / DAN_TO_N), n_ropes,
+    if site.conveyance_weight_n and rated_dan and n_ropes:
+        return AlarmSettings.from_loads(rated_dan, round(site.conveyance_weight_n / DAN_TO_N), n_ropes,
                                         slack_frac_of_empty=site.slack_frac, **kw)
     return AlarmSettings(rated_load_dan=rated_dan, **kw)
 

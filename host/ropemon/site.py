@@ -55,6 +55,12 @@ class Hoist:
         return (self.cage_mass_kg + self.tail_ropes * self.tail_rope_kg_per_m * self.shaft_depth_m) * G_M_S2
 
     @property
+    def conveyance_weight_N(self) -> float:
+        """Weight of the empty cage alone: the least static load the head ropes carry anywhere
+        in the shaft (at the bottom the tail ropes hang on the other side of their loop)."""
+        return self.cage_mass_kg * G_M_S2
+
+    @property
     def rated_load_N(self) -> float:
         """Static load with the rated payload at the pithead."""
         return self.empty_load_N + self.rated_payload_kg * G_M_S2
@@ -681,9 +687,9 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
         "piston_speed_max_m_s": max(c.max_speed_m_s for c in site.cylinders),
         "hoist_speed_max_m_s": site.hoist.max_speed_m_s,
         # Host-only (the node ignores them, node section and CRC unchanged): the slack-rope alarm
-        # floor is slack_frac of each rope's share of the empty conveyance load; overload is the
-        # total load above overload_frac of the rated load (empty conveyance + rated payload).
-        "empty_load_N": site.hoist.empty_load_N,
+        # floor is slack_frac of each rope's share of the empty conveyance's weight (the Quebec
+        # rule); overload is the total load above overload_frac of the rated load at the pithead.
+        "conveyance_weight_N": site.hoist.conveyance_weight_N,
         "slack_frac": site.alarms.slack_frac,
         "rated_load_N": site.hoist.rated_load_N,
         "overload_frac": site.alarms.overload_frac,

@@ -62,8 +62,9 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
         f"site {site.name}: node {ph['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
         f"{ph['frame_hz']} Hz frames",
         f"rated rope tension {h.rated_rope_tension_N / 1e3:.1f} kN = {site.rated_pressure_MPa:.2f} MPa; "
-        f"empty cage at the pithead {h.empty_load_N / 1e3:.1f} kN: the host's SLACK alarm below "
-        f"{ph['slack_frac'] * ph['empty_load_N'] / ph['ropes'] / 1e3:.1f} kN per rope",
+        f"empty cage at the pithead {h.empty_load_N / 1e3:.1f} kN, cage alone {h.conveyance_weight_N / 1e3:.1f} kN: "
+        f"the host's SLACK alarm below "
+        f"{ph['slack_frac'] * ph['conveyance_weight_N'] / ph['ropes'] / 1e3:.1f} kN per rope",
         f"pipe loss at {q_max * 6e4:.1f} L/min and {ph['oil_temp_assumed_C']:g} C: up to {worst / 1e6:.3f} MPa "
         f"({worst * min(ph['cylinder_area_m2']) / 1e3:.2f} kN of rope tension)",
         f"config CRC 0x{doc['crc']:04x}, schema {doc['schema']}",

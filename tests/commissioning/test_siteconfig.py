@@ -51,7 +51,7 @@ def test_paper_site_gives_a_node_json_the_node_accepts(site_dir, capsys):
     assert ph["oil_temp_assumed_C"] in loss["temps_C"]
     printed = capsys.readouterr().out
     assert f"config CRC 0x{doc['crc']:04x}" in printed and "wrote" in printed
-    assert f"SLACK alarm below {0.6 * ph['empty_load_N'] / 4 / 1e3:.1f} kN per rope" in printed
+    assert f"SLACK alarm below {0.6 * ph['conveyance_weight_N'] / 4 / 1e3:.1f} kN per rope" in printed
 
 
 def test_node_loss_table_is_the_physical_one_in_newtons(site_dir):
@@ -156,10 +156,12 @@ def test_empty_load_is_a_host_only_key_the_node_ignores(site_dir):
     """The slack-rope alarm's figures travel in `physical`; node section and CRC do not change."""
     site = load_site(site_dir / "paper-site.toml")
     ph = physical_from_site(site)
-    assert ph["empty_load_N"] == pytest.approx(site.hoist.empty_load_N)
-    assert 150e3 < ph["empty_load_N"] < 250e3  # the paper's empty cage: 185.4 kN
+    # the cage alone (8.18 t): at the shaft bottom the tail ropes hang on the other side of
+    # their loop, so this, not the 185.4 kN pithead load, is the least a head-rope set carries
+    assert ph["conveyance_weight_N"] == pytest.approx(8180 * 9.81)
+    assert ph["rated_load_N"] == pytest.approx(site.hoist.rated_load_N)
     assert ph["slack_frac"] == site.alarms.slack_frac
     with_keys = make_node_json(ph)
-    without = make_node_json({k: v for k, v in ph.items() if k not in ("empty_load_N", "slack_frac")})
+    without = make_node_json({k: v for k, v in ph.items() if k not in ("conveyance_weight_N", "slack_frac")})
     assert with_keys["node"] == without["node"] and with_keys["crc"] == without["crc"]
     assert node_module("config").parse(with_keys) is not None

@@ -120,6 +120,6 @@ def test_demo_runs_with_the_slack_alarm_on_and_no_false_slack(demo_run):
     out, s, _ = demo_run
     site = SiteFigures.from_node_json(out / "sim" / "node.json")
     settings = alarm_settings(site)
-    assert site.empty_load_n and settings.slack_dan == round(0.6 * site.empty_load_n / 10 / 4)
+    assert site.conveyance_weight_n and settings.slack_dan == round(0.6 * site.conveyance_weight_n / 10 / 4)
     db = sqlite3.connect(out / "ropemon.db")
     assert db.execute("SELECT count(*) FROM events WHERE kind = 'slack'").fetchone()[0] == 0

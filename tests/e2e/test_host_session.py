@@ -120,12 +120,12 @@ def test_without_keys_the_screen_says_frames_are_not_authenticated():
 
 
 def test_slack_rope_raises_through_the_settings_built_from_a_node_json(tmp_path):
-    """`ropemon config` writes physical.empty_load_N; the monitor's alarm settings turn it into
+    """`ropemon config` writes physical.conveyance_weight_N; the monitor's alarm settings turn it into
     the slack floor: 60 % of each rope's share of the empty conveyance load."""
     import json
 
     doc = {"physical": {"ropes": 4, "cylinder_area_m2": [0.0314] * 4, "rated_rope_tension_N": 80_000,
-                        "imbalance_frac": 0.10, "battery_low_V": 3.4, "empty_load_N": 185_400,
+                        "imbalance_frac": 0.10, "battery_low_V": 3.4, "conveyance_weight_N": 185_400,
                         "slack_frac": 0.60}}
     path = tmp_path / "node.json"
     path.write_text(json.dumps(doc))
@@ -158,8 +158,8 @@ def test_node_json_without_empty_load_leaves_slack_off_and_a_bad_one_is_refused(
                                              "rated_rope_tension_N": 80_000}}))
     assert alarm_settings(SiteFigures.from_node_json(path)).slack_dan is None
     path.write_text(json.dumps({"physical": {"ropes": 4, "cylinder_area_m2": [0.0314] * 4,
-                                             "rated_rope_tension_N": 80_000, "empty_load_N": -1}}))
-    with pytest.raises(ValueError, match="physical.empty_load_N"):
+                                             "rated_rope_tension_N": 80_000, "conveyance_weight_N": -1}}))
+    with pytest.raises(ValueError, match="physical.conveyance_weight_N"):
         SiteFigures.from_node_json(path)
 
 
@@ -172,7 +172,7 @@ def test_overload_threshold_is_the_sites_rated_load_times_its_overload_factor(tm
 
     path = tmp_path / "node.json"
     phys = {"ropes": 4, "cylinder_area_m2": [0.0314] * 4, "rated_rope_tension_N": 80_000,
-            "empty_load_N": 185_400, "rated_load_N": 263_880, "overload_frac": 1.10}
+            "conveyance_weight_N": 185_400, "rated_load_N": 263_880, "overload_frac": 1.10}
     path.write_text(json.dumps({"physical": phys}))
     settings = alarm_settings(SiteFigures.from_node_json(path))
     assert settings.rated_load_dan == 26_388 and settings.overload_frac == 1.10
