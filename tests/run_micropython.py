@@ -15,11 +15,12 @@ or no test ran at all.
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from ropemon.firmware import micropython_command
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE = ROOT / "firmware"
@@ -52,17 +53,6 @@ for n in names:
         print(TAG, "PASS", n, time.ticks_diff(time.ticks_ms(), t0))
 print(TAG, "DONE")
 """
-
-
-def micropython_exe() -> str:
-    """The unix-port `micropython` of this venv (beside this Python), else on PATH."""
-    here = Path(sys.executable).parent / "micropython"
-    if here.exists():
-        return str(here)
-    found = shutil.which("micropython")
-    if not found:
-        raise SystemExit("micropython not found: run `make .venv/.installed` first")
-    return found
 
 
 def discover(args: list[str]) -> list[Path]:
@@ -126,7 +116,10 @@ def _parse(out: str) -> tuple[list[tuple[str, bool, str]], bool, bool]:
 
 
 def main(argv: list[str]) -> int:
-    exe = micropython_exe()
+    try:
+        exe = micropython_command()
+    except FileNotFoundError as e:
+        raise SystemExit(f"{e}: run `make .venv/.installed` first") from None
     files = discover(argv)
     passed = failed = 0
     t0 = time.monotonic()

