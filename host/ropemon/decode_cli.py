@@ -45,13 +45,9 @@ def node_id(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        keys = keys_from_options(args.key, args.config)
+        keys = keys_from_options(args.key, args.config, args.accept_rewound)
     except ValueError as e:
         print(f"ropemon decode: {e}", file=sys.stderr)
-        return 2
-    if args.accept_rewound and not keys:
-        print("ropemon decode: --accept-rewound needs node keys (--key or --config): "
-              "without keys no frame is refused", file=sys.stderr)
         return 2
     dec = StreamDecoder(keys or None, accept_rewound=args.accept_rewound)
     out = sys.stdout

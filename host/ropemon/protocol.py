@@ -200,11 +200,12 @@ def load_node_keys(path) -> dict[int, bytes]:
         raise ValueError(f"{path}: not a node.json with physical.node_id and physical.key_hex ({e})") from None
 
 
-def keys_from_options(keys: list[str], configs: list[str]) -> dict[int, bytes]:
+def keys_from_options(keys: list[str], configs: list[str], accept_rewound: list[int] | None = None
+                      ) -> dict[int, bytes]:
     """node id -> key from the repeatable command-line options `--key NODE:HEX` and
     `--config node.json`, merged. ValueError names the fault: a bad key, a file that
-    is not a node.json, or one node given two different keys (which one is right
-    cannot be guessed)."""
+    is not a node.json, one node given two different keys (which one is right
+    cannot be guessed), or `--accept-rewound` without any key (nothing is refused then)."""
     out: dict[int, bytes] = {}
     sources: dict[int, str] = {}
     given = [(f"--key {k}", parse_key(k)) for k in keys]
@@ -213,6 +214,8 @@ def keys_from_options(keys: list[str], configs: list[str]) -> dict[int, bytes]:
         if node in out and out[node] != key:
             raise ValueError(f"node {node}: {sources[node]} and {source} give different keys")
         out[node], sources[node] = key, source
+    if accept_rewound and not out:
+        raise ValueError("--accept-rewound needs node keys (--key or --config): without keys no frame is refused")
     return out
 
 

@@ -171,3 +171,6 @@ def test_keys_from_options_merges_key_and_config_options(tmp_path):
         keys_from_options(["1:zz"], [])
     with pytest.raises(ValueError, match="cannot read"):
         keys_from_options([], [str(tmp_path / "none.json")])
+    with pytest.raises(ValueError, match="--accept-rewound needs node keys"):
+        keys_from_options([], [], accept_rewound=[1])
+    assert keys_from_options([f"1:{KEYS[1].hex()}"], [], accept_rewound=[1]) == {1: KEYS[1]}
