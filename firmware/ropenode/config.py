@@ -44,6 +44,9 @@ friction.c1_shift 10 30
 friction.sigma2_shift 9 30
 friction.alpha_z_q14 1 16384
 friction.play_q8um 0 16777216
+friction.alpha_p_q14 1 16384
+friction.compliance_shift 5 30
+friction.warmup_samples 0 65535
 temperature.fitted 0 1
 temperature.counts_at_0c 0 65535
 temperature.cc_mul -16384 16384
@@ -65,7 +68,7 @@ fault_lo_counts 0 65535
 fault_hi_counts 0 65535
 kpa_at_4ma -100000 100000
 kpa_mul 0 16384
-kpa_shift 0 30
+kpa_shift 4 30
 tension_n_at_4ma -524288 524288
 tension_n_mul 0 16384
 tension_n_shift 0 30
@@ -256,6 +259,13 @@ def parse_node(nd):
     _range("node.temperature.fault_hi_counts", c.fault_hi_counts, c.fault_lo_counts, 65535)
     c.pressure = _channels(nd, "pressure", n, _table(_PRESSURE))
     c.displacement = _channels(nd, "displacement", n, _table(_DISPLACEMENT))
+    pc = c.pressure
+    for i in range(n):
+        b = 9 * i
+        for j in (1, 2):  # the kPa at both fault limits bound every pressure the node holds
+            # (kPa/16 with the same mul: no larger than 16 times this, < 2**21)
+            _range("node.pressure[%d].kpa_mul" % i, pc[b + 3] + (((pc[b + j] - pc[b]) * pc[b + 4])
+                                                               >> pc[b + 5]), -100000, 100000)
     if c.dx_max_q8um * c.sample_hz >= 1 << 28:
         raise ConfigError("node.velocity.dx_max_q8um", "times sample_hz exceeds 2**28")
 
@@ -278,6 +288,10 @@ def parse_node(nd):
     for p in (0, c.p_kpa_max):
         if c.fc_n[0] + ((p * c.fc_n[1]) >> c.fc_n[2]) > c.fs_n[0] + ((p * c.fs_n[1]) >> c.fs_n[2]):
             raise ConfigError(FP + ".fc_n", "Fc above Fs at %d kPa" % p)
+    c.compliance_q = _ints(fr, "compliance_q", FP, n, n, 0, (1 << 17) - 1)
+    for i in range(n):  # k p at 100000 kPa stays a position (< 2**25 um/256)
+        if (c.compliance_q[i] * 3125) >> (c.compliance_shift - 5) >= 1 << 25:
+            raise ConfigError("%s.compliance_q[%d]" % (FP, i), "k times 100 MPa beyond 2**25 um/256")
     c.gexp_q14 = _ints(fr, "gexp_q14", FP, GEXP_POINTS, GEXP_POINTS, 0, 16384)
     if c.gexp_q14[GEXP_POINTS - 1] != 0:
         raise ConfigError(FP + ".gexp_q14[%d]" % (GEXP_POINTS - 1), "must be 0 (table end)")

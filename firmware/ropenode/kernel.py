@@ -74,9 +74,13 @@ _BLOW = const(38)    # battery low below this, mV
 _FRHZ = const(39)    # frame_hz
 _OFORCE = const(40)  # offset of the loss forces in P
 _OMARKS = const(41)  # offset of the Hall marks in P
-_AZ = const(42)      # LuGre position filter gain, Q14
+_AZ = const(42)      # LuGre position: gain of the low-pass b, Q14
 _PLAY = const(43)    # LuGre play half-width, um/256
-_PCAL = const(44)    # 9 ints per rope (config.py order)
+_AP = const(44)      # LuGre position: pressure low-pass gain, Q14
+_KSH = const(45)     # hydraulic compliance shift
+_WARMN = const(46)   # samples of warm-up of b after the start
+_KQ = const(47)      # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
+_PCAL = const(_KQ + ROPES_MAX)  # 9 ints per rope (config.py order)
 _DCAL = const(_PCAL + 9 * ROPES_MAX)     # 6 ints per rope
 _GEXP = const(_DCAL + 6 * ROPES_MAX)     # exp(-u^2), Q14
 _TEMPS = const(_GEXP + GEXP_POINTS)      # loss table temperatures, centi-degC
@@ -105,7 +109,7 @@ MARKS_SEEN = const(18)
 SUB = const(19)        # node time: samples into the second
 SEC = const(20)        # node time: whole seconds
 IN_WINDOW = const(21)
-P_KPA = const(24)      # per rope (ROPES_MAX each): sensor pressure, kPa
+P_KPA16 = const(24)    # per rope (ROPES_MAX each): sensor pressure, kPa/16 (kPa: >> 4)
 RAW_N = const(28)      # p_tap A, N
 X_Q8UM = const(32)     # piston position, um/256
 XF_Q8UM = const(36)    # filtered position
@@ -132,9 +136,14 @@ OUT_TEMP_CC = const(116)
 OUT_SEC = const(117)   # node time at the window's end
 OUT_SUB = const(118)
 OUT_DEPTH_MM = const(119)
-XS_Q8UM = const(120)   # per rope: the LuGre's low-passed position, um/256
+XS_Q8UM = const(120)   # per rope: the LuGre's position (sum of its increments), um/256
 XP_Q8UM = const(124)   # its play output
-_S_LEN = const(128)
+_PL_Q8 = const(128)     # per rope: low-passed pressure, kPa/256
+_XB_Q8UM = const(132)   # b: low-pass of x_f - k p_l, um/256
+_XBREM = const(136)    # its error-feedback remainder
+_XH_Q8UM = const(140)   # x_h = k p_l + b
+_WARM = const(144)     # samples since the start, up to the warm-up length
+_S_LEN = const(148)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -155,10 +164,11 @@ def pack(c):
         nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts,
         c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window,
         c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz,
-        _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um)
+        _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um, c.alpha_p_q14,
+        c.compliance_shift, c.warmup_samples)
     for j in range(len(head)):
         p[j] = head[j]
-    for src, off in ((c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
+    for src, off in ((c.compliance_q, _KQ), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
                      (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]),
                      (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
@@ -191,7 +201,7 @@ def step(rec, P, S, n):
             mask |= 1 << i
         else:
             d = c - P[b]
-            S[P_KPA + i] = P[b + 3] + ((d * P[b + 4]) >> P[b + 5])
+            S[P_KPA16 + i] = (P[b + 3] << 4) + ((d * P[b + 4]) >> (P[b + 5] - 4))  # kpa_shift >= 4
             S[RAW_N + i] = P[b + 6] + ((d * P[b + 7]) >> P[b + 8])
             seen |= 1 << i
         c = rec[n + i]
@@ -252,6 +262,10 @@ def step(rec, P, S, n):
     s2half = (1 << s2s9) >> 1
     az = P[_AZ]
     play = P[_PLAY]
+    ap = P[_AP]
+    ksh4 = P[_KSH] - 4
+    ksh8 = P[_KSH] + 8
+    warm = P[_WARMN]
     for i in range(n):
         # velocity: x_f += alpha (x - x_f), increment clamped to +-dx_max
         dx = 0
@@ -259,12 +273,19 @@ def step(rec, P, S, n):
         dxs = 0
         dxp = 0
         avz = 0
-        if (dgood >> i) & 1:
+        if (dgood >> i) & (seen >> i) & 1:
             x = S[X_Q8UM + i]
+            kq = P[_KQ + i]
             if ((S[_STARTED] >> i) & 1) == 0:
                 S[XF_Q8UM + i] = x
                 S[XS_Q8UM + i] = x
                 S[XP_Q8UM + i] = x
+                S[_XH_Q8UM + i] = x
+                pl = S[P_KPA16 + i] << 4
+                S[_PL_Q8 + i] = pl
+                S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8))
+                S[_XBREM + i] = 0
+                S[_WARM + i] = 0
                 S[_STARTED] |= 1 << i
             e = x - S[XF_Q8UM + i]  # |e| < 2**26: positions are within +-2**25
             # e * alpha / 2**14 rounded, split so no product exceeds 2**28
@@ -276,15 +297,37 @@ def step(rec, P, S, n):
             xf = S[XF_Q8UM + i] + dx
             S[XF_Q8UM + i] = xf
             v = (dx * fshz + 128) >> 8
-            # the LuGre's position: x_s += alpha_z (x_f - x_s), then its play output x_p
-            xs = S[XS_Q8UM + i]
-            e = xf - xs
-            dxs = (e >> 14) * az + (((e & 16383) * az + 8192) >> 14)
+            # the LuGre's position x_h = k p_l + b (docs/model.md): p_l the low-passed
+            # pressure in kPa/16 (|p| <= 100000 kPa: p_l < 2**25 in kPa/256), k p_l split
+            # at 12 bits (k < 2**17); 1 kPa steps would move the tension by up to 90 N
+            e = (S[P_KPA16 + i] << 4) - S[_PL_Q8 + i]
+            pl = S[_PL_Q8 + i] + (e >> 14) * ap + (((e & 16383) * ap + 8192) >> 14)
+            S[_PL_Q8 + i] = pl
+            kp = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8)
+            # b: low-pass of x_f - k p_l with error feedback (a slow b has no dead band),
+            # a running mean during the warm-up (|e| < 2**27)
+            e = xf - kp - S[_XB_Q8UM + i]
+            a = az
+            w = S[_WARM + i]
+            if w < warm:
+                S[_WARM + i] = w + 1
+                a = 16384 // (w + 1)
+                if a < az:
+                    a = az
+            t = (e & 16383) * a + S[_XBREM + i]
+            inc = (e >> 14) * a + (t >> 14)
+            S[_XBREM + i] = t & 16383
+            S[_XB_Q8UM + i] += inc
+            xh = kp + S[_XB_Q8UM + i]
+            dxs = xh - S[_XH_Q8UM + i]
+            S[_XH_Q8UM + i] = xh
+            if w < warm:
+                dxs -= inc  # b settles from the first sample's noise: not seal travel
             if dxs > dxmax:
                 dxs = dxmax
             elif dxs < -dxmax:
                 dxs = -dxmax
-            xs += dxs
+            xs = S[XS_Q8UM + i] + dxs
             S[XS_Q8UM + i] = xs
             avz = (dxs * fshz + 128) >> 8  # |v| of x_s, um/s, for g: noise barely moves it
             if avz < 0:
@@ -323,7 +366,7 @@ def step(rec, P, S, n):
         S[LOSS_N + i] = f0
 
         # LuGre: parameters linear in the clamped sensor pressure
-        p = S[P_KPA + i]
+        p = S[P_KPA16 + i] >> 4
         if p < 0:
             p = 0
         elif p > pmax:
@@ -387,7 +430,7 @@ def step(rec, P, S, n):
         S[TENSION_N + i] = t
         if (good >> i) & 1:
             S[SUM_N + i] += t
-            S[SUM_KPA + i] += S[P_KPA + i]
+            S[SUM_KPA + i] += S[P_KPA16 + i] >> 4
             S[COUNT + i] += 1
             if t < S[MIN_N + i]:
                 S[MIN_N + i] = t

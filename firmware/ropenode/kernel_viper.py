@@ -54,7 +54,11 @@ _OFORCE = const(40)
 _OMARKS = const(41)
 _AZ = const(42)
 _PLAY = const(43)
-_PCAL = const(44)
+_AP = const(44)
+_KSH = const(45)
+_WARMN = const(46)
+_KQ = const(47)
+_PCAL = const(_KQ + ROPES_MAX)
 _DCAL = const(_PCAL + 9 * ROPES_MAX)
 _GEXP = const(_DCAL + 6 * ROPES_MAX)
 _TEMPS = const(_GEXP + GEXP_POINTS)
@@ -81,7 +85,7 @@ MARKS_SEEN = const(18)
 SUB = const(19)
 SEC = const(20)
 IN_WINDOW = const(21)
-P_KPA = const(24)
+P_KPA16 = const(24)
 RAW_N = const(28)
 X_Q8UM = const(32)
 XF_Q8UM = const(36)
@@ -110,7 +114,12 @@ OUT_SUB = const(118)
 OUT_DEPTH_MM = const(119)
 XS_Q8UM = const(120)
 XP_Q8UM = const(124)
-_S_LEN = const(128)
+_PL_Q8 = const(128)
+_XB_Q8UM = const(132)
+_XBREM = const(136)
+_XH_Q8UM = const(140)
+_WARM = const(144)
+_S_LEN = const(148)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -124,10 +133,10 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um, c.alpha_p_q14, c.compliance_shift, c.warmup_samples)
     for j in range(len(head)):
         p[j] = head[j]
-    for src, off in ((c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
+    for src, off in ((c.compliance_q, _KQ), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
             p[off + j] = src[j]
     return p
@@ -158,7 +167,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             mask |= 1 << i
         else:
             d = c - ((P[b] ^ s31) - s31)
-            S[P_KPA + i] = (P[b + 3] ^ s31) - s31 + (d * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31)
+            S[P_KPA16 + i] = ((P[b + 3] ^ s31) - s31 << 4) + (d * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31 - 4)
             S[RAW_N + i] = (P[b + 6] ^ s31) - s31 + (d * ((P[b + 7] ^ s31) - s31) >> (P[b + 8] ^ s31) - s31)
             seen |= 1 << i
         c = rec[n + i]
@@ -216,18 +225,29 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     s2half = 1 << s2s9 >> 1
     az = (P[_AZ] ^ s31) - s31
     play = (P[_PLAY] ^ s31) - s31
+    ap = (P[_AP] ^ s31) - s31
+    ksh4 = (P[_KSH] ^ s31) - s31 - 4
+    ksh8 = (P[_KSH] ^ s31) - s31 + 8
+    warm = (P[_WARMN] ^ s31) - s31
     for i in range(n):
         dx = 0
         v = 0
         dxs = 0
         dxp = 0
         avz = 0
-        if dgood >> i & 1:
+        if dgood >> i & seen >> i & 1:
             x = (S[X_Q8UM + i] ^ s31) - s31
+            kq = (P[_KQ + i] ^ s31) - s31
             if (S[_STARTED] ^ s31) - s31 >> i & 1 == 0:
                 S[XF_Q8UM + i] = x
                 S[XS_Q8UM + i] = x
                 S[XP_Q8UM + i] = x
+                S[_XH_Q8UM + i] = x
+                pl = (S[P_KPA16 + i] ^ s31) - s31 << 4
+                S[_PL_Q8 + i] = pl
+                S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8))
+                S[_XBREM + i] = 0
+                S[_WARM + i] = 0
                 S[_STARTED] |= 1 << i
             e = x - ((S[XF_Q8UM + i] ^ s31) - s31)
             dx = (e >> 14) * alpha + ((e & 16383) * alpha + 8192 >> 14)
@@ -238,14 +258,32 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             xf = (S[XF_Q8UM + i] ^ s31) - s31 + dx
             S[XF_Q8UM + i] = xf
             v = dx * fshz + 128 >> 8
-            xs = (S[XS_Q8UM + i] ^ s31) - s31
-            e = xf - xs
-            dxs = (e >> 14) * az + ((e & 16383) * az + 8192 >> 14)
+            e = ((S[P_KPA16 + i] ^ s31) - s31 << 4) - ((S[_PL_Q8 + i] ^ s31) - s31)
+            pl = (S[_PL_Q8 + i] ^ s31) - s31 + (e >> 14) * ap + ((e & 16383) * ap + 8192 >> 14)
+            S[_PL_Q8 + i] = pl
+            kp = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8)
+            e = xf - kp - ((S[_XB_Q8UM + i] ^ s31) - s31)
+            a = az
+            w = (S[_WARM + i] ^ s31) - s31
+            if w < warm:
+                S[_WARM + i] = w + 1
+                a = 16384 // (w + 1)
+                if a < az:
+                    a = az
+            t = (e & 16383) * a + ((S[_XBREM + i] ^ s31) - s31)
+            inc = (e >> 14) * a + (t >> 14)
+            S[_XBREM + i] = t & 16383
+            S[_XB_Q8UM + i] += inc
+            xh = kp + ((S[_XB_Q8UM + i] ^ s31) - s31)
+            dxs = xh - ((S[_XH_Q8UM + i] ^ s31) - s31)
+            S[_XH_Q8UM + i] = xh
+            if w < warm:
+                dxs -= inc
             if dxs > dxmax:
                 dxs = dxmax
             elif dxs < -dxmax:
                 dxs = -dxmax
-            xs += dxs
+            xs = (S[XS_Q8UM + i] ^ s31) - s31 + dxs
             S[XS_Q8UM + i] = xs
             avz = dxs * fshz + 128 >> 8
             if avz < 0:
@@ -279,7 +317,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         if v < 0:
             f0 = -f0
         S[LOSS_N + i] = f0
-        p = (S[P_KPA + i] ^ s31) - s31
+        p = (S[P_KPA16 + i] ^ s31) - s31 >> 4
         if p < 0:
             p = 0
         elif p > pmax:
@@ -336,7 +374,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         S[TENSION_N + i] = t
         if good >> i & 1:
             S[SUM_N + i] += t
-            S[SUM_KPA + i] += (S[P_KPA + i] ^ s31) - s31
+            S[SUM_KPA + i] += (S[P_KPA16 + i] ^ s31) - s31 >> 4
             S[COUNT + i] += 1
             if t < (S[MIN_N + i] ^ s31) - s31:
                 S[MIN_N + i] = t

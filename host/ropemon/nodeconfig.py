@@ -30,12 +30,21 @@ DEFAULTS = {
     "start_depth_m": 0.0,          # depth assumed at boot (pithead landing)
     # LuGre observer (docs/model.md, "LuGre"): the seal state follows a slower
     # low-pass of position, through a play of a few noise sigmas for the dissipation.
-    "friction_cutoff_hz": 1.0,     # low-pass of the position that drives the LuGre state
+    # With a hydraulic compliance k (m/Pa per rope), that position is x_h = k p_l + b:
+    # the oil's compression from the low-passed pressure p_l, plus b, a slow low-pass of
+    # x_f - k p_l (docs/model.md, "LuGre (noise-robust observer)").
+    "friction_cutoff_hz": 1.0,     # low-pass b: 1 Hz without compliance, 0.03 Hz with
     "displacement_noise_m": 2e-5,  # rms noise of the displacement channel (transmitter + ADC)
-    "friction_play_sigmas": 2.0,   # play half-width in rms noise of that low-passed position
+    "friction_play_sigmas": 2.0,   # play half-width in rms noise of that position
+    "pressure_cutoff_hz": 5.0,     # low-pass of the pressure in k p_l
+    "pressure_noise_Pa": 5e3,      # rms noise of the pressure channel (transmitter + ADC)
+    "friction_warmup_s": 0.0,      # b a running mean this long after the start: 0 s without, 2 s with
 }
+# the defaults that change when a compliance is given
+COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
+                       "friction_play_sigmas": 1.7}
 
-PLAY_STEP_M = 0.5e-6         # resolution of the LuGre play half-width
+PLAY_STEP_M = 0.05e-6        # resolution of the LuGre play half-width
 PRESSURE_Q_MAX = 1 << 14    # |count difference| <= 65535: a mul below 2**14 keeps d * mul < 2**30
 
 
@@ -120,14 +129,38 @@ def filtered_noise_m(noise_m: float, alpha: float, alpha_z: float) -> float:
     return noise_m * math.sqrt(acc)
 
 
+def compliance(ph: dict, n: int) -> list[float]:
+    """Per-rope hydraulic compliance k (m/Pa) of `physical`, zeros when it is not given."""
+    k = ph.get("hydraulic_compliance_m_per_Pa")
+    if k is None:
+        return [0.0] * n
+    if (not isinstance(k, list) or len(k) != n
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                       and 0 <= x <= 1e-6 for x in k)):
+        raise ValueError(f"physical.hydraulic_compliance_m_per_Pa: must be a list of {n} numbers "
+                         "in 0 .. 1e-6 m/Pa (one per rope)")
+    return [float(x) for x in k]
+
+
+def lowpass_noise(noise: float, alpha: float) -> float:
+    """rms of white noise after the one-pole low-pass y += alpha (x - y)."""
+    return noise * math.sqrt(alpha / (2 - alpha))
+
+
 def physical_params(ph: dict) -> dict:
     """The SI quantities both the builder and the float reference derive from `physical`."""
     n = int(_num(ph, "ropes", 1, 4))
     fs = _num(ph, "sample_hz", 1, 1000)
+    k = compliance(ph, n)
+    if any(k):
+        ph = {**COMPLIANCE_DEFAULTS, **ph}
     fc_hz = _num(ph, "velocity_cutoff_hz", 0.01, fs / 2)
-    fz_hz = _num(ph, "friction_cutoff_hz", 0.01, fc_hz)
-    alpha = 1 - math.exp(-2 * math.pi * fc_hz / fs)
-    alpha_z = 1 - math.exp(-2 * math.pi * fz_hz / fs)
+    fz_hz = _num(ph, "friction_cutoff_hz", 0.001, fc_hz)
+    fp_hz = _num(ph, "pressure_cutoff_hz", 0.01, fs / 2)
+    # low-pass gains as the node holds them (Q14): a 0.03 Hz gain is 15.4/16384, and the
+    # reference must follow the node's 15, not the exact value, to agree within 0.05 %
+    alpha, alpha_z, alpha_p = (max(1, round((1 - math.exp(-2 * math.pi * f / fs)) * 16384)) / 16384
+                               for f in (fc_hz, fz_hz, fp_hz))
     xch = _per_rope(ph, "displacement_channels", n)
     try:
         q_m = max((float(c["range_m"][1]) - float(c["range_m"][0]))
@@ -136,13 +169,24 @@ def physical_params(ph: dict) -> dict:
         raise ValueError("physical.displacement_channels: need counts_lo < counts_hi, "
                          "range_m [lo, hi]") from None
     noise_m = _num(ph, "displacement_noise_m", 0.0, 1e-3)
+    # rms noise of the LuGre position that makes false travel: without compliance, the
+    # displacement's through both low-passes; with it, k times the pressure's (with the
+    # node's 1 kPa steps) through its low-pass (b's noise then wanders too slowly to count)
+    if any(k):
+        sigma = max(k) * lowpass_noise(math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6),
+                                                  1e3 / math.sqrt(12)), alpha_p)
+    else:
+        sigma = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)
     return {
         "ropes": n,
         "alpha": alpha,
         "alpha_z": alpha_z,
+        "alpha_p": alpha_p,
+        "compliance": k,
+        "warmup": round(_num(ph, "friction_warmup_s", 0.0, 60.0) * fs),
         # in steps of PLAY_STEP_M: channels that differ by a few counts per metre share a play
-        "play_m": PLAY_STEP_M * round(_num(ph, "friction_play_sigmas", 0.0, 10.0) * filtered_noise_m(
-            math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z) / PLAY_STEP_M),
+        "play_m": PLAY_STEP_M * round(_num(ph, "friction_play_sigmas", 0.0, 10.0) * sigma
+                                      / PLAY_STEP_M),
         "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
         "p_max_pa": friction_p_max_pa(ph, n),
     }
@@ -229,6 +273,9 @@ def build_node_section(ph: dict) -> dict:
         flo, fhi = namur_limits(c4, c20)
         pa_per_count = (hi - lo) / (c20 - c4)
         km, ks = fit_mul_shift(pa_per_count / 1000, 65535, f + ".range_Pa")
+        if ks < 4:  # the node also reads kPa/16 with this mul
+            raise ValueError(f"{f}.range_Pa: {pa_per_count / 1000:g} kPa per count, the node "
+                             "reads at most 1024")
         tm, ts = fit_mul_shift(pa_per_count * areas[i], 65535, f + ".range_Pa*cylinder_area_m2")
         for c in (flo, fhi):
             t = lo * areas[i] + (c - c4) * pa_per_count * areas[i]
@@ -330,8 +377,20 @@ def build_node_section(ph: dict) -> dict:
     _check("physical.friction.sigma2 (sigma2 * v_max, N/16)", s2max * v_max_um_s, 1 << 19)
     gexp = [round(math.exp(-(k * GEXP_STEP) ** 2) * 16384) for k in range(GEXP_POINTS)]
     gexp[-1] = 0
+    # hydraulic compliance in (um/256 per kPa) * 2**shift, the largest below 2**17
+    k_u = [k * 1e3 * 256e6 for k in pp["compliance"]]
+    ksh = 30
+    while ksh > 5 and max(k_u) * (1 << ksh) >= (1 << 17) - 1:
+        ksh -= 1
+    kq = [round(k * (1 << ksh)) for k in k_u]
+    for i, q in enumerate(kq):
+        if q >= 1 << 17 or (q * 3125) >> (ksh - 5) >= 1 << 25:
+            raise ValueError(f"physical.hydraulic_compliance_m_per_Pa[{i}]: too large for the node "
+                             "(k times 100 MPa must stay within 0.13 m)")
     nd["friction"] = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s,
                       "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
+                      "alpha_p_q14": max(1, round(pp["alpha_p"] * 16384)), "compliance_q": kq,
+                      "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),
                       **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
     fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p for p in (0.0, p_kpa_max / 1000))
     f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous

@@ -110,6 +110,7 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
     h = 1.0 / fs
     alpha, v_max, p_max = pp["alpha"], pp["v_max"], pp["p_max_pa"]
     alpha_z, play = pp["alpha_z"], pp["play_m"]
+    alpha_p, warm = pp["alpha_p"], pp["warmup"]
     dx_max = v_max * h
     areas = [float(a) for a in ph["cylinder_area_m2"]]
     fr = ph["friction"]
@@ -140,23 +141,41 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
         p_seen = np.maximum.accumulate(p_ok)
         x_seen = np.maximum.accumulate(x_ok)
         # Velocity: filtered position, clamped increment; held where x failed. The LuGre
-        # state follows x_s, a slower low-pass of x_f (elastic part), and the play output
-        # x_p of x_s (dissipation), so that noise neither drags nor erases it.
+        # state follows x_h = k p_l + b (p_l: low-passed pressure; b: slow low-pass of
+        # x_f - k p_l, a running mean during the warm-up), through x_s, the sum of its clamped
+        # increments (elastic part), and the play output x_p of x_s (dissipation), so that
+        # noise neither drags nor erases it. Starts once both channels have been read.
         dx = np.zeros(k)
         dxs = np.zeros(k)
         dxp = np.zeros(k)
-        xf = xs = xp = None
-        for j, (xj, okj) in enumerate(zip(x.tolist(), x_ok.tolist())):
-            if not okj:
+        kh = pp["compliance"][i]
+        xf = xs = xp = xh = pl = xb = None
+        w = 0
+        for j, (xj, okj, pj, pseen) in enumerate(zip(x.tolist(), x_ok.tolist(), p.tolist(),
+                                                      p_seen.tolist())):
+            if not okj or not pseen:
                 continue
             if xf is None:
-                xf = xs = xp = xj
+                xf = xs = xp = xh = xj
+                pl = pj
+                xb = xj - kh * pl
+                w = min(1, warm)  # as the node, which counts the first sample into the warm-up
                 continue
             step = alpha * (xj - xf)
             step = dx_max if step > dx_max else (-dx_max if step < -dx_max else step)
             xf += step
             dx[j] = step
-            step = alpha_z * (xf - xs)
+            pl += alpha_p * (pj - pl)
+            a = alpha_z
+            if w < warm:
+                a = max(alpha_z, 1.0 / (w + 1))
+            inc = a * (xf - kh * pl - xb)
+            xb += inc
+            step = kh * pl + xb - xh
+            xh += step
+            if w < warm:
+                step -= inc
+                w += 1
             step = dx_max if step > dx_max else (-dx_max if step < -dx_max else step)
             xs += step
             dxs[j] = step

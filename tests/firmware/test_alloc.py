@@ -36,8 +36,9 @@ def load_node_json():
     raise OSError("firmware/node.json (beside firmware/ropenode) not found on sys.path")
 
 
-def variant_doc(ropes=None, temp_fitted=False):
-    """The shipped node.json changed (fewer ropes, an oil temperature input), CRC renewed."""
+def variant_doc(ropes=None, temp_fitted=False, compliance=False):
+    """The shipped node.json changed (fewer ropes, an oil temperature input, the largest
+    hydraulic compliance the node accepts with a warm-up), CRC renewed."""
     from ropenode.config import canonical
     from ropenode.crc16 import crc16
     doc = load_node_json()
@@ -48,6 +49,11 @@ def variant_doc(ropes=None, temp_fitted=False):
             nd[key] = nd[key][:ropes]
         for key in ("v_um_s", "force_n"):
             nd["loss"][key] = nd["loss"][key][:ropes]
+        nd["friction"]["compliance_q"] = nd["friction"]["compliance_q"][:ropes]
+    if compliance:
+        # k = 1 um/kPa: k times 100 MPa is 0.1 m, the config check's limit
+        nd["friction"].update(compliance_q=[131071] * nd["ropes"], compliance_shift=9,
+                              warmup_samples=400)
     if temp_fitted:
         # 4-20 mA = 9600..48000 counts = -20..+80 C; loss table rows clamp at both ends
         nd["temperature"] = {"fitted": 1, "counts_at_0c": 17280, "cc_mul": 8533, "cc_shift": 15,
@@ -234,9 +240,10 @@ def test_sample_with_frames_between_windows():
 
 def test_sample_allocation_free_with_temperature_input_and_one_rope():
     """The paths the shipped config does not take: oil temperature fitted
-    (loss-table rows re-selected as the temperature moves), and N = 1."""
+    (loss-table rows re-selected as the temperature moves), N = 1, and a hydraulic
+    compliance with its warm-up (the LuGre position from pressure)."""
     for fitted, doc in ((True, variant_doc(temp_fitted=True)), (True, variant_doc(ropes=1, temp_fitted=True)),
-                        (False, variant_doc(ropes=3))):
+                        (False, variant_doc(ropes=3)), (False, variant_doc(compliance=True))):
         node, ropes, chans = build_node(doc)
         recs = hot_path_records(ropes, chans, 1200, seed=ropes)
         w = 2 * ropes + 4

@@ -124,3 +124,60 @@ def test_fixed_point_matches_reference_with_noisy_displacement(sigma0):
     err = np.abs(ten - ref.tension_n)[good]
     assert err.max() <= _tolerance_n(doc), err.max()
     assert np.abs(ref.friction_n).max() > 0.5 * sigma0 * 1e-4  # the seal state moved
+
+
+@pytest.mark.parametrize("seed,faults", [(21, False), (22, True)])
+def test_fixed_point_matches_reference_with_hydraulic_compliance(seed, faults):
+    """With a compliance the LuGre position is k p_l + b (pressure low-pass, slow b, its
+    warm-up): the same path in both, on random streams with pressure noise and faults."""
+    ph = example_physical()
+    ph["hydraulic_compliance_m_per_Pa"] = [3e-10, 2.5e-10, 3.2e-10, 3e-10]
+    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
+    ph["piston_speed_max_m_s"] = 0.05
+    doc = make_node_json(ph)
+    ph = doc["physical"]
+    assert doc["node"]["friction"]["compliance_q"][0] > 0
+    assert doc["node"]["friction"]["warmup_samples"] == 400
+    recs = random_stream(ph, 30, seed, faults=faults)
+    rng = np.random.default_rng(seed)
+    p = recs[:, 0:4].astype(float) + rng.normal(0, 3.0, (recs.shape[0], 4))
+    recs[:, 0:4] = np.clip(np.round(p), 0, 65535).astype(np.uint16)
+    ref = reference.compensate(ph, recs)
+    ten, good, _ = run_node(Node(config.parse(doc)), recs)
+    assert (good == ref.good).all()
+    err = np.abs(ten - ref.tension_n)[good]
+    assert err.max() <= _tolerance_n(doc), err.max()
+    assert np.abs(ref.friction_n).max() > 5000  # the seal state moved
+
+
+def test_compliance_drives_the_seal_state_from_pressure():
+    """A piston that moves only as its oil compresses (x = k p, with the displacement
+    channel's 2-count noise): with k, the seal state follows the pressure ramp to sliding
+    friction, and holds still while the pressure does."""
+    ph = example_physical()
+    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
+    ph["piston_speed_max_m_s"] = 0.05
+    n = 4
+    fs = int(ph["sample_hz"])
+    k_m = 3e-10
+    t = np.arange(0, 20, 1 / fs)
+    p_pa = 4e6 + 1e6 * np.clip((t - 5) / 5, 0, 1)  # a loading: 4 -> 5 MPa over 5 s
+    recs = np.zeros((len(t), 2 * n + 4), np.uint16)
+    for i in range(n):
+        pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
+        lo, hi = pc["range_Pa"]
+        recs[:, i] = np.round(pc["counts_4mA"] + (p_pa - lo) / (hi - lo) * (pc["counts_20mA"] - pc["counts_4mA"]))
+        ylo, yhi = dc["range_m"]
+        x = 0.5 * (ylo + yhi) + k_m * (p_pa - p_pa[0])
+        cx = dc["counts_lo"] + (x - ylo) / (yhi - ylo) * (dc["counts_hi"] - dc["counts_lo"])
+        recs[:, n + i] = np.round(cx + np.random.default_rng(i).normal(0, 2.0, len(t)))
+    recs[:, 2 * n + 1] = 0xFFFF
+    with_k = reference.compensate(dict(ph, hydraulic_compliance_m_per_Pa=[k_m] * n), recs)
+    # the elastic seal state follows k dp = 300 um of travel: sigma0 x 300 um is far above
+    # Fs, so the seal slides and its friction reaches g (Fs at creep speed)
+    f_end = with_k.friction_n[-1, 0]
+    g_end = ph["friction"]["Fs"]["intercept"] + ph["friction"]["Fs"]["slope"] * 5.0
+    assert 0.8 * g_end < f_end <= 1.01 * g_end, (f_end, g_end)
+    # before the loading the pressure is constant: only b's slow wander of the 20 um
+    # displacement noise (~0.4 um rms at 0.03 Hz, x sigma0) moves the seal state
+    assert np.abs(with_k.friction_n[: 4 * fs, 0]).max() < 300

@@ -102,7 +102,8 @@ def compare(doc, recs, ropes, tag):
 
 total = 0
 for doc, ropes_seed in ((None, 1), (T.variant_doc(temp_fitted=True), 5),
-                        (T.variant_doc(ropes=1, temp_fitted=True), 6), (T.variant_doc(ropes=3), 3)):
+                        (T.variant_doc(ropes=1, temp_fitted=True), 6), (T.variant_doc(ropes=3), 3),
+                        (T.variant_doc(compliance=True), 8)):
     node, ropes, chans = T.build_node(doc)
     w = 2 * ropes + 4
     recs = T.hot_path_records(ropes, chans, 2400, ropes_seed)
@@ -175,7 +176,7 @@ def test_viper_kernel_equals_plain_kernel_bit_for_bit(tmp_path):
     r = run_compare(tmp_path, "ropenode.kernel_viper", 20000)
     out = r.stdout + r.stderr
     assert r.returncode == 0 and "MISMATCH" not in out, out
-    assert out.count("EQUAL") == 8 and "TOTAL %d" % (4 * (2400 + 20000)) in out, out
+    assert out.count("EQUAL") == 10 and "TOTAL %d" % (5 * (2400 + 20000)) in out, out
     assert any(int(line.split()[-1]) > 0 for line in out.splitlines() if line.startswith("EQUAL")), out
 
 

@@ -242,7 +242,7 @@ def test_lugre_stays_bounded_where_explicit_euler_diverges():
         saw_max = saw_max or abs(node.S[K.V_UM_S]) == int(v * 1e6)
     assert saw_max  # the velocity limit was reached
     # sliding at the limit: zf has settled to sgn(v) g(v, p) within a few newtons
-    p_mpa = node.S[K.P_KPA] / 1000
+    p_mpa = (node.S[K.P_KPA16] >> 4) / 1000
     fs = fr["Fs"]["intercept"] + fr["Fs"]["slope"] * p_mpa
     fc = fr["Fc"]["intercept"] + fr["Fc"]["slope"] * p_mpa
     vs = fr["vs"]["intercept"] + fr["vs"]["slope"] * p_mpa

@@ -95,7 +95,9 @@ def test_lugre_observer_defaults_and_integers():
     assert fr["alpha_z_q14"] == round((1 - math.exp(-2 * math.pi * 1.0 / 200)) * 16384)
     # white noise through x_f (5 Hz) then x_s (1 Hz) at 200 Hz: rms gain 0.1134 (by simulation)
     noise = math.hypot(2e-5, 0.1 / 38400 / math.sqrt(12))
-    assert fr["play_q8um"] == round(2.0 * 0.1134 * noise / 0.5e-6) * 128  # in 0.5 um steps
+    expect = 2.0 * 0.1134 * noise * 256e6  # um/256, in steps of 0.05 um (12.8)
+    assert abs(fr["play_q8um"] - expect) <= 0.015 * expect + 6.4, (fr["play_q8um"], expect)
+    assert fr["compliance_q"] == [0, 0, 0, 0] and fr["warmup_samples"] == 0  # no compliance given
 
 
 def test_node_runs_the_observer_values_the_reference_uses():
