@@ -19,6 +19,7 @@ COMMANDS = {
     "report": ("ropemon.report", "per-trip summary and plots from a ropemon database"),
     "export": ("ropemon.store_cli", "export a ropemon database to CSV"),
     "fit-friction": ("ropemon.calibrate", "fit LuGre friction parameters from test-bed data"),
+    "fit-compliance": ("ropemon.compliance", "fit each cylinder's hydraulic compliance from a recorded wind"),
     "config": ("ropemon.siteconfig", "generate a node config from a site description"),
     "deploy": ("ropemon.deploy", "cross-compile and copy firmware and config to a node with mpremote"),
     "demo": ("ropemon.demo", "the whole chain on the simulated hoist"),

@@ -2,9 +2,10 @@
 
 A site engineer describes the hoist as built (ropes, cylinders, the pipe path
 from each cavity to its pressure tap, oil, sensor channels, rates, node id and
-key, and the friction fit file); `load_site` turns that into a validated,
-immutable `Site`, and `physical_from_site` derives the `physical` section of
-node.json (docs/config.md). Every refusal names the TOML field and the reason.
+key, the friction fit file, optionally the hydraulic compliance fit file);
+`load_site` turns that into a validated, immutable `Site`, and
+`physical_from_site` derives the `physical` section of node.json
+(docs/config.md). Every refusal names the TOML field and the reason.
 The file format is documented in docs/commissioning.md and by the example
 scenarios/paper-site.toml.
 """
@@ -178,6 +179,7 @@ class Site:
     sensors: Sensors
     rates: Rates
     friction_path: Path | None               # friction.json from `ropemon fit-friction`
+    compliance_path: Path | None = None      # compliance.json from `ropemon fit-compliance` (optional)
     extra: dict[str, Any] = field(default_factory=dict, compare=False)
 
     @property
@@ -555,11 +557,16 @@ def parse_site(doc: dict[str, Any], path: Path | str = "SITE.toml") -> Site:
         ft = top.table("friction")
         friction_path = base / ft.string("file")
         ft.finish()
+    compliance_path = None
+    if top.has("compliance"):
+        ct = top.table("compliance")
+        compliance_path = base / ct.string("file")
+        ct.finish()
     # Extra top-level tables (e.g. a simulator's [plant]) are kept for their owners, not checked here.
     extra = {k: v for k, v in doc.items() if k not in top.used}
     site = Site(path=path, name=name, node_id=node_id, key_hex=key_hex, hoist=hoist, alarms=alarms,
                 cylinders=cylinders, pipes=pipes, oil=oil, sensors=sensors, rates=rates,
-                friction_path=friction_path, extra=extra)
+                friction_path=friction_path, compliance_path=compliance_path, extra=extra)
     # The transmitters must read 130 % of rated tension (the emergency-stop level of staged alarms).
     for i, ch in enumerate(sensors.pressure):
         if ch.range_MPa[1] < 1.3 * site.rated_pressure_MPa:
@@ -622,28 +629,66 @@ def check_friction(fr: Any, p_max_MPa: float, name: str = "friction") -> dict[st
     return out
 
 
-def _read_friction(path: Path | str) -> Any:
-    """friction.json as written by `ropemon fit-friction` (validated by the caller)."""
+def _read_json(path: Path | str, name: str) -> Any:
+    """A fit's JSON file (validated by the caller); `name` is the SITE.toml field naming it."""
     path = Path(path)
     try:
         return json.loads(path.read_text())
     except OSError as e:
-        raise SiteError(f"friction.file: cannot read {path}: {e.strerror}") from None
+        raise SiteError(f"{name}: cannot read {path}: {e.strerror}") from None
     except json.JSONDecodeError as e:
-        raise SiteError(f"friction.file: {path} is not valid JSON: {e}") from None
+        raise SiteError(f"{name}: {path} is not valid JSON: {e}") from None
 
 
+def _read_friction(path: Path | str) -> Any:
+    """friction.json as written by `ropemon fit-friction` (validated by the caller)."""
+    return _read_json(path, "friction.file")
+
+
+# ---------------------------------------------------------------- compliance file
+
+COMPLIANCE_K_MAX = 1e-6      # m/Pa: the node's limit (ropemon.nodeconfig.compliance)
+PRESSURE_NOISE_MAX_PA = 1e6  # rms: the node's limit for pressure_noise_Pa
+
+
+def read_compliance(path: Path | str) -> Any:
+    """compliance.json as written by `ropemon fit-compliance` (check it with check_compliance)."""
+    return _read_json(path, "compliance.file")
+
+
+def check_compliance(fit: Any, ropes: int, name: str = "compliance") -> dict[str, Any]:
+    """Validate a compliance fit (the JSON of `ropemon fit-compliance`) for a site of `ropes` ropes.
+
+    Returns the two keys the `physical` section takes from it: the hydraulic
+    compliance k per rope (0..1e-6 m/Pa) and the rms pressure noise (> 0 Pa).
+    """
+    if not isinstance(fit, dict):
+        raise SiteError(f"{name}: must be an object, got {type(fit).__name__}")
+    key = "hydraulic_compliance_m_per_Pa"
+    k = fit.get(key)
+    if not isinstance(k, list):
+        raise SiteError(f"{name}.{key}: missing or not a list of one k (m/Pa) per rope")
+    if len(k) != ropes:
+        raise SiteError(f"{name}.{key}: must have one entry per rope ({ropes}), got {len(k)}")
+    ks = [_check_number(x, f"{name}.{key}[{i}]", ge=0, le=COMPLIANCE_K_MAX) for i, x in enumerate(k)]
+    noise = _check_number(fit.get("pressure_noise_Pa"), f"{name}.pressure_noise_Pa", gt=0,
+                          le=PRESSURE_NOISE_MAX_PA)
+    return {key: ks, "pressure_noise_Pa": noise}
 
 
 # ---------------------------------------------------------------- physical section
 
 
-def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> dict[str, Any]:
+def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
+                       compliance: dict[str, Any] | None = None) -> dict[str, Any]:
     """The `physical` section of node.json (docs/config.md) for this site.
 
     `friction` is a fit as written by `ropemon fit-friction`; when None it is read
-    from the site's [friction] file. The loss table dp_Pa[rope][temp][flow] is
-    computed by ropemon.losses at the oil's table temperatures.
+    from the site's [friction] file. `compliance` is a fit as written by `ropemon
+    fit-compliance`; when None it is read from the site's [compliance] file, and
+    without either the node runs without a hydraulic compliance (the two keys are
+    left out). The loss table dp_Pa[rope][temp][flow] is computed by ropemon.losses
+    at the oil's table temperatures.
     """
     from ropemon import losses  # scipy/fluids only when a config is really built
 
@@ -660,6 +705,11 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
     if isinstance(tested, list) and len(tested) == 2 and isinstance(tested[1], (int, float)):
         p_max = min(p_max, float(tested[1]))
     fr = check_friction(friction, p_max, name)
+    cname = "compliance"
+    if compliance is None and site.compliance_path is not None:
+        compliance = read_compliance(site.compliance_path)
+        cname = f"compliance ({site.compliance_path.name})"
+    hydraulic = {} if compliance is None else check_compliance(compliance, site.hoist.ropes, cname)
     s = site.sensors
     table = losses.loss_table(site)
     physical = {
@@ -696,6 +746,8 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None) -> di
         "friction": fr,
         "friction_p_max_MPa": p_max,
         "loss": table,
+        # LuGre position x_h = k p_l + b (docs/model.md); absent: the node runs without compliance
+        **hydraulic,
     }
     # A seal stiffer in pre-sliding than the node can represent (e.g. a fit of a seal
     # with no measurable pre-sliding) is commissioned at the node's stiffest sigma0;

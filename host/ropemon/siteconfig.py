@@ -1,9 +1,10 @@
 """`ropemon config SITE.toml [--out node.json]`: the node config for a site.
 
 SITE.toml -> ropemon.site (validated site, `physical` section with the pipe loss
-tables) -> ropemon.nodeconfig.make_node_json (fixed-point `node` section, every
-integer proved within +-2**30, schema, CRC) -> node.json. A site file or friction
-fit that cannot be used is refused with the field and the reason, exit 1.
+tables, the friction fit and the optional hydraulic compliance fit) ->
+ropemon.nodeconfig.make_node_json (fixed-point `node` section, every integer
+proved within +-2**30, schema, CRC) -> node.json. A site file, friction or
+compliance fit that cannot be used is refused with the field and the reason, exit 1.
 """
 from __future__ import annotations
 
@@ -12,14 +13,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ropemon.site import Site, SiteError, load_site, physical_from_site
+from ropemon.site import Site, SiteError, load_site, physical_from_site, read_compliance
 
 
-def node_json_from_site(site: Site, friction: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The complete node.json document for a site (friction from its [friction] file unless given)."""
+def node_json_from_site(site: Site, friction: dict[str, Any] | None = None,
+                        compliance: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The complete node.json document for a site (friction and compliance from its
+    [friction] and [compliance] files unless given)."""
     from ropemon.nodeconfig import make_node_json
 
-    physical = physical_from_site(site, friction)
+    physical = physical_from_site(site, friction, compliance)
     try:
         return make_node_json(physical)
     except ValueError as e:
@@ -58,6 +61,10 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
     q_max = loss["flow_m3_s"][-1]
     worst = max(r[i_assumed][-1] for r in loss["dp_Pa"])
     h = site.hoist
+    k = ph.get("hydraulic_compliance_m_per_Pa")
+    hydraulic = ([] if k is None else
+                 [f"hydraulic compliance {', '.join(f'{x * 1e12:.0f}' for x in k)} um/MPa per rope, "
+                  f"pressure noise {ph['pressure_noise_Pa'] / 1e3:.1f} kPa rms"])
     return "\n".join([
         f"site {site.name}: node {ph['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
         f"{ph['frame_hz']} Hz frames",
@@ -67,6 +74,7 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
         f"{ph['slack_frac'] * ph['conveyance_weight_N'] / ph['ropes'] / 1e3:.1f} kN per rope",
         f"pipe loss at {q_max * 6e4:.1f} L/min and {ph['oil_temp_assumed_C']:g} C: up to {worst / 1e6:.3f} MPa "
         f"({worst * min(ph['cylinder_area_m2']) / 1e3:.2f} kN of rope tension)",
+        *hydraulic,
         f"config CRC 0x{doc['crc']:04x}, schema {doc['schema']}",
     ])
 
@@ -76,6 +84,8 @@ def add_arguments(p) -> None:
     p.add_argument("--out", default="node.json", help="node config to write (default: node.json)")
     p.add_argument("--friction", metavar="FRICTION.json",
                    help="friction fit to use instead of the site's [friction] file")
+    p.add_argument("--compliance", metavar="COMPLIANCE.json",
+                   help="hydraulic compliance fit to use instead of the site's [compliance] file")
 
 
 def run(args) -> int:
@@ -90,7 +100,8 @@ def run(args) -> int:
             except (OSError, json.JSONDecodeError) as e:
                 raise SiteError(f"friction.file: cannot read {fpath}: {e}") from None
             friction = friction_doc
-        doc = node_json_from_site(site, friction)
+        compliance = read_compliance(args.compliance) if args.compliance else None
+        doc = node_json_from_site(site, friction, compliance)
     except SiteError as e:
         print(f"config: error: {e}", file=sys.stderr)
         return 1

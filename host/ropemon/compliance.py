@@ -1,0 +1,160 @@
+"""Hydraulic compliance k (m/Pa) of each cylinder, fitted from a recorded sensor stream.
+
+The oil in a cylinder, its hoses and the connecting assembly compresses with
+pressure, so a piston moves by k dp when its pressure changes (docs/model.md,
+"LuGre (noise-robust observer)"). Oil with entrained air makes k uncertain by tens of per cent
+from the drawings, so the node's k is measured: a least-squares line of the
+piston position on the pressure over a recording (a commissioning wind, or any
+stream with loading and acceleration), on the node's own channel scaling. The
+same recording gives the pressure channels' noise, which sizes the play of the
+node's friction observer (`pressure_noise_Pa`).
+
+    ropemon fit-compliance NODE.json SENSORS.rsens [--out compliance.json]   # JSON: k per rope, fit figures
+
+`fit(physical, records)` returns a `ComplianceFit` or raises `ComplianceError`
+naming the rope and the reason (too little pressure change, a poor fit); the
+command then exits 2 and writes nothing. SITE.toml names the output in its
+`[compliance]` table (ropemon.site), `ropemon config` puts it in `physical`.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import struct
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ropemon.nodeconfig import namur_limits
+from ropemon.reference import read_rsens
+
+MIN_SPAN_PA = 0.3e6   # the pressure must change at least this much over the recording
+MIN_R = 0.5           # correlation of position and pressure below which the fit is refused
+MAX_REL_SE = 0.02     # standard error of k over k above which the fit is refused
+
+
+class ComplianceError(ValueError):
+    """A recording from which k cannot be fitted; the message names the rope and why."""
+
+
+@dataclass
+class ComplianceFit:
+    k_m_per_pa: list[float]      # per rope
+    r: list[float]               # correlation of position and pressure
+    span_pa: list[float]         # pressure range used (5th to 95th percentile)
+    residual_m: list[float]      # rms of position about the line (noise and slow flows)
+    pressure_noise_pa: float     # rms sample-to-sample noise of the pressure channels (worst rope)
+    samples: int
+
+    def as_dict(self) -> dict:
+        return {"hydraulic_compliance_m_per_Pa": self.k_m_per_pa,
+                "pressure_noise_Pa": self.pressure_noise_pa, "r": self.r,
+                "pressure_span_Pa": self.span_pa, "residual_rms_m": self.residual_m,
+                "samples": self.samples}
+
+
+def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
+    """Fit k per rope from records[k, 2N+4] with the channel scaling of `physical` ph."""
+    n = int(ph["ropes"])
+    ks, rs, spans, res, noise = [], [], [], [], []
+    for i in range(n):
+        pc = ph["pressure_channels"][i]
+        dc = ph["displacement_channels"][i]
+        cp = records[:, i].astype(float)
+        cx = records[:, n + i].astype(float)
+        plo, phi = namur_limits(pc["counts_4mA"], pc["counts_20mA"])
+        xlo, xhi = namur_limits(dc["counts_lo"], dc["counts_hi"])
+        ok = (cp >= plo) & (cp <= phi) & (cx >= xlo) & (cx <= xhi)
+        if ok.sum() < 100:
+            raise ComplianceError(f"rope {i + 1}: fewer than 100 samples with both channels healthy")
+        lo, hi = pc["range_Pa"]
+        p = lo + (cp[ok] - pc["counts_4mA"]) * (hi - lo) / (pc["counts_20mA"] - pc["counts_4mA"])
+        ylo, yhi = dc["range_m"]
+        x = ylo + (cx[ok] - dc["counts_lo"]) * (yhi - ylo) / (dc["counts_hi"] - dc["counts_lo"])
+        span = float(np.percentile(p, 95) - np.percentile(p, 5))
+        if span < MIN_SPAN_PA:
+            raise ComplianceError(f"rope {i + 1}: the pressure changes by {span / 1e6:.3f} MPa "
+                                  f"(5th to 95th percentile); k needs at least "
+                                  f"{MIN_SPAN_PA / 1e6:.1f} MPa (record a loading or a wind)")
+        slope, icpt = np.polyfit(p, x, 1)
+        r = float(np.corrcoef(p, x)[0, 1])
+        if slope <= 0 or r < MIN_R:
+            raise ComplianceError(f"rope {i + 1}: position does not follow pressure (slope "
+                                  f"{slope:.3g} m/Pa, r = {r:.3f}; needs r >= {MIN_R})")
+        resid = x - (icpt + slope * p)
+        se = float(np.sqrt(np.mean(resid ** 2) / (len(p) * np.var(p))))
+        if se > MAX_REL_SE * slope:
+            raise ComplianceError(f"rope {i + 1}: k = {slope:.4g} m/Pa is uncertain by {100 * se / slope:.1f} % "
+                                  f"(needs <= {100 * MAX_REL_SE:.0f} %): record more pressure change")
+        ks.append(float(slope))
+        rs.append(r)
+        spans.append(span)
+        res.append(float(np.sqrt(np.mean((x - (icpt + slope * p)) ** 2))))
+        noise.append(_white_noise(p, abs(hi - lo) / (pc["counts_20mA"] - pc["counts_4mA"])))
+    return ComplianceFit(ks, rs, spans, res, max(noise), int(records.shape[0]))
+
+
+def _white_noise(p: np.ndarray, step: float) -> float:
+    """rms white noise of a sampled signal from its second differences (variance 6 sigma^2).
+
+    Second differences cancel ramps and nearly cancel the slow swings of a wind (a
+    0.3 MPa rope bounce at 1.5 Hz adds ~1 kPa at 200 Hz); the few large ones (steps,
+    spikes) are dropped beyond 5 robust sigmas, and the rest give a plain rms, since a
+    median of quantised counts moves in whole counts (one `step`, Pa per count).
+    """
+    d2 = np.diff(p, 2)
+    dev = np.abs(d2 - np.median(d2))
+    lim = 5 * max(1.4826 * float(np.median(dev)), step)
+    return float(np.sqrt(np.mean(d2[dev <= lim] ** 2) / 6))
+
+
+def add_arguments(p) -> None:
+    p.add_argument("node_json", metavar="NODE.json", type=Path,
+                   help="node.json (from `ropemon config`) whose physical section scales the channels")
+    p.add_argument("rsens", metavar="SENSORS.rsens", type=Path,
+                   help="recorded sensor stream with a loading or a wind (.rsens, docs/data-formats.md)")
+    p.add_argument("--out", metavar="COMPLIANCE.json", type=Path,
+                   help="also write the JSON here (name it in SITE.toml [compliance] file)")
+
+
+def run(args) -> int:
+    try:
+        try:
+            doc = json.loads(args.node_json.read_text())
+        except json.JSONDecodeError as e:
+            raise ComplianceError(f"{args.node_json}: not valid JSON: {e}") from None
+        ph = doc.get("physical") if isinstance(doc, dict) else None
+        if not isinstance(ph, dict):
+            raise ComplianceError(f"{args.node_json}: no physical section (a node.json from `ropemon config`)")
+        try:
+            ropes, hz, recs = read_rsens(args.rsens)
+        except struct.error:
+            raise ComplianceError(f"{args.rsens}: too short for a .rsens header") from None
+        if (ropes, hz) != (ph.get("ropes"), ph.get("sample_hz")):
+            raise ComplianceError(f"{args.rsens}: {ropes} ropes at {hz} Hz, {args.node_json} has "
+                                  f"{ph.get('ropes')} at {ph.get('sample_hz')} Hz")
+        try:
+            res = fit(ph, recs)
+        except (KeyError, TypeError, IndexError) as e:
+            raise ComplianceError(f"{args.node_json}: physical.pressure_channels or "
+                                  f"displacement_channels incomplete ({e!r})") from None
+    except (OSError, ValueError) as e:
+        print(f"ropemon fit-compliance: error: {e}", file=sys.stderr)
+        return 2
+    text = json.dumps(res.as_dict(), indent=1) + "\n"
+    if args.out is not None:
+        args.out.write_text(text)
+    sys.stdout.write(text)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="ropemon fit-compliance", description=__doc__.split("\n\n")[0])
+    add_arguments(ap)
+    return run(ap.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

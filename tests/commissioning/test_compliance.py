@@ -1,0 +1,286 @@
+"""fit-compliance: k and the pressure noise are recovered from a synthetic wind; a recording
+without one, or where the position does not follow the pressure, is refused; SITE.toml's
+[compliance] file reaches physical and the node section."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ropemon import compliance
+from ropemon.cli import main as ropemon
+from ropemon.firmware import node_module
+from ropemon.nodeconfig import example_physical, make_node_json
+from ropemon.plant.output import write_rsens
+from ropemon.site import SiteError, load_site, physical_from_site
+
+ROOT = Path(__file__).resolve().parents[2]
+SCEN = ROOT / "scenarios"
+HZ = 200
+K_TRUE = [2.0e-10, 3.0e-10, 3.5e-10, 5.0e-10]   # m/Pa: the paper hoist's cylinders are ~3e-10
+X0 = [-0.010, 0.0, 0.004, 0.012]                 # m: piston positions at zero pressure
+P_NOISE = 5e3                                    # Pa rms
+X_NOISE = 2e-5                                   # m rms
+
+
+def wind_pressure(seconds_scale: float = 1.0) -> np.ndarray:
+    """Cavity pressure of a commissioning record (Pa): rest, loading ramp 4 -> 9 MPa,
+    rest, a wind (acceleration hump, rope bounce, deceleration dip), rest."""
+    def seg(p0, p1, s):
+        return np.linspace(p0, p1, int(s * seconds_scale * HZ), endpoint=False)
+
+    def hump(dp, s):
+        return 9e6 + dp * np.sin(np.linspace(0, np.pi, int(s * HZ))) ** 2
+
+    p = np.concatenate([seg(4e6, 4e6, 20), seg(4e6, 9e6, 15), seg(9e6, 9e6, 10), hump(0.8e6, 4),
+                        seg(9e6, 9e6, 30), hump(-0.8e6, 4), seg(9e6, 9e6, 15)])
+    t = np.arange(p.size) / HZ
+    return p + 0.2e6 * np.sin(2 * np.pi * 1.5 * t) * ((t > 45) & (t < 100))  # rope bounce in the wind
+
+
+def counts(value: np.ndarray, c_lo: int, c_hi: int, lo: float, hi: float) -> np.ndarray:
+    return np.clip(np.round(c_lo + (value - lo) * (c_hi - c_lo) / (hi - lo)), 0, 65535)
+
+
+def records(ph: dict, p: np.ndarray | list, x: np.ndarray | list) -> np.ndarray:
+    """The .rsens records of per-rope pressures p[i] (Pa) and positions x[i] (m), on ph's channels."""
+    n = ph["ropes"]
+    rec = np.zeros((len(p[0]), 2 * n + 4), dtype=np.uint16)
+    for i in range(n):
+        pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
+        rec[:, i] = counts(p[i], pc["counts_4mA"], pc["counts_20mA"], *pc["range_Pa"])
+        rec[:, n + i] = counts(x[i], dc["counts_lo"], dc["counts_hi"], *dc["range_m"])
+    rec[:, 2 * n] = 16000  # battery
+    return rec
+
+
+def synthetic(ph: dict, p_noise: float = P_NOISE, seed: int = 5) -> np.ndarray:
+    """x = x0 + k p + noise on every rope, the transmitters' noise on p."""
+    rng = np.random.default_rng(seed)
+    p = wind_pressure()
+    ps = [p + rng.normal(0, p_noise, p.size) for _ in K_TRUE]
+    xs = [x0 + k * p + rng.normal(0, X_NOISE, p.size) for k, x0 in zip(K_TRUE, X0)]
+    return records(ph, ps, xs)
+
+
+@pytest.fixture(scope="module")
+def ph() -> dict:
+    return example_physical()
+
+
+def test_k_is_recovered_within_1_percent(ph):
+    res = compliance.fit(ph, synthetic(ph))
+    for got, want in zip(res.k_m_per_pa, K_TRUE):
+        assert got == pytest.approx(want, rel=0.01)
+    assert min(res.r) > 0.99
+    assert res.span_pa[0] == pytest.approx(5e6, rel=0.1)
+    assert max(res.residual_m) < 2 * X_NOISE
+    assert res.samples == wind_pressure().size
+
+
+@pytest.mark.parametrize("noise", [2e3, 5e3, 20e3])
+def test_pressure_noise_is_estimated_within_15_percent(ph, noise):
+    # the ramp, the wind's humps and the rope bounce are signal, not noise
+    res = compliance.fit(ph, synthetic(ph, p_noise=noise))
+    pc = ph["pressure_channels"][0]
+    step = (pc["range_Pa"][1] - pc["range_Pa"][0]) / (pc["counts_20mA"] - pc["counts_4mA"])
+    want = np.hypot(noise, step / np.sqrt(12))  # the counts' quantisation is noise the node sees too
+    assert res.pressure_noise_pa == pytest.approx(want, rel=0.15)
+
+
+def test_a_recording_without_a_pressure_change_is_refused(ph):
+    rng = np.random.default_rng(1)
+    p = wind_pressure()
+    flat = np.full(p.size, 6e6) + 0.02e6 * np.sin(np.arange(p.size) / HZ)  # rope 3: no loading seen
+    ps = [p, p, flat, p]
+    ps = [q + rng.normal(0, P_NOISE, q.size) for q in ps]
+    xs = [x0 + k * q + rng.normal(0, X_NOISE, q.size) for k, x0, q in zip(K_TRUE, X0, ps)]
+    with pytest.raises(compliance.ComplianceError,
+                       match=r"^rope 3: the pressure changes by 0\.0\d\d MPa .*at least 0\.3 MPa"):
+        compliance.fit(ph, records(ph, ps, xs))
+
+
+def test_a_position_that_does_not_follow_pressure_is_refused(ph):
+    rng = np.random.default_rng(2)
+    p = wind_pressure()
+    t = np.arange(p.size) / HZ
+    wander = 0.002 * np.sin(2 * np.pi * t / 37.0)  # ropes equalising, unrelated to the pressure
+    xs = [x0 + wander + rng.normal(0, X_NOISE, p.size) for x0 in X0]
+    with pytest.raises(compliance.ComplianceError, match=r"^rope 1: position does not follow pressure"):
+        compliance.fit(ph, records(ph, [p] * 4, xs))
+    # a failed position channel leaves too few samples, and says so
+    rec = synthetic(ph)
+    rec[:, 4 + 1] = 0
+    with pytest.raises(compliance.ComplianceError, match=r"^rope 2: fewer than 100 samples"):
+        compliance.fit(ph, rec)
+
+
+# ---------------------------------------------------------------- command
+
+
+@pytest.fixture
+def recorded(tmp_path, ph) -> tuple[Path, Path]:
+    node = tmp_path / "node.json"
+    node.write_text(json.dumps(make_node_json(ph)))
+    rsens = tmp_path / "wind.rsens"
+    write_rsens(rsens, synthetic(ph), HZ)
+    return node, rsens
+
+
+def test_command_prints_the_fit_as_json(recorded, tmp_path, capsys):
+    node, rsens = recorded
+    out = tmp_path / "compliance.json"
+    assert ropemon(["fit-compliance", str(node), str(rsens), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    doc = json.loads(printed)
+    assert json.loads(out.read_text()) == doc
+    assert set(doc) >= {"hydraulic_compliance_m_per_Pa", "pressure_noise_Pa", "r", "pressure_span_Pa"}
+    for got, want in zip(doc["hydraulic_compliance_m_per_Pa"], K_TRUE):
+        assert got == pytest.approx(want, rel=0.01)
+
+
+def test_command_help(capsys):
+    with pytest.raises(SystemExit) as e:
+        ropemon(["fit-compliance", "--help"])
+    assert e.value.code == 0
+    assert "NODE.json SENSORS.rsens" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("case,message", [
+    ("junk rsens", "too short for a .rsens header"),
+    ("not rsens", "not a version-1 .rsens stream"),
+    ("missing rsens", "No such file"),
+    ("no physical", "no physical section"),
+    ("node not json", "not valid JSON"),
+    ("other ropes", "4 ropes at 200 Hz"),
+    ("flat wind", "rope 1: the pressure changes by"),
+])
+def test_command_refuses_a_bad_file_with_exit_2(recorded, tmp_path, capsys, ph, case, message):
+    node, rsens = recorded
+    if case == "junk rsens":
+        rsens.write_bytes(b"RSNS")
+    elif case == "not rsens":
+        rsens.write_bytes(b"\0" * 100)
+    elif case == "missing rsens":
+        rsens.unlink()
+    elif case == "no physical":
+        node.write_text(json.dumps({"schema": 1, "node": {}}))
+    elif case == "node not json":
+        node.write_text("{physical")
+    elif case == "other ropes":
+        node.write_text(json.dumps({"physical": dict(ph, ropes=3)}))
+    elif case == "flat wind":
+        n = np.full(2000, 6e6)
+        write_rsens(rsens, records(ph, [n] * 4, [n * 3e-10] * 4), HZ)
+    out = tmp_path / "compliance.json"
+    assert ropemon(["fit-compliance", str(node), str(rsens), "--out", str(out)]) == 2
+    cap = capsys.readouterr()
+    assert cap.out == "" and not out.exists()
+    assert cap.err.startswith("ropemon fit-compliance: error: ") and message in cap.err
+
+
+# ---------------------------------------------------------------- SITE.toml [compliance]
+
+FIT = {"hydraulic_compliance_m_per_Pa": [3.0e-10, 3.1e-10, 2.9e-10, 3.0e-10], "pressure_noise_Pa": 5200.0,
+       "r": [0.997] * 4, "samples": 25688}
+
+
+@pytest.fixture
+def site_dir(tmp_path) -> Path:
+    for name in ("paper-site.toml", "paper-friction.json"):
+        shutil.copy(SCEN / name, tmp_path / name)
+    return tmp_path
+
+
+def with_compliance(site_dir: Path, fit=FIT, table: str = 'file = "compliance.json"') -> Path:
+    site = site_dir / "paper-site.toml"
+    site.write_text(site.read_text() + f"\n[compliance]\n{table}\n")
+    if fit is not None:
+        (site_dir / "compliance.json").write_text(json.dumps(fit))
+    return site
+
+
+def test_site_compliance_file_gives_the_physical_keys(site_dir):
+    site = load_site(with_compliance(site_dir))
+    assert site.compliance_path == site_dir / "compliance.json"
+    ph = physical_from_site(site)
+    assert ph["hydraulic_compliance_m_per_Pa"] == FIT["hydraulic_compliance_m_per_Pa"]
+    assert ph["pressure_noise_Pa"] == FIT["pressure_noise_Pa"]
+    assert "r" not in ph and "samples" not in ph
+    # a fit given to physical_from_site overrides the file
+    other = dict(FIT, hydraulic_compliance_m_per_Pa=[4e-10] * 4, pressure_noise_Pa=3e3)
+    ph = physical_from_site(site, compliance=other)
+    assert (ph["hydraulic_compliance_m_per_Pa"], ph["pressure_noise_Pa"]) == ([4e-10] * 4, 3e3)
+
+
+def test_site_without_compliance_leaves_the_keys_out(site_dir):
+    site = load_site(site_dir / "paper-site.toml")
+    assert site.compliance_path is None
+    ph = physical_from_site(site)
+    assert "hydraulic_compliance_m_per_Pa" not in ph and "pressure_noise_Pa" not in ph
+    assert make_node_json(ph)["node"]["friction"]["compliance_q"] == [0, 0, 0, 0]
+    # ... unless a fit is given
+    ph = physical_from_site(site, compliance=FIT)
+    assert ph["hydraulic_compliance_m_per_Pa"] == FIT["hydraulic_compliance_m_per_Pa"]
+
+
+@pytest.mark.parametrize("edit,message", [
+    ({"hydraulic_compliance_m_per_Pa": [3e-10] * 3},
+     r"compliance \(compliance.json\).hydraulic_compliance_m_per_Pa: must have one entry per rope \(4\), got 3"),
+    ({"hydraulic_compliance_m_per_Pa": [3e-10, 2e-6, 3e-10, 3e-10]},
+     r"compliance \(compliance.json\).hydraulic_compliance_m_per_Pa\[1\]: must be <= 1e-06, got 2e-06"),
+    ({"hydraulic_compliance_m_per_Pa": [3e-10, 3e-10, -1e-10, 3e-10]},
+     r"hydraulic_compliance_m_per_Pa\[2\]: must be >= 0, got -1e-10"),
+    ({"hydraulic_compliance_m_per_Pa": [3e-10, 3e-10, 3e-10, "3e-10"]},
+     r"hydraulic_compliance_m_per_Pa\[3\]: must be a number, got '3e-10'"),
+    ({"hydraulic_compliance_m_per_Pa": 3e-10}, r"hydraulic_compliance_m_per_Pa: missing or not a list"),
+    ({"pressure_noise_Pa": 0.0}, r"compliance \(compliance.json\).pressure_noise_Pa: must be > 0, got 0"),
+    ({"pressure_noise_Pa": None}, r"pressure_noise_Pa: must be a number, got None"),
+])
+def test_bad_compliance_file_is_refused_naming_the_field(site_dir, edit, message):
+    site = load_site(with_compliance(site_dir, dict(FIT, **edit)))
+    with pytest.raises(SiteError, match=message):
+        physical_from_site(site)
+
+
+@pytest.mark.parametrize("fit,table,message", [
+    (None, 'file = "compliance.json"', r"^compliance.file: cannot read .*compliance.json"),
+    ("[1, 2", 'file = "compliance.json"', r"^compliance.file: .*compliance.json is not valid JSON"),
+    ([1, 2], 'file = "compliance.json"', r"^compliance \(compliance.json\): must be an object, got list"),
+    (FIT, 'path = "compliance.json"', r"^compliance.file: missing"),
+    (FIT, 'file = "compliance.json"\nk = 1', r"^compliance.k: unknown field"),
+])
+def test_unusable_compliance_table_or_file_is_refused(site_dir, fit, table, message):
+    site = with_compliance(site_dir, None, table)
+    if isinstance(fit, str):
+        (site_dir / "compliance.json").write_text(fit)
+    elif fit is not None:
+        (site_dir / "compliance.json").write_text(json.dumps(fit))
+    with pytest.raises(SiteError, match=message):
+        physical_from_site(load_site(site))
+
+
+def test_config_puts_the_compliance_in_the_node_section(site_dir, capsys):
+    out = site_dir / "node.json"
+    assert ropemon(["config", str(with_compliance(site_dir)), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    ph, fr = doc["physical"], doc["node"]["friction"]
+    assert ph["hydraulic_compliance_m_per_Pa"] == FIT["hydraulic_compliance_m_per_Pa"]
+    q, sh = fr["compliance_q"], fr["compliance_shift"]
+    assert all(q) and len(q) == 4
+    # (um/256 per kPa) * 2**shift
+    for qi, k in zip(q, FIT["hydraulic_compliance_m_per_Pa"]):
+        assert qi / (1 << sh) == pytest.approx(k * 1e3 * 256e6, rel=1e-3)
+    assert fr["warmup_samples"] == 400  # 2 s at 200 Hz: the compliance defaults
+    assert node_module("config").parse(doc).ropes == 4
+    assert "hydraulic compliance 300, 310, 290, 300 um/MPa per rope" in capsys.readouterr().out
+    # --compliance overrides the site's file; a bad one is refused, nothing written
+    (site_dir / "other.json").write_text(json.dumps(dict(FIT, pressure_noise_Pa=-1)))
+    out.unlink()
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(out),
+                    "--compliance", str(site_dir / "other.json")]) == 1
+    assert not out.exists()
+    assert "config: error: compliance.pressure_noise_Pa: must be > 0, got -1" in capsys.readouterr().err
