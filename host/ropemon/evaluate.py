@@ -111,6 +111,7 @@ class Case:
     commissioning: dict = field(default_factory=dict)  # the fit the node was commissioned from, problems
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)  # full compensation fed with truths
     notes: list[str] = field(default_factory=list)
+    physical: dict = field(default_factory=dict)  # the commissioned config's physical section
 
     @property
     def window(self) -> int:
@@ -207,7 +208,9 @@ def _commissioned(sc: dict) -> str:
         return "-"
     if not c.get("ok"):
         return "**FAILED** (see notes)"
-    return f"sigma0 {c['sigma0_N_per_m']:.4g} N/m fitted"
+    k = c.get("hydraulic_compliance_m_per_Pa") or []
+    k_txt = f", k {min(k) * 1e9:.3f}-{max(k) * 1e9:.3f} um/kPa" if k else ""
+    return f"sigma0 {c['sigma0_N_per_m']:.4g} N/m fitted{k_txt}"
 
 
 def _pithead(f: dict, which: str) -> str:
@@ -458,14 +461,17 @@ def _run_step(what: str, cmd: list[str], timeout_s: float) -> str:
     return r.stdout
 
 
-def simulate(name: str, out_dir: Path, seed: int) -> None:
-    """Run the plant (ropemon.plant's Python API, as `ropemon simulate` does) into out_dir."""
+def simulate(name: str, out_dir: Path, seed: int, change=None) -> None:
+    """Run the plant (ropemon.plant's Python API, as `ropemon simulate` does) into out_dir;
+    `change(doc)` edits the scenario document first."""
     from ropemon.plant.cli import summarize
     from ropemon.plant.output import write_outputs
     from ropemon.plant.run import simulate as run_plant
     from ropemon.plant.scenario import ScenarioError, build
 
     doc, path = scenario_doc(name, out_dir)
+    if change is not None:
+        change(doc)
     try:
         sc = build(doc, path, seed)
         res = run_plant(sc)
@@ -571,15 +577,44 @@ SENSOR_KEYS = ("ropes", "sample_hz", "adc_bits", "cylinder_area_m2", "pressure_c
                "temperature")
 
 
-def _site_physical(truth_meta: dict, friction: dict) -> dict:
-    """The node's `physical` section from the scenario's site description and a friction fit."""
+# The commissioning wind: the scenario's hoist wound once more, recorded as a site
+# records one after installing the node (healthy sensors, other noise), from which
+# `ropemon fit-compliance` measures each cylinder's hydraulic compliance.
+COMMISSIONING_SEED_OFFSET = 1000
+
+
+def _commissioning_wind_doc(doc: dict) -> None:
+    import tomllib
+
+    doc.get("sensors", {}).pop("fault", None)
+    if "duty" in doc:  # one wind of the field trip's, on the same plant
+        del doc["duty"]
+        doc["trip"] = tomllib.loads((SCENARIO_DIR / f"{FIELD_TRIP}.toml").read_text())["trip"]
+
+
+def fit_compliance(name: str, physical: dict, work: Path, seed: int) -> dict:
+    """Simulate the scenario's commissioning wind into work/commissioning-wind and fit k there."""
+    from ropemon import compliance, reference
+
+    cw = work / "commissioning-wind"
+    simulate(name, cw, seed + COMMISSIONING_SEED_OFFSET, _commissioning_wind_doc)
+    _ropes, _hz, recs = reference.read_rsens(cw / "sensors.rsens")
+    try:
+        return compliance.fit(physical, recs).as_dict()
+    except compliance.ComplianceError as e:
+        return {"error": str(e)}
+
+
+def _site_physical(truth_meta: dict, friction: dict, compliance: dict | None = None) -> dict:
+    """The node's `physical` section from the scenario's site description, a friction fit
+    and (optionally) a compliance fit."""
     from ropemon.site import load_site, physical_from_site
 
     site_file = truth_meta.get("site_file")
     if not site_file:
         raise EvaluationError(f"scenario {truth_meta.get('scenario')}: no site file: not a hoist scenario")
     site = load_site(site_file)
-    physical = physical_from_site(site, friction)
+    physical = physical_from_site(site, friction, compliance)
     # The sensor stream was made with the simulator's node config: how counts map to
     # physical units must be the same. What the simulator sets per run (e.g. the depth
     # the node boots at) is taken from it, as an installer would set it.
@@ -636,7 +671,12 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     plant_friction = meta["scenario_doc"]["plant"]["friction"]
     fit = fit_plant_seal(plant_friction, work.parent, seed, bed)
     physical = _site_physical(meta, fit)
+    hyd = fit_compliance(name, physical, work, seed)
+    if "error" not in hyd:  # the site names the compliance file: ropemon config takes it in
+        physical = _site_physical(meta, fit, hyd)
     problems = commissioning_problems(fit, physical)
+    if "error" in hyd:
+        problems.append(f"fit-compliance on the commissioning wind: {hyd['error']}")
     rated = float(physical["rated_rope_tension_N"])
     _ropes, hz, recs = reference.read_rsens(sim / "sensors.rsens")
     truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]
@@ -652,16 +692,25 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     payload = np.asarray(truth["payload_kg"], float)[:k]
     steady = np.concatenate([[True], np.diff(payload) == 0])
     case = Case(name=Path(name).stem, sample_hz=hz, frame_hz=int(physical["frame_hz"]), rated_n=rated,
-                truth_n=truth_n, phase=phase, excluded=excluded, steady=steady, payload_kg=payload)
+                truth_n=truth_n, phase=phase, excluded=excluded, steady=steady, payload_kg=payload,
+                physical=physical)
     case.commissioning = {
         "ok": not problems, "problems": problems,
         "sigma0_N_per_m": fit.get("sigma0"), "sigma1_N_s_per_m": fit.get("sigma1"),
         "presliding_source": fit.get("presliding", {}).get("source"),
         "presliding_period_s": fit.get("bed", {}).get("presliding_period_s"),
         "fit_warnings": fit.get("bed", {}).get("warnings", []),
+        "hydraulic_compliance_m_per_Pa": hyd.get("hydraulic_compliance_m_per_Pa"),
+        "pressure_noise_Pa": hyd.get("pressure_noise_Pa"),
     }
     for problem in problems:
         case.notes.append(f"**COMMISSIONING FAILED**: {problem}")
+    if "error" not in hyd:
+        case.notes.append(
+            "hydraulic compliance from `ropemon fit-compliance` on a commissioning wind (the same "
+            f"plant, seed {seed + COMMISSIONING_SEED_OFFSET}, healthy sensors): k "
+            + ", ".join(f"{k * 1e9:.4f}" for k in hyd["hydraulic_compliance_m_per_Pa"])
+            + f" um/kPa, pressure noise {hyd['pressure_noise_Pa'] / 1e3:.2f} kPa")
     oil = np.asarray(truth["oil_temp_C"], float)
     case.notes.append(
         f"node {'NOT ' if problems else ''}commissioned from a fit of this scenario's own seal on the simulated "

@@ -1,0 +1,69 @@
+"""How the full compensation's accuracy depends on the friction observer's settings.
+
+Commissions and simulates a scenario as `ropemon evaluate` does (no firmware run),
+then reruns the float reference `lugre-p+loss` with one setting changed at a time:
+the play multiplier `friction_play_sigmas`, the hydraulic compliance k scaled
+(as if fit-compliance were that far off), the pressure low-pass, and no
+compliance at all. Prints a Markdown table (docs/accuracy.md, "Sensitivity").
+
+    .venv/bin/python tools/observer_sensitivity.py [SCENARIO] [--out DIR] [--seed N]
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import sys
+import time
+from pathlib import Path
+
+from ropemon import evaluate as EV
+from ropemon import metrics as M
+from ropemon import reference
+
+
+def variants(ph: dict) -> list[tuple[str, dict]]:
+    """(label, physical) pairs: the commissioned config and one change each."""
+    out = [("as commissioned", ph)]
+    for m in (1.3, 1.5, 1.6, 1.8, 1.9, 2.1):
+        out.append((f"friction_play_sigmas {m:g}", dict(ph, friction_play_sigmas=m)))
+    k = ph.get("hydraulic_compliance_m_per_Pa")
+    if k:
+        for f in (0.95, 0.98, 1.02, 1.05):
+            out.append((f"k x {f:g}", dict(ph, hydraulic_compliance_m_per_Pa=[x * f for x in k])))
+        for hz in (3.0, 8.0):
+            out.append((f"pressure_cutoff_hz {hz:g}", dict(ph, pressure_cutoff_hz=hz)))
+        no_k = copy.deepcopy(ph)
+        for key in ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa"):
+            no_k.pop(key, None)
+        out.append(("no compliance (1 Hz position low-pass)", no_k))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scenario", nargs="?", default=EV.FIELD_TRIP)
+    ap.add_argument("--out", type=Path, default=Path("out/sensitivity"), help="work directory")
+    ap.add_argument("--seed", type=int, default=1)
+    a = ap.parse_args(argv)
+    t0 = time.monotonic()
+    case = EV.build_case(a.scenario, a.out / a.scenario, a.seed, firmware=False)
+    _r, _hz, recs = reference.read_rsens(a.out / a.scenario / "sim" / "sensors.rsens")
+    recs = recs[: len(case.truth_n)]
+    print(f"## {a.scenario}: `lugre-p+loss` with one observer setting changed\n")
+    print("| setting | play (um) | rope RMS % | rope peak % | pithead empty % | pithead as arrived % |")
+    print("|---|---:|---:|---:|---:|---:|")
+    from ropemon.nodeconfig import physical_params
+    for label, ph in variants(case.physical):
+        est = reference.compensate(ph, recs).tension_n
+        f = M.evaluate_estimate(est, case.truth_n, case.rated_n, case.phase, case.excluded, case.steady,
+                                case.payload_kg)
+        play_um = physical_params(ph)["play_m"] * 1e6
+        print(f"| {label} | {play_um:.2f} | {f['rope_rms_pct']:.2f} | {f['rope_peak_pct']:.2f} | "
+              f"{EV._fmt(f.get('pithead_empty_total_pct'))} | {EV._fmt(f.get('pithead_arrival_total_pct'))} |")
+    print(f"\n(made by `.venv/bin/python tools/observer_sensitivity.py {a.scenario} --seed {a.seed}` "
+          f"in {time.monotonic() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
