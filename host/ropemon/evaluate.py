@@ -571,6 +571,8 @@ def commissioning_problems(fit: dict, physical: dict) -> list[str]:
     return problems
 
 
+# `physical` keys the evaluation commissions itself (never taken from the simulator's node.json)
+COMMISSIONED_KEYS = ("friction", "loss", "hydraulic_compliance_m_per_Pa", "pressure_noise_Pa")
 # `physical` keys that define what the sensor stream's counts mean (docs/config.md)
 SENSOR_KEYS = ("ropes", "sample_hz", "adc_bits", "cylinder_area_m2", "pressure_channels",
                "displacement_channels", "speed_m_per_pulse", "hall_marks_m", "battery_V_per_count",
@@ -620,7 +622,7 @@ def _site_physical(truth_meta: dict, friction: dict, compliance: dict | None = N
     # the node boots at) is taken from it, as an installer would set it.
     plant_ph = truth_meta.get("node_physical") or {}
     for k, v in plant_ph.items():
-        if k in ("friction", "loss") or physical.get(k) == v:
+        if k in COMMISSIONED_KEYS or physical.get(k) == v:
             continue
         if k in SENSOR_KEYS:
             raise EvaluationError(f"site {site_file}: `{k}` differs from the config the simulator's sensors use")

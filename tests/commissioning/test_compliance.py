@@ -190,9 +190,21 @@ FIT = {"hydraulic_compliance_m_per_Pa": [3.0e-10, 3.1e-10, 2.9e-10, 3.0e-10], "p
 
 @pytest.fixture
 def site_dir(tmp_path) -> Path:
+    """The example site without its [compliance] table (the tests add their own)."""
     for name in ("paper-site.toml", "paper-friction.json"):
         shutil.copy(SCEN / name, tmp_path / name)
+    site = tmp_path / "paper-site.toml"
+    text = site.read_text()
+    shipped = '[compliance]\nfile = "paper-compliance.json"'
+    assert shipped in text
+    site.write_text(text.replace(shipped, ""))
     return tmp_path
+
+
+def test_shipped_site_has_a_measured_compliance():
+    ph = physical_from_site(load_site(SCEN / "paper-site.toml"))
+    assert all(2.9e-10 < k < 3.1e-10 for k in ph["hydraulic_compliance_m_per_Pa"])
+    assert 4e3 < ph["pressure_noise_Pa"] < 7e3
 
 
 def with_compliance(site_dir: Path, fit=FIT, table: str = 'file = "compliance.json"') -> Path:

@@ -25,7 +25,7 @@ PHYSICAL_KEYS = {"node_id", "key_hex", "ropes", "sample_hz", "frame_hz", "rated_
 
 @pytest.fixture
 def site_dir(tmp_path) -> Path:
-    for name in ("paper-site.toml", "paper-friction.json"):
+    for name in ("paper-site.toml", "paper-friction.json", "paper-compliance.json"):
         shutil.copy(SCEN / name, tmp_path / name)
     return tmp_path
 

@@ -11,7 +11,7 @@ from ropemon.plant.scenario import ScenarioError, load_scenario
 
 def _write(tmp_path, scenarios_dir, text):
     # the site file sits beside the scenario, as in scenarios/
-    for f in ("paper-site.toml", "paper-friction.json"):
+    for f in ("paper-site.toml", "paper-friction.json", "paper-compliance.json"):
         shutil.copy(scenarios_dir / f, tmp_path / f)
     p = tmp_path / "bad.toml"
     p.write_text(text)
