@@ -580,7 +580,7 @@ SENSOR_KEYS = ("ropes", "sample_hz", "adc_bits", "cylinder_area_m2", "pressure_c
 
 
 # The commissioning wind: the scenario's hoist wound once more, recorded as a site
-# records one after installing the node (healthy sensors, other noise), from which
+# records one after installing the node (no sensor faults, other noise), from which
 # `ropemon fit-compliance` measures each cylinder's hydraulic compliance.
 COMMISSIONING_SEED_OFFSET = 1000
 
@@ -710,7 +710,7 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     if "error" not in hyd:
         case.notes.append(
             "hydraulic compliance from `ropemon fit-compliance` on a commissioning wind (the same "
-            f"plant, seed {seed + COMMISSIONING_SEED_OFFSET}, healthy sensors): k "
+            f"plant, seed {seed + COMMISSIONING_SEED_OFFSET}, no sensor faults): k "
             + ", ".join(f"{k * 1e9:.4f}" for k in hyd["hydraulic_compliance_m_per_Pa"])
             + f" um/kPa, pressure noise {hyd['pressure_noise_Pa'] / 1e3:.2f} kPa")
     oil = np.asarray(truth["oil_temp_C"], float)

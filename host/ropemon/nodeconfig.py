@@ -171,10 +171,10 @@ def physical_params(ph: dict) -> dict:
     noise_m = _num(ph, "displacement_noise_m", 0.0, 1e-3)
     # rms noise of the LuGre position that makes false travel: without compliance, the
     # displacement's through both low-passes; with it, k times the pressure's (with the
-    # node's 1 kPa steps) through its low-pass (b's noise then wanders too slowly to count)
+    # node's kPa/16 steps) through its low-pass (b's noise then wanders too slowly to count)
     if any(k):
         sigma = max(k) * lowpass_noise(math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6),
-                                                  1e3 / math.sqrt(12)), alpha_p)
+                                                  1e3 / 16 / math.sqrt(12)), alpha_p)
     else:
         sigma = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)
     return {
