@@ -753,6 +753,7 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
 
 
 IDEAL_DISPLACEMENT_SPAN_M = 0.02  # +-20 mm over the same counts: ~2 um per count
+DIRECT_DIAGNOSTIC = "ideal displacement driving the observer (no compliance)"
 
 
 def ideal_displacement(physical: dict, recs: np.ndarray, x_true_m: np.ndarray,
@@ -778,7 +779,8 @@ def ideal_displacement(physical: dict, recs: np.ndarray, x_true_m: np.ndarray,
 
 def _add_diagnostics(case: Case, physical: dict, meta: dict, truth, recs: np.ndarray) -> None:
     """The full compensation fed with what the node cannot know: the plant's own friction
-    parameters, a noiseless finer displacement, or both. They show where the error comes from."""
+    parameters, a noiseless finer displacement, or both, and that displacement driving the
+    observer without the compliance. They show where the error comes from."""
     from ropemon import reference
     from ropemon.plant.friction import LuGre, from_table
 
@@ -788,6 +790,13 @@ def _add_diagnostics(case: Case, physical: dict, meta: dict, truth, recs: np.nda
     runs = {"noiseless displacement at the site's resolution":
             ideal_displacement(physical, recs, truth["piston_x_m"], site_span),
             "ideal displacement": (ideal_ph, ideal_recs)}
+    # the same finer, noiseless channel driving the observer directly (no compliance, the
+    # position low-pass at the velocity filter's cutoff, a play of one count's noise): what
+    # the node would do if its displacement channel were good enough to follow every stroke
+    direct = {k: v for k, v in ideal_ph.items() if k not in ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa")}
+    direct.update(friction_cutoff_hz=float(physical.get("velocity_cutoff_hz", 5.0)), displacement_noise_m=0.0,
+                  friction_play_sigmas=1.0)
+    runs[DIRECT_DIAGNOSTIC] = (direct, ideal_recs)
     if isinstance(law, LuGre):
         runs["plant friction"] = (dict(physical, friction=law.as_fit()), recs)
         runs["plant friction, ideal displacement"] = (dict(ideal_ph, friction=law.as_fit()), ideal_recs)
