@@ -296,3 +296,14 @@ def test_config_puts_the_compliance_in_the_node_section(site_dir, capsys):
                     "--compliance", str(site_dir / "other.json")]) == 1
     assert not out.exists()
     assert "config: error: compliance.pressure_noise_Pa: must be > 0, got -1" in capsys.readouterr().err
+
+
+def test_uncertain_k_is_refused(ph):
+    """A pressure change just above the minimum, under a noisy position, over a short
+    recording: k would be uncertain by several per cent, so it is refused, naming the rope."""
+    rng = np.random.default_rng(9)
+    p = np.concatenate([np.full(200, 4e6), np.linspace(4e6, 4.4e6, 200), np.full(200, 4.4e6)])
+    ps = [p + rng.normal(0, P_NOISE, p.size) for _ in K_TRUE]
+    xs = [x0 + k * p + rng.normal(0, 4e-5, p.size) for k, x0 in zip(K_TRUE, X0)]
+    with pytest.raises(compliance.ComplianceError, match=r"rope 1: k = .* uncertain by .* %"):
+        compliance.fit(ph, records(ph, ps, xs))
