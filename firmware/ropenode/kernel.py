@@ -217,6 +217,7 @@ def step(rec, P, S, n):
     dgood = ((mask >> 4) ^ allb) & (seen >> 4) & allb
     good = (mask ^ allb) & dgood & seen & allb
     S[GOOD] = good
+    S[_STARTED] &= good  # after a loop fault the position filters start again (not the seal state)
     S[WFAULTS] |= mask
 
     # oil temperature (centi-degC) and the loss table rows it selects
@@ -273,7 +274,7 @@ def step(rec, P, S, n):
         dxs = 0
         dxp = 0
         avz = 0
-        if (dgood >> i) & (seen >> i) & 1:
+        if (good >> i) & 1:
             x = S[X_Q8UM + i]
             kq = P[_KQ + i]
             if ((S[_STARTED] >> i) & 1) == 0:

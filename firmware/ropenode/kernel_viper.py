@@ -183,6 +183,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     dgood = (mask >> 4 ^ allb) & seen >> 4 & allb
     good = (mask ^ allb) & dgood & seen & allb
     S[GOOD] = good
+    S[_STARTED] &= good
     S[WFAULTS] |= mask
     rb = n << 1
     c = rec[rb + 1]
@@ -235,7 +236,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         dxs = 0
         dxp = 0
         avz = 0
-        if dgood >> i & seen >> i & 1:
+        if good >> i & 1:
             x = (S[X_Q8UM + i] ^ s31) - s31
             kq = (P[_KQ + i] ^ s31) - s31
             if (S[_STARTED] ^ s31) - s31 >> i & 1 == 0:

@@ -144,16 +144,18 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
         # state follows x_h = k p_l + b (p_l: low-passed pressure; b: slow low-pass of
         # x_f - k p_l, a running mean during the warm-up), through x_s, the sum of its clamped
         # increments (elastic part), and the play output x_p of x_s (dissipation), so that
-        # noise neither drags nor erases it. Starts once both channels have been read.
+        # noise neither drags nor erases it. Runs while both loops are healthy and starts
+        # again (with its warm-up) after a fault of either.
         dx = np.zeros(k)
         dxs = np.zeros(k)
         dxp = np.zeros(k)
         kh = pp["compliance"][i]
         xf = xs = xp = xh = pl = xb = None
         w = 0
-        for j, (xj, okj, pj, pseen) in enumerate(zip(x.tolist(), x_ok.tolist(), p.tolist(),
-                                                      p_seen.tolist())):
-            if not okj or not pseen:
+        for j, (xj, okj, pj, pokj) in enumerate(zip(x.tolist(), x_ok.tolist(), p.tolist(),
+                                                     p_ok.tolist())):
+            if not (okj and pokj):
+                xf = None  # after a loop fault the filters start again, the seal state is kept
                 continue
             if xf is None:
                 xf = xs = xp = xh = xj

@@ -181,3 +181,40 @@ def test_compliance_drives_the_seal_state_from_pressure():
     # before the loading the pressure is constant: only b's slow wander of the 20 um
     # displacement noise (~0.4 um rms at 0.03 Hz, x sigma0) moves the seal state
     assert np.abs(with_k.friction_n[: 4 * fs, 0]).max() < 300
+
+
+def test_a_pressure_loop_fault_restarts_the_lugre_position_not_the_seal_state():
+    """A pressure loop that fails for 2 s while the load changes by 1 MPa: on its return
+    the node starts its position filters again (with the warm-up) instead of taking the
+    1 MPa step as k dp = 300 um of seal travel; the seal state from before is kept."""
+    ph = example_physical()
+    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
+    ph["piston_speed_max_m_s"] = 0.05
+    ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
+    doc = make_node_json(ph)
+    ph = doc["physical"]
+    n, fs = 4, int(ph["sample_hz"])
+    t = np.arange(0, 12, 1 / fs)
+    p_pa = 4e6 + 0.3e6 * np.clip((t - 1) / 2, 0, 1) + 1e6 * (t >= 6)  # a pull, then a step in the fault
+    recs = np.zeros((len(t), 2 * n + 4), np.uint16)
+    for i in range(n):
+        pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
+        lo, hi = pc["range_Pa"]
+        recs[:, i] = np.round(pc["counts_4mA"] + (p_pa - lo) / (hi - lo) * (pc["counts_20mA"] - pc["counts_4mA"]))
+        ylo, yhi = dc["range_m"]
+        x = 0.5 * (ylo + yhi) + 3e-10 * (p_pa - p_pa[0])
+        recs[:, n + i] = np.round(dc["counts_lo"] + (x - ylo) / (yhi - ylo) * (dc["counts_hi"] - dc["counts_lo"]))
+    fault = (t >= 5) & (t < 7)
+    recs[fault, 0] = 0  # rope 1's loop below 3.6 mA
+    recs[:, 2 * n + 1] = 0xFFFF
+    ref = reference.compensate(ph, recs)
+    ten, good, _ = run_node(Node(config.parse(doc)), recs)
+    assert not good[fault, 0].any() and good[~fault, 0].all()
+    err = np.abs(ten - ref.tension_n)[good]
+    assert err.max() <= _tolerance_n(doc), err.max()
+    before = ref.friction_n[int(4.9 * fs), 0]
+    assert before > 3000  # the pull built a holding friction
+    after = ref.friction_n[int(7.5 * fs):, 0]
+    assert np.abs(after - before).max() < 100, (before, after.min(), after.max())
+    # the other ropes, whose loops stayed healthy, followed the 1 MPa step as seal travel
+    assert ref.friction_n[int(7.5 * fs), 1] > before + 500  # (to sliding friction)
