@@ -6,7 +6,7 @@ the play multiplier `friction_play_sigmas`, the hydraulic compliance k scaled
 (as if fit-compliance were that far off), the pressure low-pass, and no
 compliance at all. Prints a Markdown table (docs/accuracy.md, "Sensitivity").
 
-    .venv/bin/python tools/observer_sensitivity.py [SCENARIO] [--out DIR] [--seed N]
+    .venv/bin/python tools/observer_sensitivity.py [SCENARIO] [--out DIR] [--seed N] [--quick]
 """
 from __future__ import annotations
 
@@ -44,9 +44,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("scenario", nargs="?", default=EV.FIELD_TRIP)
     ap.add_argument("--out", type=Path, default=Path("out/sensitivity"), help="work directory")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--quick", action="store_true", help="the short test bed of `ropemon evaluate --quick`")
     a = ap.parse_args(argv)
     t0 = time.monotonic()
-    case = EV.build_case(a.scenario, a.out / a.scenario, a.seed, firmware=False)
+    case = EV.build_case(a.scenario, a.out / a.scenario, a.seed, firmware=False,
+                         bed=EV.BED_QUICK if a.quick else None)
     _r, _hz, recs = reference.read_rsens(a.out / a.scenario / "sim" / "sensors.rsens")
     recs = recs[: len(case.truth_n)]
     print(f"## {a.scenario}: `lugre-p+loss` with one observer setting changed\n")
@@ -60,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
         play_um = physical_params(ph)["play_m"] * 1e6
         print(f"| {label} | {play_um:.2f} | {f['rope_rms_pct']:.2f} | {f['rope_peak_pct']:.2f} | "
               f"{EV._fmt(f.get('pithead_empty_total_pct'))} | {EV._fmt(f.get('pithead_arrival_total_pct'))} |")
-    print(f"\n(made by `.venv/bin/python tools/observer_sensitivity.py {a.scenario} --seed {a.seed}` "
+    quick = " --quick" if a.quick else ""
+    print(f"\n(made by `.venv/bin/python tools/observer_sensitivity.py {a.scenario} --seed {a.seed}{quick}` "
           f"in {time.monotonic() - t0:.0f} s)")
     return 0
 

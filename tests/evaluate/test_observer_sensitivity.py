@@ -1,0 +1,33 @@
+"""tools/observer_sensitivity.py runs a scenario and prints one row per observer setting."""
+from __future__ import annotations
+
+import re
+import runpy
+import sys
+from pathlib import Path
+
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "observer_sensitivity.py"
+
+
+def test_sensitivity_table_has_every_setting(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", [str(TOOL), "short-test", "--quick", "--out", str(tmp_path)])
+    try:
+        runpy.run_path(str(TOOL), run_name="__main__")
+    except SystemExit as e:
+        assert e.code == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| ") and not line.startswith("| setting")]
+    labels = [r.split("|")[1].strip() for r in rows]
+    assert labels[0] == "as commissioned"
+    assert "no compliance (1 Hz position low-pass)" in labels  # the scenario's k was fitted
+    assert sum(lab.startswith("k x ") for lab in labels) == 4
+    # each row: play (um) and four figures, numbers; the plays differ with the multiplier
+    plays = {lab: float(r.split("|")[2]) for lab, r in zip(labels, rows)}
+    assert plays["friction_play_sigmas 1.3"] < plays["as commissioned"] < plays["friction_play_sigmas 2.1"]
+    for r in rows:  # setting | play | rope RMS | rope peak | pithead empty | pithead arrived
+        cells = [c.strip() for c in r.strip("|").split("|")]
+        assert len(cells) == 6, r
+        play, rms, peak = (float(c) for c in cells[1:4])
+        assert play > 0 and 0 < rms <= peak, r
+        for c in cells[4:]:  # a figure, or "-" where the scenario has no such rest
+            assert c == "-" or re.fullmatch(r"[-+]?[0-9]+\.[0-9]+", c), r
