@@ -17,11 +17,16 @@ the top bits, docs/protocol.md), so a node whose boot counter went backwards
 (flash wiped, counter wrapped) is refused too, and listed in `rewound`, until
 an operator accepts it (`accept_rewound`). Without keys every frame has
 authenticated=None and `authenticity_checked` is False.
+
+A host that restarts continues where it stopped: `ReplayGuard.seed` takes the
+last seq and the last frames accepted per node (from the log: `Store.last_seqs`,
+`Store.recent_frames`), so frames logged before the restart are still replays or
+duplicates after it.
 """
 from __future__ import annotations
 
 import binascii
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass
 
 from cobs import cobs
@@ -76,6 +81,10 @@ class ReplayGuard:
     A refused frame whose bytes equal one of the last `memory` frames accepted
     from its node is a `DUPLICATE` (a radio retry), not a replay; a retry does
     not use up an operator's acceptance.
+
+    Each new baseline taken on an acceptance is appended to `rebased` as
+    (node, its seq, the previous newest seq), for the log: a restarted host
+    resumes from it (`seed`).
     """
 
     ACCEPTED, DUPLICATE, REPLAYED, REWOUND = "accepted", "duplicate", "replayed", "rewound"
@@ -88,10 +97,33 @@ class ReplayGuard:
         self.rewound: dict[int, tuple[int, int]] = {}
         self._rebase: set[int] = set(accept_rewound)
         self._top: dict[int, int] = {}
+        self.rebased: list[tuple[int, int, int]] = []  # (node, new baseline seq, previous newest seq)
 
     def accept_rewound(self, node: int) -> None:
         """Operator decision: take `node`'s next frame of an older boot as its new baseline."""
         self._rebase.add(node)
+
+    def seed(self, last: Mapping[int, int], recent: Mapping[int, Iterable[P.Frame]] | None = None) -> None:
+        """Continue from an earlier run (a host restart): `last` {node: newest seq
+        accepted}, `recent` {node: the last frames accepted from it, oldest first}.
+
+        Afterwards a frame of that node at or below that seq is refused as if this
+        guard had accepted it itself (REPLAYED, or REWOUND for an older boot), and an
+        exact copy of one of the `recent` frames (the last `memory`) is a DUPLICATE.
+        A node this guard has already accepted frames from keeps its own state.
+        """
+        recent = recent or {}
+        for node, seq in last.items():
+            if not 0 <= seq < 1 << 32:
+                raise ValueError(f"seed: node {node}: seq {seq} is not a 32-bit sequence number")
+            if node in self._top:
+                continue
+            self._top[node] = seq
+            for f in recent.get(node, ()):
+                if f.node != node:
+                    raise ValueError(f"seed: recent frames of node {node} include one of node {f.node}")
+                if f.seq <= seq:
+                    self._remember(node, f.seq, frame_bytes(f))
 
     def accept(self, node: int, seq: int) -> bool:
         """True and remembered if (node, seq) is fresh; False if refused (a replay)."""
@@ -117,6 +149,7 @@ class ReplayGuard:
             self._rebase.discard(node)
             self.rewound.pop(node, None)
             self._recent.pop(node, None)  # a new baseline: the old boot's frames are not copies of it
+            self.rebased.append((node, seq, top))
             return self._take(node, seq, frame)
         self.rewound[node] = (top_boot, boot)
         return self.REWOUND
@@ -136,6 +169,15 @@ class ReplayGuard:
 
     def _is_copy(self, node: int, seq: int, frame: bytes | None) -> bool:
         return frame is not None and self._recent.get(node, {}).get(seq) == frame
+
+
+def frame_bytes(f: P.Frame) -> bytes:
+    """The raw bytes (COBS removed) a decoded or logged frame came in: its fields,
+    its MAC as received, and the CRC over them. What `ReplayGuard` compares copies by."""
+    body = P.HEADER.pack(f.version, f.kind, f.node, f.fault_mask, f.seq, f.time_ms, f.status)
+    body += b"".join(P.ROPE.pack(*r) for r in f.ropes)
+    body += P.TAIL.pack(f.depth_mm, f.speed_mm_s, f.battery_mv, f.oil_temp_cc) + f.mac
+    return body + P.CRC.pack(P.crc16(body))
 
 
 class StreamDecoder:

@@ -11,6 +11,8 @@ bytes that arrived during the connect; the decoder resynchronises after them.
 `FrameHub` wires receivers to one StreamDecoder each and one shared Merger, and
 puts (receiver, frame, rx_time, is_new) on a queue for a single consumer thread
 (alarms, store and views belong to that thread: sqlite connections are not shared).
+`FrameHub.seed` gives every decoder, also of receivers added later, the replay
+state a restarted host resumes from (the log).
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Mapping
 
 import serial
 import serial.rs485
@@ -129,6 +131,8 @@ class Received:
     frame: Frame
     rx_time: float
     is_new: bool  # False: a duplicate of a frame another receiver (or this one) already delivered
+    rebased_from: int | None = None  # the frame is this receiver's new baseline for its node (an
+    #                                  operator-accepted rewind): the node's newest seq before it
 
 
 class FrameHub:
@@ -146,21 +150,36 @@ class FrameHub:
         self.receivers: dict[str, SerialReceiver] = {}
         self.dropped = 0  # queue full: the consumer is not keeping up
         self._lock = threading.Lock()
+        self._seed: tuple[dict[int, int], dict[int, list[Frame]]] = ({}, {})
+
+    def seed(self, last: Mapping[int, int], recent: Mapping[int, Iterable[Frame]] | None = None) -> None:
+        """Replay state to resume from (`ReplayGuard.seed`): given to every receiver's
+        decoder, also to those added later. Call before any bytes are fed."""
+        self._seed = (dict(last), {n: list(fs) for n, fs in (recent or {}).items()})
+        for dec in list(self.decoders.values()):
+            dec.replay.seed(*self._seed)
 
     def feeder(self, name: str) -> Callable[[bytes], None]:
         """A callback that decodes bytes of receiver `name` (also usable without a serial port)."""
         dec = self.decoders.get(name)
         if dec is None:
             dec = self.decoders[name] = StreamDecoder(self.keys, accept_rewound=self._accept_rewound)
+            dec.replay.seed(*self._seed)
+        rebased = dec.replay.rebased  # appended to by dec.feed, in this receiver's thread only
 
         def on_bytes(data: bytes) -> None:
             now = self.clock()
             frames = dec.feed(data)
             if not frames:
                 return
+            base: dict[tuple[int, int], int] = {}
+            if rebased:
+                base = {(node, seq): prev for node, seq, prev in rebased}
+                rebased.clear()
             with self._lock:
                 for f in frames:
-                    item = Received(name, f, now, self.merger.add(name, f))
+                    item = Received(name, f, now, self.merger.add(name, f),
+                                    base.get((f.node, f.seq)) if base else None)
                     try:
                         self.queue.put_nowait(item)
                     except queue.Full:

@@ -30,7 +30,7 @@ from rich.text import Text
 
 from ropemon.alarms import ActiveAlarm, AlarmEngine, AlarmEvent, AlarmSettings
 from ropemon.decode_cli import node_id
-from ropemon.decoder import StreamDecoder
+from ropemon.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, StreamDecoder
 from ropemon.link import DEFAULT_BAUDRATE, FrameHub
 from ropemon.protocol import DAN_TO_N, Frame, L, keys_from_options
 
@@ -386,6 +386,13 @@ class HostSession:
     Reader threads decode and merge (the hub); `pump`, on the main loop's
     thread, which also owns the SQLite store, consumes the merged frames.
     Only new frames (not duplicates) reach the alarms, the log and the view.
+
+    With keys and a store that already holds frames, the replay protection
+    resumes from the log before any receiver is read (`resumed`): a frame at or
+    below the last one logged for its node is a replay (or a duplicate of one of
+    the last frames), as if the host had not stopped. A new baseline taken on an
+    operator-accepted rewind is logged (`rebase` event) so that a restart resumes
+    from it, not from the node's older, higher sequence numbers.
     """
 
     LINK_LOG_S = 10.0   # link statistics go to the log this often
@@ -405,6 +412,19 @@ class HostSession:
         self._feeders: dict[str, Callable[[bytes], None]] = {}
         self._link_logged_s: float | None = None
         self._link_errors_logged: dict[str, int] = {}  # receiver -> callback_errors already logged
+        self._rebase_logged: dict[int, int] = {}        # node -> seq of the last baseline logged
+        self.resumed: dict[int, int] = {}               # node -> last seq logged, resumed from the store
+        if store is not None and keys:
+            self.resumed = {n: seq for n, seq in store.last_seqs().items() if n in keys}
+            self.hub.seed(self.resumed, {n: store.recent_frames(n, DUPLICATE_MEMORY) for n in self.resumed})
+
+    def resumed_text(self) -> str | None:
+        """One line saying where the replay protection resumed from (None: nothing logged before)."""
+        if not self.resumed:
+            return None
+        nodes = ", ".join(f"node {n} at boot {seq >> SEQ_COUNT_BITS} count {seq & ((1 << SEQ_COUNT_BITS) - 1)}"
+                          for n, seq in sorted(self.resumed.items()))
+        return f"resumed replay protection from the log: {nodes}"
 
     @property
     def decoders(self) -> dict[str, StreamDecoder]:
@@ -435,17 +455,18 @@ class HostSession:
             if item is None:
                 break
             n += 1
-            if not item.is_new:
-                continue
-            f = item.frame
-            now = self.clock()
-            self._events(self.alarms.update(f, now))
-            if self.store is not None:
-                self.store.add_frame(item.receiver, f, item.rx_time)
-            if self.keep_frames:
-                self.frames.append(f)
-            if self.view is not None:
-                self.view.on_frame(f, now)
+            if item.is_new:
+                f = item.frame
+                now = self.clock()
+                self._events(self.alarms.update(f, now))
+                if self.store is not None:
+                    self.store.add_frame(item.receiver, f, item.rx_time)
+                if self.keep_frames:
+                    self.frames.append(f)
+                if self.view is not None:
+                    self.view.on_frame(f, now)
+            if item.rebased_from is not None:
+                self._log_rebase(item)
         if self.keys:
             now = self.clock()
             for name, dec in list(self.hub.decoders.items()):
@@ -486,6 +507,20 @@ class HostSession:
             self.store.add_event(ev)
         self._refresh_view()
         return ev
+
+    def _log_rebase(self, item: Any) -> None:
+        """A receiver took an accepted node's frame of an older boot as its new baseline:
+        logged after that frame (`rebase` event; the receivers of one node log it once),
+        so that a restart resumes the replay protection from this sequence."""
+        f, prev = item.frame, item.rebased_from
+        if self.store is None or self._rebase_logged.get(f.node) == f.seq:
+            return
+        self._rebase_logged[f.node] = f.seq
+        mask = (1 << SEQ_COUNT_BITS) - 1
+        self.store.add_event(AlarmEvent(
+            time.time(), "rebase", f"rewound:n{f.node}", "rewound", f.node, None, f.seq, prev,
+            f"node {f.node}: boot {f.seq >> SEQ_COUNT_BITS} count {f.seq & mask} taken as its new baseline "
+            f"(was boot {prev >> SEQ_COUNT_BITS} count {prev & mask}; receiver {item.receiver})"))
 
     def link_errors(self) -> dict[str, tuple[int, str | None]]:
         """Receivers whose decoder or consumer raised: {name: (count, last error)}."""
@@ -725,6 +760,9 @@ def run(args: argparse.Namespace) -> int:
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
     session = HostSession(keys or None, alarm_settings(site, args.silent_s), store, view,
                           clock=time.time, accept_rewound=args.accept_rewound)
+    resumed = session.resumed_text()
+    if resumed is not None:
+        print(f"ropemon monitor: {resumed}", file=sys.stderr)
     operator = operator_name()
     for node in args.accept_rewound:
         session.accept_rewound(node, operator, "with --accept-rewound")

@@ -6,6 +6,8 @@ pending one is `max_latency_s` old (checked on every add and by `flush()`), so
 a frame is at most that late on disk. A frame counts as stored only once
 `commit()`/`flush()` has returned (`committed_frames`); those survive SIGKILL
 and power loss. Reopening a file continues it; a file with a newer schema is refused.
+`last_seqs` and `recent_frames` give a restarted host the replay protection state
+to resume from (docs/protocol.md).
 
 One Store belongs to one thread (sqlite3 connections are not shared).
 """
@@ -283,13 +285,20 @@ class Store:
         sql = f"SELECT id, {','.join(_FRAME_COLS)} FROM frames"
         if where:
             sql += " WHERE " + " AND ".join(where)
-        rows = self.db.execute(sql + " ORDER BY rx_time, id", args).fetchall()
+        return self._stored(self.db.execute(sql + " ORDER BY rx_time, id", args).fetchall())
+
+    def _stored(self, rows: list) -> list[StoredFrame]:
+        """StoredFrames of frames rows (id, *_FRAME_COLS), with their ropes, in the order given."""
         ropes: dict[int, list[Rope]] = {}
         if rows:
-            lo, hi = min(r[0] for r in rows), max(r[0] for r in rows)
-            for fid, _i, *vals in self.db.execute(
-                    "SELECT frame_id, rope, mean_dan, min_dan, max_dan, raw_kpa FROM ropes "
-                    "WHERE frame_id BETWEEN ? AND ? ORDER BY frame_id, rope", (lo, hi)):
+            sql = "SELECT frame_id, rope, mean_dan, min_dan, max_dan, raw_kpa FROM ropes WHERE frame_id "
+            if len(rows) <= 500:  # a few frames, maybe far apart (one node of several): by id
+                ids = [r[0] for r in rows]
+                cur = self.db.execute(sql + f"IN ({','.join('?' * len(ids))}) ORDER BY frame_id, rope", ids)
+            else:
+                cur = self.db.execute(sql + "BETWEEN ? AND ? ORDER BY frame_id, rope",
+                                      (min(r[0] for r in rows), max(r[0] for r in rows)))
+            for fid, _i, *vals in cur:
                 ropes.setdefault(fid, []).append(Rope(*vals))
         out = []
         for fid, rx, rcv, node_, seq, ver, kind, tms, st, fm, dep, spd, bat, oil, auth, mac in rows:
@@ -297,6 +306,56 @@ class Store:
                       None if auth is None else bool(auth), bytes(mac))
             out.append(StoredFrame(fid, rx, rcv, f))
         return out
+
+    # -- replay protection across restarts --------------------------------------
+
+    def _nodes(self) -> list[int]:
+        """Nodes with frames in the log (one index probe per node, not a scan)."""
+        out: list[int] = []
+        while True:
+            row = self.db.execute("SELECT min(node) FROM frames WHERE node > ?",
+                                  (out[-1] if out else -1,)).fetchone()
+            if row[0] is None:
+                return out
+            out.append(row[0])
+
+    def _line_starts(self) -> dict[int, int]:
+        """node -> id of the frame row its current sequence starts at: the frame taken
+        as its new baseline after an operator-accepted rewind (its last `rebase` event).
+        Nodes without one (or whose baseline frame was not stored) count from their first frame."""
+        out: dict[int, int] = {}
+        for node, seq in self.db.execute("SELECT node, value FROM events WHERE action = 'rebase' "
+                                         "AND node IS NOT NULL AND value IS NOT NULL ORDER BY id").fetchall():
+            row = self.db.execute("SELECT id FROM frames WHERE node = ? AND seq = ? ORDER BY id DESC LIMIT 1",
+                                  (node, int(seq))).fetchone()
+            if row is None:
+                out.pop(node, None)  # not stored (killed in between): the whole history, refused until re-accepted
+            else:
+                out[node] = row[0]
+        return out
+
+    def last_seqs(self) -> dict[int, int]:
+        """node -> newest seq among its authenticated frames (`authenticated` 1: taken by a
+        decoder with the node's key) since its current baseline: where a host that
+        restarts resumes its replay protection. Frames logged without keys
+        (`authenticated` NULL) count for nothing: anyone could have sent them."""
+        starts = self._line_starts()
+        out: dict[int, int] = {}
+        for node in self._nodes():
+            row = self.db.execute("SELECT seq FROM frames WHERE node = ? AND authenticated = 1 AND id >= ? "
+                                  "ORDER BY seq DESC LIMIT 1", (node, starts.get(node, 0))).fetchone()
+            if row is not None:
+                out[node] = row[0]
+        return out
+
+    def recent_frames(self, node: int, n: int) -> list[Frame]:
+        """The last `n` authenticated frames of `node` since its current baseline, oldest
+        first: a restarted host still tells their radio retries (duplicates) from replays."""
+        start = self._line_starts().get(node, 0)
+        rows = self.db.execute(
+            f"SELECT id, {','.join(_FRAME_COLS)} FROM frames WHERE node = ? AND authenticated = 1 AND id >= ? "
+            "ORDER BY rx_time DESC, id DESC LIMIT ?", (node, start, n)).fetchall()
+        return [sf.frame for sf in self._stored(rows[::-1])]
 
     def trips(self, node: int | None = None) -> list[Trip]:
         sql = "SELECT id, node, start_time, end_time, start_depth_mm, end_depth_mm, first_frame_id, last_frame_id FROM trips"
