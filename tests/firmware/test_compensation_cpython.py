@@ -150,6 +150,25 @@ def test_fixed_point_matches_reference_with_hydraulic_compliance(seed, faults):
     assert np.abs(ref.friction_n).max() > 5000  # the seal state moved
 
 
+def _compression_records(ph: dict, p_pa: np.ndarray, k_m: float, x_noise_counts: float = 0.0) -> np.ndarray:
+    """Records of every rope at pressure p_pa (Pa) whose piston moves only as its oil
+    compresses (x = mid-range + k dp), on ph's channels; no oil temperature input."""
+    n = int(ph["ropes"])
+    recs = np.zeros((len(p_pa), 2 * n + 4), np.uint16)
+    for i in range(n):
+        pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
+        lo, hi = pc["range_Pa"]
+        recs[:, i] = np.round(pc["counts_4mA"] + (p_pa - lo) / (hi - lo) * (pc["counts_20mA"] - pc["counts_4mA"]))
+        ylo, yhi = dc["range_m"]
+        x = 0.5 * (ylo + yhi) + k_m * (p_pa - p_pa[0])
+        cx = dc["counts_lo"] + (x - ylo) / (yhi - ylo) * (dc["counts_hi"] - dc["counts_lo"])
+        if x_noise_counts:
+            cx = cx + np.random.default_rng(i).normal(0, x_noise_counts, len(p_pa))
+        recs[:, n + i] = np.round(cx)
+    recs[:, 2 * n + 1] = 0xFFFF
+    return recs
+
+
 def test_compliance_drives_the_seal_state_from_pressure():
     """A piston that moves only as its oil compresses (x = k p, with the displacement
     channel's 2-count noise): with k, the seal state follows the pressure ramp to sliding
@@ -162,16 +181,7 @@ def test_compliance_drives_the_seal_state_from_pressure():
     k_m = 3e-10
     t = np.arange(0, 20, 1 / fs)
     p_pa = 4e6 + 1e6 * np.clip((t - 5) / 5, 0, 1)  # a loading: 4 -> 5 MPa over 5 s
-    recs = np.zeros((len(t), 2 * n + 4), np.uint16)
-    for i in range(n):
-        pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
-        lo, hi = pc["range_Pa"]
-        recs[:, i] = np.round(pc["counts_4mA"] + (p_pa - lo) / (hi - lo) * (pc["counts_20mA"] - pc["counts_4mA"]))
-        ylo, yhi = dc["range_m"]
-        x = 0.5 * (ylo + yhi) + k_m * (p_pa - p_pa[0])
-        cx = dc["counts_lo"] + (x - ylo) / (yhi - ylo) * (dc["counts_hi"] - dc["counts_lo"])
-        recs[:, n + i] = np.round(cx + np.random.default_rng(i).normal(0, 2.0, len(t)))
-    recs[:, 2 * n + 1] = 0xFFFF
+    recs = _compression_records(ph, p_pa, k_m, x_noise_counts=2.0)
     with_k = reference.compensate(dict(ph, hydraulic_compliance_m_per_Pa=[k_m] * n), recs)
     # the elastic seal state follows k dp = 300 um of travel: sigma0 x 300 um is far above
     # Fs, so the seal slides and its friction reaches g (Fs at creep speed)
@@ -196,17 +206,9 @@ def test_a_pressure_loop_fault_restarts_the_lugre_position_not_the_seal_state():
     n, fs = 4, int(ph["sample_hz"])
     t = np.arange(0, 12, 1 / fs)
     p_pa = 4e6 + 0.3e6 * np.clip((t - 1) / 2, 0, 1) + 1e6 * (t >= 6)  # a pull, then a step in the fault
-    recs = np.zeros((len(t), 2 * n + 4), np.uint16)
-    for i in range(n):
-        pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
-        lo, hi = pc["range_Pa"]
-        recs[:, i] = np.round(pc["counts_4mA"] + (p_pa - lo) / (hi - lo) * (pc["counts_20mA"] - pc["counts_4mA"]))
-        ylo, yhi = dc["range_m"]
-        x = 0.5 * (ylo + yhi) + 3e-10 * (p_pa - p_pa[0])
-        recs[:, n + i] = np.round(dc["counts_lo"] + (x - ylo) / (yhi - ylo) * (dc["counts_hi"] - dc["counts_lo"]))
+    recs = _compression_records(ph, p_pa, 3e-10)
     fault = (t >= 5) & (t < 7)
     recs[fault, 0] = 0  # rope 1's loop below 3.6 mA
-    recs[:, 2 * n + 1] = 0xFFFF
     ref = reference.compensate(ph, recs)
     ten, good, _ = run_node(Node(config.parse(doc)), recs)
     assert not good[fault, 0].any() and good[~fault, 0].all()
