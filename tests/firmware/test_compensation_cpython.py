@@ -203,7 +203,7 @@ def test_a_pressure_loop_fault_restarts_the_lugre_position_not_the_seal_state():
     ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
     doc = make_node_json(ph)
     ph = doc["physical"]
-    n, fs = 4, int(ph["sample_hz"])
+    fs = int(ph["sample_hz"])
     t = np.arange(0, 12, 1 / fs)
     p_pa = 4e6 + 0.3e6 * np.clip((t - 1) / 2, 0, 1) + 1e6 * (t >= 6)  # a pull, then a step in the fault
     recs = _compression_records(ph, p_pa, 3e-10)
