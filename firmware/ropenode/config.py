@@ -381,3 +381,24 @@ def load_for_boot(path="/node.json"):
         reason = "config %s refused: %r" % (path, e)
     ident = identity(doc) or (255, b"")
     return None, ident[0], ident[1], reason
+
+
+def release():
+    """Forget this module after boot, so that a gc.collect() can free its code.
+
+    The validator runs once, at boot, yet loaded from a .mpy file (not frozen)
+    its bytecode (~11 KB) stays in RAM for as long as anything refers to the
+    module. This drops the import system's references: sys.modules and the
+    package's `config` attribute. The caller drops its own (the module, its
+    functions and ConfigError instances; a Config keeps none of them, as its
+    class has no methods, and neither does a Node built from a Config or from
+    None) and calls gc.collect() after this returns: while this runs, the
+    module's code is still in use. A HAL releases it before importing
+    ropenode.node, so the two modules' code is never in RAM at once
+    (hal_board._boot). A later import loads the module again.
+    """
+    import sys
+    sys.modules.pop("ropenode.config", None)
+    pkg = sys.modules.get("ropenode")
+    if pkg is not None and hasattr(pkg, "config"):
+        delattr(pkg, "config")  # set by the import of the submodule

@@ -29,7 +29,6 @@ from micropython import const
 
 from ropenode import layout
 from ropenode.bootseq import FrameSeq
-from ropenode.node import Node
 
 BOOT_FILE = "/bootcount"
 _frame_seq = None  # one per boot: a restarted run() (main.py) continues it, no extra flash write
@@ -168,20 +167,51 @@ class Board:
             self.wdt.feed()
 
 
-def run(config_path="/node.json", boot_file=BOOT_FILE):
-    """Boot: load and validate the config, then sample forever (status frames if invalid)."""
+def _load_config(config_path):
+    """(cfg, node_id, key, reason) from config.load_for_boot, with ropenode.config released.
+
+    Only plain data leave: a Config (its class has no methods, so it keeps
+    none of config.py's code or globals), ints, bytes and the reason string
+    (never a ConfigError). Once this returns, its locals (the module) are gone
+    and the caller's gc.collect() frees the validator's code.
+    """
     from ropenode import config
 
-    global _frame_seq
-    if _frame_seq is None:
-        _frame_seq = FrameSeq(boot_file)
     # Missing, unreadable or refused: keep running, say so, and sign the
     # config-fault frames with the file's identity where it is still valid.
     cfg, node_id, key, reason = config.load_for_boot(config_path)
-    node = Node(cfg, node_id, key, seq=_frame_seq)
+    config.release()
+    return cfg, node_id, key, reason
+
+
+def _boot(config_path):
+    """Load and validate the config, release ropenode.config, then build the Node.
+
+    The validator is needed at boot only, and loaded from a .mpy file (not
+    frozen) its bytecode takes ~11 KB of RAM. It is released (config.release)
+    and collected before ropenode.node (kernel, frame, ...) is imported, so the
+    boot peak never holds both the validator's code and the node's: the order
+    keeps that peak under the 32 KiB budget (docs/benchmarks.md). The Config
+    left over is freed by the caller's gc.collect() once this returns.
+    Returns (node, ropes, sample_hz, temp_fitted).
+    """
+    cfg, node_id, key, reason = _load_config(config_path)
+    gc.collect()  # frees ropenode.config's code: only the Config (plain data) is left
+    from ropenode.node import Node
+
+    node = Node(cfg, node_id, key, seq=_frame_seq)  # never given a ConfigError: plain data only
     if cfg is None:
         print("ropenode:", reason, "- config-fault status frames as node", node_id)
-        board = Board(node, 4, 200)
-    else:
-        board = Board(node, cfg.ropes, cfg.sample_hz, cfg.fitted == 1)
+        return node, 4, 200, False
+    return node, cfg.ropes, cfg.sample_hz, cfg.fitted == 1
+
+
+def run(config_path="/node.json", boot_file=BOOT_FILE):
+    """Boot: load and validate the config, then sample forever (status frames if invalid)."""
+    global _frame_seq
+    if _frame_seq is None:
+        _frame_seq = FrameSeq(boot_file)
+    node, ropes, sample_hz, fitted = _boot(config_path)
+    gc.collect()  # frees the Config and the build's garbage: nothing refers to them now
+    board = Board(node, ropes, sample_hz, fitted)
     board.run_forever()

@@ -1,0 +1,164 @@
+"""The boot frees the config validator before the node's code is loaded:
+ropenode.config is imported, the config loaded and parsed, the module released
+(config.release) and collected, and only then is the Node built from the
+Config, as hal_board._boot does (the boot peak never holds both codes).
+
+Loaded from a .py or .mpy file (not frozen) the validator's bytecode is ~11 KB
+of RAM that the node needs at boot only. Under the real MicroPython
+(tests/run_micropython.py) gc.mem_alloc must drop by several KB with the
+Config still alive (its class has no methods, so it pins none of config.py),
+and the node built from it after the release must sample and frame. Under
+CPython (pytest) only the module bookkeeping and the node are checked (no
+gc.mem_alloc), and the module is put back afterwards: other test files hold
+names from it. (This file imports ropenode.node up front; the bench,
+`ropemon bench firmware`, measures the boot order's peak.)
+"""
+import array
+import gc
+import sys
+
+import json
+import os
+import random
+
+from fwtest_util import find_file, node_doc
+
+from ropenode.node import K, Node
+
+ON_MICROPYTHON = sys.implementation.name == "micropython"
+MIN_FREED = 4096  # the validator from source is ~11 KB, from .mpy a little less
+MID = 30000       # mid-scale counts for pressure and displacement (as test_node.py)
+
+
+def _mem():
+    gc.collect()
+    gc.collect()
+    return gc.mem_alloc() if ON_MICROPYTHON else 0
+
+
+def _load(path):
+    """hal_board._load_config (no `machine` here): load and validate, then release the module.
+    Returns (cfg, node_id, key, reason, heap before the release); the module stays loaded
+    until this returns."""
+    from ropenode import config
+
+    cfg, node_id, key, reason = config.load_for_boot(path)
+    before = _mem()
+    config.release()
+    return cfg, node_id, key, reason, before
+
+
+def _boot(path):
+    """(node, ropes, reason, heap freed by the release, cfg): load, release, collect, then build
+    the Node from the Config, as hal_board._boot does (0 freed under CPython, which has no
+    gc.mem_alloc)."""
+    cfg, node_id, key, reason, before = _load(path)
+    after = _mem()  # once the releasing function has returned, as hal_board._boot collects
+    assert "ropenode.config" not in sys.modules  # released before the Node is built
+    node = Node(cfg, node_id, key)
+    return node, (4 if cfg is None else cfg.ropes), reason, before - after, cfg
+
+
+def _saved():
+    """CPython: the config module and the package attribute, to put back (None under MicroPython:
+    keeping them would defeat the collection)."""
+    if ON_MICROPYTHON:
+        return None
+    import ropenode
+    from ropenode import config
+    return config, ropenode
+
+
+def _restore(saved):
+    if saved is not None:
+        config, pkg = saved
+        sys.modules["ropenode.config"] = config
+        pkg.config = config
+
+
+def _samples_and_frames(node, ropes, count):
+    rec = array.array("H", [MID] * ropes + [MID] * ropes + [60000, 0xFFFF, 0, 0])
+    buf = bytearray(64)
+    frames = 0
+    for k in range(count):
+        rec[2 * ropes + 2] = (k * 10) & 0xFFFF
+        if node.sample(rec):
+            n = node.frame_into(buf)
+            assert 0 < n <= 64 and buf[n - 1] == 0, n
+            frames += 1
+    return frames
+
+
+def test_boot_releases_config_and_the_node_still_samples():
+    path = find_file("firmware/node.json")
+    saved = _saved()
+    try:
+        node, ropes, reason, freed, cfg = _boot(path)
+        assert "ropenode.config" not in sys.modules
+        import ropenode
+        assert not hasattr(ropenode, "config")
+        if ON_MICROPYTHON:
+            assert freed >= MIN_FREED, freed  # with the Config still alive
+        assert reason is None, reason  # firmware/node.json is valid: a compensating node
+        assert cfg is not None and cfg.ropes == ropes
+        assert node.S is not None and node.n == ropes
+        frames = _samples_and_frames(node, ropes, 4 * node.window_len)
+        assert frames == 4, frames
+        t = node.rope(K.TENSION_N)
+        assert len(t) == ropes and any(t), t
+    finally:
+        _restore(saved)
+
+
+def test_config_fault_boot_releases_config_too():
+    """A refused or missing /node.json: config-fault status frames, config released all the same."""
+    saved = _saved()
+    try:
+        node, ropes, reason, freed, cfg = _boot("/nonexistent/node.json")
+        assert cfg is None and type(reason) is str and "unreadable" in reason, reason
+        assert "ropenode.config" not in sys.modules
+        if ON_MICROPYTHON:
+            assert freed >= MIN_FREED, freed
+        assert node.S is None and node.config_error is None
+        assert _samples_and_frames(node, ropes, 2 * node.window_len) == 2
+    finally:
+        _restore(saved)
+
+
+def test_refused_config_boot_keeps_only_the_reason_string():
+    """A refused /node.json (CRC mismatch): the ConfigError becomes a str reason, never kept,
+    so the release frees the module all the same; the frames carry the file's node id."""
+    doc = node_doc()
+    doc["crc"] = (doc["crc"] + 1) & 0xFFFF
+    path = "/tmp/ropemon-bootheap-%s-%08x.json" % (sys.implementation.name, random.getrandbits(32))
+    with open(path, "w") as f:
+        json.dump(doc, f)
+    doc = None
+    saved = _saved()
+    try:
+        node, ropes, reason, freed, cfg = _boot(path)
+        assert cfg is None and type(reason) is str and "refused" in reason and "crc" in reason, reason
+        assert "ropenode.config" not in sys.modules
+        if ON_MICROPYTHON:
+            assert freed >= MIN_FREED, freed
+        assert node.S is None and node.config_error is None
+        assert node.writer.node_id == node_doc()["node"]["node_id"]
+        assert _samples_and_frames(node, ropes, 2 * node.window_len) == 2
+    finally:
+        _restore(saved)
+        os.remove(path)
+
+
+def test_config_class_has_no_methods():
+    """A Config pins none of config.py: its class holds no functions (they would keep the
+    module's globals, and so its code, alive after the release)."""
+    saved = _saved()
+    try:
+        cfg = _load(find_file("firmware/node.json"))[0]
+        cls = type(cfg)
+        for name in dir(cls):
+            kind = type(getattr(cls, name)).__name__
+            assert kind not in ("function", "closure", "bound_method", "method", "staticmethod",
+                                "classmethod", "property"), (name, kind)
+    finally:
+        _restore(saved)
