@@ -47,6 +47,10 @@ friction.play_q8um 0 16777216
 friction.alpha_p_q14 1 16384
 friction.compliance_shift 5 30
 friction.warmup_samples 0 65535
+friction.alpha_e_q14 1 4096
+friction.stroke_q8um 0 32768
+friction.stroke_vmin_q16 0 536870912
+friction.stroke_settle 0 65535
 temperature.fitted 0 1
 temperature.counts_at_0c 0 65535
 temperature.cc_mul -16384 16384
@@ -292,6 +296,8 @@ def parse_node(nd):
     for i in range(n):  # k p at 100000 kPa stays a position (< 2**25 um/256)
         if (c.compliance_q[i] * 3125) >> (c.compliance_shift - 5) >= 1 << 25:
             raise ConfigError("%s.compliance_q[%d]" % (FP, i), "k times 100 MPa beyond 2**25 um/256")
+    # cylinder area over the ropes' mean, Q8: the common motion stays below 2**29
+    c.area_q8 = _ints(fr, "area_q8", FP, n, n, 128, 384)
     c.gexp_q14 = _ints(fr, "gexp_q14", FP, GEXP_POINTS, GEXP_POINTS, 0, 16384)
     if c.gexp_q14[GEXP_POINTS - 1] != 0:
         raise ConfigError(FP + ".gexp_q14[%d]" % (GEXP_POINTS - 1), "must be 0 (table end)")

@@ -79,7 +79,12 @@ _PLAY = const(43)    # LuGre play half-width, um/256
 _AP = const(44)      # LuGre position: pressure low-pass gain, Q14
 _KSH = const(45)     # hydraulic compliance shift
 _WARMN = const(46)   # samples of warm-up of b after the start
-_KQ = const(47)      # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
+_AE = const(47)      # balancing strokes: gain of the low-passes of e and of the common motion, Q14
+_STH = const(48)     # stroke threshold on e, um/256 (0: no stroke tracking)
+_SVMIN = const(49)   # common motion below this is no direction, um/65536 per sample
+_SSET = const(50)    # samples of one direction before a stroke is looked for
+_AREA = const(51)    # cylinder area per rope over the ropes' mean, Q8
+_KQ = const(_AREA + ROPES_MAX)  # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
 _PCAL = const(_KQ + ROPES_MAX)  # 9 ints per rope (config.py order)
 _DCAL = const(_PCAL + 9 * ROPES_MAX)     # 6 ints per rope
 _GEXP = const(_DCAL + 6 * ROPES_MAX)     # exp(-u^2), Q14
@@ -143,7 +148,14 @@ _XB_Q8UM = const(132)   # b: low-pass of x_f - k p_l, um/256
 _XBREM = const(136)    # its error-feedback remainder
 _XH_Q8UM = const(140)   # x_h = k p_l + b
 _WARM = const(144)     # samples since the start, up to the warm-up length
-_S_LEN = const(148)
+_MOT = const(148)      # per rope: this sample's k dp_l, um/256
+_E = const(152)        # per rope: low-pass of x_f - x_h, um/256
+_CL = const(156)       # low-pass of the common motion sum(area k dp_l), um/65536 per sample
+_SMODE = const(157)    # 0, or 1 + the rope whose piston takes the common motion (a stroke)
+_SSGN = const(158)     # direction of the common motion (+-1, 0 unknown)
+_SCNT = const(159)     # samples since that direction began, up to _SSET
+_CREM = const(160)     # remainder of the stroke motion's division by the area
+_S_LEN = const(161)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -165,10 +177,11 @@ def pack(c):
         c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window,
         c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz,
         _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um, c.alpha_p_q14,
-        c.compliance_shift, c.warmup_samples)
+        c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16,
+        c.stroke_settle)
     for j in range(len(head)):
         p[j] = head[j]
-    for src, off in ((c.compliance_q, _KQ), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
+    for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
                      (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]),
                      (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
@@ -267,6 +280,59 @@ def step(rec, P, S, n):
     ksh4 = P[_KSH] - 4
     ksh8 = P[_KSH] + 8
     warm = P[_WARMN]
+    ae = P[_AE]
+    # the LuGre position's pressure part first (docs/model.md): p_l the low-passed pressure
+    # in kPa/16 (|p| <= 100000 kPa: p_l < 2**25 in kPa/256), k p_l split at 12 bits
+    # (k < 2**17; 1 kPa steps would move the tension by up to 90 N), and its step this
+    # sample; their sum over the ropes, weighted by area, is the oil's common motion
+    cv = 0
+    allw = 1  # every rope healthy, started before and warmed up: cv is whole
+    for i in range(n):
+        if (good >> i) & 1:
+            kq = P[_KQ + i]
+            if ((S[_STARTED] >> i) & 1) == 0:
+                x = S[X_Q8UM + i]
+                S[XF_Q8UM + i] = x
+                S[XS_Q8UM + i] = x
+                S[XP_Q8UM + i] = x
+                S[_XH_Q8UM + i] = x
+                pl = S[P_KPA16 + i] << 4
+                S[_PL_Q8 + i] = pl
+                S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8))
+                S[_XBREM + i] = 0
+                S[_WARM + i] = 0
+                S[_E + i] = 0
+                S[_STARTED] |= 1 << i
+                allw = 0
+            pl = S[_PL_Q8 + i]
+            m = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8)
+            e = (S[P_KPA16 + i] << 4) - pl
+            pl += (e >> 14) * ap + (((e & 16383) * ap + 8192) >> 14)
+            S[_PL_Q8 + i] = pl
+            m = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8) - m
+            if m > dxmax:
+                m = dxmax
+            elif m < -dxmax:
+                m = -dxmax
+            S[_MOT + i] = m
+            cv += m * P[_AREA + i]  # |cv| < 4 * 2**18 * 384 < 2**29
+            if S[_WARM + i] < warm:
+                allw = 0
+        else:
+            allw = 0
+    if P[_STH] == 0:
+        allw = 0
+    # a balancing stroke (docs/model.md): the piston of rope mode-1 takes the whole common
+    # motion, sm = cv / its area (remainder fed back), and the others stand
+    mode = S[_SMODE]
+    sm = 0
+    if allw == 0:
+        mode = 0
+    if mode > 0:
+        t = cv + S[_CREM]
+        c = P[_AREA + mode - 1]
+        sm = t // c
+        S[_CREM] = t - sm * c
     for i in range(n):
         # velocity: x_f += alpha (x - x_f), increment clamped to +-dx_max
         dx = 0
@@ -277,17 +343,6 @@ def step(rec, P, S, n):
         if (good >> i) & 1:
             x = S[X_Q8UM + i]
             kq = P[_KQ + i]
-            if ((S[_STARTED] >> i) & 1) == 0:
-                S[XF_Q8UM + i] = x
-                S[XS_Q8UM + i] = x
-                S[XP_Q8UM + i] = x
-                S[_XH_Q8UM + i] = x
-                pl = S[P_KPA16 + i] << 4
-                S[_PL_Q8 + i] = pl
-                S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8))
-                S[_XBREM + i] = 0
-                S[_WARM + i] = 0
-                S[_STARTED] |= 1 << i
             e = x - S[XF_Q8UM + i]  # |e| < 2**26: positions are within +-2**25
             # e * alpha / 2**14 rounded, split so no product exceeds 2**28
             dx = (e >> 14) * alpha + (((e & 16383) * alpha + 8192) >> 14)
@@ -298,15 +353,21 @@ def step(rec, P, S, n):
             xf = S[XF_Q8UM + i] + dx
             S[XF_Q8UM + i] = xf
             v = (dx * fshz + 128) >> 8
-            # the LuGre's position x_h = k p_l + b (docs/model.md): p_l the low-passed
-            # pressure in kPa/16 (|p| <= 100000 kPa: p_l < 2**25 in kPa/256), k p_l split
-            # at 12 bits (k < 2**17); 1 kPa steps would move the tension by up to 90 N
-            e = (S[P_KPA16 + i] << 4) - S[_PL_Q8 + i]
-            pl = S[_PL_Q8 + i] + (e >> 14) * ap + (((e & 16383) * ap + 8192) >> 14)
-            S[_PL_Q8 + i] = pl
+            # the LuGre's position x_h = k p_l + b (docs/model.md)
+            pl = S[_PL_Q8 + i]
             kp = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8)
+            if mode > 0:  # in a stroke b moves the common motion over to rope mode-1
+                t = sm - S[_MOT + i]
+                if i != mode - 1:
+                    t = -S[_MOT + i]
+                t += S[_XB_Q8UM + i]
+                if t > 0x4000000:  # a position: within +-2**26 whatever the stream
+                    t = 0x4000000
+                elif t < -0x4000000:
+                    t = -0x4000000
+                S[_XB_Q8UM + i] = t
             # b: low-pass of x_f - k p_l with error feedback (a slow b has no dead band),
-            # a running mean during the warm-up (|e| < 2**27)
+            # a running mean during the warm-up (|e| < 2**28)
             e = xf - kp - S[_XB_Q8UM + i]
             a = az
             w = S[_WARM + i]
@@ -322,6 +383,9 @@ def step(rec, P, S, n):
             xh = kp + S[_XB_Q8UM + i]
             dxs = xh - S[_XH_Q8UM + i]
             S[_XH_Q8UM + i] = xh
+            # e: low-pass of x_f - x_h, where a stroke shows (|e| < 2**28)
+            e = xf - xh - S[_E + i]
+            S[_E + i] += (e >> 14) * ae + (((e & 16383) * ae + 8192) >> 14)
             if w < warm:
                 dxs -= inc  # b settles from the first sample's noise: not seal travel
             if dxs > dxmax:
@@ -437,6 +501,83 @@ def step(rec, P, S, n):
                 S[MIN_N + i] = t
             if t > S[MAX_N + i]:
                 S[MAX_N + i] = t
+
+    # balancing strokes (docs/model.md): the direction of the common motion (cl, its
+    # low-pass), and a stroke when one rope's e runs ahead in that direction by more
+    # than the threshold after the direction held _SSET samples; it ends when the
+    # direction turns or a rope's e leaves the stroke's model. A stroke's start and end
+    # re-anchor x_h on x_f by e, without seal travel.
+    if allw == 0:
+        S[_SMODE] = 0
+        S[_SSGN] = 0
+        S[_SCNT] = 0
+        S[_CL] = 0
+        S[_CREM] = 0
+    else:
+        e = cv - S[_CL]  # |e| < 2**30: |cv|, |cl| < 2**29
+        c = S[_CL] + (e >> 14) * ae + (((e & 16383) * ae + 8192) >> 14)
+        S[_CL] = c
+        s = -1
+        if c > 0:
+            s = 1
+        sg = S[_SSGN]
+        th = P[_STH]
+        re = 0
+        if mode == 0:
+            # what e holds beyond a quarter of the threshold (noise: 1.6 sigma) is
+            # real unequal sharing: x_h takes it over at 1/64 per sample, without
+            # seal travel; a stroke's e runs faster than that and still shows
+            lim = th >> 2
+            for i in range(n):
+                t = S[_E + i]
+                c = t
+                if t < 0:
+                    c = -t
+                if c > lim:
+                    c = (c - lim + 32) >> 6
+                    if t < 0:
+                        c = -c
+                    S[_XB_Q8UM + i] += c
+                    S[_XH_Q8UM + i] += c
+                    S[_E + i] = t - c
+            c = S[_CL]
+            if c < 0:
+                c = -c
+            if c > P[_SVMIN] and s != sg:
+                S[_SSGN] = s
+                S[_SCNT] = 0
+            elif S[_SCNT] < P[_SSET]:
+                S[_SCNT] += 1
+            if c > P[_SVMIN] and S[_SCNT] >= P[_SSET]:
+                best = 0
+                for i in range(n):
+                    t = S[_E + i] * s
+                    if t > th:
+                        th = t
+                        best = i + 1
+                if best > 0:
+                    S[_SMODE] = best
+                    S[_CREM] = 0
+                    re = 1
+        else:
+            if s != sg:
+                re = 1
+                S[_SCNT] = 0
+            for i in range(n):
+                t = S[_E + i] * sg
+                if i == mode - 1:
+                    t = -t
+                if t > th:
+                    re = 1
+            if re != 0:
+                S[_SMODE] = 0
+                S[_SSGN] = s
+        if re != 0:  # a stroke starts or ends: x_h re-anchored on x_f, without seal travel
+            for i in range(n):
+                t = S[_E + i]
+                S[_XB_Q8UM + i] += t
+                S[_XH_Q8UM + i] += t
+                S[_E + i] = 0
 
     # depth from the counter's wrapped difference; Hall marks snap it
     c = rec[rb + 2]

@@ -57,7 +57,12 @@ _PLAY = const(43)
 _AP = const(44)
 _KSH = const(45)
 _WARMN = const(46)
-_KQ = const(47)
+_AE = const(47)
+_STH = const(48)
+_SVMIN = const(49)
+_SSET = const(50)
+_AREA = const(51)
+_KQ = const(_AREA + ROPES_MAX)
 _PCAL = const(_KQ + ROPES_MAX)
 _DCAL = const(_PCAL + 9 * ROPES_MAX)
 _GEXP = const(_DCAL + 6 * ROPES_MAX)
@@ -119,7 +124,14 @@ _XB_Q8UM = const(132)
 _XBREM = const(136)
 _XH_Q8UM = const(140)
 _WARM = const(144)
-_S_LEN = const(148)
+_MOT = const(148)
+_E = const(152)
+_CL = const(156)
+_SMODE = const(157)
+_SSGN = const(158)
+_SCNT = const(159)
+_CREM = const(160)
+_S_LEN = const(161)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -133,10 +145,10 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um, c.alpha_p_q14, c.compliance_shift, c.warmup_samples)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um, c.alpha_p_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle)
     for j in range(len(head)):
         p[j] = head[j]
-    for src, off in ((c.compliance_q, _KQ), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
+    for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
             p[off + j] = src[j]
     return p
@@ -230,16 +242,14 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     ksh4 = (P[_KSH] ^ s31) - s31 - 4
     ksh8 = (P[_KSH] ^ s31) - s31 + 8
     warm = (P[_WARMN] ^ s31) - s31
+    ae = (P[_AE] ^ s31) - s31
+    cv = 0
+    allw = 1
     for i in range(n):
-        dx = 0
-        v = 0
-        dxs = 0
-        dxp = 0
-        avz = 0
         if good >> i & 1:
-            x = (S[X_Q8UM + i] ^ s31) - s31
             kq = (P[_KQ + i] ^ s31) - s31
             if (S[_STARTED] ^ s31) - s31 >> i & 1 == 0:
+                x = (S[X_Q8UM + i] ^ s31) - s31
                 S[XF_Q8UM + i] = x
                 S[XS_Q8UM + i] = x
                 S[XP_Q8UM + i] = x
@@ -249,7 +259,45 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8))
                 S[_XBREM + i] = 0
                 S[_WARM + i] = 0
+                S[_E + i] = 0
                 S[_STARTED] |= 1 << i
+                allw = 0
+            pl = (S[_PL_Q8 + i] ^ s31) - s31
+            m = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8)
+            e = ((S[P_KPA16 + i] ^ s31) - s31 << 4) - pl
+            pl += (e >> 14) * ap + ((e & 16383) * ap + 8192 >> 14)
+            S[_PL_Q8 + i] = pl
+            m = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8) - m
+            if m > dxmax:
+                m = dxmax
+            elif m < -dxmax:
+                m = -dxmax
+            S[_MOT + i] = m
+            cv += m * ((P[_AREA + i] ^ s31) - s31)
+            if (S[_WARM + i] ^ s31) - s31 < warm:
+                allw = 0
+        else:
+            allw = 0
+    if (P[_STH] ^ s31) - s31 == 0:
+        allw = 0
+    mode = (S[_SMODE] ^ s31) - s31
+    sm = 0
+    if allw == 0:
+        mode = 0
+    if mode > 0:
+        t = cv + ((S[_CREM] ^ s31) - s31)
+        c = (P[_AREA + mode - 1] ^ s31) - s31
+        sm = t // c
+        S[_CREM] = t - sm * c
+    for i in range(n):
+        dx = 0
+        v = 0
+        dxs = 0
+        dxp = 0
+        avz = 0
+        if good >> i & 1:
+            x = (S[X_Q8UM + i] ^ s31) - s31
+            kq = (P[_KQ + i] ^ s31) - s31
             e = x - ((S[XF_Q8UM + i] ^ s31) - s31)
             dx = (e >> 14) * alpha + ((e & 16383) * alpha + 8192 >> 14)
             if dx > dxmax:
@@ -259,10 +307,18 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             xf = (S[XF_Q8UM + i] ^ s31) - s31 + dx
             S[XF_Q8UM + i] = xf
             v = dx * fshz + 128 >> 8
-            e = ((S[P_KPA16 + i] ^ s31) - s31 << 4) - ((S[_PL_Q8 + i] ^ s31) - s31)
-            pl = (S[_PL_Q8 + i] ^ s31) - s31 + (e >> 14) * ap + ((e & 16383) * ap + 8192 >> 14)
-            S[_PL_Q8 + i] = pl
+            pl = (S[_PL_Q8 + i] ^ s31) - s31
             kp = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8)
+            if mode > 0:
+                t = sm - ((S[_MOT + i] ^ s31) - s31)
+                if i != mode - 1:
+                    t = -((S[_MOT + i] ^ s31) - s31)
+                t += (S[_XB_Q8UM + i] ^ s31) - s31
+                if t > 67108864:
+                    t = 67108864
+                elif t < -67108864:
+                    t = -67108864
+                S[_XB_Q8UM + i] = t
             e = xf - kp - ((S[_XB_Q8UM + i] ^ s31) - s31)
             a = az
             w = (S[_WARM + i] ^ s31) - s31
@@ -278,6 +334,8 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             xh = kp + ((S[_XB_Q8UM + i] ^ s31) - s31)
             dxs = xh - ((S[_XH_Q8UM + i] ^ s31) - s31)
             S[_XH_Q8UM + i] = xh
+            e = xf - xh - ((S[_E + i] ^ s31) - s31)
+            S[_E + i] += (e >> 14) * ae + ((e & 16383) * ae + 8192 >> 14)
             if w < warm:
                 dxs -= inc
             if dxs > dxmax:
@@ -381,6 +439,74 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 S[MIN_N + i] = t
             if t > (S[MAX_N + i] ^ s31) - s31:
                 S[MAX_N + i] = t
+    if allw == 0:
+        S[_SMODE] = 0
+        S[_SSGN] = 0
+        S[_SCNT] = 0
+        S[_CL] = 0
+        S[_CREM] = 0
+    else:
+        e = cv - ((S[_CL] ^ s31) - s31)
+        c = (S[_CL] ^ s31) - s31 + (e >> 14) * ae + ((e & 16383) * ae + 8192 >> 14)
+        S[_CL] = c
+        s = -1
+        if c > 0:
+            s = 1
+        sg = (S[_SSGN] ^ s31) - s31
+        th = (P[_STH] ^ s31) - s31
+        re = 0
+        if mode == 0:
+            lim = th >> 2
+            for i in range(n):
+                t = (S[_E + i] ^ s31) - s31
+                c = t
+                if t < 0:
+                    c = -t
+                if c > lim:
+                    c = c - lim + 32 >> 6
+                    if t < 0:
+                        c = -c
+                    S[_XB_Q8UM + i] += c
+                    S[_XH_Q8UM + i] += c
+                    S[_E + i] = t - c
+            c = (S[_CL] ^ s31) - s31
+            if c < 0:
+                c = -c
+            if c > (P[_SVMIN] ^ s31) - s31 and s != sg:
+                S[_SSGN] = s
+                S[_SCNT] = 0
+            elif (S[_SCNT] ^ s31) - s31 < (P[_SSET] ^ s31) - s31:
+                S[_SCNT] += 1
+            if c > (P[_SVMIN] ^ s31) - s31 and (S[_SCNT] ^ s31) - s31 >= (P[_SSET] ^ s31) - s31:
+                best = 0
+                for i in range(n):
+                    t = ((S[_E + i] ^ s31) - s31) * s
+                    if t > th:
+                        th = t
+                        best = i + 1
+                if best > 0:
+                    S[_SMODE] = best
+                    S[_CREM] = 0
+                    re = 1
+        else:
+            if s != sg:
+                re = 1
+                S[_SCNT] = 0
+            for i in range(n):
+                t = ((S[_E + i] ^ s31) - s31) * sg
+                if i == mode - 1:
+                    t = -t
+                if t > th:
+                    re = 1
+            if re != 0:
+                S[_SMODE] = 0
+                S[_SSGN] = s
+        if re != 0:
+            for i in range(n):
+                t = (S[_E + i] ^ s31) - s31
+                S[_XB_Q8UM + i] += t
+                S[_XH_Q8UM + i] += t
+                S[_E + i] = 0
     c = rec[rb + 2]
     prev = (S[_PREV_COUNT] ^ s31) - s31
     S[_PREV_COUNT] = c

@@ -39,6 +39,14 @@ DEFAULTS = {
     "pressure_cutoff_hz": 5.0,     # low-pass of the pressure in k p_l
     "pressure_noise_Pa": 5e3,      # rms noise of the pressure channel (transmitter + ADC)
     "friction_warmup_s": 0.0,      # b a running mean this long after the start: 0 s without, 2 s with
+    # balancing strokes (docs/model.md), tracked with a compliance and 2 or more ropes: the
+    # low-pass of each rope's x_f - x_h and of the common motion, the threshold on the
+    # former in its rms noise, the common speed below which it has no direction, and how
+    # long a direction must hold before a stroke is looked for
+    "stroke_cutoff_hz": 1.0,
+    "stroke_sigmas": 6.5,
+    "stroke_min_speed_m_s": 1e-5,
+    "stroke_settle_s": 4.0,
 }
 # the defaults that change when a compliance is given
 COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
@@ -177,11 +185,36 @@ def physical_params(ph: dict) -> dict:
                                                   1e3 / 16 / math.sqrt(12)), alpha_p)
     else:
         sigma = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)
+    fe_hz = _num(ph, "stroke_cutoff_hz", 0.01, fs / 2)
+    alpha_e = min(4096, max(1, round((1 - math.exp(-2 * math.pi * fe_hz / fs)) * 16384))) / 16384
+    areas = _per_rope(ph, "cylinder_area_m2", n)
+    for i, a in enumerate(areas):
+        if isinstance(a, bool) or not isinstance(a, (int, float)) or not 1e-4 <= a <= 0.1:
+            raise ValueError(f"physical.cylinder_area_m2[{i}]: {a!r} out of range 1e-4..0.1 m^2")
+    mean_area = sum(areas) / n
+    area_w = [round(256 * a / mean_area) / 256 for a in areas]
+    if not all(0.5 <= a <= 1.5 for a in area_w):
+        raise ValueError("physical.cylinder_area_m2: the node tracks strokes for cylinders within "
+                         "+-50 % of the ropes' mean area")
+    # a stroke shows in the low-pass of x_f - x_h beyond stroke_sigmas times its noise:
+    # the displacement's through x_f and that low-pass; only with a compliance and 2+
+    # ropes (stroke_sigmas 0: not tracked)
+    stroke_m = 0.0
+    sigmas = _num(ph, "stroke_sigmas", 0.0, 100.0)
+    if any(k) and n > 1 and sigmas > 0:
+        e_noise = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_e)
+        stroke_m = max(1, round(sigmas * e_noise * 256e6)) / 256e6
     return {
         "ropes": n,
         "alpha": alpha,
         "alpha_z": alpha_z,
         "alpha_p": alpha_p,
+        "alpha_e": alpha_e,
+        "area_w": area_w,
+        "stroke_m": stroke_m,
+        # um/65536 per sample, as the node compares it
+        "stroke_vmin": round(_num(ph, "stroke_min_speed_m_s", 0.0, 1.0) / fs * 1e6 * 65536) / 65536e6,
+        "stroke_settle": round(_num(ph, "stroke_settle_s", 0.0, 300.0) * fs),
         "compliance": k,
         "warmup": round(_num(ph, "friction_warmup_s", 0.0, 60.0) * fs),
         # in steps of PLAY_STEP_M: channels that differ by a few counts per metre share a play
@@ -314,6 +347,8 @@ def build_node_section(ph: dict) -> dict:
     v_max_um_s = (dx_max * fs + 128) >> 8
     nd["velocity"] = {"alpha_q14": max(1, round(pp["alpha"] * 16384)), "dx_max_q8um": dx_max}
     play_q8um = round(pp["play_m"] * 256e6)
+    stroke_q8um = round(pp["stroke_m"] * 256e6)
+    _check("physical.stroke_sigmas (stroke threshold, um/256)", stroke_q8um, (1 << 15) + 1)
     _check("physical.friction_play_sigmas (play half-width, um/256)", play_q8um, 1 << 24)
 
     fr = _get(ph, "friction")
@@ -391,6 +426,10 @@ def build_node_section(ph: dict) -> dict:
                       "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
                       "alpha_p_q14": max(1, round(pp["alpha_p"] * 16384)), "compliance_q": kq,
                       "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),
+                      "alpha_e_q14": round(pp["alpha_e"] * 16384), "area_q8": [round(a * 256) for a in pp["area_w"]],
+                      "stroke_q8um": stroke_q8um,
+                      "stroke_vmin_q16": min(round(pp["stroke_vmin"] * 65536e6), 1 << 29),
+                      "stroke_settle": min(pp["stroke_settle"], 65535),
                       **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
     fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p for p in (0.0, p_kpa_max / 1000))
     f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous

@@ -108,10 +108,7 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
     n = pp["ropes"]
     fs = float(ph["sample_hz"])
     h = 1.0 / fs
-    alpha, v_max, p_max = pp["alpha"], pp["v_max"], pp["p_max_pa"]
-    alpha_z, play = pp["alpha_z"], pp["play_m"]
-    alpha_p, warm = pp["alpha_p"], pp["warmup"]
-    dx_max = v_max * h
+    p_max = pp["p_max_pa"]
     areas = [float(a) for a in ph["cylinder_area_m2"]]
     fr = ph["friction"]
     sigma0, sigma1 = float(fr["sigma0"]), float(fr["sigma1"])
@@ -122,6 +119,9 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
     out = {name: np.zeros(shape) for name in ("tension", "raw", "fric", "loss", "p", "v")}
     good = np.zeros(shape, bool)
     fault = np.zeros(k, int)
+    P = np.zeros(shape)
+    X = np.zeros(shape)
+    OK = np.zeros(shape, bool)
     for i in range(n):
         pc = ph["pressure_channels"][i]
         c4, c20 = pc["counts_4mA"], pc["counts_20mA"]
@@ -129,63 +129,21 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
         flo, fhi = namur_limits(c4, c20)
         cp = records[:, i].astype(float)
         p_ok = (cp >= flo) & (cp <= fhi)
-        p = _hold(plo + (cp - c4) * (phi - plo) / (c20 - c4), p_ok)
+        P[:, i] = _hold(plo + (cp - c4) * (phi - plo) / (c20 - c4), p_ok)
         dc = ph["displacement_channels"][i]
         clo, chi = dc["counts_lo"], dc["counts_hi"]
         xlo, xhi = dc["range_m"]
         dlo, dhi = namur_limits(clo, chi)
         cx = records[:, n + i].astype(float)
         x_ok = (cx >= dlo) & (cx <= dhi)
-        x = xlo + (cx - clo) * (xhi - xlo) / (chi - clo)
+        X[:, i] = xlo + (cx - clo) * (xhi - xlo) / (chi - clo)
         fault |= np.where(p_ok, 0, 1 << i) | np.where(x_ok, 0, 16 << i)
-        p_seen = np.maximum.accumulate(p_ok)
-        x_seen = np.maximum.accumulate(x_ok)
-        # Velocity: filtered position, clamped increment; held where x failed. The LuGre
-        # state follows x_h = k p_l + b (p_l: low-passed pressure; b: slow low-pass of
-        # x_f - k p_l, a running mean during the warm-up), through x_s, the sum of its clamped
-        # increments (elastic part), and the play output x_p of x_s (dissipation), so that
-        # noise neither drags nor erases it. Runs while both loops are healthy and starts
-        # again (with its warm-up) after a fault of either.
-        dx = np.zeros(k)
-        dxs = np.zeros(k)
-        dxp = np.zeros(k)
-        kh = pp["compliance"][i]
-        xf = xs = xp = xh = pl = xb = None
-        w = 0
-        for j, (xj, okj, pj, pokj) in enumerate(zip(x.tolist(), x_ok.tolist(), p.tolist(),
-                                                     p_ok.tolist())):
-            if not (okj and pokj):
-                xf = None  # after a loop fault the filters start again, the seal state is kept
-                continue
-            if xf is None:
-                xf = xs = xp = xh = xj
-                pl = pj
-                xb = xj - kh * pl
-                w = min(1, warm)  # as the node, which counts the first sample into the warm-up
-                continue
-            step = alpha * (xj - xf)
-            step = dx_max if step > dx_max else (-dx_max if step < -dx_max else step)
-            xf += step
-            dx[j] = step
-            pl += alpha_p * (pj - pl)
-            a = alpha_z
-            if w < warm:
-                a = max(alpha_z, 1.0 / (w + 1))
-            inc = a * (xf - kh * pl - xb)
-            xb += inc
-            step = kh * pl + xb - xh
-            xh += step
-            if w < warm:
-                step -= inc
-                w += 1
-            step = dx_max if step > dx_max else (-dx_max if step < -dx_max else step)
-            xs += step
-            dxs[j] = step
-            if xs > xp + play:
-                dxp[j] = xs - play - xp
-            elif xs < xp - play:
-                dxp[j] = xs + play - xp
-            xp += dxp[j]
+        good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
+        OK[:, i] = p_ok & x_ok
+    DX, DXS, DXP = _observer(pp, P, X, OK, fs)
+    for i in range(n):
+        p = P[:, i]
+        dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]
         v = dx * fs
         # LuGre in zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g.
         pm = np.clip(p, 0.0, p_max) / 1e6
@@ -205,17 +163,128 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
         fric = zn + c1 * (zn - zprev) + lin["sigma2"] * v
         loss = _loss_force(ph, i, areas[i], v, temp_c)
         raw = p * areas[i]
-        ok = p_ok & x_ok & p_seen & x_seen
+        ok = good[:, i]
         out["tension"][:, i] = np.where(ok, raw + loss + fric, np.nan)
         out["raw"][:, i] = raw
         out["fric"][:, i] = fric
         out["loss"][:, i] = loss
         out["p"][:, i] = p
         out["v"][:, i] = v
-        good[:, i] = ok
     return Compensated(out["tension"], out["raw"], out["fric"], out["loss"], out["p"],
                        out["v"], good, fault)
 
+
+
+def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float):
+    """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
+    position x_h = k p_l + b and its play, with the balancing-stroke tracking (docs/model.md).
+
+    Runs while both loops of a rope are healthy and starts again (with its warm-up)
+    after a fault of either; strokes are tracked only while every rope runs warmed up."""
+    k, n = P.shape
+    alpha, dx_max, play = pp["alpha"], pp["v_max"] / fs, pp["play_m"]
+    alpha_z, alpha_p, alpha_e, warm = pp["alpha_z"], pp["alpha_p"], pp["alpha_e"], pp["warmup"]
+    kh, aw = pp["compliance"], pp["area_w"]
+    th, vmin, settle = pp["stroke_m"], pp["stroke_vmin"], pp["stroke_settle"]
+    dx = np.zeros((k, n))
+    dxs = np.zeros((k, n))
+    dxp = np.zeros((k, n))
+    started = [False] * n
+    xf, xs, xp, xh, pl, xb, e, mot = ([0.0] * n for _ in range(8))
+    w = [0] * n
+    cl, mode, sgn, cnt = 0.0, 0, 0, 0
+    clamp = lambda v, lim: lim if v > lim else (-lim if v < -lim else v)  # noqa: E731
+    for j, (xr, pr, okr) in enumerate(zip(X.tolist(), P.tolist(), OK.tolist())):
+        cv = 0.0
+        allw = th > 0
+        for i in range(n):
+            if not okr[i]:
+                started[i] = False  # after a loop fault the filters start again, the seal state is kept
+                allw = False
+                continue
+            if not started[i]:
+                started[i] = True
+                xf[i] = xs[i] = xp[i] = xh[i] = xr[i]
+                pl[i] = pr[i]
+                xb[i] = xr[i] - kh[i] * pl[i]
+                w[i] = 0
+                e[i] = 0.0
+                allw = False
+            m = kh[i] * pl[i]
+            pl[i] += alpha_p * (pr[i] - pl[i])
+            mot[i] = clamp(kh[i] * pl[i] - m, dx_max)
+            cv += mot[i] * aw[i]
+            if w[i] < warm:
+                allw = False
+        if not allw:
+            mode = 0
+        sm = cv / aw[mode - 1] if mode > 0 else 0.0
+        for i in range(n):
+            if not okr[i]:
+                continue
+            step = clamp(alpha * (xr[i] - xf[i]), dx_max)
+            xf[i] += step
+            dx[j, i] = step
+            kp = kh[i] * pl[i]
+            if mode > 0:  # a stroke: the common motion is rope mode-1's, the others stand
+                xb[i] += (sm if i == mode - 1 else 0.0) - mot[i]
+            a = alpha_z
+            if w[i] < warm:
+                a = max(alpha_z, 1.0 / (w[i] + 1))
+            inc = a * (xf[i] - kp - xb[i])
+            xb[i] += inc
+            step = kp + xb[i] - xh[i]
+            xh[i] += step
+            if w[i] < warm:
+                step -= inc
+                w[i] += 1
+            e[i] += alpha_e * (xf[i] - xh[i] - e[i])
+            step = clamp(step, dx_max)
+            xs[i] += step
+            dxs[j, i] = step
+            if xs[i] > xp[i] + play:
+                dxp[j, i] = xs[i] - play - xp[i]
+            elif xs[i] < xp[i] - play:
+                dxp[j, i] = xs[i] + play - xp[i]
+            xp[i] += dxp[j, i]
+        if not allw:
+            mode, sgn, cnt, cl = 0, 0, 0, 0.0
+            continue
+        cl += alpha_e * (cv - cl)
+        s = 1 if cl > 0 else -1
+        moving = abs(cl) > vmin
+        re = False
+        if mode == 0:
+            # e beyond a quarter of the threshold (noise: 1.6 sigma) is real unequal
+            # sharing: x_h takes it over at 1/64 per sample, without seal travel
+            for i in range(n):
+                a = abs(e[i]) - th / 4
+                if a > 0:
+                    a = math.copysign(a / 64, e[i])
+                    xb[i] += a
+                    xh[i] += a
+                    e[i] -= a
+            if moving and s != sgn:
+                sgn, cnt = s, 0
+            elif cnt < settle:
+                cnt += 1
+            if moving and cnt >= settle:
+                best = max(range(n), key=lambda i: e[i] * s)
+                if e[best] * s > th:
+                    mode, re = best + 1, True
+        else:
+            if s != sgn:
+                re, cnt = True, 0
+            if any((-e[i] if i == mode - 1 else e[i]) * sgn > th for i in range(n)):
+                re = True
+            if re:
+                mode, sgn = 0, s
+        if re:  # a stroke starts or ends: x_h re-anchored on x_f, without seal travel
+            for i in range(n):
+                xb[i] += e[i]
+                xh[i] += e[i]
+                e[i] = 0.0
+    return dx, dxs, dxp
 
 def decimate(ph: dict, comp: Compensated) -> Frames:
     """Frame-window mean/min/max of the good samples (NaN for a window with none)."""

@@ -50,10 +50,14 @@ def variant_doc(ropes=None, temp_fitted=False, compliance=False):
         for key in ("v_um_s", "force_n"):
             nd["loss"][key] = nd["loss"][key][:ropes]
         nd["friction"]["compliance_q"] = nd["friction"]["compliance_q"][:ropes]
+        nd["friction"]["area_q8"] = nd["friction"]["area_q8"][:ropes]
     if compliance:
-        # k = 1 um/kPa: k times 100 MPa is 0.1 m, the config check's limit
+        # k = 1 um/kPa: k times 100 MPa is 0.1 m, the config check's limit; stroke tracking
+        # at its extremes (the fastest low-passes, areas 0.5 and 1.5 of the mean, a stroke
+        # at every 1/256 um of e, no settling), so every branch of it runs
         nd["friction"].update(compliance_q=[131071] * nd["ropes"], compliance_shift=9,
-                              warmup_samples=400)
+                              warmup_samples=400, alpha_e_q14=4096, stroke_q8um=1, stroke_vmin_q16=0,
+                              stroke_settle=0, area_q8=[(128, 384)[i % 2] for i in range(nd["ropes"])])
     if temp_fitted:
         # 4-20 mA = 9600..48000 counts = -20..+80 C; loss table rows clamp at both ends
         nd["temperature"] = {"fitted": 1, "counts_at_0c": 17280, "cc_mul": 8533, "cc_shift": 15,
