@@ -187,15 +187,13 @@ def physical_params(ph: dict) -> dict:
         sigma = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)
     fe_hz = _num(ph, "stroke_cutoff_hz", 0.01, fs / 2)
     alpha_e = min(4096, max(1, round((1 - math.exp(-2 * math.pi * fe_hz / fs)) * 16384))) / 16384
-    areas = _per_rope(ph, "cylinder_area_m2", n)
-    for i, a in enumerate(areas):
-        if isinstance(a, bool) or not isinstance(a, (int, float)) or not 1e-4 <= a <= 0.1:
-            raise ValueError(f"physical.cylinder_area_m2[{i}]: {a!r} out of range 1e-4..0.1 m^2")
-    mean_area = sum(areas) / n
-    area_w = [round(256 * a / mean_area) / 256 for a in areas]
-    if not all(0.5 <= a <= 1.5 for a in area_w):
-        raise ValueError("physical.cylinder_area_m2: the node tracks strokes for cylinders within "
-                         "+-50 % of the ropes' mean area")
+    # each cylinder's area over the mean (Q8, as the node holds it); build_node_section
+    # checks the areas themselves and refuses weights beyond 0.5 .. 1.5
+    areas = ph.get("cylinder_area_m2")
+    area_w = [1.0] * n
+    if isinstance(areas, list) and len(areas) == n and all(
+            isinstance(a, (int, float)) and not isinstance(a, bool) and a > 0 for a in areas):
+        area_w = [round(256 * a * n / sum(areas)) / 256 for a in areas]
     # a stroke shows in the low-pass of x_f - x_h beyond stroke_sigmas times its noise:
     # the displacement's through x_f and that low-pass; only with a compliance and 2+
     # ropes (stroke_sigmas 0: not tracked)
@@ -271,6 +269,10 @@ def build_node_section(ph: dict) -> dict:
     for i, a in enumerate(areas):
         if not isinstance(a, (int, float)) or not 1e-4 <= a <= 0.1:
             raise ValueError(f"physical.cylinder_area_m2[{i}]: {a!r} out of range 1e-4..0.1 m^2")
+    for i, w in enumerate(pp["area_w"]):
+        if not 0.5 <= w <= 1.5:
+            raise ValueError(f"physical.cylinder_area_m2[{i}]: {w:.2f} times the ropes' mean area; the node "
+                             "shares the oil's motion among cylinders within 0.5 .. 1.5 of it")
     rated = _num(ph, "rated_rope_tension_N", 1e3, 3e5)
     p_max_pa = pp["p_max_pa"]
     p_kpa_max = math.ceil(p_max_pa / 1000)

@@ -111,3 +111,18 @@ def test_node_runs_the_observer_values_the_reference_uses():
     assert cfg.play_q8um != build_node_section(example_physical())["friction"]["play_q8um"]
     p = kernel.pack(cfg)
     assert cfg.alpha_z_q14 in p and cfg.play_q8um in p
+
+
+def test_stroke_tracking_needs_a_compliance_and_shares_by_area():
+    """Strokes are tracked (a threshold) only with a compliance; the area weights are
+    each cylinder over the mean, and a cylinder beyond 0.5 .. 1.5 of it is refused by name."""
+    ph = example_physical()
+    assert build_node_section(ph)["friction"]["stroke_q8um"] == 0  # no compliance
+    ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
+    fr = build_node_section(ph)["friction"]
+    assert 3000 < fr["stroke_q8um"] < 4500 and fr["area_q8"] == [256] * 4  # ~15 um with 20 um noise
+    assert build_node_section(dict(ph, stroke_sigmas=0))["friction"]["stroke_q8um"] == 0
+    a = ph["cylinder_area_m2"][0]
+    assert build_node_section(dict(ph, cylinder_area_m2=[a, a, a, 1.2 * a]))["friction"]["area_q8"] == [244] * 3 + [293]
+    with pytest.raises(ValueError, match=r"cylinder_area_m2\[3\]: 2.00 times"):
+        build_node_section(dict(ph, cylinder_area_m2=[a, a, a, 3 * a]))
