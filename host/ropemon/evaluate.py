@@ -777,10 +777,14 @@ def ideal_displacement(physical: dict, recs: np.ndarray, x_true_m: np.ndarray,
     return ph, out
 
 
+NO_STROKES_DIAGNOSTIC = "balancing strokes not tracked (stroke_sigmas 0)"
+
+
 def _add_diagnostics(case: Case, physical: dict, meta: dict, truth, recs: np.ndarray) -> None:
     """The full compensation fed with what the node cannot know: the plant's own friction
     parameters, a noiseless finer displacement, or both, and that displacement driving the
-    observer without the compliance. They show where the error comes from."""
+    observer without the compliance; and the node as commissioned but without its
+    balancing-stroke tracking. They show where the error comes from."""
     from ropemon import reference
     from ropemon.plant.friction import LuGre, from_table
 
@@ -797,6 +801,7 @@ def _add_diagnostics(case: Case, physical: dict, meta: dict, truth, recs: np.nda
     direct.update(friction_cutoff_hz=float(physical.get("velocity_cutoff_hz", 5.0)), displacement_noise_m=0.0,
                   friction_play_sigmas=1.0)
     runs[DIRECT_DIAGNOSTIC] = (direct, ideal_recs)
+    runs[NO_STROKES_DIAGNOSTIC] = (dict(physical, stroke_sigmas=0.0), recs)
     if isinstance(law, LuGre):
         runs["plant friction"] = (dict(physical, friction=law.as_fit()), recs)
         runs["plant friction, ideal displacement"] = (dict(ideal_ph, friction=law.as_fit()), ideal_recs)

@@ -98,3 +98,12 @@ def test_report_files_written(short_run):
 def test_unknown_scenario_is_refused(capsys):
     assert cli.main(["evaluate", "no-such-scenario"]) == 2
     assert "no-such-scenario" in capsys.readouterr().err
+
+
+def test_diagnostics_include_the_node_without_stroke_tracking(short_run):
+    """The short wind has no balancing stroke: the node without stroke tracking reads
+    within a few hundredths of a per cent of the node as commissioned."""
+    _, doc, _ = short_run
+    sc = doc["scenarios"]["short-test"]
+    d = sc["diagnostics"][f"{E.FULL_COMPENSATION}, {ev.NO_STROKES_DIAGNOSTIC}"]
+    assert abs(d["rope_rms_pct"] - sc["estimators"][E.FULL_COMPENSATION]["rope_rms_pct"]) < 0.05
