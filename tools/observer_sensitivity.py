@@ -3,8 +3,9 @@
 Commissions and simulates a scenario as `ropemon evaluate` does (no firmware run),
 then reruns the float reference `lugre-p+loss` with one setting changed at a time:
 the play multiplier `friction_play_sigmas`, the hydraulic compliance k scaled
-(as if fit-compliance were that far off), the pressure low-pass, and no
-compliance at all. Prints a Markdown table (docs/accuracy.md, "Sensitivity").
+(as if fit-compliance were that far off), the pressure low-pass, the threshold
+of the balancing-stroke tracking (`stroke_sigmas`; 0: none), and no compliance
+at all. Prints a Markdown table (docs/accuracy.md, "Sensitivity").
 
     .venv/bin/python tools/observer_sensitivity.py [SCENARIO] [--out DIR] [--seed N] [--quick]
 """
@@ -32,6 +33,9 @@ def variants(ph: dict) -> list[tuple[str, dict]]:
             out.append((f"k x {f:g}", dict(ph, hydraulic_compliance_m_per_Pa=[x * f for x in k])))
         for hz in (3.0, 8.0):
             out.append((f"pressure_cutoff_hz {hz:g}", dict(ph, pressure_cutoff_hz=hz)))
+        for m in (4.5, 8.5):
+            out.append((f"stroke_sigmas {m:g}", dict(ph, stroke_sigmas=m)))
+        out.append(("balancing strokes not tracked (stroke_sigmas 0)", dict(ph, stroke_sigmas=0.0)))
         no_k = copy.deepcopy(ph)
         for key in ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa"):
             no_k.pop(key, None)
