@@ -102,8 +102,11 @@ def _loss_force(ph: dict, i: int, area: float, v: np.ndarray, temp_c: np.ndarray
     return np.sign(v) * out * area
 
 
-def compensate(ph: dict, records: np.ndarray) -> Compensated:
-    """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`."""
+def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Compensated:
+    """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`.
+
+    `strokes`, a list, receives (sample, rope or -1, e per rope in m) for every start
+    (rope 0-based) and end (-1) of a balancing stroke (tools/stroke_events.py)."""
     pp = physical_params(ph)
     n = pp["ropes"]
     fs = float(ph["sample_hz"])
@@ -140,7 +143,7 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
         fault |= np.where(p_ok, 0, 1 << i) | np.where(x_ok, 0, 16 << i)
         good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
         OK[:, i] = p_ok & x_ok
-    DX, DXS, DXP = _observer(pp, P, X, OK, fs)
+    DX, DXS, DXP = _observer(pp, P, X, OK, fs, strokes)
     for i in range(n):
         p = P[:, i]
         dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]
@@ -175,7 +178,7 @@ def compensate(ph: dict, records: np.ndarray) -> Compensated:
 
 
 
-def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float):
+def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float, strokes: list | None = None):
     """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
     position x_h = k p_l + b and its play, with the balancing-stroke tracking (docs/model.md).
 
@@ -279,6 +282,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float)
                 re = True
             if re:
                 mode, sgn = 0, s
+        if re and strokes is not None:
+            strokes.append((j, mode - 1, list(e)))
         if re:  # a stroke starts or ends: x_h re-anchored on x_f, without seal travel
             for i in range(n):
                 xb[i] += e[i]

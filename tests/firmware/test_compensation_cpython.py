@@ -311,3 +311,33 @@ def test_a_balancing_stroke_is_followed_and_the_bounce_after_it_seen(seed):
     # seed 31: 290 N with tracking, 254 N without the stroke, 2038 N untracked (Fs 6 kN)
     assert rms[None] < 1.5 * floor and rms[None] < 0.06 * ph["friction"]["Fs"]["intercept"], (rms, floor)
     assert rms[0.0] > 4 * rms[None], rms
+
+
+def test_node_and_reference_take_the_same_stroke_at_the_same_sample():
+    """tools/stroke_events.py's two sides on the stroke wind: the reference's `strokes`
+    list and the node's kernel state agree on when rope 1's stroke starts and ends."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "stroke_events", Path(__file__).resolve().parents[2] / "tools" / "stroke_events.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    k_m = 3e-10
+    ph = example_physical()
+    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
+    ph["piston_speed_max_m_s"] = 0.05
+    ph["hydraulic_compliance_m_per_Pa"] = [k_m] * 4
+    for key in COMPLIANCE_DEFAULTS:
+        ph.pop(key, None)
+    doc = make_node_json(ph)
+    recs, _x, _p = _stroke_wind(doc["physical"], k_m, 33)
+    ref = []
+    reference.compensate(doc["physical"], recs, strokes=ref)
+    node = tool.node_strokes(doc, recs)
+    fs = int(doc["physical"]["sample_hz"])
+    assert [(j, r) for j, r, _ in ref] == [(j, r) for j, r, _ in node]
+    (start, rope, e_start), (end, ended, _e) = ref
+    assert rope == 0 and ended == -1
+    assert 12 * fs < start < 13.5 * fs and 26 * fs <= end < 26.5 * fs, (start / fs, end / fs)
+    assert e_start[0] < -doc["node"]["friction"]["stroke_q8um"] / 256e6  # rope 1 ran ahead downwards

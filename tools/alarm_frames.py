@@ -1,0 +1,79 @@
+"""Where the deviation-alarm errors of a scenario's `lugre-p+loss` run fall.
+
+Reruns the float reference on a scenario's run directory as `ropemon evaluate`
+left it (`RUN/sim/sensors.rsens`, `RUN/sim/truth.npz`, `RUN/node-evaluated.json`)
+and lists the frames (10 Hz windows) where, with a real 8 % deviation of some
+rope superposed, another level of the alarm is raised falsely, or a real 12 %
+deviation is not seen (the assessment of `ropemon.metrics.alarm_assessment`,
+counted once per frame whatever the rope and sign): by phase of the wind, by
+the ropes' mean tension, and as episodes (frames less than 0.5 s apart).
+
+    .venv/bin/python tools/alarm_frames.py out/evaluate/runs/duty-cycle-50
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ropemon import metrics as M
+from ropemon import reference
+
+
+def alarm_frames(est_n: np.ndarray, truth_n: np.ndarray, window: int, threshold: float = 0.10) -> dict:
+    """Boolean per frame: 'false' (at 8 %) and 'missed' (at 12 %), any rope and sign."""
+    n = len(truth_n) // window
+    out = {"false": np.zeros(n, bool), "missed": np.zeros(n, bool)}
+    for level, kind in ((0.08, "false"), (0.12, "missed")):
+        for rope in range(truth_n.shape[1]):
+            for sign in (1.0, -1.0):
+                step = M.deviation_step_n(truth_n, rope, sign * level)
+                t, e = truth_n.copy(), est_n.copy()
+                t[:, rope] += step
+                e[:, rope] += step
+                de = M.deviation_from_mean(M.window_means(e, window))[:n]
+                dt = M.deviation_from_mean(M.window_means(t, window))[:n]
+                flag = np.abs(de) > threshold
+                if kind == "false":
+                    out[kind] |= (flag & (np.abs(dt) < threshold - 1e-3)).any(axis=1)
+                else:
+                    out[kind] |= (np.abs(dt[:, rope]) > threshold + 1e-3) & ~flag[:, rope]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("run", type=Path, help="a scenario's directory under out/evaluate/runs")
+    a = ap.parse_args(argv)
+    ph = json.loads((a.run / "node-evaluated.json").read_text())["physical"]
+    _r, hz, recs = reference.read_rsens(a.run / "sim" / "sensors.rsens")
+    truth = np.load(a.run / "sim" / "truth.npz")
+    truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]
+    recs = recs[: len(truth_n)]
+    window = hz // int(ph["frame_hz"])
+    est = reference.compensate(ph, recs).tension_n
+    k = len(truth_n)
+    phase = M.classify_phases(truth["cage_depth_m"][:k], truth["wheel_speed_m_s"][:k],
+                              truth["wheel_accel_m_s2"][:k], float(ph["hall_marks_m"][-1]))[::window]
+    frames = alarm_frames(est, truth_n, window)
+    mean_kn = M.window_means(truth_n, window).mean(axis=1) / 1e3
+    n = len(frames["false"])
+    print(f"{a.run}: {n} frames, the ropes' mean tension median {np.median(mean_kn[:n]):.1f} kN")
+    for kind, label in (("false", "false at 8 %"), ("missed", "missed at 12 %")):
+        idx = np.where(frames[kind])[0]
+        by_phase = np.bincount(phase[idx], minlength=len(M.PHASES))
+        print(f"{label}: {len(idx)} frames; by phase "
+              + ", ".join(f"{p} {c}" for p, c in zip(M.PHASES, by_phase) if c)
+              + (f"; mean rope tension median {np.median(mean_kn[idx]):.1f} kN" if len(idx) else ""))
+        if len(idx):
+            episodes = np.split(idx, np.where(np.diff(idx) > 5)[0] + 1)
+            print(f"  {len(episodes)} episodes, starting at (s): "
+                  + " ".join(f"{e[0] / (hz / window):.1f}" for e in episodes))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
