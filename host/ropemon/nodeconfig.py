@@ -210,8 +210,8 @@ def physical_params(ph: dict) -> dict:
         "alpha_e": alpha_e,
         "area_w": area_w,
         "stroke_m": stroke_m,
-        # um/65536 per sample, as the node compares it
-        "stroke_vmin": round(_num(ph, "stroke_min_speed_m_s", 0.0, 1.0) / fs * 1e6 * 65536) / 65536e6,
+        # um/65536 per sample, as the node compares it (at most 2**29)
+        "stroke_vmin": min(round(_num(ph, "stroke_min_speed_m_s", 0.0, 1.0) / fs * 1e6 * 65536), 1 << 29) / 65536e6,
         "stroke_settle": round(_num(ph, "stroke_settle_s", 0.0, 300.0) * fs),
         "compliance": k,
         "warmup": round(_num(ph, "friction_warmup_s", 0.0, 60.0) * fs),
@@ -430,7 +430,7 @@ def build_node_section(ph: dict) -> dict:
                       "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),
                       "alpha_e_q14": round(pp["alpha_e"] * 16384), "area_q8": [round(a * 256) for a in pp["area_w"]],
                       "stroke_q8um": stroke_q8um,
-                      "stroke_vmin_q16": min(round(pp["stroke_vmin"] * 65536e6), 1 << 29),
+                      "stroke_vmin_q16": round(pp["stroke_vmin"] * 65536e6),
                       "stroke_settle": min(pp["stroke_settle"], 65535),
                       **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
     fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p for p in (0.0, p_kpa_max / 1000))
