@@ -506,7 +506,8 @@ def step(rec, P, S, n):
     # low-pass), and a stroke when one rope's e runs ahead in that direction by more
     # than the threshold after the direction held _SSET samples; it ends when the
     # direction turns or a rope's e leaves the stroke's model. A stroke's start and end
-    # re-anchor x_h on x_f by e, without seal travel.
+    # re-anchor x_h by e, without seal travel (at a start the stopped ropes' e is the
+    # stroke rope's lead, shared by area).
     if allw == 0:
         S[_SMODE] = 0
         S[_SSGN] = 0
@@ -559,6 +560,35 @@ def step(rec, P, S, n):
                     S[_SMODE] = best
                     S[_CREM] = 0
                     re = 1
+                    # until the stroke was seen the stopped pistons' x_h went on with the
+                    # pressure: their offset is the stroke piston's lead shared by area
+                    # (the oil's volume is kept), plus the lag of e, a low-pass, behind
+                    # that ramp (the common motion per unit area times (1 - a) / a)
+                    so = 0
+                    for i in range(n):
+                        if i != best - 1:
+                            so += P[_AREA + i]
+                    if so > 0:
+                        # r: its area over the others' in Q8 (<= 768: areas are 128..384);
+                        # |e| < 2**28, split at 8 bits
+                        r = (P[_AREA + best - 1] << 8) // so
+                        t = S[_E + best - 1]
+                        lead = (t >> 8) * r + (((t & 255) * r) >> 8)
+                        # |cl| clamped to 2**25, then |t| to 2**16 - 1: t * 16383 < 2**30
+                        c = S[_CL]
+                        if c > 0x2000000:
+                            c = 0x2000000
+                        elif c < -0x2000000:
+                            c = -0x2000000
+                        t = (c << 4) // (so + P[_AREA + best - 1])
+                        if t > 65535:
+                            t = 65535
+                        elif t < -65535:
+                            t = -65535
+                        t = -lead - t * (16384 - ae) // (ae << 4)
+                        for i in range(n):
+                            if i != best - 1:
+                                S[_E + i] = t
         else:
             if s != sg:
                 re = 1
@@ -572,7 +602,7 @@ def step(rec, P, S, n):
             if re != 0:
                 S[_SMODE] = 0
                 S[_SSGN] = s
-        if re != 0:  # a stroke starts or ends: x_h re-anchored on x_f, without seal travel
+        if re != 0:  # a stroke starts or ends: x_h re-anchored by e, without seal travel
             for i in range(n):
                 t = S[_E + i]
                 S[_XB_Q8UM + i] += t

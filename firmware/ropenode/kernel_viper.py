@@ -488,6 +488,28 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                     S[_SMODE] = best
                     S[_CREM] = 0
                     re = 1
+                    so = 0
+                    for i in range(n):
+                        if i != best - 1:
+                            so += (P[_AREA + i] ^ s31) - s31
+                    if so > 0:
+                        r = ((P[_AREA + best - 1] ^ s31) - s31 << 8) // so
+                        t = (S[_E + best - 1] ^ s31) - s31
+                        lead = (t >> 8) * r + ((t & 255) * r >> 8)
+                        c = (S[_CL] ^ s31) - s31
+                        if c > 33554432:
+                            c = 33554432
+                        elif c < -33554432:
+                            c = -33554432
+                        t = (c << 4) // (so + ((P[_AREA + best - 1] ^ s31) - s31))
+                        if t > 65535:
+                            t = 65535
+                        elif t < -65535:
+                            t = -65535
+                        t = -lead - t * (16384 - ae) // (ae << 4)
+                        for i in range(n):
+                            if i != best - 1:
+                                S[_E + i] = t
         else:
             if s != sg:
                 re = 1

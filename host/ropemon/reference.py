@@ -284,7 +284,18 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float,
                 mode, sgn = 0, s
         if re and strokes is not None:
             strokes.append((j, mode - 1, list(e)))
-        if re:  # a stroke starts or ends: x_h re-anchored on x_f, without seal travel
+        if re and mode > 0:
+            # the stopped pistons' x_h went on with the pressure until the stroke was
+            # seen: their offset is the stroke piston's lead shared by area, plus the
+            # lag of e (a low-pass) behind that ramp
+            others = sum(aw[i] for i in range(n) if i != mode - 1)
+            if others > 0:
+                lag = cl / sum(aw) * (1 - alpha_e) / alpha_e
+                lead = e[mode - 1] * aw[mode - 1] / others
+                for i in range(n):
+                    if i != mode - 1:
+                        e[i] = -lead - lag
+        if re:  # a stroke starts or ends: x_h re-anchored by e, without seal travel
             for i in range(n):
                 xb[i] += e[i]
                 xh[i] += e[i]
