@@ -151,11 +151,10 @@ _WARM = const(144)     # samples since the start, up to the warm-up length
 _MOT = const(148)      # per rope: this sample's k dp_l, um/256
 _E = const(152)        # per rope: low-pass of x_f - x_h, um/256
 _CL = const(156)       # low-pass of the common motion sum(area k dp_l), um/65536 per sample
-_SMODE = const(157)    # 0, or 1 + the rope whose piston takes the common motion (a stroke)
+_SMODE = const(157)    # 0, or 1 + the rope whose piston slides alone (a stroke)
 _SSGN = const(158)     # direction of the common motion (+-1, 0 unknown)
 _SCNT = const(159)     # samples since that direction began, up to _SSET
-_CREM = const(160)     # remainder of the stroke motion's division by the area
-_S_LEN = const(161)
+_S_LEN = const(160)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -281,10 +280,34 @@ def step(rec, P, S, n):
     ksh8 = P[_KSH] + 8
     warm = P[_WARMN]
     ae = P[_AE]
-    # the LuGre position's pressure part first (docs/model.md): p_l the low-passed pressure
-    # in kPa/16 (|p| <= 100000 kPa: p_l < 2**25 in kPa/256), k p_l split at 12 bits
-    # (k < 2**17; 1 kPa steps would move the tension by up to 90 N), and its step this
-    # sample; their sum over the ropes, weighted by area, is the oil's common motion
+    # the LuGre position's pressure part first (docs/model.md): the cavities share their
+    # oil, so it takes the median of the healthy pressure channels (half the noise of one
+    # with four, and one stuck or drifting transmitter does not move it): pm, twice the
+    # median in kPa/16, from each channel's rank (no sorting, no allocation)
+    pg = ((mask & allb) ^ allb) & seen & allb
+    m = 0
+    for i in range(n):
+        m += (pg >> i) & 1
+    lo = (m - 1) >> 1
+    hi = m >> 1
+    pm = 0
+    for i in range(n):
+        if (pg >> i) & 1:
+            c = S[P_KPA16 + i]
+            r = 0
+            for j in range(n):
+                if j != i and (pg >> j) & 1:
+                    t = S[P_KPA16 + j]
+                    if t < c or (t == c and j < i):
+                        r += 1
+            if r == lo:
+                pm += c
+            if r == hi:
+                pm += c
+    # p_l the low-passed median in kPa/256 (|p| <= 100000 kPa: p_l < 2**25), k p_l split
+    # at 12 bits (k < 2**17; 1 kPa steps would move the tension by up to 90 N), and its
+    # step this sample; their sum over the ropes, weighted by area, is the oil's common
+    # motion
     cv = 0
     allw = 1  # every rope healthy, started before and warmed up: cv is whole
     for i in range(n):
@@ -296,7 +319,7 @@ def step(rec, P, S, n):
                 S[XS_Q8UM + i] = x
                 S[XP_Q8UM + i] = x
                 S[_XH_Q8UM + i] = x
-                pl = S[P_KPA16 + i] << 4
+                pl = pm << 3
                 S[_PL_Q8 + i] = pl
                 S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8))
                 S[_XBREM + i] = 0
@@ -306,7 +329,7 @@ def step(rec, P, S, n):
                 allw = 0
             pl = S[_PL_Q8 + i]
             m = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8)
-            e = (S[P_KPA16 + i] << 4) - pl
+            e = (pm << 3) - pl
             pl += (e >> 14) * ap + (((e & 16383) * ap + 8192) >> 14)
             S[_PL_Q8 + i] = pl
             m = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8) - m
@@ -322,17 +345,11 @@ def step(rec, P, S, n):
             allw = 0
     if P[_STH] == 0:
         allw = 0
-    # a balancing stroke (docs/model.md): the piston of rope mode-1 takes the whole common
-    # motion, sm = cv / its area (remainder fed back), and the others stand
+    # a balancing stroke (docs/model.md): the piston of rope mode-1 slides and the others
+    # stand; the sliding one's x_h keeps its own share of the motion and its b stands
     mode = S[_SMODE]
-    sm = 0
     if allw == 0:
         mode = 0
-    if mode > 0:
-        t = cv + S[_CREM]
-        c = P[_AREA + mode - 1]
-        sm = t // c
-        S[_CREM] = t - sm * c
     for i in range(n):
         # velocity: x_f += alpha (x - x_f), increment clamped to +-dx_max
         dx = 0
@@ -356,20 +373,20 @@ def step(rec, P, S, n):
             # the LuGre's position x_h = k p_l + b (docs/model.md)
             pl = S[_PL_Q8 + i]
             kp = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8)
-            if mode > 0:  # in a stroke b moves the common motion over to rope mode-1
-                t = sm - S[_MOT + i]
+            a = az
+            if mode > 0:  # in a stroke the stopped ropes' b takes back their share
                 if i != mode - 1:
-                    t = -S[_MOT + i]
-                t += S[_XB_Q8UM + i]
-                if t > 0x4000000:  # a position: within +-2**26 whatever the stream
-                    t = 0x4000000
-                elif t < -0x4000000:
-                    t = -0x4000000
-                S[_XB_Q8UM + i] = t
+                    t = S[_XB_Q8UM + i] - S[_MOT + i]
+                    if t > 0x4000000:  # a position: within +-2**26 whatever the stream
+                        t = 0x4000000
+                    elif t < -0x4000000:
+                        t = -0x4000000
+                    S[_XB_Q8UM + i] = t
+                else:
+                    a = 0  # and the sliding one's b stands
             # b: low-pass of x_f - k p_l with error feedback (a slow b has no dead band),
             # a running mean during the warm-up (|e| < 2**28)
             e = xf - kp - S[_XB_Q8UM + i]
-            a = az
             w = S[_WARM + i]
             if w < warm:
                 S[_WARM + i] = w + 1
@@ -505,7 +522,7 @@ def step(rec, P, S, n):
     # balancing strokes (docs/model.md): the direction of the common motion (cl, its
     # low-pass), and a stroke when one rope's e runs ahead in that direction by more
     # than the threshold after the direction held _SSET samples; it ends when the
-    # direction turns or a rope's e leaves the stroke's model. A stroke's start and end
+    # direction turns or a stopped rope's e runs ahead too. A stroke's start and end
     # re-anchor x_h by e, without seal travel (at a start the stopped ropes' e is the
     # stroke rope's lead, shared by area).
     if allw == 0:
@@ -513,7 +530,6 @@ def step(rec, P, S, n):
         S[_SSGN] = 0
         S[_SCNT] = 0
         S[_CL] = 0
-        S[_CREM] = 0
     else:
         e = cv - S[_CL]  # |e| < 2**30: |cv|, |cl| < 2**29
         c = S[_CL] + (e >> 14) * ae + (((e & 16383) * ae + 8192) >> 14)
@@ -558,7 +574,6 @@ def step(rec, P, S, n):
                         best = i + 1
                 if best > 0:
                     S[_SMODE] = best
-                    S[_CREM] = 0
                     re = 1
                     # until the stroke was seen the stopped pistons' x_h went on with the
                     # pressure: their offset is the stroke piston's lead shared by area
@@ -594,10 +609,7 @@ def step(rec, P, S, n):
                 re = 1
                 S[_SCNT] = 0
             for i in range(n):
-                t = S[_E + i] * sg
-                if i == mode - 1:
-                    t = -t
-                if t > th:
+                if i != mode - 1 and S[_E + i] * sg > th:  # another piston moves
                     re = 1
             if re != 0:
                 S[_SMODE] = 0

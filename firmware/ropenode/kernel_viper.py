@@ -130,8 +130,7 @@ _CL = const(156)
 _SMODE = const(157)
 _SSGN = const(158)
 _SCNT = const(159)
-_CREM = const(160)
-_S_LEN = const(161)
+_S_LEN = const(160)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -243,6 +242,26 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     ksh8 = (P[_KSH] ^ s31) - s31 + 8
     warm = (P[_WARMN] ^ s31) - s31
     ae = (P[_AE] ^ s31) - s31
+    pg = (mask & allb ^ allb) & seen & allb
+    m = 0
+    for i in range(n):
+        m += pg >> i & 1
+    lo = m - 1 >> 1
+    hi = m >> 1
+    pm = 0
+    for i in range(n):
+        if pg >> i & 1:
+            c = (S[P_KPA16 + i] ^ s31) - s31
+            r = 0
+            for j in range(n):
+                if j != i and pg >> j & 1:
+                    t = (S[P_KPA16 + j] ^ s31) - s31
+                    if t < c or (t == c and j < i):
+                        r += 1
+            if r == lo:
+                pm += c
+            if r == hi:
+                pm += c
     cv = 0
     allw = 1
     for i in range(n):
@@ -254,7 +273,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 S[XS_Q8UM + i] = x
                 S[XP_Q8UM + i] = x
                 S[_XH_Q8UM + i] = x
-                pl = (S[P_KPA16 + i] ^ s31) - s31 << 4
+                pl = pm << 3
                 S[_PL_Q8 + i] = pl
                 S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8))
                 S[_XBREM + i] = 0
@@ -264,7 +283,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 allw = 0
             pl = (S[_PL_Q8 + i] ^ s31) - s31
             m = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8)
-            e = ((S[P_KPA16 + i] ^ s31) - s31 << 4) - pl
+            e = (pm << 3) - pl
             pl += (e >> 14) * ap + ((e & 16383) * ap + 8192 >> 14)
             S[_PL_Q8 + i] = pl
             m = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8) - m
@@ -281,14 +300,8 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     if (P[_STH] ^ s31) - s31 == 0:
         allw = 0
     mode = (S[_SMODE] ^ s31) - s31
-    sm = 0
     if allw == 0:
         mode = 0
-    if mode > 0:
-        t = cv + ((S[_CREM] ^ s31) - s31)
-        c = (P[_AREA + mode - 1] ^ s31) - s31
-        sm = t // c
-        S[_CREM] = t - sm * c
     for i in range(n):
         dx = 0
         v = 0
@@ -309,18 +322,18 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             v = dx * fshz + 128 >> 8
             pl = (S[_PL_Q8 + i] ^ s31) - s31
             kp = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8)
-            if mode > 0:
-                t = sm - ((S[_MOT + i] ^ s31) - s31)
-                if i != mode - 1:
-                    t = -((S[_MOT + i] ^ s31) - s31)
-                t += (S[_XB_Q8UM + i] ^ s31) - s31
-                if t > 67108864:
-                    t = 67108864
-                elif t < -67108864:
-                    t = -67108864
-                S[_XB_Q8UM + i] = t
-            e = xf - kp - ((S[_XB_Q8UM + i] ^ s31) - s31)
             a = az
+            if mode > 0:
+                if i != mode - 1:
+                    t = (S[_XB_Q8UM + i] ^ s31) - s31 - ((S[_MOT + i] ^ s31) - s31)
+                    if t > 67108864:
+                        t = 67108864
+                    elif t < -67108864:
+                        t = -67108864
+                    S[_XB_Q8UM + i] = t
+                else:
+                    a = 0
+            e = xf - kp - ((S[_XB_Q8UM + i] ^ s31) - s31)
             w = (S[_WARM + i] ^ s31) - s31
             if w < warm:
                 S[_WARM + i] = w + 1
@@ -444,7 +457,6 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         S[_SSGN] = 0
         S[_SCNT] = 0
         S[_CL] = 0
-        S[_CREM] = 0
     else:
         e = cv - ((S[_CL] ^ s31) - s31)
         c = (S[_CL] ^ s31) - s31 + (e >> 14) * ae + ((e & 16383) * ae + 8192 >> 14)
@@ -486,7 +498,6 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                         best = i + 1
                 if best > 0:
                     S[_SMODE] = best
-                    S[_CREM] = 0
                     re = 1
                     so = 0
                     for i in range(n):
@@ -515,10 +526,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 re = 1
                 S[_SCNT] = 0
             for i in range(n):
-                t = ((S[_E + i] ^ s31) - s31) * sg
-                if i == mode - 1:
-                    t = -t
-                if t > th:
+                if i != mode - 1 and ((S[_E + i] ^ s31) - s31) * sg > th:
                     re = 1
             if re != 0:
                 S[_SMODE] = 0

@@ -50,9 +50,12 @@ DEFAULTS = {
 }
 # the defaults that change when a compliance is given
 COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
-                       "friction_play_sigmas": 1.7}
+                       "friction_play_sigmas": 1.5}
+# rms of the median of N independent channels of unit rms noise (Gaussian; of two: their
+# mean): the LuGre position's pressure with a compliance (docs/model.md)
+MEDIAN_NOISE = (1.0, 0.7071, 0.6696, 0.5458)
 
-PLAY_STEP_M = 0.05e-6        # resolution of the LuGre play half-width
+PLAY_STEP_M = 0.01e-6        # resolution of the LuGre play half-width
 PRESSURE_Q_MAX = 1 << 14    # |count difference| <= 65535: a mul below 2**14 keeps d * mul < 2**30
 
 
@@ -178,11 +181,12 @@ def physical_params(ph: dict) -> dict:
                          "range_m [lo, hi]") from None
     noise_m = _num(ph, "displacement_noise_m", 0.0, 1e-3)
     # rms noise of the LuGre position that makes false travel: without compliance, the
-    # displacement's through both low-passes; with it, k times the pressure's (with the
-    # node's kPa/16 steps) through its low-pass (b's noise then wanders too slowly to count)
+    # displacement's through both low-passes; with it, k times the noise of the median of
+    # the ropes' pressures (each with the node's kPa/16 steps) through its low-pass (b's
+    # noise then wanders too slowly to count)
     if any(k):
-        sigma = max(k) * lowpass_noise(math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6),
-                                                  1e3 / 16 / math.sqrt(12)), alpha_p)
+        sigma = max(k) * MEDIAN_NOISE[n - 1] * lowpass_noise(
+            math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6), 1e3 / 16 / math.sqrt(12)), alpha_p)
     else:
         sigma = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)
     fe_hz = _num(ph, "stroke_cutoff_hz", 0.01, fs / 2)

@@ -125,6 +125,7 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Co
     P = np.zeros(shape)
     X = np.zeros(shape)
     OK = np.zeros(shape, bool)
+    POK = np.zeros(shape, bool)
     for i in range(n):
         pc = ph["pressure_channels"][i]
         c4, c20 = pc["counts_4mA"], pc["counts_20mA"]
@@ -143,7 +144,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Co
         fault |= np.where(p_ok, 0, 1 << i) | np.where(x_ok, 0, 16 << i)
         good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
         OK[:, i] = p_ok & x_ok
-    DX, DXS, DXP = _observer(pp, P, X, OK, fs, strokes)
+        POK[:, i] = p_ok
+    DX, DXS, DXP = _observer(pp, P, X, OK, POK, fs, strokes)
     for i in range(n):
         p = P[:, i]
         dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]
@@ -178,9 +180,20 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Co
 
 
 
-def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float, strokes: list | None = None):
+def _median(values: list) -> float:
+    """The median (of an even count: the mean of the middle two); 0 for none."""
+    v = sorted(values)
+    m = len(v)
+    if m == 0:
+        return 0.0
+    return v[m // 2] if m % 2 else 0.5 * (v[m // 2 - 1] + v[m // 2])
+
+
+def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.ndarray, fs: float,
+              strokes: list | None = None):
     """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
-    position x_h = k p_l + b and its play, with the balancing-stroke tracking (docs/model.md).
+    position x_h = k p_l + b (p_l the low-passed median of the healthy pressure channels)
+    and its play, with the balancing-stroke tracking (docs/model.md).
 
     Runs while both loops of a rope are healthy and starts again (with its warm-up)
     after a fault of either; strokes are tracked only while every rope runs warmed up."""
@@ -197,7 +210,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float,
     w = [0] * n
     cl, mode, sgn, cnt = 0.0, 0, 0, 0
     clamp = lambda v, lim: lim if v > lim else (-lim if v < -lim else v)  # noqa: E731
-    for j, (xr, pr, okr) in enumerate(zip(X.tolist(), P.tolist(), OK.tolist())):
+    for j, (xr, pr, okr, pokr) in enumerate(zip(X.tolist(), P.tolist(), OK.tolist(), POK.tolist())):
+        pm = _median([p for p, ok in zip(pr, pokr) if ok])
         cv = 0.0
         allw = th > 0
         for i in range(n):
@@ -208,20 +222,19 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float,
             if not started[i]:
                 started[i] = True
                 xf[i] = xs[i] = xp[i] = xh[i] = xr[i]
-                pl[i] = pr[i]
+                pl[i] = pm
                 xb[i] = xr[i] - kh[i] * pl[i]
                 w[i] = 0
                 e[i] = 0.0
                 allw = False
             m = kh[i] * pl[i]
-            pl[i] += alpha_p * (pr[i] - pl[i])
+            pl[i] += alpha_p * (pm - pl[i])
             mot[i] = clamp(kh[i] * pl[i] - m, dx_max)
             cv += mot[i] * aw[i]
             if w[i] < warm:
                 allw = False
         if not allw:
             mode = 0
-        sm = cv / aw[mode - 1] if mode > 0 else 0.0
         for i in range(n):
             if not okr[i]:
                 continue
@@ -229,9 +242,12 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float,
             xf[i] += step
             dx[j, i] = step
             kp = kh[i] * pl[i]
-            if mode > 0:  # a stroke: the common motion is rope mode-1's, the others stand
-                xb[i] += (sm if i == mode - 1 else 0.0) - mot[i]
             a = alpha_z
+            if mode > 0:  # a stroke: the stopped ropes stand, the sliding one's b stands
+                if i != mode - 1:
+                    xb[i] -= mot[i]
+                else:
+                    a = 0.0
             if w[i] < warm:
                 a = max(alpha_z, 1.0 / (w[i] + 1))
             inc = a * (xf[i] - kp - xb[i])
@@ -278,7 +294,7 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, fs: float,
         else:
             if s != sgn:
                 re, cnt = True, 0
-            if any((-e[i] if i == mode - 1 else e[i]) * sgn > th for i in range(n)):
+            if any(e[i] * sgn > th for i in range(n) if i != mode - 1):  # another piston moves
                 re = True
             if re:
                 mode, sgn = 0, s

@@ -172,10 +172,13 @@ def _compression_records(ph: dict, p_pa: np.ndarray, k_m: float, x_noise_counts:
 def test_compliance_drives_the_seal_state_from_pressure():
     """A piston that moves only as its oil compresses (x = k p, with the displacement
     channel's 2-count noise): with k, the seal state follows the pressure ramp to sliding
-    friction, and holds still while the pressure does."""
+    friction, and holds still while the pressure does. With the observer a site with a
+    compliance gets (b at 0.03 Hz, the play of COMPLIANCE_DEFAULTS)."""
     ph = example_physical()
     ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
     ph["piston_speed_max_m_s"] = 0.05
+    for key in COMPLIANCE_DEFAULTS:
+        ph.pop(key, None)
     n = 4
     fs = int(ph["sample_hz"])
     k_m = 3e-10
@@ -349,7 +352,7 @@ def test_at_a_stroke_start_the_stopped_pistons_are_placed_where_they_stopped():
     node puts them back by the stroke piston's lead shared by area plus the low-pass lag
     of e (docs/model.md, "Balancing strokes"), not by their own e: after the start sample
     their x_h is -0.01 um off the true position on average, 0.37 um rms (re-anchored by
-    their own e: +0.86 um, 1.07 um rms), with no seal travel. Over 12 seeds of the stroke
+    their own e, as the node did before: +0.86 um, 1.07 um rms), with no seal travel. Over 12 seeds of the stroke
     wind, 3 stopped ropes each."""
     import array
 
