@@ -256,6 +256,18 @@ def _stroke_wind(ph: dict, k_m: float, seed: int, stroke: bool = True):
     return recs, x, p_pa
 
 
+def _stroke_doc(k_m: float) -> dict:
+    """The node.json of the stroke wind: a stiff seal (sigma0 1e8 N/m), pistons up to
+    5 cm/s, compliance k_m on every rope and the observer a site with one gets."""
+    ph = example_physical()
+    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
+    ph["piston_speed_max_m_s"] = 0.05
+    ph["hydraulic_compliance_m_per_Pa"] = [k_m] * 4
+    for key in COMPLIANCE_DEFAULTS:
+        ph.pop(key, None)
+    return make_node_json(ph)
+
+
 def _true_friction(ph: dict, x: np.ndarray, p_pa: np.ndarray) -> np.ndarray:
     """The seal's LuGre friction along the true positions (testbed.LuGre, 8 sub-steps)."""
     from ropemon.testbed import LuGre
@@ -327,13 +339,7 @@ def test_node_and_reference_take_the_same_stroke_at_the_same_sample():
     tool = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tool)
     k_m = 3e-10
-    ph = example_physical()
-    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
-    ph["piston_speed_max_m_s"] = 0.05
-    ph["hydraulic_compliance_m_per_Pa"] = [k_m] * 4
-    for key in COMPLIANCE_DEFAULTS:
-        ph.pop(key, None)
-    doc = make_node_json(ph)
+    doc = _stroke_doc(k_m)
     recs, _x, _p = _stroke_wind(doc["physical"], k_m, 33)
     ref = []
     reference.compensate(doc["physical"], recs, strokes=ref)
@@ -352,19 +358,13 @@ def test_at_a_stroke_start_the_stopped_pistons_are_placed_where_they_stopped():
     node puts them back by the stroke piston's lead shared by area plus the low-pass lag
     of e (docs/model.md, "Balancing strokes"), not by their own e: after the start sample
     their x_h is -0.01 um off the true position on average, 0.37 um rms (re-anchored by
-    their own e, as the node did before: +0.86 um, 1.07 um rms), with no seal travel. Over 12 seeds of the stroke
-    wind, 3 stopped ropes each."""
+    their own e, as the node did before: +0.86 um, 1.07 um rms), with no seal travel.
+    Over 12 seeds of the stroke wind, 3 stopped ropes each."""
     import array
 
     kernel = node_module("kernel")
     k_m = 3e-10
-    ph = example_physical()
-    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
-    ph["piston_speed_max_m_s"] = 0.05
-    ph["hydraulic_compliance_m_per_Pa"] = [k_m] * 4
-    for key in COMPLIANCE_DEFAULTS:
-        ph.pop(key, None)
-    doc = make_node_json(ph)
+    doc = _stroke_doc(k_m)
     offsets = []
     for seed in range(40, 52):
         recs, x, _p = _stroke_wind(doc["physical"], k_m, seed)
