@@ -281,9 +281,9 @@ def step(rec, P, S, n):
     warm = P[_WARMN]
     ae = P[_AE]
     # the LuGre position's pressure part first (docs/model.md): the cavities share their
-    # oil, so it takes the median of the healthy pressure channels (half the noise of one
-    # with four, and one stuck or drifting transmitter does not move it): pm, twice the
-    # median in kPa/16, from each channel's rank (no sorting, no allocation)
+    # oil, so it takes the median of the healthy pressure channels (0.55 of one channel's
+    # noise with four, and one stuck or drifting transmitter does not move it): pm, twice
+    # the median in kPa/16, from each channel's rank (no sorting, no allocation)
     pg = ((mask & allb) ^ allb) & seen & allb
     m = 0
     for i in range(n):
