@@ -356,6 +356,7 @@ def step(rec, P, S, n):
         v = 0
         dxs = 0
         dxp = 0
+        vz = 0
         avz = 0
         if (good >> i) & 1:
             x = S[X_Q8UM + i]
@@ -411,7 +412,8 @@ def step(rec, P, S, n):
                 dxs = -dxmax
             xs = S[XS_Q8UM + i] + dxs
             S[XS_Q8UM + i] = xs
-            avz = (dxs * fshz + 128) >> 8  # |v| of x_s, um/s, for g: noise barely moves it
+            vz = (dxs * fshz + 128) >> 8  # v of x_s, um/s: noise barely moves it
+            avz = vz  # |v_s| for g
             if avz < 0:
                 avz = -avz
             e = S[XP_Q8UM + i]
@@ -422,6 +424,10 @@ def step(rec, P, S, n):
             S[XP_Q8UM + i] = e + dxp
         S[DX_Q8UM + i] = dx
         S[V_UM_S + i] = v
+        # the velocity of the pipe loss and the viscous term: with a compliance that of x_s
+        # (from the pressure: the displacement's noise would pass through both)
+        if P[_KQ + i] != 0:
+            v = vz
         av = v
         if v < 0:
             av = -v

@@ -307,6 +307,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         v = 0
         dxs = 0
         dxp = 0
+        vz = 0
         avz = 0
         if good >> i & 1:
             x = (S[X_Q8UM + i] ^ s31) - s31
@@ -357,7 +358,8 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 dxs = -dxmax
             xs = (S[XS_Q8UM + i] ^ s31) - s31 + dxs
             S[XS_Q8UM + i] = xs
-            avz = dxs * fshz + 128 >> 8
+            vz = dxs * fshz + 128 >> 8
+            avz = vz
             if avz < 0:
                 avz = -avz
             e = (S[XP_Q8UM + i] ^ s31) - s31
@@ -368,6 +370,8 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             S[XP_Q8UM + i] = e + dxp
         S[DX_Q8UM + i] = dx
         S[V_UM_S + i] = v
+        if (P[_KQ + i] ^ s31) - s31 != 0:
+            v = vz
         av = v
         if v < 0:
             av = -v

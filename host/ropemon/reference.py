@@ -150,6 +150,9 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Co
         p = P[:, i]
         dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]
         v = dx * fs
+        # the velocity of the pipe loss and the viscous term: with a compliance that of
+        # the LuGre position, from the pressure (the displacement's noise would pass)
+        vq = dxs * fs if pp["compliance"][i] else v
         # LuGre in zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g.
         pm = np.clip(p, 0.0, p_max) / 1e6
         lin = {key: float(fr[key]["intercept"]) + float(fr[key]["slope"]) * pm
@@ -165,8 +168,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Co
             z = gj if z > gj else (-gj if z < -gj else z)
             zn[j] = z
         zprev = np.concatenate(([0.0], zn[:-1]))
-        fric = zn + c1 * (zn - zprev) + lin["sigma2"] * v
-        loss = _loss_force(ph, i, areas[i], v, temp_c)
+        fric = zn + c1 * (zn - zprev) + lin["sigma2"] * vq
+        loss = _loss_force(ph, i, areas[i], vq, temp_c)
         raw = p * areas[i]
         ok = good[:, i]
         out["tension"][:, i] = np.where(ok, raw + loss + fric, np.nan)

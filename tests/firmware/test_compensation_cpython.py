@@ -169,6 +169,33 @@ def _compression_records(ph: dict, p_pa: np.ndarray, k_m: float, x_noise_counts:
     return recs
 
 
+def test_with_a_compliance_the_loss_and_viscous_terms_take_the_pressure_velocity():
+    """At constant pressure with the displacement channel's 2-count noise, the filtered
+    piston velocity still swings by hundreds of um/s. With a compliance the pipe loss
+    and the viscous term sigma2 v take the LuGre position's velocity (from the pressure)
+    and stay quiet; without one they take the filtered velocity and pass its noise."""
+    ph = example_physical()
+    fs = int(ph["sample_hz"])
+    k_m = 3e-10
+    p_pa = np.full(10 * fs, 4e6)
+    recs = _compression_records(ph, p_pa, k_m, x_noise_counts=2.0)
+    after = slice(3 * fs, None)  # past the warm-up
+    no_k = reference.compensate(ph, recs)
+    ph_k = dict(ph, hydraulic_compliance_m_per_Pa=[k_m] * 4)
+    for key in COMPLIANCE_DEFAULTS:
+        ph_k.pop(key, None)
+    with_k = reference.compensate(ph_k, recs)
+    s2 = ph["friction"]["sigma2"]["intercept"] + 4.0 * ph["friction"]["sigma2"]["slope"]
+    assert np.std(no_k.v_m_s[after, 0]) > 1e-4  # the filtered velocity is noisy
+    assert np.std(no_k.loss_n[after, 0]) > 0.5
+    assert np.std(with_k.loss_n[after, 0]) < 0.05 * np.std(no_k.loss_n[after, 0])
+    # the viscous part of the friction, sigma2 times the velocity it is given, from one
+    # sample to the next (the seal state itself wanders only slowly)
+    noise_n = s2 * np.std(np.diff(no_k.v_m_s[after, 0]))
+    assert noise_n > 2.0
+    assert np.std(np.diff(with_k.friction_n[after, 0])) < 0.1 * noise_n
+
+
 def test_compliance_drives_the_seal_state_from_pressure():
     """A piston that moves only as its oil compresses (x = k p, with the displacement
     channel's 2-count noise): with k, the seal state follows the pressure ramp to sliding
