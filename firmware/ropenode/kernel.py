@@ -284,7 +284,14 @@ def step(rec, P, S, n):
     # oil, so it takes the median of the healthy pressure channels (0.55 of one channel's
     # noise with four, and one stuck or drifting transmitter does not move it): pm, twice
     # the median in kPa/16, from each channel's rank (no sorting, no allocation)
+    # (without a compliance k p_l is 0 whatever p_l is: no median taken)
     pg = ((mask & allb) ^ allb) & seen & allb
+    m = 0
+    for i in range(n):
+        if P[_KQ + i] != 0:
+            m = 1
+    if m == 0:
+        pg = 0
     m = 0
     for i in range(n):
         m += (pg >> i) & 1

@@ -245,6 +245,12 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     pg = (mask & allb ^ allb) & seen & allb
     m = 0
     for i in range(n):
+        if (P[_KQ + i] ^ s31) - s31 != 0:
+            m = 1
+    if m == 0:
+        pg = 0
+    m = 0
+    for i in range(n):
         m += pg >> i & 1
     lo = m - 1 >> 1
     hi = m >> 1
