@@ -43,7 +43,6 @@ friction.c1_mul 0 524287
 friction.c1_shift 10 30
 friction.sigma2_shift 9 30
 friction.alpha_z_q14 1 16384
-friction.play_q8um 0 16777216
 friction.alpha_p_q14 1 16384
 friction.compliance_shift 5 30
 friction.warmup_samples 0 65535
@@ -51,6 +50,8 @@ friction.alpha_e_q14 1 4096
 friction.stroke_q8um 0 32768
 friction.stroke_vmin_q16 0 536870912
 friction.stroke_settle 0 65535
+friction.alpha_l_q14 1 16384
+friction.alpha_a_q14 1 16384
 temperature.fitted 0 1
 temperature.counts_at_0c 0 65535
 temperature.cc_mul -16384 16384
@@ -298,6 +299,14 @@ def parse_node(nd):
             raise ConfigError("%s.compliance_q[%d]" % (FP, i), "k times 100 MPa beyond 2**25 um/256")
     # cylinder area over the ropes' mean, Q8: the common motion stays below 2**29
     c.area_q8 = _ints(fr, "area_q8", FP, n, n, 128, 384)
+    # the LuGre play half-width, um/256, when 1..n pressure channels are healthy; the rest
+    # hold's play (at least as wide) and activity threshold (um/65536; 0: no rest hold)
+    c.play_q8um = _ints(fr, "play_q8um", FP, n, n, 0, 1 << 24)
+    c.rest_play_q8um = _ints(fr, "rest_play_q8um", FP, n, n, 0, 1 << 20)
+    c.rest_q16um = _ints(fr, "rest_q16um", FP, n, n, 0, 1 << 21)
+    for i in range(n):
+        if c.rest_q16um[i] and c.rest_play_q8um[i] < c.play_q8um[i]:
+            raise ConfigError("%s.rest_play_q8um[%d]" % (FP, i), "narrower than play_q8um")
     c.gexp_q14 = _ints(fr, "gexp_q14", FP, GEXP_POINTS, GEXP_POINTS, 0, 16384)
     if c.gexp_q14[GEXP_POINTS - 1] != 0:
         raise ConfigError(FP + ".gexp_q14[%d]" % (GEXP_POINTS - 1), "must be 0 (table end)")

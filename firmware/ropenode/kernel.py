@@ -75,17 +75,21 @@ _FRHZ = const(39)    # frame_hz
 _OFORCE = const(40)  # offset of the loss forces in P
 _OMARKS = const(41)  # offset of the Hall marks in P
 _AZ = const(42)      # LuGre position: gain of the low-pass b, Q14
-_PLAY = const(43)    # LuGre play half-width, um/256
-_AP = const(44)      # LuGre position: pressure low-pass gain, Q14
-_KSH = const(45)     # hydraulic compliance shift
-_WARMN = const(46)   # samples of warm-up of b after the start
-_AE = const(47)      # balancing strokes: gain of the low-passes of e and of the common motion, Q14
-_STH = const(48)     # stroke threshold on e, um/256 (0: no stroke tracking)
-_SVMIN = const(49)   # common motion below this is no direction, um/65536 per sample
-_SSET = const(50)    # samples of one direction before a stroke is looked for
-_AREA = const(51)    # cylinder area per rope over the ropes' mean, Q8
+_AP = const(43)      # LuGre position: pressure low-pass gain, Q14
+_KSH = const(44)     # hydraulic compliance shift
+_WARMN = const(45)   # samples of warm-up of b after the start
+_AE = const(46)      # balancing strokes: gain of the low-passes of e and of the common motion, Q14
+_STH = const(47)     # stroke threshold on e, um/256 (0: no stroke tracking)
+_SVMIN = const(48)   # common motion below this is no direction, um/65536 per sample
+_SSET = const(49)    # samples of one direction before a stroke is looked for
+_AL = const(50)      # rest hold: gain of the slow low-pass x_l, Q14
+_AA = const(51)      # rest hold: gain of the activity low-pass, Q14
+_AREA = const(52)    # cylinder area per rope over the ropes' mean, Q8
 _KQ = const(_AREA + ROPES_MAX)  # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
-_PCAL = const(_KQ + ROPES_MAX)  # 9 ints per rope (config.py order)
+_PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n healthy pressure channels
+_RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
+_RTH = const(_RPLAYS + ROPES_MAX)  # activity below which a rope is quiet, um/65536 (0: no rest hold)
+_PCAL = const(_RTH + ROPES_MAX)  # 9 ints per rope (config.py order)
 _DCAL = const(_PCAL + 9 * ROPES_MAX)     # 6 ints per rope
 _GEXP = const(_DCAL + 6 * ROPES_MAX)     # exp(-u^2), Q14
 _TEMPS = const(_GEXP + GEXP_POINTS)      # loss table temperatures, centi-degC
@@ -154,7 +158,10 @@ _CL = const(156)       # low-pass of the common motion sum(area k dp_l), um/6553
 _SMODE = const(157)    # 0, or 1 + the rope whose piston slides alone (a stroke)
 _SSGN = const(158)     # direction of the common motion (+-1, 0 unknown)
 _SCNT = const(159)     # samples since that direction began, up to _SSET
-_S_LEN = const(160)
+_XL = const(160)       # per rope: the rest hold's slow low-pass x_l of x_s, um/256
+_XLREM = const(164)    # its error-feedback remainder
+_ACT = const(168)      # per rope: low-pass of |x_s - x_l|, um/65536 (quiet below _RTH)
+_S_LEN = const(172)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -175,12 +182,13 @@ def pack(c):
         nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts,
         c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window,
         c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz,
-        _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um, c.alpha_p_q14,
+        _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.alpha_p_q14,
         c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16,
-        c.stroke_settle)
+        c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14)
     for j in range(len(head)):
         p[j] = head[j]
-    for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
+    for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS),
+                     (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
                      (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]),
                      (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
@@ -274,7 +282,6 @@ def step(rec, P, S, n):
     s2s9 = P[_S2S9]
     s2half = (1 << s2s9) >> 1
     az = P[_AZ]
-    play = P[_PLAY]
     ap = P[_AP]
     ksh4 = P[_KSH] - 4
     ksh8 = P[_KSH] + 8
@@ -297,6 +304,16 @@ def step(rec, P, S, n):
         m += (pg >> i) & 1
     lo = (m - 1) >> 1
     hi = m >> 1
+    # the play, and the rest hold's play and threshold, for the noise of this median: of
+    # fewer channels it is noisier (without a compliance every entry is the same)
+    j = n - 1
+    if m > 0:
+        j = m - 1
+    play = P[_PLAYS + j]
+    rplay = P[_RPLAYS + j]
+    rth = P[_RTH + j]
+    al = P[_AL]
+    aa = P[_AA]
     pm = 0
     for i in range(n):
         if (pg >> i) & 1:
@@ -326,6 +343,9 @@ def step(rec, P, S, n):
                 S[XS_Q8UM + i] = x
                 S[XP_Q8UM + i] = x
                 S[_XH_Q8UM + i] = x
+                S[_XL + i] = x
+                S[_XLREM + i] = 0
+                S[_ACT + i] = 0x400000  # 64 um: not quiet until the activity has settled
                 pl = pm << 3
                 S[_PL_Q8 + i] = pl
                 S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8))
@@ -381,6 +401,16 @@ def step(rec, P, S, n):
             # the LuGre's position x_h = k p_l + b (docs/model.md)
             pl = S[_PL_Q8 + i]
             kp = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8)
+            # the rest hold (docs/model.md): how quiet, 0 .. 256, by the activity of the last
+            # sample: all of it below rth, none from 2 rth (rth < 2**21, so the shift stays
+            # below 2**29)
+            qt = 0
+            if rth != 0:
+                e = S[_ACT + i]
+                if e <= rth:
+                    qt = 256
+                elif e < rth + rth:
+                    qt = ((rth + rth - e) << 8) // rth
             a = az
             if mode > 0:  # in a stroke the stopped ropes' b takes back their share
                 if i != mode - 1:
@@ -401,6 +431,8 @@ def step(rec, P, S, n):
                 a = 16384 // (w + 1)
                 if a < az:
                     a = az
+            elif qt != 0:  # quiet: b stands, its wander is no seal travel
+                a = (a * (256 - qt)) >> 8
             t = (e & 16383) * a + S[_XBREM + i]
             inc = (e >> 14) * a + (t >> 14)
             S[_XBREM + i] = t & 16383
@@ -423,11 +455,27 @@ def step(rec, P, S, n):
             avz = vz  # |v_s| for g
             if avz < 0:
                 avz = -avz
+            # the rest hold's play widens with qt; its activity: the low-pass of |x_s - x_l|,
+            # x_l a slower low-pass of x_s (error feedback; |e| < 2**27), in um/65536 with
+            # |x_s - x_l| clamped to 64 um (|e| <= 2**22)
+            wp = play + (((rplay - play) * qt) >> 8)  # (rplay - play < 2**20)
+            if rth != 0:  # (no rest hold: threshold 0)
+                e = xs - S[_XL + i]
+                t = (e & 16383) * al + S[_XLREM + i]
+                S[_XL + i] += (e >> 14) * al + (t >> 14)
+                S[_XLREM + i] = t & 16383
+                e = xs - S[_XL + i]
+                if e < 0:
+                    e = -e
+                if e > 16384:
+                    e = 16384
+                e = (e << 8) - S[_ACT + i]
+                S[_ACT + i] += (e >> 14) * aa + (((e & 16383) * aa + 8192) >> 14)
             e = S[XP_Q8UM + i]
-            if xs > e + play:
-                dxp = xs - play - e
-            elif xs < e - play:
-                dxp = xs + play - e
+            if xs > e + wp:
+                dxp = xs - wp - e
+            elif xs < e - wp:
+                dxp = xs + wp - e
             S[XP_Q8UM + i] = e + dxp
         S[DX_Q8UM + i] = dx
         S[V_UM_S + i] = v

@@ -53,17 +53,21 @@ _FRHZ = const(39)
 _OFORCE = const(40)
 _OMARKS = const(41)
 _AZ = const(42)
-_PLAY = const(43)
-_AP = const(44)
-_KSH = const(45)
-_WARMN = const(46)
-_AE = const(47)
-_STH = const(48)
-_SVMIN = const(49)
-_SSET = const(50)
-_AREA = const(51)
+_AP = const(43)
+_KSH = const(44)
+_WARMN = const(45)
+_AE = const(46)
+_STH = const(47)
+_SVMIN = const(48)
+_SSET = const(49)
+_AL = const(50)
+_AA = const(51)
+_AREA = const(52)
 _KQ = const(_AREA + ROPES_MAX)
-_PCAL = const(_KQ + ROPES_MAX)
+_PLAYS = const(_KQ + ROPES_MAX)
+_RPLAYS = const(_PLAYS + ROPES_MAX)
+_RTH = const(_RPLAYS + ROPES_MAX)
+_PCAL = const(_RTH + ROPES_MAX)
 _DCAL = const(_PCAL + 9 * ROPES_MAX)
 _GEXP = const(_DCAL + 6 * ROPES_MAX)
 _TEMPS = const(_GEXP + GEXP_POINTS)
@@ -130,7 +134,10 @@ _CL = const(156)
 _SMODE = const(157)
 _SSGN = const(158)
 _SCNT = const(159)
-_S_LEN = const(160)
+_XL = const(160)
+_XLREM = const(164)
+_ACT = const(168)
+_S_LEN = const(172)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -144,10 +151,10 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.play_q8um, c.alpha_p_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.alpha_p_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14)
     for j in range(len(head)):
         p[j] = head[j]
-    for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
+    for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
             p[off + j] = src[j]
     return p
@@ -236,7 +243,6 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     s2s9 = (P[_S2S9] ^ s31) - s31
     s2half = 1 << s2s9 >> 1
     az = (P[_AZ] ^ s31) - s31
-    play = (P[_PLAY] ^ s31) - s31
     ap = (P[_AP] ^ s31) - s31
     ksh4 = (P[_KSH] ^ s31) - s31 - 4
     ksh8 = (P[_KSH] ^ s31) - s31 + 8
@@ -254,6 +260,14 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         m += pg >> i & 1
     lo = m - 1 >> 1
     hi = m >> 1
+    j = n - 1
+    if m > 0:
+        j = m - 1
+    play = (P[_PLAYS + j] ^ s31) - s31
+    rplay = (P[_RPLAYS + j] ^ s31) - s31
+    rth = (P[_RTH + j] ^ s31) - s31
+    al = (P[_AL] ^ s31) - s31
+    aa = (P[_AA] ^ s31) - s31
     pm = 0
     for i in range(n):
         if pg >> i & 1:
@@ -279,6 +293,9 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 S[XS_Q8UM + i] = x
                 S[XP_Q8UM + i] = x
                 S[_XH_Q8UM + i] = x
+                S[_XL + i] = x
+                S[_XLREM + i] = 0
+                S[_ACT + i] = 4194304
                 pl = pm << 3
                 S[_PL_Q8 + i] = pl
                 S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8))
@@ -329,6 +346,13 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             v = dx * fshz + 128 >> 8
             pl = (S[_PL_Q8 + i] ^ s31) - s31
             kp = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8)
+            qt = 0
+            if rth != 0:
+                e = (S[_ACT + i] ^ s31) - s31
+                if e <= rth:
+                    qt = 256
+                elif e < rth + rth:
+                    qt = (rth + rth - e << 8) // rth
             a = az
             if mode > 0:
                 if i != mode - 1:
@@ -347,6 +371,8 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 a = 16384 // (w + 1)
                 if a < az:
                     a = az
+            elif qt != 0:
+                a = a * (256 - qt) >> 8
             t = (e & 16383) * a + ((S[_XBREM + i] ^ s31) - s31)
             inc = (e >> 14) * a + (t >> 14)
             S[_XBREM + i] = t & 16383
@@ -368,11 +394,24 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             avz = vz
             if avz < 0:
                 avz = -avz
+            wp = play + ((rplay - play) * qt >> 8)
+            if rth != 0:
+                e = xs - ((S[_XL + i] ^ s31) - s31)
+                t = (e & 16383) * al + ((S[_XLREM + i] ^ s31) - s31)
+                S[_XL + i] += (e >> 14) * al + (t >> 14)
+                S[_XLREM + i] = t & 16383
+                e = xs - ((S[_XL + i] ^ s31) - s31)
+                if e < 0:
+                    e = -e
+                if e > 16384:
+                    e = 16384
+                e = (e << 8) - ((S[_ACT + i] ^ s31) - s31)
+                S[_ACT + i] += (e >> 14) * aa + ((e & 16383) * aa + 8192 >> 14)
             e = (S[XP_Q8UM + i] ^ s31) - s31
-            if xs > e + play:
-                dxp = xs - play - e
-            elif xs < e - play:
-                dxp = xs + play - e
+            if xs > e + wp:
+                dxp = xs - wp - e
+            elif xs < e - wp:
+                dxp = xs + wp - e
             S[XP_Q8UM + i] = e + dxp
         S[DX_Q8UM + i] = dx
         S[V_UM_S + i] = v

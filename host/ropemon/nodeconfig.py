@@ -47,10 +47,18 @@ DEFAULTS = {
     "stroke_sigmas": 6.5,
     "stroke_min_speed_m_s": 1e-5,
     "stroke_settle_s": 4.0,
+    # rest hold (docs/model.md), with a compliance: a rope is quiet while the low-pass of
+    # |x_s - x_l| (x_l: a slower low-pass of x_s) stays below rest_sigmas times the
+    # position noise; then b stands and the play widens to rest_play_sigmas, so the noise
+    # of a long rest does not wear the seal state down (rest_sigmas 0: no rest hold)
+    "rest_sigmas": 0.0,
+    "rest_play_sigmas": 4.0,
+    "rest_slow_cutoff_hz": 0.2,
+    "rest_cutoff_hz": 0.5,
 }
 # the defaults that change when a compliance is given
 COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
-                       "friction_play_sigmas": 1.5}
+                       "friction_play_sigmas": 1.5, "rest_sigmas": 1.0}
 # rms of the median of N independent channels of unit rms noise (Gaussian; of two: their
 # mean): the LuGre position's pressure with a compliance (docs/model.md)
 MEDIAN_NOISE = (1.0, 0.7071, 0.6696, 0.5458)
@@ -182,13 +190,27 @@ def physical_params(ph: dict) -> dict:
     noise_m = _num(ph, "displacement_noise_m", 0.0, 1e-3)
     # rms noise of the LuGre position that makes false travel: without compliance, the
     # displacement's through both low-passes; with it, k times the noise of the median of
-    # the ropes' pressures (each with the node's kPa/16 steps) through its low-pass (b's
-    # noise then wanders too slowly to count)
+    # the ropes' pressure channels, each with the node's kPa/16 steps) through its low-pass
+    # (b's noise then wanders too slowly to count). Per count m = 1..n of healthy pressure
+    # channels: the median of fewer is noisier, so a faulted loop widens the play
     if any(k):
-        sigma = max(k) * MEDIAN_NOISE[n - 1] * lowpass_noise(
-            math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6), 1e3 / 16 / math.sqrt(12)), alpha_p)
+        p_noise = lowpass_noise(math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6), 1e3 / 16 / math.sqrt(12)),
+                                alpha_p)
+        sigmas = [max(k) * MEDIAN_NOISE[m - 1] * p_noise for m in range(1, n + 1)]
     else:
-        sigma = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)
+        sigmas = [filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)] * n
+    # in steps of PLAY_STEP_M: channels that differ by a few counts per metre share a play
+    def in_steps(key: str, hi: float) -> list[float]:
+        m = _num(ph, key, 0.0, hi)
+        return [PLAY_STEP_M * round(m * s / PLAY_STEP_M) for s in sigmas]
+    plays = in_steps("friction_play_sigmas", 10.0)
+    # the rest hold: only with a compliance (without one b is the position low-pass itself)
+    rest = in_steps("rest_sigmas", 10.0) if any(k) else [0.0] * n
+    rest_plays = in_steps("rest_play_sigmas", 20.0)
+    if any(rest) and min(rest_plays) < max(plays):
+        raise ValueError("physical.rest_play_sigmas: must be at least friction_play_sigmas")
+    alpha_l, alpha_a = (max(1, round((1 - math.exp(-2 * math.pi * _num(ph, key, 0.001, fs / 2) / fs)) * 16384))
+                        / 16384 for key in ("rest_slow_cutoff_hz", "rest_cutoff_hz"))
     fe_hz = _num(ph, "stroke_cutoff_hz", 0.01, fs / 2)
     alpha_e = min(4096, max(1, round((1 - math.exp(-2 * math.pi * fe_hz / fs)) * 16384))) / 16384
     # each cylinder's area over the mean (Q8, as the node holds it); build_node_section
@@ -219,9 +241,13 @@ def physical_params(ph: dict) -> dict:
         "stroke_settle": round(_num(ph, "stroke_settle_s", 0.0, 300.0) * fs),
         "compliance": k,
         "warmup": round(_num(ph, "friction_warmup_s", 0.0, 60.0) * fs),
-        # in steps of PLAY_STEP_M: channels that differ by a few counts per metre share a play
-        "play_m": PLAY_STEP_M * round(_num(ph, "friction_play_sigmas", 0.0, 10.0) * sigma
-                                      / PLAY_STEP_M),
+        # the play half-width with every pressure channel healthy, and per count of them
+        "play_m": plays[-1],
+        "plays_m": plays,
+        "rest_m": rest,              # activity threshold per count (all 0: no rest hold)
+        "rest_plays_m": rest_plays,  # the play while quiet
+        "alpha_l": alpha_l,
+        "alpha_a": alpha_a,
         "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
         "p_max_pa": friction_p_max_pa(ph, n),
     }
@@ -352,10 +378,14 @@ def build_node_section(ph: dict) -> dict:
     _check("physical.piston_speed_max_m_s (dx_max * sample_hz)", dx_max * fs, 1 << 28)
     v_max_um_s = (dx_max * fs + 128) >> 8
     nd["velocity"] = {"alpha_q14": max(1, round(pp["alpha"] * 16384)), "dx_max_q8um": dx_max}
-    play_q8um = round(pp["play_m"] * 256e6)
+    play_q8um = [round(w * 256e6) for w in pp["plays_m"]]
+    rest_play_q8um = [round(w * 256e6) for w in pp["rest_plays_m"]]
+    rest_q16um = [round(w * 65536e6) for w in pp["rest_m"]]  # the activity is held in um/65536
     stroke_q8um = round(pp["stroke_m"] * 256e6)
     _check("physical.stroke_sigmas (stroke threshold, um/256)", stroke_q8um, (1 << 15) + 1)
-    _check("physical.friction_play_sigmas (play half-width, um/256)", play_q8um, 1 << 24)
+    _check("physical.friction_play_sigmas (play half-width, um/256)", max(play_q8um), 1 << 24)
+    _check("physical.rest_play_sigmas (play half-width, um/256)", max(rest_play_q8um), (1 << 20) + 1)
+    _check("physical.rest_sigmas (activity threshold, um/65536)", max(rest_q16um), (1 << 21) + 1)
 
     fr = _get(ph, "friction")
     if not isinstance(fr, dict):
@@ -430,6 +460,8 @@ def build_node_section(ph: dict) -> dict:
                              "(k times 100 MPa must stay within 0.13 m)")
     nd["friction"] = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s,
                       "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
+                      "rest_play_q8um": rest_play_q8um, "rest_q16um": rest_q16um,
+                      "alpha_l_q14": round(pp["alpha_l"] * 16384), "alpha_a_q14": round(pp["alpha_a"] * 16384),
                       "alpha_p_q14": max(1, round(pp["alpha_p"] * 16384)), "compliance_q": kq,
                       "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),
                       "alpha_e_q14": round(pp["alpha_e"] * 16384), "area_q8": [round(a * 256) for a in pp["area_w"]],

@@ -192,16 +192,20 @@ def _median(values: list) -> float:
     return v[m // 2] if m % 2 else 0.5 * (v[m // 2 - 1] + v[m // 2])
 
 
+REST_D_MAX = 64e-6  # |x_s - x_l| is clamped here for the activity (as the node: 2**14 um/256)
+
+
 def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.ndarray, fs: float,
               strokes: list | None = None):
     """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
     position x_h = k p_l + b (p_l the low-passed median of the healthy pressure channels)
-    and its play, with the balancing-stroke tracking (docs/model.md).
+    and its play, with the balancing-stroke tracking and the rest hold (docs/model.md).
 
     Runs while both loops of a rope are healthy and starts again (with its warm-up)
     after a fault of either; strokes are tracked only while every rope runs warmed up."""
     k, n = P.shape
-    alpha, dx_max, play = pp["alpha"], pp["v_max"] / fs, pp["play_m"]
+    alpha, dx_max, plays = pp["alpha"], pp["v_max"] / fs, pp["plays_m"]
+    rest, rest_plays, alpha_l, alpha_a = pp["rest_m"], pp["rest_plays_m"], pp["alpha_l"], pp["alpha_a"]
     alpha_z, alpha_p, alpha_e, warm = pp["alpha_z"], pp["alpha_p"], pp["alpha_e"], pp["warmup"]
     kh, aw = pp["compliance"], pp["area_w"]
     th, vmin, settle = pp["stroke_m"], pp["stroke_vmin"], pp["stroke_settle"]
@@ -209,12 +213,15 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
     dxs = np.zeros((k, n))
     dxp = np.zeros((k, n))
     started = [False] * n
-    xf, xs, xp, xh, pl, xb, e, mot = ([0.0] * n for _ in range(8))
+    xf, xs, xp, xh, pl, xb, e, mot, xl, act = ([0.0] * n for _ in range(10))
     w = [0] * n
     cl, mode, sgn, cnt = 0.0, 0, 0, 0
     clamp = lambda v, lim: lim if v > lim else (-lim if v < -lim else v)  # noqa: E731
     for j, (xr, pr, okr, pokr) in enumerate(zip(X.tolist(), P.tolist(), OK.tolist(), POK.tolist())):
-        pm = _median([p for p, ok in zip(pr, pokr) if ok])
+        healthy = [p for p, ok in zip(pr, pokr) if ok]
+        pm = _median(healthy)
+        c = len(healthy) - 1 if healthy else n - 1  # the median of fewer is noisier
+        play, rest_play, hold = plays[c], rest_plays[c], rest[c]
         cv = 0.0
         allw = th > 0
         for i in range(n):
@@ -224,7 +231,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                 continue
             if not started[i]:
                 started[i] = True
-                xf[i] = xs[i] = xp[i] = xh[i] = xr[i]
+                xf[i] = xs[i] = xp[i] = xh[i] = xl[i] = xr[i]
+                act[i] = REST_D_MAX  # not quiet until the activity has settled
                 pl[i] = pm
                 xb[i] = xr[i] - kh[i] * pl[i]
                 w[i] = 0
@@ -246,6 +254,11 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             dx[j, i] = step
             kp = kh[i] * pl[i]
             a = alpha_z
+            # how quiet (0 .. 256): the whole hold below `hold`, none from twice it, by the
+            # activity of the last sample, in the node's steps
+            q = 0
+            if hold > 0:
+                q = 256 if act[i] <= hold else max(0, math.floor(256 * (2 * hold - act[i]) / hold))
             if mode > 0:  # a stroke: the stopped ropes stand, the sliding one's b stands
                 if i != mode - 1:
                     xb[i] -= mot[i]
@@ -253,6 +266,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                     a = 0.0
             if w[i] < warm:
                 a = max(alpha_z, 1.0 / (w[i] + 1))
+            elif q:  # at rest b stands: its wander would be seal travel
+                a = (round(a * 16384) * (256 - q) // 256) / 16384
             inc = a * (xf[i] - kp - xb[i])
             xb[i] += inc
             step = kp + xb[i] - xh[i]
@@ -264,10 +279,14 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             step = clamp(step, dx_max)
             xs[i] += step
             dxs[j, i] = step
-            if xs[i] > xp[i] + play:
-                dxp[j, i] = xs[i] - play - xp[i]
-            elif xs[i] < xp[i] - play:
-                dxp[j, i] = xs[i] + play - xp[i]
+            # the rest hold's activity: low-pass of |x_s - x_l|, x_l a slower low-pass of x_s
+            xl[i] += alpha_l * (xs[i] - xl[i])
+            act[i] += alpha_a * (min(abs(xs[i] - xl[i]), REST_D_MAX) - act[i])
+            wp = play + (rest_play - play) * q / 256
+            if xs[i] > xp[i] + wp:
+                dxp[j, i] = xs[i] - wp - xp[i]
+            elif xs[i] < xp[i] - wp:
+                dxp[j, i] = xs[i] + wp - xp[i]
             xp[i] += dxp[j, i]
         if not allw:
             mode, sgn, cnt, cl = 0, 0, 0, 0.0

@@ -51,10 +51,15 @@ def variant_doc(ropes=None, temp_fitted=False, compliance=False):
             nd["loss"][key] = nd["loss"][key][:ropes]
         nd["friction"]["compliance_q"] = nd["friction"]["compliance_q"][:ropes]
         nd["friction"]["area_q8"] = nd["friction"]["area_q8"][:ropes]
+        for key in ("play_q8um", "rest_play_q8um", "rest_q16um"):  # for 1..ropes healthy channels
+            nd["friction"][key] = nd["friction"][key][:ropes]
     if compliance:
         # k = 1 um/kPa: k times 100 MPa is 0.1 m, the config check's limit; stroke tracking
         # at its extremes (the fastest low-passes, areas 0.5 and 1.5 of the mean, a stroke
-        # at every 1/256 um of e, no settling), so every branch of it runs
+        # at every 1/256 um of e, no settling), so every branch of it runs; the rest hold
+        # with a threshold of 8 um of activity, so ropes go quiet and wake again
+        nd["friction"].update(rest_q16um=[8 << 16] * nd["ropes"],
+                              rest_play_q8um=[p + 256 for p in nd["friction"]["play_q8um"]])
         nd["friction"].update(compliance_q=[131071] * nd["ropes"], compliance_shift=9,
                               warmup_samples=400, alpha_e_q14=4096, stroke_q8um=1, stroke_vmin_q16=0,
                               stroke_settle=0, area_q8=[(128, 384)[i % 2] for i in range(nd["ropes"])])

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from ropemon.firmware import FIRMWARE_DIR, node_module
-from ropemon.nodeconfig import build_node_section, example_physical, make_node_json
+from ropemon.nodeconfig import MEDIAN_NOISE, build_node_section, example_physical, make_node_json
 
 config = node_module("config")
 
@@ -76,9 +76,14 @@ def test_gexp_table():
     ("friction_play_sigmas", 11.0),
     ("displacement_noise_m", -1e-6),
     ("displacement_noise_m", "20 um"),
+    ("rest_sigmas", -0.5),
+    ("rest_play_sigmas", 1.0),          # narrower than the play (2.0) with the rest hold on
+    ("rest_cutoff_hz", 0.0),
+    ("rest_slow_cutoff_hz", 150.0),     # above sample_hz / 2
 ])
 def test_lugre_observer_keys_are_range_checked(key, bad):
     ph = example_physical()
+    ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4  # the rest hold runs with a compliance
     ph[key] = bad
     with pytest.raises(ValueError) as e:
         build_node_section(ph)
@@ -95,9 +100,29 @@ def test_lugre_observer_defaults_and_integers():
     assert fr["alpha_z_q14"] == round((1 - math.exp(-2 * math.pi * 1.0 / 200)) * 16384)
     # white noise through x_f (5 Hz) then x_s (1 Hz) at 200 Hz: rms gain 0.1134 (by simulation)
     noise = math.hypot(2e-5, 0.1 / 38400 / math.sqrt(12))
-    expect = 2.0 * 0.1134 * noise * 256e6  # um/256, in steps of 0.05 um (12.8)
-    assert abs(fr["play_q8um"] - expect) <= 0.015 * expect + 6.4, (fr["play_q8um"], expect)
+    expect = 2.0 * 0.1134 * noise * 256e6  # um/256, in steps of 0.01 um (2.56)
+    # one play per count of healthy pressure channels: without a compliance they are all
+    # the displacement's
+    assert len(fr["play_q8um"]) == 4 and len(set(fr["play_q8um"])) == 1, fr["play_q8um"]
+    assert abs(fr["play_q8um"][0] - expect) <= 0.015 * expect + 1.28, (fr["play_q8um"], expect)
     assert fr["compliance_q"] == [0, 0, 0, 0] and fr["warmup_samples"] == 0  # no compliance given
+
+
+def test_with_a_compliance_the_play_widens_as_pressure_channels_fail():
+    """With a compliance the play is sized for the noise of the median of the healthy
+    pressure channels: per count m = 1..4 of them, k times MEDIAN_NOISE[m - 1] times one
+    channel's noise (kPa/16 steps included) after the 5 Hz low-pass, times the sigmas."""
+    ph = example_physical()
+    ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
+    ph["pressure_noise_Pa"] = 5200.0
+    ph.pop("friction_play_sigmas")  # the compliance default, 1.5
+    fr = build_node_section(ph)["friction"]
+    a = round((1 - math.exp(-2 * math.pi * 5.0 / 200)) * 16384) / 16384
+    one = math.hypot(5200.0, 1e3 / 16 / math.sqrt(12)) * math.sqrt(a / (2 - a))
+    for m in range(1, 5):
+        expect = 1.5 * 3e-10 * MEDIAN_NOISE[m - 1] * one * 256e6
+        assert abs(fr["play_q8um"][m - 1] - expect) <= 1.28, (m, fr["play_q8um"], expect)
+    assert fr["play_q8um"][0] > fr["play_q8um"][1] > fr["play_q8um"][2] > fr["play_q8um"][3]
 
 
 def test_node_runs_the_observer_values_the_reference_uses():
@@ -107,10 +132,11 @@ def test_node_runs_the_observer_values_the_reference_uses():
     ph["friction_play_sigmas"] = 3.0
     nd = build_node_section(ph)
     cfg = config.parse_node(nd)
-    assert (cfg.alpha_z_q14, cfg.play_q8um) == (nd["friction"]["alpha_z_q14"], nd["friction"]["play_q8um"])
-    assert cfg.play_q8um != build_node_section(example_physical())["friction"]["play_q8um"]
+    assert (cfg.alpha_z_q14, list(cfg.play_q8um)) == (nd["friction"]["alpha_z_q14"], nd["friction"]["play_q8um"])
+    assert list(cfg.play_q8um) != build_node_section(example_physical())["friction"]["play_q8um"]
     p = kernel.pack(cfg)
-    assert cfg.alpha_z_q14 in p and cfg.play_q8um in p
+    assert cfg.alpha_z_q14 in p
+    assert list(p[kernel._PLAYS:kernel._PLAYS + 4]) == nd["friction"]["play_q8um"]
 
 
 def test_stroke_tracking_needs_a_compliance_and_shares_by_area():
@@ -126,3 +152,13 @@ def test_stroke_tracking_needs_a_compliance_and_shares_by_area():
     assert build_node_section(dict(ph, cylinder_area_m2=[a, a, a, 1.2 * a]))["friction"]["area_q8"] == [244] * 3 + [293]
     with pytest.raises(ValueError, match=r"cylinder_area_m2\[3\]: 2.00 times"):
         build_node_section(dict(ph, cylinder_area_m2=[a, a, a, 3 * a]))
+
+
+def test_node_refuses_a_rest_play_narrower_than_the_play():
+    ph = example_physical()
+    ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
+    nd = build_node_section(ph)
+    nd["friction"]["rest_play_q8um"][2] = nd["friction"]["play_q8um"][2] - 1
+    with pytest.raises(config.ConfigError) as e:
+        config.parse_node(nd)
+    assert e.value.field == "node.friction.rest_play_q8um[2]", e.value.field
