@@ -4,8 +4,9 @@ Commissions and simulates a scenario as `ropemon evaluate` does (no firmware run
 then reruns the float reference `lugre-p+loss` with one setting changed at a time:
 the play multiplier `friction_play_sigmas`, the hydraulic compliance k scaled
 (as if fit-compliance were that far off), the pressure low-pass, the threshold
-of the balancing-stroke tracking (`stroke_sigmas`; 0: none), and no compliance
-at all. Prints a Markdown table (docs/accuracy.md, "Sensitivity").
+of the balancing-stroke tracking (`stroke_sigmas`; 0: none), the rest hold's
+threshold (`rest_sigmas`; 0: none), and no compliance at all. Prints a Markdown
+table (docs/accuracy.md, "Sensitivity").
 
     .venv/bin/python tools/observer_sensitivity.py [SCENARIO] [--out DIR] [--seed N] [--quick]
 """
@@ -36,6 +37,9 @@ def variants(ph: dict) -> list[tuple[str, dict]]:
         for m in (4.5, 8.5):
             out.append((f"stroke_sigmas {m:g}", dict(ph, stroke_sigmas=m)))
         out.append(("balancing strokes not tracked (stroke_sigmas 0)", dict(ph, stroke_sigmas=0.0)))
+        for m in (0.75, 1.5):
+            out.append((f"rest_sigmas {m:g}", dict(ph, rest_sigmas=m)))
+        out.append(("no rest hold (rest_sigmas 0)", dict(ph, rest_sigmas=0.0)))
         no_k = copy.deepcopy(ph)
         for key in ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa"):
             no_k.pop(key, None)

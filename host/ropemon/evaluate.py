@@ -65,6 +65,11 @@ def _stuck(doc: dict) -> None:
     doc.setdefault("sensors", {})["fault"] = [{"kind": "stuck", "channel": "pressure", "rope": 1, "start_s": 30.0}]
 
 
+def _long_rest(doc: dict) -> None:
+    rests = [ph for ph in doc["trip"]["phase"] if ph["kind"] == "rest"]
+    rests[-1]["duration_s"] = 120.0  # the field trip's last: the empty cage at the pithead
+
+
 def _duty(doc: dict) -> None:
     del doc["trip"]
     doc["duty"] = {"trips": 50, "payload_kg": [0.0, 12000.0], "oil_temp_C": [0.0, 40.0],
@@ -82,6 +87,8 @@ VARIANTS = {
     "oil-40C-temp-input": ("oil at 40 C, node with an oil temperature input", _set("plant.oil_temp_C", 40.0), True),
     "rope-length-5cm": ("rope 1 effectively 5 cm longer than the others",
                         _set("plant.ropes.offsets_m", [0.05, 0.0, 0.0, 0.0]), False),
+    "pithead-long-rest": ("the field trip with the empty cage resting 120 s at the pithead, not 4 s",
+                          _long_rest, False),
     "sensor-noise": ("pressure noise 20 kPa, displacement noise 40 um, ADC noise 3 counts", _noisy, False),
     "stuck-sensor": ("rope 2's pressure transmitter sticks at 30 s", _stuck, False),
     "plant-other-friction": ("the plant's seals follow a Coulomb-Stribeck law, not LuGre", _other_friction, False),

@@ -23,6 +23,8 @@ def test_sensitivity_table_has_every_setting(tmp_path, capsys, monkeypatch):
     assert sum(lab.startswith("k x ") for lab in labels) == 4
     assert sum(lab.startswith("stroke_sigmas ") for lab in labels) == 2
     assert "balancing strokes not tracked (stroke_sigmas 0)" in labels
+    assert sum(lab.startswith("rest_sigmas ") for lab in labels) == 2
+    assert "no rest hold (rest_sigmas 0)" in labels
     # each row: play (um) and four figures, numbers; the plays differ with the multiplier
     plays = {lab: float(r.split("|")[2]) for lab, r in zip(labels, rows)}
     assert plays["friction_play_sigmas 1.3"] < plays["as commissioned"] < plays["friction_play_sigmas 2.1"]

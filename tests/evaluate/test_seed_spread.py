@@ -1,0 +1,35 @@
+"""tools/seed_spread.py runs `ropemon evaluate` per seed and tabulates `lugre-p+loss`."""
+from __future__ import annotations
+
+import runpy
+import sys
+from pathlib import Path
+
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "seed_spread.py"
+
+
+def test_seed_range_parses_spans_and_lists():
+    tool = runpy.run_path(str(TOOL))
+    assert tool["seed_range"]("1-3") == [1, 2, 3]
+    assert tool["seed_range"]("2,5-6") == [2, 5, 6]
+
+
+def test_spread_table_has_a_row_per_scenario_over_the_seeds(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", [str(TOOL), "short-test", "--seeds", "1-2", "--jobs", "2", "--quick",
+                                      "--out", str(tmp_path)])
+    try:
+        runpy.run_path(str(TOOL), run_name="__main__")
+    except SystemExit as e:
+        assert e.code == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| short-test")]
+    assert len(rows) == 1, out
+    cells = [c.strip() for c in rows[0].strip("|").split("|")]
+    rms, peak = float(cells[1]), float(cells[2])
+    assert 0 < rms <= peak
+    assert cells[4].endswith("of 0")  # short-test ends loaded: no empty-cage pithead rest
+    lo, med, hi = (float(v) for v in cells[5].split("/"))  # the arrival rest, over both seeds
+    assert lo <= med <= hi
+    assert cells[7] == "2 of 2"  # commissioned on both seeds
+    assert (tmp_path / "seed-1").is_dir() and (tmp_path / "seed-2").is_dir()
+    assert "- short-test: -, -" in out  # per seed: no empty-cage figure
