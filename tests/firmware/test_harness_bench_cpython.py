@@ -27,5 +27,7 @@ def test_cli_json_reports_every_figure():
     assert f["us_per_sample"] == sorted(f["us_per_sample_runs"])[f["repeats"] // 2]
     assert f["float_ratio"] == f["float_baseline_us_per_sample"] / f["us_per_sample"]
     assert 0 < f["frame_wire_bytes"] <= 64
+    for key in ("us_per_sample", "allocs_per_sample", "alloc_bytes_per_sample", "transient_alloc_bytes_per_sample"):
+        assert isinstance(f["compliance"][key], (int, float)) and f["compliance"][key] >= 0, key
     text = firmware.describe(f)
     assert "us per sample" in text and "armv6m" in text

@@ -15,7 +15,10 @@ the Node. Heap in use (gc.mem_alloc, after gc.collect) is taken at each of
 those four checkpoints; the largest is `heap_boot_peak_bytes`, and the heap
 in use once the boot is over (the Config dropped) is `heap_bytes`. Both are
 held against the 32 KiB target. .mpy sizes come from mpy-cross for each
-target architecture.
+target architecture. A second run takes the same config with a hydraulic
+compliance added (`compliance`: the observer of a commissioned site, with its
+median pressure, stroke tracking and rest hold), for its time and allocation
+per sample.
 """
 from __future__ import annotations
 
@@ -395,6 +398,19 @@ print(json.dumps(out))
 '''
 
 
+def _with_compliance(node_json: Path, tmp: Path) -> Path:
+    """node_json's physical section with the example site's hydraulic compliance, rebuilt."""
+    from ropemon.nodeconfig import make_node_json
+
+    ph = json.loads(node_json.read_text())["physical"]
+    ph = dict(ph, hydraulic_compliance_m_per_Pa=[3e-10] * int(ph["ropes"]), pressure_noise_Pa=5.2e3)
+    for key in ("friction_cutoff_hz", "friction_play_sigmas"):  # the defaults of a compliance
+        ph.pop(key, None)
+    out = tmp / "node-compliance.json"
+    out.write_text(json.dumps(make_node_json(ph)))
+    return out
+
+
 def measure(quick: bool = False, firmware_dir: Path | None = None) -> dict:
     """Run the benchmark; return the figures (see module docstring)."""
     fw = Path(firmware_dir) if firmware_dir else FIRMWARE
@@ -410,15 +426,22 @@ def measure(quick: bool = False, firmware_dir: Path | None = None) -> dict:
         x64 = t / "x64"
         compile_tree(fw, x64, "x64")
         script = t / "bench_node.py"
-        script.write_text(SCRIPT.replace("NODE_JSON", json.dumps(str(node_json)))
-                          .replace("SAMPLES", str(samples)).replace("REPEATS", str(repeats))
-                          .replace("CHUNK", str(chunk)))
         env = dict(os.environ, MICROPYPATH=str(x64))  # .mpy only: no firmware .py on the path
-        r = subprocess.run([_tool("micropython"), "-X", "heapsize=4M", str(script)], cwd=tmp, env=env,
-                           capture_output=True, text=True, timeout=900)
-        if r.returncode != 0:
-            raise RuntimeError("firmware benchmark failed under micropython:\n" + r.stdout + r.stderr)
-        figures.update(json.loads(r.stdout.strip().splitlines()[-1]))
+
+        def run(config: Path) -> dict:
+            script.write_text(SCRIPT.replace("NODE_JSON", json.dumps(str(config)))
+                              .replace("SAMPLES", str(samples)).replace("REPEATS", str(repeats))
+                              .replace("CHUNK", str(chunk)))
+            r = subprocess.run([_tool("micropython"), "-X", "heapsize=4M", str(script)], cwd=tmp, env=env,
+                               capture_output=True, text=True, timeout=900)
+            if r.returncode != 0:
+                raise RuntimeError("firmware benchmark failed under micropython:\n" + r.stdout + r.stderr)
+            return json.loads(r.stdout.strip().splitlines()[-1])
+
+        figures.update(run(node_json))
+        figures["compliance"] = {key: v for key, v in run(_with_compliance(node_json, t)).items()
+                                 if key.startswith(("us_per_sample", "allocs_", "alloc_", "transient_",
+                                                    "heap_bytes"))}
     figures["float_ratio"] = figures["float_baseline_us_per_sample"] / figures["us_per_sample"]
     figures["targets"] = TARGETS
     return figures
@@ -455,6 +478,12 @@ def describe(f: dict) -> str:
              row("  freed by releasing ropenode.config", f"{f['heap_released_bytes']}", "", True),
              row("  interpreter total after boot", f"{f['heap_total_bytes']}", "", True),
              row("  JSON doc while parsing (transient)", f"{f['heap_json_doc_bytes']}", "", True),
+             row("us per sample, with a compliance", f"{f['compliance']['us_per_sample']:.2f}", "<= 8",
+                 f["compliance"]["us_per_sample"] <= 8),
+             row("  samples that allocate (heap_lock)", f"{f['compliance']['allocs_per_sample']:.3f}", "0",
+                 f["compliance"]["allocs_per_sample"] == 0),
+             row("  heap bytes passed through per sample", f"{f['compliance']['transient_alloc_bytes_per_sample']:.1f}",
+                 "0", f["compliance"]["transient_alloc_bytes_per_sample"] == 0),
              row("us per frame (frame_into)", f"{f['us_per_frame']:.1f}", "", True),
              row("heap bytes kept per frame", f"{f['frame_alloc_bytes']:.0f}", "", True),
              row("frame bytes on the wire", f"{f['frame_wire_bytes']}", "<= 64", f["frame_wire_bytes"] <= 64)]
