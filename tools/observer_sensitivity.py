@@ -26,7 +26,7 @@ from ropemon import reference
 def variants(ph: dict) -> list[tuple[str, dict]]:
     """(label, physical) pairs: the commissioned config and one change each."""
     out = [("as commissioned", ph)]
-    for m in (1.3, 1.5, 1.6, 1.8, 1.9, 2.1):
+    for m in (1.1, 1.2, 1.4, 1.5, 1.7, 2.0):
         out.append((f"friction_play_sigmas {m:g}", dict(ph, friction_play_sigmas=m)))
     k = ph.get("hydraulic_compliance_m_per_Pa")
     if k:

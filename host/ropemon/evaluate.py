@@ -65,6 +65,11 @@ def _stuck(doc: dict) -> None:
     doc.setdefault("sensors", {})["fault"] = [{"kind": "stuck", "channel": "pressure", "rope": 1, "start_s": 30.0}]
 
 
+def _open_loop(doc: dict) -> None:
+    doc.setdefault("sensors", {})["fault"] = [{"kind": "open_loop", "channel": "pressure", "rope": 1,
+                                               "start_s": 30.0}]
+
+
 def _long_rest(doc: dict) -> None:
     rests = [ph for ph in doc["trip"]["phase"] if ph["kind"] == "rest"]
     rests[-1]["duration_s"] = 120.0  # the field trip's last: the empty cage at the pithead
@@ -91,6 +96,7 @@ VARIANTS = {
                           _long_rest, False),
     "sensor-noise": ("pressure noise 20 kPa, displacement noise 40 um, ADC noise 3 counts", _noisy, False),
     "stuck-sensor": ("rope 2's pressure transmitter sticks at 30 s", _stuck, False),
+    "pressure-loop-open": ("rope 2's pressure loop opens (0 mA) at 30 s", _open_loop, False),
     "plant-other-friction": ("the plant's seals follow a Coulomb-Stribeck law, not LuGre", _other_friction, False),
     "duty-cycle-50": ("50 winds, payload 0-12 t, oil 0-40 C, node assumes 20 C", _duty, False),
 }

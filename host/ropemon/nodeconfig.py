@@ -58,7 +58,7 @@ DEFAULTS = {
 }
 # the defaults that change when a compliance is given
 COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
-                       "friction_play_sigmas": 1.5, "rest_sigmas": 1.0}
+                       "friction_play_sigmas": 1.3, "rest_sigmas": 1.0}
 # rms of the median of N independent channels of unit rms noise (Gaussian; of two: their
 # mean): the LuGre position's pressure with a compliance (docs/model.md)
 MEDIAN_NOISE = (1.0, 0.7071, 0.6696, 0.5458)

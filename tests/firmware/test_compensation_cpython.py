@@ -448,7 +448,7 @@ def _rest_physical(**changes) -> dict:
 def test_at_rest_the_pressure_noise_does_not_wear_the_seal_state_down():
     """After a loading the seals hold about 6 kN each. Over the minute of rest that
     follows, the pressure noise alone would make travel through the play and relax them
-    (to about 2 kN without the rest hold); with it (docs/model.md, "Rest hold") every
+    (by more than 2.5 kN without the rest hold); with it (docs/model.md, "Rest hold") every
     rope's friction stays within 150 N from 5 s after the loading (the elastic part still
     follows the position noise), in the node as in the reference."""
     doc = make_node_json(_rest_physical())
@@ -472,7 +472,7 @@ def test_a_faulted_pressure_loop_sizes_the_play_for_the_median_of_the_others(mon
     """With rope 1's pressure loop open, the LuGre position of the other ropes takes the
     median of three channels, 1.23 times noisier than of four: the node widens the play
     to match (nodeconfig MEDIAN_NOISE), so without the rest hold the noise relaxes their
-    seals over a minute's rest by clearly less than with the play of four channels; the
+    seals over 18 s of rest by a quarter less than with the play of four channels; the
     node does as the reference."""
     from ropemon import nodeconfig
 
@@ -481,13 +481,13 @@ def test_a_faulted_pressure_loop_sizes_the_play_for_the_median_of_the_others(mon
     fs = int(ph["sample_hz"])
     recs, t = _rest_records(ph, 70, 5)
     recs[t >= 10, 0] = 0  # below 3.6 mA
-    a, b = int(12 * fs), len(t) - 1
+    a, b = int(12 * fs), int(30 * fs)
     per_count = reference.compensate(ph, recs).friction_n
     monkeypatch.setattr(nodeconfig, "MEDIAN_NOISE", (nodeconfig.MEDIAN_NOISE[3],) * 4)
     one_play = reference.compensate(ph, recs).friction_n
     monkeypatch.undo()
     relax, relax_one = per_count[a, 1:] - per_count[b, 1:], one_play[a, 1:] - one_play[b, 1:]
-    assert (relax < 0.93 * relax_one).all(), (relax, relax_one)
+    assert (relax < 0.85 * relax_one).all(), (relax, relax_one)
     ten, good, _ = run_node(Node(config.parse(doc)), recs)
     assert not good[t >= 10, 0].any() and good[t >= 1, 1:].all()
     err = np.abs(ten - reference.compensate(ph, recs).tension_n)[good]

@@ -7,7 +7,8 @@ import math
 import pytest
 
 from ropemon.firmware import FIRMWARE_DIR, node_module
-from ropemon.nodeconfig import MEDIAN_NOISE, build_node_section, example_physical, make_node_json
+from ropemon.nodeconfig import (COMPLIANCE_DEFAULTS, MEDIAN_NOISE, build_node_section, example_physical,
+                                make_node_json)
 
 config = node_module("config")
 
@@ -115,12 +116,12 @@ def test_with_a_compliance_the_play_widens_as_pressure_channels_fail():
     ph = example_physical()
     ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
     ph["pressure_noise_Pa"] = 5200.0
-    ph.pop("friction_play_sigmas")  # the compliance default, 1.5
+    ph.pop("friction_play_sigmas")  # the compliance default
     fr = build_node_section(ph)["friction"]
     a = round((1 - math.exp(-2 * math.pi * 5.0 / 200)) * 16384) / 16384
     one = math.hypot(5200.0, 1e3 / 16 / math.sqrt(12)) * math.sqrt(a / (2 - a))
     for m in range(1, 5):
-        expect = 1.5 * 3e-10 * MEDIAN_NOISE[m - 1] * one * 256e6
+        expect = COMPLIANCE_DEFAULTS["friction_play_sigmas"] * 3e-10 * MEDIAN_NOISE[m - 1] * one * 256e6
         assert abs(fr["play_q8um"][m - 1] - expect) <= 1.28, (m, fr["play_q8um"], expect)
     assert fr["play_q8um"][0] > fr["play_q8um"][1] > fr["play_q8um"][2] > fr["play_q8um"][3]
 
