@@ -662,7 +662,14 @@ def _firmware_frames(physical: dict, rsens: Path, work: Path) -> np.ndarray:
     frames.sort(key=lambda f: f.seq)
     if frames and [f.seq for f in frames] != list(range(frames[0].seq, frames[0].seq + len(frames))):
         raise EvaluationError("firmware frames: sequence numbers not consecutive")
-    return np.array([[r.mean_dan * 10.0 for r in f.ropes] for f in frames]).reshape(len(frames), -1)
+    return frame_means_n(frames)
+
+
+def frame_means_n(frames) -> np.ndarray:
+    """Each frame's rope mean tensions [frame, rope] in N; NaN for a rope the frame marks
+    absent (no healthy sample in its window), so it is neither scored nor compared."""
+    return np.array([[np.nan if r.absent else float(r.mean_n) for r in f.ropes] for f in frames],
+                    float).reshape(len(frames), -1)
 
 
 def _standstill(meta: dict, t_s: np.ndarray) -> np.ndarray:

@@ -1,4 +1,5 @@
 """The scenario variants of issue 6 are the field trip with exactly one change."""
+import numpy as np
 import pytest
 
 from ropemon import evaluate as ev
@@ -37,6 +38,31 @@ def test_payload_and_duty_variants(tmp_path):
     assert [p["payload_kg"] for p in loads] == [12000.0, 0.0]  # loaded at the bottom, unloaded at the top
     duty = ev.scenario_doc("duty-cycle-50", tmp_path)[0]
     assert "trip" not in duty and duty["duty"]["trips"] == 50
+
+
+def test_long_rest_and_open_loop_variants(tmp_path):
+    rests = [p for p in ev.scenario_doc("pithead-long-rest", tmp_path)[0]["trip"]["phase"] if p["kind"] == "rest"]
+    assert rests[-1]["duration_s"] == 120.0 and rests[-1]["label"] == "pithead rest empty"
+    assert [p["duration_s"] for p in rests[:-1]] == [3.0, 4.0, 10.0]  # the others as on the field trip
+    fault = ev.scenario_doc("pressure-loop-open", tmp_path)[0]["sensors"]["fault"]
+    assert fault == [{"kind": "open_loop", "channel": "pressure", "rope": 1, "start_s": 30.0}]
+
+
+def test_an_absent_rope_in_a_firmware_frame_is_not_scored():
+    """A frame marks a rope with no healthy sample in its window absent (TENSION_ABSENT):
+    its mean is NaN for the scoring, not -32768 daN."""
+    from ropemon import protocol as P
+
+    rope = P.Rope(4000, 3990, 4010, 5000)
+    gone = P.Rope(P.L.TENSION_ABSENT, P.L.TENSION_ABSENT, P.L.TENSION_ABSENT, P.L.RAW_KPA_ABSENT)
+
+    class F:  # what frame_means_n reads of a decoded frame
+        def __init__(self, ropes):
+            self.ropes = ropes
+
+    m = ev.frame_means_n([F((rope, rope)), F((rope, gone))])
+    assert m.shape == (2, 2) and m[0, 0] == 40000.0 and m[1, 0] == 40000.0
+    assert np.isnan(m[1, 1]) and not np.isnan(m[0, 1])
 
 
 def test_other_friction_variant_builds_a_plant_law(tmp_path):
