@@ -680,6 +680,21 @@ def _standstill(meta: dict, t_s: np.ndarray) -> np.ndarray:
     return t_s < 0.5
 
 
+def scoring_masks(truth, truth_n: np.ndarray, hz: int, rated_n: float, shaft_depth_m: float):
+    """(phase, excluded, steady, payload_kg) per sample of a wind's `truth.npz` arrays, as
+    every figure is scored: the phase of the wind, the samples after a shock, the samples
+    whose payload is not being changed, the payload."""
+    k = len(truth_n)
+    # phases of the wind are the drive's (wheel) motion; the cage bounces on its ropes after a stop
+    phase = M.classify_phases(truth["cage_depth_m"][:k], truth["wheel_speed_m_s"][:k],
+                              truth["wheel_accel_m_s2"][:k], shaft_depth_m)
+    t_s = np.arange(k) / hz
+    excluded = M.shock_mask(t_s, M.detect_shocks(t_s, truth_n, rated_n))
+    payload = np.asarray(truth["payload_kg"], float)[:k]
+    steady = np.concatenate([[True], np.diff(payload) == 0])
+    return phase, excluded, steady, payload
+
+
 def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed: dict | None = None) -> Case:
     """Simulate, commission and run every estimator on one scenario."""
     from ropemon import reference
@@ -703,16 +718,8 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     _ropes, hz, recs = reference.read_rsens(sim / "sensors.rsens")
     truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]
     recs = recs[: len(truth_n)]
-    k = len(truth_n)
-
-    shaft_depth = float(physical["hall_marks_m"][-1])
-    # phases of the wind are the drive's (wheel) motion; the cage bounces on its ropes after a stop
-    phase = M.classify_phases(truth["cage_depth_m"][:k], truth["wheel_speed_m_s"][:k],
-                              truth["wheel_accel_m_s2"][:k], shaft_depth)
-    t_s = np.arange(k) / hz
-    excluded = M.shock_mask(t_s, M.detect_shocks(t_s, truth_n, rated))
-    payload = np.asarray(truth["payload_kg"], float)[:k]
-    steady = np.concatenate([[True], np.diff(payload) == 0])
+    phase, excluded, steady, payload = scoring_masks(truth, truth_n, hz, rated,
+                                                     float(physical["hall_marks_m"][-1]))
     case = Case(name=Path(name).stem, sample_hz=hz, frame_hz=int(physical["frame_hz"]), rated_n=rated,
                 truth_n=truth_n, phase=phase, excluded=excluded, steady=steady, payload_kg=payload,
                 physical=physical)
@@ -754,7 +761,7 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
         case.estimates[est_name] = reference.compensate(ph, recs).tension_n
     area = np.asarray(physical["cylinder_area_m2"], float)
     sig = E.Signals(full.p_pa, full.v_m_s, full.loss_n / area)
-    still = _standstill(meta, t_s)
+    still = _standstill(meta, np.arange(len(truth_n)) / hz)
     deadband = E.deadband_from_standstill(full.v_m_s[still])
     case.notes.append(f"static laws: velocity dead band {deadband * 1e3:.2f} mm/s "
                       f"({E.DEADBAND_SIGMAS:g} x the velocity-estimate RMS over {still.sum() / hz:.1f} s of standstill)")

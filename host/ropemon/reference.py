@@ -102,6 +102,34 @@ def _loss_force(ph: dict, i: int, area: float, v: np.ndarray, temp_c: np.ndarray
     return np.sign(v) * out * area
 
 
+def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray, vq: np.ndarray,
+                   fs: float, z0: float = 0.0) -> np.ndarray:
+    """LuGre friction F (N) of one rope over samples, from the `friction` section `fr`.
+
+    `p_pa` the pressure the parameter lines take (already held at the fit's top), `dxs`
+    the per-sample increment of the LuGre position (elastic step), `dxp` that of its
+    play (dissipation), `vq` the velocity of the viscous term, `z0` the initial
+    sigma0 z (N). In zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g;
+    F = zf + sigma1 dz/dt + sigma2 v (docs/model.md)."""
+    sigma0, sigma1 = float(fr["sigma0"]), float(fr["sigma1"])
+    c1 = sigma1 / (sigma0 * (1.0 / fs))
+    pm = np.asarray(p_pa, float) / 1e6
+    lin = {key: float(fr[key]["intercept"]) + float(fr[key]["slope"]) * pm
+           for key in ("Fs", "Fc", "vs", "sigma2")}
+    # g at the velocity of x_s: g at the noisy v would dip with every noise peak and
+    # the bound |zf| <= g would ratchet zf down
+    g = lin["Fc"] + (lin["Fs"] - lin["Fc"]) * np.exp(-(dxs * fs / lin["vs"]) ** 2)
+    zn = np.empty(len(g))
+    z = z0
+    for j, (gj, wj, wd) in enumerate(zip(g.tolist(), (sigma0 * dxs).tolist(),
+                                         (sigma0 * np.abs(dxp)).tolist())):
+        z = (z + wj) * gj / (gj + wd)
+        z = gj if z > gj else (-gj if z < -gj else z)
+        zn[j] = z
+    zprev = np.concatenate(([z0], zn[:-1]))
+    return zn + c1 * (zn - zprev) + lin["sigma2"] * vq
+
+
 def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Compensated:
     """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`.
 
@@ -110,12 +138,9 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Co
     pp = physical_params(ph)
     n = pp["ropes"]
     fs = float(ph["sample_hz"])
-    h = 1.0 / fs
     p_max = pp["p_max_pa"]
     areas = [float(a) for a in ph["cylinder_area_m2"]]
     fr = ph["friction"]
-    sigma0, sigma1 = float(fr["sigma0"]), float(fr["sigma1"])
-    c1 = sigma1 / (sigma0 * h)
     k = records.shape[0]
     temp_c = _temperature_c(ph, records[:, 2 * n + 1])
     shape = (k, n)
@@ -153,22 +178,7 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Co
         # the velocity of the pipe loss and the viscous term: with a compliance that of
         # the LuGre position, from the pressure (the displacement's noise would pass)
         vq = dxs * fs if pp["compliance"][i] else v
-        # LuGre in zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g.
-        pm = np.clip(p, 0.0, p_max) / 1e6
-        lin = {key: float(fr[key]["intercept"]) + float(fr[key]["slope"]) * pm
-               for key in ("Fs", "Fc", "vs", "sigma2")}
-        # g at the velocity of x_s: g at the noisy v would dip with every noise peak and
-        # the bound |zf| <= g would ratchet zf down
-        g = lin["Fc"] + (lin["Fs"] - lin["Fc"]) * np.exp(-(dxs * fs / lin["vs"]) ** 2)
-        zn = np.empty(k)
-        z = 0.0
-        for j, (gj, wj, wd) in enumerate(zip(g.tolist(), (sigma0 * dxs).tolist(),
-                                             (sigma0 * np.abs(dxp)).tolist())):
-            z = (z + wj) * gj / (gj + wd)
-            z = gj if z > gj else (-gj if z < -gj else z)
-            zn[j] = z
-        zprev = np.concatenate(([0.0], zn[:-1]))
-        fric = zn + c1 * (zn - zprev) + lin["sigma2"] * vq
+        fric = lugre_friction(fr, np.clip(p, 0.0, p_max), dxs, dxp, vq, fs)
         loss = _loss_force(ph, i, areas[i], vq, temp_c)
         raw = p * areas[i]
         ok = good[:, i]

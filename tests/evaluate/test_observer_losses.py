@@ -1,0 +1,47 @@
+"""tools/observer_losses.py: the friction error stage by stage (true position, low-pass, play, node)."""
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ropemon import evaluate as EV
+from ropemon.nodeconfig import make_node_json
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location("observer_losses", ROOT / "tools" / "observer_losses.py")
+ol = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ol)
+
+
+def test_the_play_passes_travel_beyond_its_half_width_and_nothing_inside():
+    # 0 -> 3 um -> 1 um -> 4 um with a half-width of 1 um: 2 um up, nothing back (2 um
+    # inside the 2 um of play), then 1 um up again once x leaves the play
+    x = np.array([0.0, 1.0, 2.0, 3.0, 2.0, 1.0, 2.0, 3.0, 4.0])[:, None] * 1e-6
+    d = ol.play_increments(x, 1e-6)[:, 0] * 1e6
+    assert np.allclose(d, [0, 0, 1, 1, 0, 0, 0, 0, 1])
+    # a reversal beyond the play: down from 3 to 0 um gives 1 um down (3 - 2 x 1)
+    x = np.array([0.0, 3.0, 0.0])[:, None] * 1e-6
+    assert np.allclose(ol.play_increments(x, 1e-6)[:, 0] * 1e6, [0, 2, -1])
+
+
+def test_stages_on_the_short_wind(tmp_path, capsys):
+    work = tmp_path / "short-test"
+    case = EV.build_case("short-test", work, 1, firmware=False, bed=EV.BED_QUICK)
+    (work / "node-evaluated.json").write_text(json.dumps(make_node_json(case.physical)))
+    rows = ol.losses(work)
+    assert [r["stage"] for r in rows] == list(ol.STAGES)
+    # the node's LuGre, fitted on the test bed, driven by the plant's own piston position
+    # reproduces the plant's seal friction
+    assert rows[0]["rope_rms_pct"] < 0.05 and rows[0]["rope_peak_pct"] < 0.1
+    # the pressure low-pass alone already costs accuracy: it hides part of the bounce
+    assert rows[1]["rope_rms_pct"] > 5 * rows[0]["rope_rms_pct"]
+    # the node's observer, scored friction-only, is near the full compensation's figure
+    full = EV.M.evaluate_estimate(case.estimates["lugre-p"], case.truth_n, case.rated_n, case.phase,
+                                  case.excluded, case.steady, case.payload_kg)
+    assert abs(rows[3]["rope_rms_pct"] - full["rope_rms_pct"]) < 0.1
+    assert ol.main([str(work)]) == 0
+    table = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| short-test")]
+    assert len(table) == 4
