@@ -2,6 +2,9 @@
 
     seq = (boot << SEQ_COUNT_BITS) | count       # 12-bit boot counter, 20-bit frame count
 
+The node hands seq out as its 16-bit halves (low, high): seq itself reaches 2**32,
+beyond a 32-bit MicroPython's small ints (+-2**30), and the frame packer takes halves.
+
 The boot counter lives in a small file on the node's flash (decimal text),
 read and incremented once per boot and rewritten only when the 20-bit frame
 count wraps (2**20 frames = 29 h at 10 Hz): two flash writes a day at most,
@@ -65,11 +68,11 @@ class FrameSeq:
         self.count = 0
 
     def peek(self):
-        """The seq the next frame will carry."""
-        return (self.boot << SEQ_COUNT_BITS) | self.count
+        """The seq the next frame will carry, as its 16-bit halves (low, high)."""
+        return self.count & 0xFFFF, (self.boot << (SEQ_COUNT_BITS - 16)) | (self.count >> 16)
 
     def next(self):
-        """This frame's seq; past 2**20 frames the boot counter is bumped (and persisted)."""
+        """This frame's seq (low, high); past 2**20 frames the boot counter is bumped (and persisted)."""
         seq = self.peek()
         if self.count == COUNT_MASK:
             self.count = 0

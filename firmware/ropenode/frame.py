@@ -45,10 +45,12 @@ class FrameWriter:
     def pack(self, kind, fault_mask, seq, time_ms, status, ropes, depth_mm, speed_mm_s,
              battery_mv, oil_temp_cc):
         """Fill header, rope records (`ropes` is a list of (mean, min, max, raw_kpa)
-        or None for none) and tail; return the length before MAC and CRC."""
+        or None for none) and tail; return the length before MAC and CRC.
+
+        `seq` and `time_ms` are (low, high) 16-bit halves of the u32 fields."""
         raw = self.raw
-        struct.pack_into(layout.HEADER_FMT, raw, 0, layout.VERSION, kind, self.node_id,
-                         fault_mask, seq, time_ms, status)
+        struct.pack_into(layout.NODE_HEADER_FMT, raw, 0, layout.VERSION, kind, self.node_id,
+                         fault_mask, seq[0], seq[1], time_ms[0], time_ms[1], status)
         o = layout.HEADER_LEN
         if ropes:
             for r in ropes:

@@ -22,6 +22,9 @@ KIND_STATUS = const(1)   # no rope payload: the node cannot compensate (e.g. con
 HEADER_FMT = "<BBBBIIH"
 HEADER_FIELDS = ("version", "kind", "node", "fault_mask", "seq", "time_ms", "status")
 HEADER_LEN = const(14)
+# The node packs the same 14 bytes with seq and time_ms as 16-bit halves, low first:
+# no int it handles then reaches 2**30 (a small int on a 32-bit MicroPython)
+NODE_HEADER_FMT = "<BBBBHHHHH"
 
 ROPE_FMT = "<hhhH"
 ROPE_FIELDS = ("mean_dan", "min_dan", "max_dan", "raw_kpa")

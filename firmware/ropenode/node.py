@@ -7,8 +7,8 @@
 The per-sample work is one call of `kernel.step` over two int arrays (config
 `P`, state `S`; offsets in kernel.py), closing frame windows too: the viper
 build (kernel_viper) where the port has a native emitter, else the plain one.
-`sample` never allocates (tests/firmware/test_alloc.py) and keeps every int
-within +-2**30.
+`sample` never allocates (tests/firmware/test_alloc.py), and it and `frame_into`
+keep every int within +-2**30 (tests/firmware/test_int32_ast_cpython.py).
 Without a valid config the node does not compensate: every window it offers a
 KIND_STATUS frame with ST_CONFIG_FAULT, as node `fallback_id` with its MAC
 keyed by `fallback_key`: the refused file's own identity where it is readable
@@ -96,12 +96,15 @@ class Node:
         return True
 
     def _time_ms(self):
-        """Node time (ms, modulo 2**32) at the end of the latched window."""
+        """Node time (ms, modulo 2**32) at the end of the latched window, as its 16-bit
+        halves (low, high): sec * 1000 passes 2**30 after 12 days, so the product is
+        formed from the 16-bit halves of sec (every int stays below 2**27)."""
         if self.S is None:
             sec, sub = self.sec, self.sub
         else:
             sec, sub = self.S[K.OUT_SEC], self.S[K.OUT_SUB]
-        return (sec * 1000 + sub * 1000 // self.sample_hz) & 0xFFFFFFFF
+        low = (sec & 0xFFFF) * 1000 + sub * 1000 // self.sample_hz  # < 65536000 + 1000
+        return low & 0xFFFF, ((sec >> 16) * 1000 + (low >> 16)) & 0xFFFF
 
     def frame_into(self, buf):
         """Write the latest window's frame (COBS + 0x00) into buf; return its length.

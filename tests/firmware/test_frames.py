@@ -3,6 +3,8 @@
 Runs under CPython and the real MicroPython: the node's own packer must give
 the vectors' raw and wire bytes exactly.
 """
+import struct
+
 from fwtest_util import cobs_decode, load_json, unhex
 
 from ropenode import layout
@@ -18,7 +20,8 @@ def test_good_vectors_pack_exactly():
     for v in vec["good"]:
         f = v["fields"]
         w = FrameWriter(f["node"], unhex(v["key_hex"]))
-        n = w.pack(f["kind"], f["fault_mask"], f["seq"], f["time_ms"], f["status"],
+        n = w.pack(f["kind"], f["fault_mask"], (f["seq"] & 0xFFFF, f["seq"] >> 16),
+                   (f["time_ms"] & 0xFFFF, f["time_ms"] >> 16), f["status"],
                    f["ropes"] or None, f["depth_mm"], f["speed_mm_s"], f["battery_mv"],
                    f["oil_temp_cc"])
         wire = bytearray(64)
@@ -27,6 +30,14 @@ def test_good_vectors_pack_exactly():
         assert bytes(w.raw[:len(raw)]) == raw, v["name"]
         assert bytes(wire[:m]) == unhex(v["wire_hex"]), v["name"]
         assert m <= layout.MAX_WIRE_LEN
+
+
+def test_node_header_packs_the_same_bytes_as_the_wire_header():
+    assert struct.calcsize(layout.NODE_HEADER_FMT) == struct.calcsize(layout.HEADER_FMT) == layout.HEADER_LEN
+    for seq, t in ((0, 0), (1, 1000), (0x12345678, 0x9ABCDEF0), (0xFFFFFFFF, 0xFFFFFFFF)):
+        wire = struct.pack(layout.HEADER_FMT, 1, 0, 7, 3, seq, t, 0x8001)
+        node = struct.pack(layout.NODE_HEADER_FMT, 1, 0, 7, 3, seq & 0xFFFF, seq >> 16, t & 0xFFFF, t >> 16, 0x8001)
+        assert node == wire
 
 
 def test_hmac_matches_rfc4231_case_2():
@@ -42,7 +53,7 @@ def test_hmac_long_key_rfc4231_case_6():
 def test_cobs_round_trip_and_crc_trailer():
     w = FrameWriter(7, bytes(range(16)))
     ropes = [(0, -1, 32767, 0), (-32768, 0, 0, 65535), (1, 256, 0, 0), (0, 0, 0, 0)]
-    n = w.pack(layout.KIND_DATA, 0, 0, 0, 0, ropes, 0, 0, 0, 0)
+    n = w.pack(layout.KIND_DATA, 0, (0, 0), (0, 0), 0, ropes, 0, 0, 0, 0)
     wire = bytearray(64)
     m = w.seal_into(n, wire)
     assert m == layout.MAX_WIRE_LEN and wire[m - 1] == 0

@@ -7,7 +7,9 @@
    wrapped in a check; the hot path (Node.sample) then runs over the same
    extreme/fault/random streams as test_alloc.py. Any int outside
    [-2**30, 2**30) -- a non-small int on a 32-bit MicroPython, which would
-   allocate -- or any float fails, naming file and line. This bounds every
+   allocate -- or any float fails, naming file and line. The frames it closes
+   are packed under the check too, late in the node's life (seq and time_ms
+   are u32 on the wire). This bounds every
    intermediate, including those in code the wasm run may not reach by chance,
    and it works for viper functions too (their decorators are no-ops here).
 """
@@ -182,12 +184,17 @@ def run_armed(monitor: RangeMonitor, seeds=(1, 7, 99), count=1600) -> int:
     import array
 
     import test_alloc
+    from ropenode.node import K
     runs = [(None, seed) for seed in seeds] + [
         (test_alloc.variant_doc(temp_fitted=True), 5), (test_alloc.variant_doc(ropes=1, temp_fitted=True), 6),
         (test_alloc.variant_doc(compliance=True), 8)]
     done = 0
     for doc, seed in runs:
         node, ropes, chans = test_alloc.build_node(doc)
+        # frames late in the node's life: 49.7 days of node time (sec * 1000 passes 2**32)
+        # and the last boot before the 12-bit counter wraps, near a frame-count wrap
+        node.S[K.SEC] = 4294960
+        node.frame_seq.boot, node.frame_seq.count = 4095, (1 << 20) - 2
         w = 2 * ropes + 4
         rec = array.array("H", bytes(2 * w))
         buf = bytearray(64)
@@ -200,13 +207,13 @@ def run_armed(monitor: RangeMonitor, seeds=(1, 7, 99), count=1600) -> int:
             monitor.armed = True
             try:
                 ready = node.sample(rec)
+                if ready:
+                    node.frame_into(buf)  # per frame: seq and time as 16-bit halves
             except RangeViolation as e:
                 raise RangeViolation(f"{e} (record {k}, seed {seed}: {list(rec)})") from None
             finally:
                 monitor.armed = False
             assert ready is True or ready is False
-            if ready:
-                node.frame_into(buf)  # per frame: may use big ints (seq, time, MAC)
             done += 1
     return done
 

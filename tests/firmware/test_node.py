@@ -62,6 +62,22 @@ def test_missing_config_sends_status_frames_and_never_crashes():
             assert h[5] == (k + 1) * 100  # 20 samples at 200 Hz each
 
 
+def test_frame_time_is_node_time_modulo_2_32_after_weeks_of_running():
+    # sec * 1000 passes 2**30 after 12.4 days and 2**32 after 49.7: the node forms the
+    # u32 from 16-bit halves, and the wire carries node time modulo 2**32
+    buf = bytearray(64)
+    for cfg in (parse(node_doc()), None):
+        node = Node(cfg)
+        _run(node, _rec(), 20)
+        for sec, sub in ((1073741, 199), (1100000, 100), (4294967, 60), (4294968, 20), (999999999, 0)):
+            if cfg is None:
+                node.sec, node.sub = sec, sub
+            else:
+                node.S[K.OUT_SEC], node.S[K.OUT_SUB] = sec, sub
+            h = _decode(buf, node.frame_into(buf))[0]
+            assert h[5] == (sec * 1000 + sub * 5) % (1 << 32), (cfg is None, sec, sub, h[5])
+
+
 def test_bad_config_document_gives_status_frames():
     doc = node_doc()
     doc["crc"] ^= 1
@@ -350,9 +366,14 @@ def test_frame_seq_increases_across_resets():
         _cleanup(path)
 
 
+def _seq(halves):
+    """The u32 seq of FrameSeq's (low, high) 16-bit halves."""
+    return halves[0] | (halves[1] << 16)
+
+
 def test_without_a_boot_file_seq_starts_at_zero_and_writes_nothing():
     fs = FrameSeq()
-    assert [fs.next() for _ in range(3)] == [0, 1, 2] and fs.boot == 0
+    assert [_seq(fs.next()) for _ in range(3)] == [0, 1, 2] and fs.boot == 0
     assert [h[4] for h, _, _ in _run(Node(None), _rec(), 60)] == [0, 1, 2]
 
 
@@ -361,10 +382,10 @@ def test_count_overflow_bumps_and_persists_the_boot_counter():
     try:
         fs = FrameSeq(path)
         fs.count = bootseq.COUNT_MASK - 1  # 29 h of frames at 10 Hz later
-        assert [fs.next() for _ in range(3)] == [0xFFFFE, 0xFFFFF, 1 << 20]
+        assert [_seq(fs.next()) for _ in range(3)] == [0xFFFFE, 0xFFFFF, 1 << 20]
         assert bootseq.read_boot(path) == 1   # persisted at the wrap, not per frame
-        assert fs.next() == (1 << 20) | 1
-        assert FrameSeq(path).peek() == 2 << 20  # the next boot is newer still
+        assert _seq(fs.next()) == (1 << 20) | 1
+        assert _seq(FrameSeq(path).peek()) == 2 << 20  # the next boot is newer still
     finally:
         _cleanup(path)
 
@@ -386,11 +407,11 @@ def test_boot_counter_file_damage_and_wrap():
         with open(path, "w") as f:
             f.write("4095\n")
         fs = FrameSeq(path)
-        assert fs.boot == 0 and fs.next() == 0
+        assert fs.boot == 0 and _seq(fs.next()) == 0
     finally:
         _cleanup(path)
 
 
 def test_an_unwritable_boot_file_does_not_stop_the_node():
     fs = FrameSeq("/nonexistent-ropemon-dir/bootcount")
-    assert fs.boot == 0 and [fs.next() for _ in range(2)] == [0, 1]
+    assert fs.boot == 0 and [_seq(fs.next()) for _ in range(2)] == [0, 1]
