@@ -501,6 +501,7 @@ BED_QUICK = {"pressures_MPa": (3.0, 7.0, 11.0), "speeds_m_s": (0.001, 0.002, 0.0
              "hold_s": 0.6}
 SIGMA0_FITTED = ("fitted", "fitted sigma0, default sigma1")  # calibrate.fit's presliding sources
 REFUSED = "the node refuses the commissioned config"
+NODE_EVALUATED = "node-evaluated.json"  # the commissioned config, in the scenario's run directory
 
 
 def _toml(value) -> str:
@@ -644,12 +645,11 @@ def _site_physical(truth_meta: dict, friction: dict, compliance: dict | None = N
 
 
 def _firmware_frames(physical: dict, rsens: Path, work: Path) -> np.ndarray:
-    """Frame means (N) from the fixed-point firmware under `micropython` (`ropemon replay`)."""
+    """Frame means (N) from the fixed-point firmware under `micropython` (`ropemon replay`)
+    on the commissioned config `build_case` wrote (`node-evaluated.json`)."""
     from ropemon.decoder import StreamDecoder
-    from ropemon.nodeconfig import make_node_json
 
-    node_json = work / "node-evaluated.json"
-    node_json.write_text(json.dumps(make_node_json(physical), indent=1))
+    node_json = work / NODE_EVALUATED
     frames_bin = work / "frames.bin"
     _run_step("firmware (ropemon replay)", [sys.executable, "-m", "ropemon.cli", "replay", str(rsens),
                                             "--out", str(frames_bin), "--config", str(node_json)],
@@ -770,7 +770,12 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
             est = E.static_estimate_n(est_name, physical, sig, deadband)
             case.estimates[est_name] = np.where(full.good, est, np.nan)
     case.estimates = {n: case.estimates[n] for n in E.ESTIMATORS}
-    if firmware and not any(pr.startswith(REFUSED) for pr in problems):
+    refused = any(pr.startswith(REFUSED) for pr in problems)
+    if not refused:  # the commissioned config, for the firmware and the tools (tools/*.py RUN)
+        from ropemon.nodeconfig import make_node_json
+
+        (work / NODE_EVALUATED).write_text(json.dumps(make_node_json(physical), indent=1))
+    if firmware and not refused:
         case.firmware_n = _firmware_frames(physical, sim / "sensors.rsens", work)
     elif firmware:
         case.notes.append("**firmware NOT run**: the node refuses the commissioned config (above); "
