@@ -78,7 +78,7 @@ def stage_friction(ph: dict, truth, k: int, recs: np.ndarray) -> list[np.ndarray
 
 def losses(run_dir: Path) -> list[dict]:
     """The figures of each stage on one evaluate run directory."""
-    ph = json.loads((run_dir / "node-evaluated.json").read_text())["physical"]
+    ph = json.loads((run_dir / EV.NODE_EVALUATED).read_text())["physical"]
     _r, hz, recs = reference.read_rsens(run_dir / "sim" / "sensors.rsens")
     truth = np.load(run_dir / "sim" / "truth.npz")
     truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]

@@ -103,16 +103,17 @@ def _loss_force(ph: dict, i: int, area: float, v: np.ndarray, temp_c: np.ndarray
 
 
 def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray, vq: np.ndarray,
-                   fs: float, z0: float = 0.0) -> np.ndarray:
+                   fs: float) -> np.ndarray:
     """LuGre friction F (N) of one rope over samples, from the `friction` section `fr`.
 
     `p_pa` the pressure the parameter lines take (already held at the fit's top), `dxs`
     the per-sample increment of the LuGre position (elastic step), `dxp` that of its
-    play (dissipation), `vq` the velocity of the viscous term, `z0` the initial
-    sigma0 z (N). In zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g;
+    play (dissipation), `vq` the velocity of the viscous term; the seal starts unloaded.
+    In zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g;
     F = zf + sigma1 dz/dt + sigma2 v (docs/model.md)."""
     sigma0, sigma1 = float(fr["sigma0"]), float(fr["sigma1"])
-    c1 = sigma1 / (sigma0 * (1.0 / fs))
+    h = 1.0 / fs
+    c1 = sigma1 / (sigma0 * h)
     pm = np.asarray(p_pa, float) / 1e6
     lin = {key: float(fr[key]["intercept"]) + float(fr[key]["slope"]) * pm
            for key in ("Fs", "Fc", "vs", "sigma2")}
@@ -120,13 +121,13 @@ def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray,
     # the bound |zf| <= g would ratchet zf down
     g = lin["Fc"] + (lin["Fs"] - lin["Fc"]) * np.exp(-(dxs * fs / lin["vs"]) ** 2)
     zn = np.empty(len(g))
-    z = z0
+    z = 0.0
     for j, (gj, wj, wd) in enumerate(zip(g.tolist(), (sigma0 * dxs).tolist(),
                                          (sigma0 * np.abs(dxp)).tolist())):
         z = (z + wj) * gj / (gj + wd)
         z = gj if z > gj else (-gj if z < -gj else z)
         zn[j] = z
-    zprev = np.concatenate(([z0], zn[:-1]))
+    zprev = np.concatenate(([0.0], zn[:-1]))
     return zn + c1 * (zn - zprev) + lin["sigma2"] * vq
 
 
