@@ -8,7 +8,8 @@ four runs per deploy); the steps:
    free flash, and the journal of an unfinished earlier swap;
 3. build on the host: the firmware packages cross-compiled with mpy-cross for that
    arch (or the .py sources with --py); main.py/boot.py stay .py, MicroPython only
-   boots those from source;
+   boots those from source; node.json without its `physical` section, which is the
+   host's (`nodeconfig.node_part`: the node parses half the heap at boot);
 4. stage: copy everything into `.staged/` on the node and hash it there (SHA-256),
    compared with the host's hashes;
 5. swap, in one exec: `deployswap.swap` (firmware/deployswap.py, sent as source)
@@ -42,6 +43,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ropemon.firmware import FIRMWARE_DIR, install_shim, node_module
+from ropemon.nodeconfig import node_part
 
 install_shim()
 import deployswap  # noqa: E402  firmware/deployswap.py: the node side of the swap, one copy
@@ -285,8 +287,9 @@ def build(firmware_dir: Path, out_dir: Path, arch: str | None, as_py: bool,
     if errors:
         raise DeployError("\n".join(errors))
     hashes = {dst.relative_to(out_dir).as_posix(): _sha256(dst) for dst in outputs}
-    if config is not None:
-        shutil.copyfile(config, out_dir / CONFIG_NAME)
+    if config is not None:  # the node's part only (nodeconfig.node_part), as checked
+        (out_dir / CONFIG_NAME).write_text(json.dumps(node_part(json.loads(config.read_text())),
+                                                      separators=(",", ":")))
         hashes[CONFIG_NAME] = _sha256(out_dir / CONFIG_NAME)
     return hashes
 

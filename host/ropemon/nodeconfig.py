@@ -571,6 +571,13 @@ def make_node_json(physical: dict) -> dict:
             "crc": crc16(cfg_mod.canonical(nd))}
 
 
+def node_part(doc: dict) -> dict:
+    """What of a node.json the node reads (schema, node, crc): `ropemon deploy` copies only
+    this. The `physical` section is the host's (the reference, the tools); on the node
+    it would only be parsed at boot, taking as much heap again as the node section."""
+    return {key: doc[key] for key in ("schema", "node", "crc") if key in doc}
+
+
 def _walther_cst(temp_c: float) -> float:
     """ISO VG46 kinematic viscosity (cSt) by the Walther/ASTM D341 fit of the domain brief."""
     return 10 ** (10 ** (9.32 - 3.65 * math.log10(temp_c + 273.15))) - 0.7

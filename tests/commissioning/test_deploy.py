@@ -212,7 +212,9 @@ def test_deploy_cli_end_to_end(tmp_path, node_json):
     assert "arch x64" in r.stdout
     assert f"firmware 1.0.0-test, config CRC {crc} (0x{crc:04x}), node id {node_id}" in r.stdout
     root = tmp_path / "node"
-    assert (root / "node.json").read_bytes() == cfg.read_bytes()
+    # the node gets its part of the config: the same node section and CRC, no physical section
+    on_node = json.loads((root / "node.json").read_text())
+    assert on_node == {key: doc[key] for key in ("schema", "node", "crc")} and "physical" in doc
     assert (root / "ropenode" / "__init__.mpy").exists() and not (root / "ropenode" / "__init__.py").exists()
     assert not (root / D.STAGED_DIR).exists() and not (root / D.PREV_DIR).exists()
     assert not (root / D.JOURNAL).exists()
