@@ -12,6 +12,12 @@ Method (docs/commissioning.md, "Friction calibration"):
    state is simulated from the last steady run with the fitted lines; sigma0
    minimises the force residual (sigma1 enters linearly and is solved exactly).
    Without usable pre-sliding data: documented defaults, with a warning.
+5. The standstill after a run: a LuGre seal keeps its bristle force when the
+   piston stops (z does not change at v = 0); a seal without pre-sliding (a
+   Coulomb-Stribeck law) releases it. The force held over the run's sliding
+   force is `standstill_hold_ratio` (median over the standstills); the node's
+   model needs one near 1, and `ropemon config` refuses a seal below
+   MIN_STANDSTILL_HOLD (site.check_friction).
 
 Every refusal (bad columns, NaN, one pressure level, one direction, too few
 points, no convergence) raises FitError with the reason; the command exits 1.
@@ -48,6 +54,10 @@ DEFAULT_DAMPING_TIME_S = 1e-3
 PRESLIDING_SUBSTEPS = 4
 PRESLIDING_MAX_REL_ERR = 0.25  # sigma0 counts as identified when its standard error is below 25 %
 SIGMA1_MAX_REL_ERR = 0.5       # sigma1 (weakly seen by any bed: it acts only while bristles deflect)
+
+MIN_STANDSTILL_S = 0.3        # a standstill this long right after a run shows what the seal holds
+STANDSTILL_AFTER_RUN_S = 1.0   # (the ramp down from the run lies between them)
+MIN_STANDSTILL_HOLD = 0.5      # a LuGre seal holds ~0.9 of its sliding force; below this it is not one
 
 PARAMS = ("Fs", "Fc", "vs", "sigma2")
 UNITS = {"Fs": "N", "Fc": "N", "vs": "m/s", "sigma2": "N s/m"}
@@ -438,6 +448,30 @@ def fit_presliding(rec: Record, lines: dict[str, Any], runs: list[tuple[int, int
 # ---------------------------------------------------------------- the whole fit
 
 
+def standstill_holds(rec: Record, runs: list[tuple[int, int]]) -> list[dict[str, float]]:
+    """Each standstill (velocity within the noise band for MIN_STANDSTILL_S or longer)
+    that follows a run within STANDSTILL_AFTER_RUN_S: its pressure, the run's sliding
+    force, the force held over the standstill's second half, and their ratio."""
+    dt = _sample_period(rec)
+    vm, floor = _velocity_smooth(rec)
+    still = np.abs(vm) <= 4 * floor
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], still.astype(np.int8), [0]))))
+    gaps = np.flatnonzero(np.diff(rec.t) > 5 * dt) + 1
+    out = []
+    for i, j in zip(edges[::2], edges[1::2]):
+        j = int(min([j] + [g for g in gaps if i < g < j]))  # a stretch ends at a time gap
+        before = [r for r in runs if r[1] <= i and rec.t[i] - rec.t[r[1] - 1] <= STANDSTILL_AFTER_RUN_S]
+        if (j - i) * dt < MIN_STANDSTILL_S or not before:
+            continue
+        a, b = before[-1]
+        sliding = float(np.median(rec.F[a:b]))
+        held = float(np.median(rec.F[i + (j - i) // 2:j]))
+        if sliding:
+            out.append({"pressure_MPa": float(np.median(rec.p[i:j])), "sliding_N": sliding, "held_N": held,
+                        "ratio": held / sliding})
+    return out
+
+
 def fit(rec: Record, source: str = "") -> tuple[dict[str, Any], list[Level], list[str]]:
     """Fit a test-bed record; returns (friction.json document, per-level fits, warnings)."""
     warnings: list[str] = []
@@ -493,6 +527,18 @@ def fit(rec: Record, source: str = "") -> tuple[dict[str, Any], list[Level], lis
     # what the pre-sliding fit found, also when it was not used
     found = {(k + "_fit" if k in ("sigma0", "sigma1") else k): v for k, v in (pre or {}).items()}
     doc["presliding"] = {"source": src, **found}
+    holds = standstill_holds(rec, runs)
+    if holds:
+        ratio = float(np.median([h["ratio"] for h in holds]))
+        doc["standstill_hold_ratio"] = ratio
+        doc["standstills"] = holds
+        if ratio < MIN_STANDSTILL_HOLD:
+            warnings.append(f"standstill: the seal held {round(ratio * 100)} % of its sliding force when the piston "
+                            f"stopped (median of {len(holds)}); a LuGre seal holds nearly all of it. "
+                            "This seal does not follow the node's model: `ropemon config` refuses it")
+    else:
+        warnings.append("standstill: no standstill after a run in the record: whether the seal holds its "
+                        "force at rest is not checked (see the test procedure)")
     doc["pressure_range_MPa"] = [p_lo, p_hi]
     doc["levels"] = [{"pressure_MPa": lv.pressure_MPa, "points": len(lv.v), "rms_N": lv.rms_N,
                       **lv.params, "stderr": lv.stderr} for lv in levels]

@@ -100,6 +100,10 @@ VARIANTS = {
     "plant-other-friction": ("the plant's seals follow a Coulomb-Stribeck law, not LuGre", _other_friction, False),
     "duty-cycle-50": ("50 winds, payload 0-12 t, oil 0-40 C, node assumes 20 C", _duty, False),
 }
+# Scenarios whose seal `ropemon config` must refuse (site.seal_refusal): a Coulomb-Stribeck
+# seal releases its force at standstill, which the node's LuGre does not. The figures show
+# what a node forced onto such a seal would read.
+REFUSAL_EXPECTED = ("plant-other-friction",)
 # What `make evaluate` runs when no scenario is named.
 DEFAULT_SCENARIOS = (FIELD_TRIP, *VARIANTS)
 TEMPERATURE_INPUT = "temperature = { counts_at_0C = 8000.0, counts_per_C = 160.0 }"
@@ -219,6 +223,9 @@ def _commissioned(sc: dict) -> str:
     c = sc.get("commissioning") or {}
     if not c:
         return "-"
+    if c.get("refusal_expected") and not c.get("problems"):
+        return ("refused by `ropemon config`, as expected (see notes)" if c.get("seal_refused")
+                else "**NOT refused** (see notes)")
     if not c.get("ok"):
         return "**FAILED** (see notes)"
     k = c.get("hydraulic_compliance_m_per_Pa") or []
@@ -330,9 +337,16 @@ def markdown(results: dict) -> str:
 
 
 def commissioning_failed(results: dict) -> list[str]:
-    """Scenarios whose node could not be commissioned from a fit of their own seal."""
-    return [name for name, sc in results["scenarios"].items()
-            if not (sc.get("commissioning") or {}).get("ok", True)]
+    """Scenarios whose node could not be commissioned from a fit of their own seal, or whose
+    seal `ropemon config` refused unexpectedly or failed to refuse (REFUSAL_EXPECTED)."""
+    out = []
+    for name, sc in results["scenarios"].items():
+        c = sc.get("commissioning") or {}
+        if c.get("problems") or bool(c.get("seal_refused")) != bool(c.get("refusal_expected")):
+            out.append(name)
+        elif not c.get("ok", True) and not c.get("refusal_expected"):
+            out.append(name)
+    return out
 
 
 TIE_PCT = 0.01  # RMS figures closer than this (% of rated) are a tie
@@ -630,7 +644,7 @@ def _site_physical(truth_meta: dict, friction: dict, compliance: dict | None = N
     if not site_file:
         raise EvaluationError(f"scenario {truth_meta.get('scenario')}: no site file: not a hoist scenario")
     site = load_site(site_file)
-    physical = physical_from_site(site, friction, compliance)
+    physical = physical_from_site(site, friction, compliance, refuse_unheld=False)  # refusal: build_case
     # The sensor stream was made with the simulator's node config: how counts map to
     # physical units must be the same. What the simulator sets per run (e.g. the depth
     # the node boots at) is taken from it, as an installer would set it.
@@ -723,8 +737,12 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     case = Case(name=Path(name).stem, sample_hz=hz, frame_hz=int(physical["frame_hz"]), rated_n=rated,
                 truth_n=truth_n, phase=phase, excluded=excluded, steady=steady, payload_kg=payload,
                 physical=physical)
+    from ropemon.site import seal_refusal
+
+    refusal = seal_refusal(fit)
     case.commissioning = {
-        "ok": not problems, "problems": problems,
+        "ok": not problems and not refusal, "problems": problems,
+        "seal_refused": refusal, "refusal_expected": Path(name).stem in REFUSAL_EXPECTED,
         "sigma0_N_per_m": fit.get("sigma0"), "sigma1_N_s_per_m": fit.get("sigma1"),
         "presliding_source": fit.get("presliding", {}).get("source"),
         "presliding_period_s": fit.get("bed", {}).get("presliding_period_s"),
@@ -734,6 +752,13 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     }
     for problem in problems:
         case.notes.append(f"**COMMISSIONING FAILED**: {problem}")
+    if refusal:
+        case.notes.append(f"**`ropemon config` refuses this seal**"
+                          f"{' (as this scenario expects)' if case.commissioning['refusal_expected'] else ''}: "
+                          f"{refusal}. The figures below are those of a node commissioned from the fit anyway.")
+    elif case.commissioning["refusal_expected"]:
+        case.notes.append("**COMMISSIONING FAILED**: `ropemon config` accepted a seal this scenario expects it "
+                          "to refuse")
     if "error" not in hyd:
         case.notes.append(
             "hydraulic compliance from `ropemon fit-compliance` on a commissioning wind (the same "
@@ -742,8 +767,8 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
             + f" um/kPa, pressure noise {hyd['pressure_noise_Pa'] / 1e3:.2f} kPa")
     oil = np.asarray(truth["oil_temp_C"], float)
     case.notes.append(
-        f"node {'NOT ' if problems else ''}commissioned from a fit of this scenario's own seal on the simulated "
-        f"test bed{' (the float estimators below use the refused fit as it is)' if problems else ''}: "
+        f"node {'NOT ' if problems or refusal else ''}commissioned from a fit of this scenario's own seal on the "
+        f"simulated test bed{' (the float estimators below use the refused fit as it is)' if problems or refusal else ''}: "
         f"sigma0 {fit.get('sigma0', float('nan')):.4g} N/m, sigma1 {fit.get('sigma1', float('nan')):.4g} N s/m "
         f"({fit.get('presliding', {}).get('source', '?')}); oil {oil.min():.0f}..{oil.max():.0f} C actual, "
         f"{physical['oil_temp_assumed_C']:g} C assumed, temperature input "
@@ -892,9 +917,11 @@ def evaluate(names: list[str], work: Path, seed: int = 1, firmware: bool = True,
         res["wall_s"] = round(time.monotonic() - t0, 1)
         results["scenarios"][Path(name).stem] = res
         if log:
+            c = res.get("commissioning", {})
             status = ("ERROR " + res["error"] if "error" in res else
-                      "COMMISSIONING FAILED: " + "; ".join(res["commissioning"]["problems"])
-                      if not res.get("commissioning", {}).get("ok", True) else "done")
+                      "COMMISSIONING FAILED: " + "; ".join(c["problems"] or ["see the notes"])
+                      if name in commissioning_failed({"scenarios": {name: res}}) else
+                      "done (`ropemon config` refuses the seal, as expected)" if c.get("seal_refused") else "done")
             log(f"{name}: {status} ({res['wall_s']} s)")
     return results
 

@@ -593,7 +593,26 @@ def load_site(path: Path | str) -> Site:
 FRICTION_LINES = ("Fs", "Fc", "vs", "sigma2")
 
 
-def check_friction(fr: Any, p_max_MPa: float, name: str = "friction") -> dict[str, Any]:
+def seal_refusal(fr: dict, name: str = "friction") -> str | None:
+    """Why the node cannot model the fitted seal, or None: a seal that released its force
+    when the bed's piston stopped (`standstill_hold_ratio`, ropemon.calibrate) is not a
+    LuGre seal, and the node, which holds the seal's force at rest, would over-read there.
+    A fit without the figure (no standstill in its record) is not refused."""
+    from ropemon.calibrate import MIN_STANDSTILL_HOLD
+
+    ratio = fr.get("standstill_hold_ratio")
+    if ratio is None:
+        return None
+    ratio = _check_number(ratio, f"{name}.standstill_hold_ratio")
+    if ratio >= MIN_STANDSTILL_HOLD:
+        return None
+    return (f"{name}.standstill_hold_ratio: the seal held {round(ratio * 100)} % of its sliding force when "
+            f"the test bed's piston stopped (at least {round(MIN_STANDSTILL_HOLD * 100)} % needed; a LuGre seal holds "
+            "nearly all of it): it does not follow the node's friction model, whose seal holds its force "
+            "at rest, so the node would over-read every rope at rest; refused")
+
+
+def check_friction(fr: Any, p_max_MPa: float, name: str = "friction", refuse_unheld: bool = True) -> dict[str, Any]:
     """Validate a friction fit (the JSON of `ropemon fit-friction`) over 0..p_max_MPa.
 
     Returns the parameters the node uses: each line as {"slope", "intercept"},
@@ -611,6 +630,9 @@ def check_friction(fr: Any, p_max_MPa: float, name: str = "friction") -> dict[st
         out[key] = {k: _check_number(line.get(k), f"{name}.{key}.{k}") for k in ("slope", "intercept")}
     for key in ("sigma0", "sigma1"):
         out[key] = _check_number(fr.get(key), f"{name}.{key}", gt=0)
+    refusal = seal_refusal(fr, name) if refuse_unheld else None
+    if refusal:
+        raise SiteError(refusal)
 
     def at(key: str, p: float) -> float:
         return out[key]["intercept"] + out[key]["slope"] * p
@@ -680,11 +702,13 @@ def check_compliance(fit: Any, ropes: int, name: str = "compliance") -> dict[str
 
 
 def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
-                       compliance: dict[str, Any] | None = None) -> dict[str, Any]:
+                       compliance: dict[str, Any] | None = None, refuse_unheld: bool = True) -> dict[str, Any]:
     """The `physical` section of node.json (docs/config.md) for this site.
 
     `friction` is a fit as written by `ropemon fit-friction`; when None it is read
-    from the site's [friction] file. `compliance` is a fit as written by `ropemon
+    from the site's [friction] file. A seal the node cannot model is refused
+    (`seal_refusal`) unless `refuse_unheld` is False (the evaluation, which shows
+    what such a node would read). `compliance` is a fit as written by `ropemon
     fit-compliance`; when None it is read from the site's [compliance] file, and
     without either the node runs without a hydraulic compliance (the two keys are
     left out). The loss table dp_Pa[rope][temp][flow] is computed by ropemon.losses
@@ -704,7 +728,7 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
     tested = friction.get("pressure_range_MPa") if isinstance(friction, dict) else None
     if isinstance(tested, list) and len(tested) == 2 and isinstance(tested[1], (int, float)):
         p_max = min(p_max, float(tested[1]))
-    fr = check_friction(friction, p_max, name)
+    fr = check_friction(friction, p_max, name, refuse_unheld)
     cname = "compliance"
     if compliance is None and site.compliance_path is not None:
         compliance = read_compliance(site.compliance_path)

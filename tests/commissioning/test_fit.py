@@ -234,3 +234,36 @@ def test_bed_refuses_a_bad_scenario_naming_it(tmp_path, capsys):
     assert testbed.main(["--scenario", str(sc), "--out", str(tmp_path / "b.csv")]) == 2
     assert "plant.friction.Fs" in capsys.readouterr().err
     assert not (tmp_path / "b.csv").exists()
+
+
+def test_the_fit_tells_a_seal_that_holds_its_force_at_standstill_from_one_that_releases_it(fitted, tmp_path, capsys):
+    """A LuGre seal keeps its bristle force when the bed's piston stops after a run; a
+    Coulomb-Stribeck seal (no pre-sliding state) releases it. fit-friction reports the
+    ratio per standstill, and warns about the second: `ropemon config` refuses it."""
+    doc, _ = fitted
+    assert 0.8 < doc["standstill_hold_ratio"] < 1.0
+    assert len(doc["standstills"]) == len(PRESSURES)  # one standstill per pressure level
+    assert not [w for w in doc["warnings"] if w.startswith("standstill")]
+    text = SCENARIO.read_text().replace('law = "lugre"', 'law = "coulomb-stribeck"')
+    text = text.replace("sigma0 = 1.0e8", "v_threshold = 2e-5").replace("sigma1 = 5.0e4", "")
+    sc = tmp_path / "cs.toml"
+    sc.write_text(text)
+    params, factory = testbed.scenario_seal(sc)
+    bed = tmp_path / "cs.csv"
+    testbed.write_csv(bed, testbed.run(params, law_factory=factory, pressures_MPa=PRESSURES, seed=7))
+    assert ropemon(["fit-friction", str(bed), "--out", str(tmp_path / "cs.json")]) == 0
+    cs = json.loads((tmp_path / "cs.json").read_text())
+    assert abs(cs["standstill_hold_ratio"]) < 0.05
+    assert all(abs(h["held_N"]) < 0.05 * abs(h["sliding_N"]) for h in cs["standstills"])
+    assert "standstill: the seal held 0 % of its sliding force" in capsys.readouterr().err
+
+
+def test_a_record_without_a_standstill_is_not_checked_and_says_so():
+    data = testbed.run(TRUTH, pressures_MPa=PRESSURES, seed=7, presliding=False)
+    keep = np.ones(len(data["time_s"]), bool)
+    keep[np.abs(data["true_velocity_m_s"]) == 0] = False  # cut every standstill out of the record
+    rec = calibrate.Record(t=data["time_s"][keep], p=data["pressure_MPa"][keep], v=data["velocity_m_s"][keep],
+                           F=data["friction_N"][keep])
+    doc, _levels, warnings = calibrate.fit(rec)
+    assert "standstill_hold_ratio" not in doc
+    assert any(w.startswith("standstill: no standstill after a run") for w in warnings)

@@ -152,6 +152,23 @@ def test_a_seal_stiffer_than_the_node_represents_is_commissioned_at_its_limit(si
     assert "fitted sigma0 5.4e+10 N/m is stiffer than the node represents" in capsys.readouterr().err
 
 
+def test_a_seal_that_releases_its_force_at_standstill_is_refused(site_dir, capsys):
+    """fit-friction's standstill_hold_ratio: a LuGre seal holds ~0.9 of its sliding force when
+    the bed's piston stops; one that holds none is not what the node models, and refused."""
+    fr = json.loads((site_dir / "paper-friction.json").read_text())
+    site = load_site(site_dir / "paper-site.toml")
+    for ratio in (0.89, None):  # held, or not measured (a record without a standstill)
+        doc = dict(fr, standstill_hold_ratio=ratio) if ratio is not None else fr
+        assert physical_from_site(site, doc)["friction"]["sigma0"] == fr["sigma0"]
+    (site_dir / "released.json").write_text(json.dumps(dict(fr, standstill_hold_ratio=0.0004)))
+    err = refused(site_dir, capsys, "--friction", str(site_dir / "released.json"))
+    assert "friction.standstill_hold_ratio: the seal held 0 % of its sliding force" in err
+    assert "refused" in err
+    # the evaluation still builds what a node forced onto it would hold
+    ph = physical_from_site(site, dict(fr, standstill_hold_ratio=0.0004), refuse_unheld=False)
+    assert ph["friction"]["sigma0"] == fr["sigma0"]
+
+
 def test_empty_load_is_a_host_only_key_the_node_ignores(site_dir):
     """The slack-rope alarm's figures travel in `physical`; node section and CRC do not change."""
     site = load_site(site_dir / "paper-site.toml")

@@ -85,3 +85,24 @@ def test_a_failed_commissioning_is_loud():
     md = ev.markdown(results)
     assert md.split("\n")[2].startswith("**COMMISSIONING FAILED for hand**")
     assert "| hand | **FAILED** (see notes) |" in md
+
+
+def test_a_seal_refusal_fails_only_where_it_is_not_expected():
+    """`ropemon config` must refuse the seal of a REFUSAL_EXPECTED scenario (plant-other-friction)
+    and no other: either way round the evaluation fails loudly; as expected, it says so."""
+    refusal = "friction.standstill_hold_ratio: the seal held 0 % of its sliding force ...; refused"
+
+    def res(refused: bool, expected: bool) -> dict:
+        r = ev.score(make_case())
+        r["commissioning"] = {"ok": not refused, "problems": [], "seal_refused": refusal if refused else None,
+                              "refusal_expected": expected, "sigma0_N_per_m": 1e8}
+        return r
+
+    results = ev.jsonable({"scenarios": {"as-expected": res(True, True), "missed": res(False, True),
+                                         "false-refusal": res(True, False), "fine": res(False, False)}})
+    assert ev.commissioning_failed(results) == ["missed", "false-refusal"]
+    md = ev.markdown(results)
+    assert "| as-expected | refused by `ropemon config`, as expected (see notes) |" in md
+    assert "| missed | **NOT refused** (see notes) |" in md
+    assert "| false-refusal | **FAILED** (see notes) |" in md
+    assert ev.REFUSAL_EXPECTED == ("plant-other-friction",) and "plant-other-friction" in ev.VARIANTS
