@@ -17,7 +17,9 @@ missed tick when the flag is still set). The main loop does the I2C reads into
 preallocated buffers, calls node.sample and sends a frame when a window
 closes. The watchdog is fed only while samples keep being processed on time.
 The frame seq continues across resets through the boot counter in /bootcount
-(ropenode.bootseq).
+(ropenode.bootseq). When armed (/record, `ropemon record`), the raw records of
+the first seconds after boot also go to /wind.rsens (ropenode.rsens), for the
+compliance fit of a commissioning wind.
 """
 import array
 import gc
@@ -27,7 +29,7 @@ import machine
 from machine import I2C, UART, WDT, Counter, Pin, Timer
 from micropython import const
 
-from ropenode import layout
+from ropenode import layout, rsens
 from ropenode.bootseq import FrameSeq
 
 BOOT_FILE = "/bootcount"
@@ -76,6 +78,7 @@ class Board:
         self.i2c_errors = 0
         self.timer = Timer(0)
         self.wdt: WDT | None = None
+        self.recorder: rsens.Writer | None = None  # an armed recording (_recorder)
 
     def _bus_error(self):
         if self.i2c_errors < _COUNT_MAX:
@@ -149,18 +152,40 @@ class Board:
                 self._feed_if_healthy()
                 continue
             self.tick = False
-            if self.missed:
-                self.missed = 0
-                node.pending_status |= layout.ST_OVERRUN
-            self.acquire()
-            if node.sample(self.rec):
-                n = node.frame_into(self.wire)
-                self.uart.write(self.wire_mv[:n])
-                # frame_into leaves ~1 KB of garbage (struct, SHA-256): collect it now, between
-                # samples, rather than let an automatic collection land in a later sample.
-                gc.collect()
-            self.last_ok_ms = time.ticks_ms()
-            self._feed_if_healthy()
+            self.step()
+
+    def step(self):
+        """One timer tick's work: acquire, record (if armed), compensate, frame, feed."""
+        node = self.node
+        if self.missed:
+            self.missed = 0
+            node.pending_status |= layout.ST_OVERRUN
+        self.acquire()
+        if self.recorder is not None:
+            self._record(self.recorder)
+        if node.sample(self.rec):
+            n = node.frame_into(self.wire)
+            self.uart.write(self.wire_mv[:n])
+            # frame_into leaves ~1 KB of garbage (struct, SHA-256): collect it now, between
+            # samples, rather than let an automatic collection land in a later sample.
+            gc.collect()
+        self.last_ok_ms = time.ticks_ms()
+        self._feed_if_healthy()
+
+    def _record(self, rec: rsens.Writer) -> None:
+        """Append this record to the armed recording `rec`; drop it once it is done, or when
+        the flash fails (full): the node goes on monitoring either way."""
+        try:
+            if not rec.add(self.rec):
+                self.recorder = None
+                print("ropenode: recorded", rsens.RECORD_FILE)
+        except OSError as e:
+            self.recorder = None
+            print("ropenode: recording stopped:", e)
+            try:
+                rec.close()
+            except OSError:
+                pass
 
     def _feed_if_healthy(self):
         if time.ticks_diff(time.ticks_ms(), self.last_ok_ms) < _HEALTHY_MS and self.wdt is not None:
@@ -214,4 +239,23 @@ def run(config_path="/node.json", boot_file=BOOT_FILE):
     node, ropes, sample_hz, fitted = _boot(config_path)
     gc.collect()  # frees the Config and the build's garbage: nothing refers to them now
     board = Board(node, ropes, sample_hz, fitted)
+    board.recorder = _recorder(ropes, sample_hz)
     board.run_forever()
+
+
+def _recorder(ropes, sample_hz, root="/"):
+    """The Writer of an armed recording (rsens.RECORD_FLAG, removed now so that a reset does
+    not start it again), or None when not armed or the flash refuses."""
+    import os
+
+    seconds = rsens.armed_seconds(root + rsens.RECORD_FLAG)
+    if not seconds:
+        return None
+    try:
+        os.remove(root + rsens.RECORD_FLAG)
+        f = open(root + rsens.RECORD_FILE, "wb")
+    except OSError as e:
+        print("ropenode: cannot record:", e)
+        return None
+    print("ropenode: recording", seconds, "s of samples to", root + rsens.RECORD_FILE)
+    return rsens.Writer(f, ropes, sample_hz, seconds * sample_hz)

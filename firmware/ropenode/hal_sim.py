@@ -22,23 +22,20 @@ import struct
 import sys
 
 from ropenode import config as _config
+from ropenode import rsens
 from ropenode.bootseq import FrameSeq
 from ropenode.node import Node
-
-RSENS_MAGIC = b"RSNS"
-RSENS_HEADER = "<4sHHHH"
-RSENS_HEADER_LEN = 12
 
 
 class SimHal:
     """Reads records of one .rsens stream into a preallocated array('H')."""
 
     def __init__(self, stream):
-        head = stream.read(RSENS_HEADER_LEN)
-        if head is None or len(head) < RSENS_HEADER_LEN:
+        head = stream.read(rsens.HEADER_LEN)
+        if head is None or len(head) < rsens.HEADER_LEN:
             raise ValueError("sensor stream: too short for a .rsens header")
-        magic, version, ropes, hz, _ = struct.unpack(RSENS_HEADER, head)
-        if magic != RSENS_MAGIC or version != 1:
+        magic, version, ropes, hz, _ = struct.unpack(rsens.HEADER, head)
+        if magic != rsens.MAGIC or version != 1:
             raise ValueError("sensor stream: not a version-1 .rsens stream")
         if not 1 <= ropes <= 4 or hz == 0:
             raise ValueError("sensor stream: %d ropes at %d Hz is not valid" % (ropes, hz))

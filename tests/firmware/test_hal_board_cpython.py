@@ -2,8 +2,9 @@
 
 Checks what the ESP32 cannot show in a test run: the temperature word is read
 only when a temperature input is fitted (else 0xFFFF, docs/data-formats.md),
-the slow-input counter wraps instead of growing past 2**30, and the bus-error
-counter saturates.
+the slow-input counter wraps instead of growing past 2**30, the bus-error
+counter saturates, and an armed recording takes the records the node samples
+(and stops, without stopping the node, when the flash fails).
 """
 from __future__ import annotations
 
@@ -47,6 +48,9 @@ class _Any:
 
     def value(self):
         return 1
+
+    def write(self, data):  # the radio UART
+        return len(data)
 
 
 @pytest.fixture
@@ -108,3 +112,50 @@ def test_bus_errors_read_as_failed_loops_and_the_count_saturates(hal_board):
     b.i2c_errors = hal_board._COUNT_MAX - 1
     b.acquire()
     assert b.i2c_errors == hal_board._COUNT_MAX
+
+
+def test_an_armed_recording_takes_the_records_the_node_samples(hal_board, tmp_path):
+    from ropenode import rsens
+    from ropenode.node import Node
+
+    root = str(tmp_path) + "/"
+    assert hal_board._recorder(2, 200, root) is None  # not armed
+    (tmp_path / rsens.RECORD_FLAG).write_text("1\n")
+    b = hal_board.Board(Node(None), 2, 200, True)
+    b.recorder = hal_board._recorder(2, 200, root)
+    assert not (tmp_path / rsens.RECORD_FLAG).exists()  # a reset does not record again
+    want = []
+    for _ in range(250):
+        b.step()
+        want.append(list(b.rec))
+    assert b.recorder is None  # one second: done, the file closed
+    data = (tmp_path / rsens.RECORD_FILE).read_bytes()
+    assert data[:12] == b"RSNS" + bytes([1, 0, 2, 0, 200, 0, 0, 0])
+    words = [int.from_bytes(data[o:o + 2], "little") for o in range(12, len(data), 2)]
+    assert [words[k:k + 8] for k in range(0, len(words), 8)] == want[:200]
+
+
+def test_a_failing_flash_stops_the_recording_not_the_node(hal_board):
+    from ropenode import rsens
+    from ropenode.node import Node
+
+    class FullFlash:
+        def __init__(self):
+            self.closed = False
+
+        def write(self, data):
+            if len(data) > 12:
+                raise OSError(28)  # ENOSPC
+            return len(data)
+
+        def close(self):
+            self.closed = True
+
+    flash = FullFlash()
+    node = Node(None)
+    b = hal_board.Board(node, 2, 200, False)
+    b.recorder = rsens.Writer(flash, 2, 200, 1000)
+    for _ in range(200):
+        b.step()
+    assert b.recorder is None and flash.closed
+    assert node.frame_seq.count == 10  # the node went on framing: 200 samples, 10 windows
