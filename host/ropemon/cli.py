@@ -22,6 +22,7 @@ COMMANDS = {
     "fit-compliance": ("ropemon.compliance", "fit each cylinder's hydraulic compliance from a recorded wind"),
     "config": ("ropemon.siteconfig", "generate a node config from a site description"),
     "deploy": ("ropemon.deploy", "cross-compile and copy firmware and config to a node with mpremote"),
+    "record": ("ropemon.record", "arm a node to record a commissioning wind; fetch the recording"),
     "demo": ("ropemon.demo", "the whole chain on the simulated hoist"),
     "evaluate": ("ropemon.evaluate", "accuracy of every estimator against simulator truth"),
     "bench": ("ropemon.bench", "benchmarks: firmware, plant, host"),
