@@ -45,7 +45,8 @@ def fetch(mp: Mpremote, out: Path) -> tuple[int, int, int]:
     rs = node_module("rsens")
     with tempfile.TemporaryDirectory(prefix="ropemon-record-") as tmp:
         part = Path(tmp) / rs.RECORD_FILE
-        mp.run(["cp", f":{rs.RECORD_FILE}", str(part)], f"copying {rs.RECORD_FILE} off the node", extra_s=120.0)
+        mp.run(["cp", f":{rs.RECORD_FILE}", str(part)], f"copying {rs.RECORD_FILE} off the node",
+               extra_s=900.0)  # up to 5.8 MB through the REPL
         try:
             ropes, hz, recs = read_rsens(part)
         except ValueError as e:
