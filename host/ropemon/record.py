@@ -40,7 +40,7 @@ def arm(mp: Mpremote, seconds: int) -> int:
 
 def fetch(mp: Mpremote, out: Path) -> tuple[int, int, int]:
     """Copy the node's recording to `out`; return (ropes, sample_hz, samples)."""
-    from ropemon.reference import read_rsens
+    from ropemon.reference import RSENS_HEADER, read_rsens
 
     rs = node_module("rsens")
     with tempfile.TemporaryDirectory(prefix="ropemon-record-") as tmp:
@@ -52,7 +52,7 @@ def fetch(mp: Mpremote, out: Path) -> tuple[int, int, int]:
         except ValueError as e:
             raise DeployError(f"{rs.RECORD_FILE} from the node: {e}") from None
         words = 2 * ropes + 4
-        if (part.stat().st_size - 12) % (2 * words):
+        if (part.stat().st_size - RSENS_HEADER.size) % (2 * words):
             raise DeployError(f"{rs.RECORD_FILE} from the node ends within a record: "
                               "the node may still be recording (fetch again when it is done)")
         out.write_bytes(part.read_bytes())

@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ropemon.firmware import node_module
 from ropemon.nodeconfig import DEFAULTS, namur_limits, physical_params
 
-RSENS_MAGIC = b"RSNS"
-RSENS_HEADER = struct.Struct("<4sHHHH")
+RS = node_module("rsens")  # the .rsens format is firmware/ropenode/rsens.py's, never restated
+RSENS_HEADER = struct.Struct(RS.HEADER)
 
 
 @dataclass
@@ -53,7 +54,7 @@ def read_rsens(path: str | Path) -> tuple[int, int, np.ndarray]:
     """(ropes, sample_hz, records[k, 2N+4] uint16) of a .rsens file (docs/data-formats.md)."""
     data = Path(path).read_bytes()
     magic, version, ropes, hz, _ = RSENS_HEADER.unpack_from(data)
-    if magic != RSENS_MAGIC or version != 1:
+    if magic != RS.MAGIC or version != 1:
         raise ValueError(f"{path}: not a version-1 .rsens stream")
     w = 2 * ropes + 4
     k = (len(data) - RSENS_HEADER.size) // (2 * w)  # a partial last record is ignored

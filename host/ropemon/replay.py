@@ -12,17 +12,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import struct
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from ropemon.firmware import FIRMWARE_DIR, micropython_command
+from ropemon.reference import RS, RSENS_HEADER
 
 DEFAULT_CONFIG = FIRMWARE_DIR / "node.json"
-RSENS_MAGIC = b"RSNS"
-RSENS_HEADER = struct.Struct("<4sHHHH")
 
 
 class ReplayError(RuntimeError):
@@ -40,8 +38,8 @@ def read_header(path: Path) -> dict:
     if len(head) < RSENS_HEADER.size:
         raise ReplayError(f"{path}: too short for a .rsens header ({len(head)} bytes < {RSENS_HEADER.size})")
     magic, version, ropes, sample_hz, _ = RSENS_HEADER.unpack(head)
-    if magic != RSENS_MAGIC:
-        raise ReplayError(f"{path}: not a sensor stream (magic {magic!r}, expected {RSENS_MAGIC!r})")
+    if magic != RS.MAGIC:
+        raise ReplayError(f"{path}: not a sensor stream (magic {magic!r}, expected {RS.MAGIC!r})")
     if version != 1:
         raise ReplayError(f"{path}: sensor stream version {version} not supported (this ropemon reads 1)")
     if not 1 <= ropes <= 4 or sample_hz == 0:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ropemon.cli import main
-from ropemon.plant.output import read_rsens
+from ropemon.reference import read_rsens
 from ropemon.plant.sensors import Fault, SensorSpec, sensor_records
 
 

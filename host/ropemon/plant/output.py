@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import struct
 from pathlib import Path
 from typing import Any
 
@@ -11,10 +10,7 @@ import numpy as np
 
 from ropemon.plant.run import Result
 from ropemon.plant.sensors import sensor_records
-
-RSENS_MAGIC = b"RSNS"
-RSENS_VERSION = 1
-RSENS_HEADER = struct.Struct("<4sHHHH")
+from ropemon.reference import RS, RSENS_HEADER  # read them back with reference.read_rsens
 
 # truth array -> (unit, meaning); signs as docs/model.md
 TRUTH_ARRAYS = {
@@ -46,23 +42,8 @@ TRUTH_ARRAYS = {
 def write_rsens(path: Path, records: np.ndarray, sample_hz: int) -> None:
     n = (records.shape[1] - 4) // 2
     with open(path, "wb") as f:
-        f.write(RSENS_HEADER.pack(RSENS_MAGIC, RSENS_VERSION, n, sample_hz, 0))
+        f.write(RSENS_HEADER.pack(RS.MAGIC, 1, n, sample_hz, 0))
         f.write(records.astype("<u2").tobytes())
-
-
-def read_rsens(path: Path) -> tuple[int, int, np.ndarray]:
-    """(ropes, sample_hz, records (K, 2N + 4) u16) of a .rsens file."""
-    data = Path(path).read_bytes()
-    if len(data) < RSENS_HEADER.size:
-        raise ValueError(f"{path}: shorter than the {RSENS_HEADER.size}-byte header")
-    magic, version, n, hz, _ = RSENS_HEADER.unpack_from(data)
-    if magic != RSENS_MAGIC or version != RSENS_VERSION:
-        raise ValueError(f"{path}: not an RSNS version {RSENS_VERSION} file")
-    body = np.frombuffer(data, dtype="<u2", offset=RSENS_HEADER.size)
-    width = 2 * n + 4
-    if body.size % width:
-        raise ValueError(f"{path}: {body.size} words is not a whole number of {width}-word records")
-    return n, hz, body.reshape(-1, width)
 
 
 def node_physical(res: Result) -> tuple[dict[str, Any], str]:
