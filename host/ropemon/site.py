@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from ropemon import tomlfields
 
 G_M_S2 = 9.81
 
@@ -247,31 +248,12 @@ class _Table:
             raise SiteError(f"{self.field(unknown[0])}: unknown field")
 
 
-def _check_number(v: Any, name: str, *, gt=None, ge=None, le=None, lt=None) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise SiteError(f"{name}: must be a number, got {v!r}")
-    v = float(v)
-    if not math.isfinite(v):
-        raise SiteError(f"{name}: must be finite, got {v!r}")
-    if gt is not None and not v > gt:
-        raise SiteError(f"{name}: must be > {gt:g}, got {v:g}")
-    if ge is not None and not v >= ge:
-        raise SiteError(f"{name}: must be >= {ge:g}, got {v:g}")
-    if lt is not None and not v < lt:
-        raise SiteError(f"{name}: must be < {lt:g}, got {v:g}")
-    if le is not None and not v <= le:
-        raise SiteError(f"{name}: must be <= {le:g}, got {v:g}")
-    return v
+def _check_number(v: Any, name: str, **bounds) -> float:
+    return tomlfields.check_number(v, name, SiteError, **bounds)
 
 
-def _check_int(v: Any, name: str, *, lo: int | None = None, hi: int | None = None) -> int:
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise SiteError(f"{name}: must be an integer, got {v!r}")
-    if lo is not None and v < lo:
-        raise SiteError(f"{name}: must be >= {lo}, got {v}")
-    if hi is not None and v > hi:
-        raise SiteError(f"{name}: must be <= {hi}, got {v}")
-    return v
+def _check_int(v: Any, name: str, **bounds) -> int:
+    return tomlfields.check_int(v, name, SiteError, **bounds)
 
 
 def _per_rope(t: _Table, key: str, ropes: int) -> list[_Table]:
@@ -578,13 +560,7 @@ def parse_site(doc: dict[str, Any], path: Path | str = "SITE.toml") -> Site:
 def load_site(path: Path | str) -> Site:
     """Read and validate SITE.toml; raise SiteError naming the field and the reason."""
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            doc = tomllib.load(f)
-    except OSError as e:
-        raise SiteError(f"{path}: cannot read: {e.strerror}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise SiteError(f"{path}: not valid TOML: {e}") from None
+    doc = tomlfields.load(path, SiteError)
     return parse_site(doc, path)
 
 

@@ -109,17 +109,11 @@ def scenario_seal(path: Path | str) -> tuple[dict[str, Any] | None, Any]:
     A LuGre seal gives its parameters (law_factory None: the bed's own LuGre); any
     other law is wrapped as it is (params None: no lines to scatter about).
     """
-    import tomllib
-
+    from ropemon import tomlfields
     from ropemon.plant import friction as plant_friction
     from ropemon.plant.scenario import ScenarioError, table
 
-    path = Path(path)
-    try:
-        with path.open("rb") as f:
-            doc = tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError) as e:
-        raise ScenarioError(f"{path}: cannot read a scenario: {e}") from None
+    doc = tomlfields.load(path, ScenarioError)
     law = plant_friction.from_table(table(table(doc, "plant", ""), "friction", "plant"),
                                     "plant.friction")
     if isinstance(law, plant_friction.LuGre):

@@ -9,13 +9,13 @@ refusal names the field and the reason.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ropemon import tomlfields
 from ropemon.plant import friction as friction_mod
 from ropemon.plant.hydraulics import Local, Path as PipePath, PathSet, Segment
 from ropemon.plant.kernel import METHODS
@@ -39,15 +39,7 @@ def number(t: dict, key: str, where: str, default: Any = _MISSING, *, gt=None, g
         if default is _MISSING:
             raise ScenarioError(f"{name}: missing")
         return default
-    v = t[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ScenarioError(f"{name}: must be a finite number, got {v!r}")
-    v = float(v)
-    for bound, ok, word in ((gt, lambda b: v > b, ">"), (ge, lambda b: v >= b, ">="),
-                            (le, lambda b: v <= b, "<="), (lt, lambda b: v < b, "<")):
-        if bound is not None and not ok(bound):
-            raise ScenarioError(f"{name}: must be {word} {bound:g}, got {v:g}")
-    return v
+    return tomlfields.check_number(t[key], name, ScenarioError, gt=gt, ge=ge, le=le, lt=lt)
 
 
 def integer(t: dict, key: str, where: str, default: Any = _MISSING, *, lo=None, hi=None) -> int:
@@ -56,12 +48,7 @@ def integer(t: dict, key: str, where: str, default: Any = _MISSING, *, lo=None, 
         if default is _MISSING:
             raise ScenarioError(f"{name}: missing")
         return default
-    v = t[key]
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise ScenarioError(f"{name}: must be an integer, got {v!r}")
-    if (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise ScenarioError(f"{name}: must be in {lo}..{hi}, got {v}")
-    return v
+    return tomlfields.check_int(t[key], name, ScenarioError, lo=lo, hi=hi)
 
 
 def table(t: dict, key: str, where: str, default: Any = _MISSING) -> dict:
@@ -194,13 +181,7 @@ def plan_bounce_steps(u: Inputs, h0: float, theta: float, m_max: int) -> np.ndar
 
 def load_scenario(path: Path | str, seed: int | None = None) -> Scenario:
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            doc = tomllib.load(f)
-    except OSError as e:
-        raise ScenarioError(f"{path}: cannot read: {e.strerror}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(f"{path}: not valid TOML: {e}") from None
+    doc = tomlfields.load(path, ScenarioError)
     return build(doc, path, seed)
 
 

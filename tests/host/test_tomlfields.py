@@ -1,0 +1,49 @@
+"""A site file and a scenario refuse the same fault in the same words (ropemon.tomlfields)."""
+import pytest
+
+from ropemon import tomlfields
+from ropemon.plant import scenario
+from ropemon.site import SiteError, _Table
+
+
+class _Err(ValueError):
+    pass
+
+
+@pytest.mark.parametrize("kind,value,bounds,message", [
+    ("number", "810", {}, "must be a number, got '810'"),
+    ("number", True, {}, "must be a number, got True"),
+    ("number", float("nan"), {}, "must be finite, got nan"),
+    ("number", 0, {"gt": 0}, "must be > 0, got 0"),
+    ("number", -1.5, {"ge": 0}, "must be >= 0, got -1.5"),
+    ("number", 1, {"lt": 1}, "must be < 1, got 1"),
+    ("number", 26, {"le": 25}, "must be <= 25, got 26"),
+    ("integer", 4.0, {}, "must be an integer, got 4.0"),
+    ("integer", False, {}, "must be an integer, got False"),
+    ("integer", 0, {"lo": 1}, "must be >= 1, got 0"),
+    ("integer", 5, {"lo": 1, "hi": 4}, "must be <= 4, got 5"),
+])
+def test_site_and_scenario_refuse_alike(kind, value, bounds, message):
+    with pytest.raises(SiteError) as site_err:
+        getattr(_Table({"x": value}, "hoist"), kind)("x", **bounds)
+    with pytest.raises(scenario.ScenarioError) as scen_err:
+        getattr(scenario, kind)({"x": value}, "x", "hoist", **bounds)
+    assert str(site_err.value) == str(scen_err.value) == f"hoist.x: {message}"
+
+
+def test_accepted_values_pass_through():
+    assert tomlfields.check_number(3, "x", _Err, gt=0, le=3) == 3.0
+    assert isinstance(tomlfields.check_number(3, "x", _Err), float)
+    assert tomlfields.check_int(4, "n", _Err, lo=1, hi=4) == 4
+
+
+def test_load_names_the_file_and_raises_the_callers_error(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = [unclosed")
+    with pytest.raises(_Err, match=r"bad\.toml: not valid TOML"):
+        tomlfields.load(bad, _Err)
+    with pytest.raises(_Err, match=r"nope\.toml: cannot read"):
+        tomlfields.load(tmp_path / "nope.toml", _Err)
+    good = tmp_path / "good.toml"
+    good.write_text("a = 1\n[b]\nc = 'x'\n")
+    assert tomlfields.load(good, _Err) == {"a": 1, "b": {"c": "x"}}
