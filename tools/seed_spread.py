@@ -57,8 +57,9 @@ def table(results: dict[int, dict], scenarios: list[str]) -> str:
     seeds = sorted(results)
     lines = [f"| scenario | rope RMS % (worst seed) | rope peak % (worst seed) | pithead empty % min / median / max "
              f"| seeds within {PITHEAD_PCT} % | pithead as arrived % min / median / max "
-             f"| false @8 % / missed @12 % (all seeds) | commissioned |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+             f"| false @8 % / missed @12 % (frames, all seeds) | operator alarms: false @8 % / missed @12 % "
+             f"(frames, all seeds) | commissioned |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name in scenarios:
         rows = [results[s]["scenarios"][name] for s in seeds if name in results[s]["scenarios"]]
         est = [r["estimators"][ESTIMATOR] for r in rows]
@@ -69,10 +70,12 @@ def table(results: dict[int, dict], scenarios: list[str]) -> str:
         within = sum(abs(v) <= PITHEAD_PCT for v in empty)
         false8 = sum(e["alarms"]["8"]["false"] for e in est)
         missed12 = sum(e["alarms"]["12"]["missed"] for e in est)
+        false_alarms = sum(e["alarms"]["8"]["false_alarms"] for e in est)
+        missed_alarm = sum(e["alarms"]["12"]["missed_alarm_frames"] for e in est)
         ok = sum(bool(r["commissioning"].get("ok")) for r in rows)
         lines.append(f"| {name} | {rms:.2f} | {peak:.2f} | {_span(empty) if empty else '-'} "
                      f"| {within} of {len(empty)} | {_span(arrived) if arrived else '-'} "
-                     f"| {false8} / {missed12} | {ok} of {len(rows)} |")
+                     f"| {false8} / {missed12} | {false_alarms} / {missed_alarm} | {ok} of {len(rows)} |")
     lines.append("")
     lines.append("Pithead empty % per seed (" + ", ".join(str(s) for s in seeds) + "):")
     lines.append("")

@@ -19,6 +19,8 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+import numpy as np
+
 from ropemon.protocol import L, Frame
 
 SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
@@ -87,20 +89,84 @@ class AlarmEvent:
 
 
 @dataclass
+class Debounce:
+    """The debounce of one alarm condition (module doc): `step` takes one evaluation and says
+    when the debounced condition raises or clears. The engine holds one per alarm;
+    `ropemon.metrics` runs the same over an evaluation's frames (`debounced`)."""
+
+    timing: Timing
+    present: bool = False        # debounced condition
+    since_s: float | None = None  # start of the pending change
+    since_n: int = 0
+
+    def step(self, now_s: float, raise_cond: bool, clear_cond: bool) -> str | None:
+        """'raise' or 'clear' when the debounced condition changes at this evaluation, else None."""
+        want = clear_cond if self.present else raise_cond
+        if not want:
+            self.since_s, self.since_n = None, 0
+            return None
+        if self.since_s is None:
+            self.since_s, self.since_n = now_s, 0
+        self.since_n += 1
+        t = self.timing
+        hold = t.clear_after_s if self.present else t.raise_after_s
+        if now_s - self.since_s < hold or self.since_n < t.min_frames:
+            return None
+        self.since_s, self.since_n = None, 0
+        self.present = not self.present
+        return "raise" if self.present else "clear"
+
+
+def debounced(times_s, raise_cond, clear_cond, timing: Timing, skip=None) -> tuple[np.ndarray, list[int]]:
+    """`Debounce` over a series of evaluations (arrays): the debounced condition after each,
+    and the indices where it raised. `skip[i]` (optional) drops evaluation i as if no frame
+    came: a pending change restarts. Idle stretches (nothing pending) are jumped over, so
+    the cost follows the evaluations where a condition holds."""
+    n = len(times_s)
+    rc = np.asarray(raise_cond, bool)
+    cc = np.asarray(clear_cond, bool)
+    if skip is not None:
+        rc = rc & ~np.asarray(skip, bool)
+        cc = cc & ~np.asarray(skip, bool)
+    present = np.zeros(n, bool)
+    raises: list[int] = []
+    raise_at, clear_at = np.flatnonzero(rc), np.flatnonzero(cc)
+    d = Debounce(timing)
+    i = 0
+    while i < n:
+        if d.since_s is None:  # idle: on to the next evaluation that can start a change
+            pending = clear_at if d.present else raise_at
+            j = int(np.searchsorted(pending, i))
+            nxt = int(pending[j]) if j < len(pending) else n
+            present[i:nxt] = d.present
+            i = nxt
+            if i >= n:
+                break
+        if skip is not None and skip[i]:
+            d.since_s, d.since_n = None, 0
+        elif d.step(float(times_s[i]), bool(rc[i]), bool(cc[i])) == "raise":
+            raises.append(i)
+        present[i] = d.present
+        i += 1
+    return present, raises
+
+
+@dataclass
 class _Alarm:
     id: str
     kind: str
     node: int | None
     rope: int | None
-    timing: Timing
-    present: bool = False        # debounced condition
+    debounce: Debounce
     latched: bool = False        # raised and not acknowledged
     value: float | None = None
     threshold: float | None = None
     message: str = ""
     raised_s: float | None = None
-    since_s: float | None = None  # start of the pending change
-    since_n: int = 0
+
+    @property
+    def present(self) -> bool:
+        return self.debounce.present
 
     @property
     def active(self) -> bool:
@@ -335,26 +401,16 @@ class AlarmEngine:
         if a is None:
             if not raise_cond:
                 return  # nothing to track until the condition first appears
-            a = self._alarms[aid] = _Alarm(aid, kind, node, rope, timing)
+            a = self._alarms[aid] = _Alarm(aid, kind, node, rope, Debounce(timing))
         a.value, a.threshold = value, threshold
-        want = clear_cond if a.present else raise_cond
-        if not want:
-            a.since_s, a.since_n = None, 0
-            if a.present:
+        change = a.debounce.step(now_s, raise_cond, clear_cond)
+        if change is None:
+            if a.present and not clear_cond:
                 a.message = message
             return
-        if a.since_s is None:
-            a.since_s, a.since_n = now_s, 0
-        a.since_n += 1
-        hold = timing.clear_after_s if a.present else timing.raise_after_s
-        if now_s - a.since_s < hold or a.since_n < timing.min_frames:
-            return
-        a.since_s, a.since_n = None, 0
-        if a.present:
-            a.present = False
+        if change == "clear":
             ev.append(self._event(a, now_s, "clear", f"cleared: {message}"))
         else:
-            a.present = True
             a.latched = True
             a.raised_s = now_s
             a.message = message

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ropemon.alarms import AlarmSettings, debounced
+
 PHASES = ("rest-pithead", "rest-bottom", "acceleration", "constant-speed",
           "deceleration", "reversal-creep")
 REST_PITHEAD, REST_BOTTOM, ACCELERATION, CONSTANT_SPEED, DECELERATION, CREEP = range(6)
@@ -235,7 +237,8 @@ def deviation_step_n(truth_n: np.ndarray, rope: int, deviation: float) -> np.nda
 
 def alarm_assessment(est_n: np.ndarray, truth_n: np.ndarray, excluded: np.ndarray,
                      window: int, threshold: float = 0.10,
-                     levels=(0.08, 0.10, 0.12)) -> dict:
+                     levels=(0.08, 0.10, 0.12), frame_s: float | None = None,
+                     settings: AlarmSettings = AlarmSettings()) -> dict:
     """False and missed deviation alarms when one rope really deviates by each level.
 
     The deviation is superposed: rope k's true tension is raised (or lowered, for
@@ -246,19 +249,28 @@ def alarm_assessment(est_n: np.ndarray, truth_n: np.ndarray, excluded: np.ndarra
     frame-window means (`window` samples), as the host sees it; windows touching
     an excluded (shock) sample are skipped. Every rope and both signs are tried.
 
-    Per level: `frames` assessed, `false` = frames where a rope is flagged whose
-    true |deviation| is not above the threshold (levels below the threshold,
-    and other ropes at any level), `missed` = frames where the deviating rope's
-    true deviation is above the threshold and it is not flagged, `detected_frac`
-    = share of frames the deviating rope is flagged.
+    Per level, frame by frame: `frames` assessed, `false` = frames where a rope is
+    flagged whose true |deviation| is not above the threshold (levels below the
+    threshold, and other ropes at any level), `missed` = frames where the deviating
+    rope's true deviation is above the threshold and it is not flagged,
+    `detected_frac` = share of frames the deviating rope is flagged.
+
+    With `frame_s` (the frame period), also what the operator would see: the
+    host's own debounce (`ropemon.alarms.debounced`, with `settings`' deviation
+    timing and hysteresis) over each rope's deviation, a skipped window counting
+    as no frame. `false_alarms` = raises on a rope whose true |deviation| is not
+    above the threshold; `missed_alarm_frames` = frames where the same debounce
+    on the true deviation holds the deviating rope's alarm and the estimate's
+    does not (so the debounce's own delay is not counted as missed).
     """
     est_n = np.asarray(est_n, float)
     truth_n = np.asarray(truth_n, float)
     ropes = truth_n.shape[1]
     keep = window_means(np.asarray(excluded, float), window) == 0.0
+    hyst = settings.deviation_hysteresis_frac
     out = {}
     for level in levels:
-        frames = false = missed = detected = 0
+        frames = false = missed = detected = false_alarms = missed_alarm = 0
         for rope in range(ropes):
             for sign in (1.0, -1.0):
                 step = deviation_step_n(truth_n, rope, sign * level)
@@ -266,11 +278,12 @@ def alarm_assessment(est_n: np.ndarray, truth_n: np.ndarray, excluded: np.ndarra
                 e = est_n.copy()
                 t[:, rope] += step
                 e[:, rope] += step
-                d_est = deviation_from_mean(window_means(e, window))
+                d_est_all = deviation_from_mean(window_means(e, window))
+                d_true_all = deviation_from_mean(window_means(t, window))
                 # a window with a rope without tension cannot be assessed
-                ok = keep & np.isfinite(d_est).all(axis=1)
-                d_true = deviation_from_mean(window_means(t, window))[ok]
-                d_est = d_est[ok]
+                ok = keep & np.isfinite(d_est_all).all(axis=1)
+                d_true = d_true_all[ok]
+                d_est = d_est_all[ok]
                 flag = np.abs(d_est) > threshold
                 # a true deviation on the threshold itself (the 10 % level) is
                 # neither a must-alarm nor a must-not-alarm
@@ -280,7 +293,26 @@ def alarm_assessment(est_n: np.ndarray, truth_n: np.ndarray, excluded: np.ndarra
                 false += int((flag & truly_below).any(axis=1).sum())
                 missed += int((truly_above[:, rope] & ~flag[:, rope]).sum())
                 detected += int(flag[:, rope].sum())
+                if frame_s is None:
+                    continue
+                times = np.arange(len(ok)) * frame_s
+                a_est, a_true = np.abs(d_est_all), np.abs(d_true_all)
+                held_est = np.zeros(len(ok), bool)
+                for r in range(ropes):
+                    if not (a_est[ok, r] > threshold).any():
+                        continue  # never raised: no alarm on this rope
+                    present, raises = debounced(times, a_est[:, r] > threshold,
+                                                a_est[:, r] < threshold - hyst, settings.timing, ~ok)
+                    below = a_true[:, r] < threshold - _ON_THRESHOLD
+                    false_alarms += sum(1 for i in raises if below[i])
+                    if r == rope:
+                        held_est = present
+                held_true, _ = debounced(times, a_true[:, rope] > threshold + _ON_THRESHOLD,
+                                         a_true[:, rope] < threshold - hyst, settings.timing, ~ok)
+                missed_alarm += int((held_true & ~held_est & ok).sum())
         key = f"{round(level * 100):d}"
         out[key] = {"frames": frames, "false": false, "missed": missed,
                     "detected_frac": detected / frames if frames else float("nan")}
+        if frame_s is not None:
+            out[key].update(false_alarms=false_alarms, missed_alarm_frames=missed_alarm)
     return out

@@ -167,3 +167,37 @@ def test_pithead_figures_of_a_cage_arriving_empty_count_the_whole_rest_as_empty(
     est = truth - [[9.0], [1.0], [1.0], [1.0]]
     f = m.pithead_figures(est, truth, phase, np.zeros(4, bool), None, np.zeros(4))
     assert f["pithead_empty_total_pct"] == f["pithead_arrival_total_pct"] == pytest.approx(-0.5)
+
+
+def test_operator_alarms_use_the_hosts_debounce():
+    """With frame_s the assessment also runs the host's debounce: 10 frames of 0.1 s."""
+    truth = np.full((40, 4), 1000.0)
+    est = truth.copy()
+    est[:, 0] += 30.0  # as above: at +8 % rope 0 reads ~+10.6 % in all 10 frames
+    a = m.alarm_assessment(est, truth, np.zeros(40, bool), window=4, frame_s=0.1)
+    # one raise, 0.5 s in; no other case raises
+    assert a["8"]["false"] == 10 and a["8"]["false_alarms"] == 1
+    # at -12 % rope 0 reads ~ -9.6 %, never flagged; the debounce on the truth holds the
+    # alarm from frame 5 (0.5 s): 5 missed alarm frames, the debounce's delay not counted
+    assert a["12"]["missed"] == 10 and a["12"]["missed_alarm_frames"] == 5
+    assert a["12"]["false_alarms"] == 0 and a["8"]["missed_alarm_frames"] == 0
+
+
+def test_a_short_error_is_a_false_frame_but_no_operator_alarm():
+    truth = np.full((40, 4), 1000.0)
+    est = truth.copy()
+    est[8:24, 0] += 30.0  # frames 2-5 (0.3 s of condition) read ~+10.6 % at +8 %
+    a = m.alarm_assessment(est, truth, np.zeros(40, bool), window=4, frame_s=0.1)
+    assert a["8"]["false"] == 4 and a["8"]["false_alarms"] == 0
+
+
+def test_a_shock_window_restarts_the_debounce():
+    truth = np.full((40, 4), 1000.0)
+    est = truth.copy()
+    est[:, 0] += 30.0
+    excluded = np.zeros(40, bool)
+    excluded[17] = True  # frame 4 skipped: frames 0-3 and 5-9, 0.3 and 0.4 s of condition
+    a = m.alarm_assessment(est, truth, excluded, window=4, frame_s=0.1)
+    assert a["8"]["false"] == 9 and a["8"]["false_alarms"] == 0
+    # the truth's alarm at -12 % never holds either: no frame counts as a missed alarm
+    assert a["12"]["missed_alarm_frames"] == 0

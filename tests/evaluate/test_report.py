@@ -42,7 +42,11 @@ def test_score_figures_and_json_shape():
     # deviation -10.2 %: a false alarm in each of the 18 frames outside the shock
     # (frames 5 and 6 are excluded), for rope 0 and likewise rope 1: 36. At +8 %:
     # dT = 869.6 N, deviation +9.8 %, none. At 12 % the deviation reads 14.6 % or more.
-    assert e["raw"]["alarms"]["8"] == {"frames": 4 * 18, "false": 36, "missed": 0, "detected_frac": 0.5}
+    # Operator alarms (the host's debounce, frames of 0.1 s): frames 0-4 hold the
+    # condition 0.4 s, the shock restarts it, frames 7-19 raise at frame 12, on the
+    # deviating rope and on the other (two ropes: +10.2 %): 2 false alarms a case, 4.
+    assert e["raw"]["alarms"]["8"] == {"frames": 4 * 18, "false": 36, "missed": 0, "detected_frac": 0.5,
+                                       "false_alarms": 4, "missed_alarm_frames": 0}
     assert e["raw"]["alarms"]["12"]["missed"] == 0
     assert e["lugre-p+loss"]["alarms"]["8"]["false"] == 0
     doc = json.loads(json.dumps(ev.jsonable({"scenarios": {"hand": res}}), allow_nan=False))
@@ -73,7 +77,7 @@ def test_summary_line_per_scenario():
     md = ev.markdown(ev.jsonable({"scenarios": {"hand": ev.score(make_case()), "broken": {"error": "boom"}}}))
     summary = md.split("## Per scenario")[0]
     assert ("| hand | - | - | - | 0.20 ok | 0.10 ok | 0.10 ok | `raw` 10.00 (full wins) | 0.0100 ok "
-            "| 0 / 0 of 72 |") in summary
+            "| 0 / 0 of 72; 0 / 0 |") in summary
     assert "| broken | not evaluated: boom |" in summary
 
 

@@ -30,6 +30,7 @@ def test_spread_table_has_a_row_per_scenario_over_the_seeds(tmp_path, capsys, mo
     assert cells[4].endswith("of 0")  # short-test ends loaded: no empty-cage pithead rest
     lo, med, hi = (float(v) for v in cells[5].split("/"))  # the arrival rest, over both seeds
     assert lo <= med <= hi
-    assert cells[7] == "2 of 2"  # commissioned on both seeds
+    assert [int(v) for v in cells[7].split("/")] == [0, 0]  # operator alarms: none false, none missed
+    assert cells[8] == "2 of 2"  # commissioned on both seeds
     assert (tmp_path / "seed-1").is_dir() and (tmp_path / "seed-2").is_dir()
     assert "- short-test: -, -" in out  # per seed: no empty-cage figure

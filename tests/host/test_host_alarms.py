@@ -356,3 +356,45 @@ def test_stuck_on_the_evaluation_streams_through_the_firmware(tmp_path, capsys, 
     assert ids(ev) == expected
     if expected:
         assert 35.0 <= ev[0].time_s <= 37.0 and ev[0].message.startswith("rope 2 ")
+
+
+def test_debounced_series_is_the_engines_debounce():
+    """`debounced` (what the evaluation counts) jumps over idle stretches; it must give the
+    same raises and the same debounced condition as stepping `Debounce` frame by frame, as
+    the engine does, skipped frames included."""
+    import numpy as np
+
+    from ropemon.alarms import Debounce, debounced
+
+    rng = np.random.default_rng(7)
+    timing = AlarmSettings().timing
+    for trial in range(40):
+        n = 400
+        dev = np.cumsum(rng.normal(0, 0.01, n)) + rng.normal(0, 0.01, n) + 0.09
+        times = np.arange(n) * DT
+        skip = rng.random(n) < (0.05 if trial % 2 else 0.0)
+        rc, cc = dev > 0.10, dev < 0.08
+        present, raises = debounced(times, rc, cc, timing, skip)
+        d, want_present, want_raises = Debounce(timing), [], []
+        for i in range(n):
+            if skip[i]:
+                d.since_s, d.since_n = None, 0
+            elif d.step(times[i], rc[i], cc[i]) == "raise":
+                want_raises.append(i)
+            want_present.append(d.present)
+        assert raises == want_raises
+        assert present.tolist() == want_present
+
+
+def test_debounced_raises_after_the_engines_hold():
+    import numpy as np
+
+    from ropemon.alarms import debounced
+
+    times = np.arange(10) * DT
+    cond = np.array([False, True, True, True, True, True, True, False, False, False])
+    present, raises = debounced(times, cond, ~cond, AlarmSettings().timing)
+    assert raises == [6]  # 0.5 s after frame 1, as the engine (test_single_noisy_frame_...)
+    assert present.tolist() == [False] * 6 + [True] * 4  # clearing takes 2 s below
+    short = cond & (np.arange(10) < 5)  # 0.3 s of condition: no alarm
+    assert debounced(times, short, ~short, AlarmSettings().timing)[1] == []
