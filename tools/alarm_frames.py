@@ -6,7 +6,9 @@ and lists the frames (10 Hz windows) where, with a real 8 % deviation of some
 rope superposed, another level of the alarm is raised falsely, or a real 12 %
 deviation is not seen (the assessment of `ropemon.metrics.alarm_assessment`,
 counted once per frame whatever the rope and sign): by phase of the wind, by
-the ropes' mean tension, and as episodes (frames less than 0.5 s apart).
+the ropes' mean tension, and as episodes (frames less than 0.5 s apart); then
+the operator alarms those frames make through the host's debounce
+(`alarm_assessment` with the frame period).
 
     .venv/bin/python tools/alarm_frames.py out/evaluate/runs/duty-cycle-50
 """
@@ -19,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ropemon import evaluate as EV
 from ropemon import metrics as M
 from ropemon import reference
 
@@ -59,6 +62,9 @@ def main(argv: list[str] | None = None) -> int:
     phase = M.classify_phases(truth["cage_depth_m"][:k], truth["wheel_speed_m_s"][:k],
                               truth["wheel_accel_m_s2"][:k], float(ph["hall_marks_m"][-1]))[::window]
     frames = alarm_frames(est, truth_n, window)
+    _phase, excluded, _steady, _payload = EV.scoring_masks(truth, truth_n, hz, float(ph["rated_rope_tension_N"]),
+                                                           float(ph["hall_marks_m"][-1]))
+    operator = M.alarm_assessment(est, truth_n, excluded, window, frame_s=window / hz)
     mean_kn = M.window_means(truth_n, window).mean(axis=1) / 1e3
     n = len(frames["false"])
     print(f"{a.run}: {n} frames, the ropes' mean tension median {np.median(mean_kn[:n]):.1f} kN")
@@ -72,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
             episodes = np.split(idx, np.where(np.diff(idx) > 5)[0] + 1)
             print(f"  {len(episodes)} episodes, starting at (s): "
                   + " ".join(f"{e[0] / (hz / window):.1f}" for e in episodes))
+    print(f"operator alarms (the host's debounce, shock windows left out): "
+          f"{operator['8']['false_alarms']} false at 8 %, "
+          f"{operator['12']['missed_alarm_frames']} missed alarm frames at 12 %")
     return 0
 
 
