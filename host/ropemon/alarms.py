@@ -24,6 +24,9 @@ import numpy as np
 from ropemon.protocol import L, Frame
 
 SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
+# A condition "held for 0.5 s" over frames 0.1 s apart holds at the sixth frame, whatever the
+# float rounding of the two times (38 * 0.1 and 43 * 0.1 are 0.49999999999999 apart).
+HOLD_TOLERANCE_S = 1e-6
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,7 @@ class Debounce:
         self.since_n += 1
         t = self.timing
         hold = t.clear_after_s if self.present else t.raise_after_s
-        if now_s - self.since_s < hold or self.since_n < t.min_frames:
+        if now_s - self.since_s < hold - HOLD_TOLERANCE_S or self.since_n < t.min_frames:
             return None
         self.since_s, self.since_n = None, 0
         self.present = not self.present

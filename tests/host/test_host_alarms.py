@@ -398,3 +398,20 @@ def test_debounced_raises_after_the_engines_hold():
     assert present.tolist() == [False] * 6 + [True] * 4  # clearing takes 2 s below
     short = cond & (np.arange(10) < 5)  # 0.3 s of condition: no alarm
     assert debounced(times, short, ~short, AlarmSettings().timing)[1] == []
+
+
+def test_a_hold_of_whole_frame_periods_does_not_depend_on_float_rounding():
+    import numpy as np
+
+    from ropemon.alarms import debounced
+
+    times = np.arange(100) * DT  # 43 * 0.1 - 38 * 0.1 < 0.5 in floats
+    assert times[43] - times[38] < 0.5
+    for start in (0, 38):
+        cond = np.zeros(100, bool)
+        cond[start:start + 6] = True  # six frames: held 0.5 s at the sixth
+        assert debounced(times, cond, ~cond, AlarmSettings().timing)[1] == [start + 5]
+        eng = AlarmEngine()
+        rows = [dev_row(0.0)] * start + [dev_row(0.2)] * 6 + [dev_row(0.0)] * 4
+        ev = [e for i, row in enumerate(rows) for e in eng.update(frame(row, seq=i), times[i])]
+        assert ids(ev) == [("raise", "deviation:n1:r3")], start
