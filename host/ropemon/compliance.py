@@ -7,7 +7,8 @@ from the drawings, so the node's k is measured: a least-squares line of the
 piston position on the pressure over a recording (a commissioning wind, or any
 stream with loading and acceleration), on the node's own channel scaling. The
 same recording gives the pressure channels' noise, which sizes the play of the
-node's friction observer (`pressure_noise_Pa`).
+node's friction observer (`pressure_noise_Pa`), and the displacement channels'
+noise, which sizes its thresholds on the displacement (`displacement_noise_m`).
 
     ropemon fit-compliance NODE.json SENSORS.rsens [--out compliance.json]   # JSON: k per rope, fit figures
 
@@ -46,11 +47,13 @@ class ComplianceFit:
     span_pa: list[float]         # pressure range used (5th to 95th percentile)
     residual_m: list[float]      # rms of position about the line (noise and slow flows)
     pressure_noise_pa: float     # rms sample-to-sample noise of the pressure channels (worst rope)
+    displacement_noise_m: float  # the same of the displacement channels (worst rope)
     samples: int
 
     def as_dict(self) -> dict:
         return {"hydraulic_compliance_m_per_Pa": self.k_m_per_pa,
-                "pressure_noise_Pa": self.pressure_noise_pa, "r": self.r,
+                "pressure_noise_Pa": self.pressure_noise_pa,
+                "displacement_noise_m": self.displacement_noise_m, "r": self.r,
                 "pressure_span_Pa": self.span_pa, "residual_rms_m": self.residual_m,
                 "samples": self.samples}
 
@@ -58,7 +61,7 @@ class ComplianceFit:
 def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
     """Fit k per rope from records[k, 2N+4] with the channel scaling of `physical` ph."""
     n = int(ph["ropes"])
-    ks, rs, spans, res, noise = [], [], [], [], []
+    ks, rs, spans, res, noise, x_noise = [], [], [], [], [], []
     for i in range(n):
         pc = ph["pressure_channels"][i]
         dc = ph["displacement_channels"][i]
@@ -93,7 +96,8 @@ def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
         spans.append(span)
         res.append(float(np.sqrt(np.mean((x - (icpt + slope * p)) ** 2))))
         noise.append(_white_noise(p, abs(hi - lo) / (pc["counts_20mA"] - pc["counts_4mA"])))
-    return ComplianceFit(ks, rs, spans, res, max(noise), int(records.shape[0]))
+        x_noise.append(_white_noise(x, abs(yhi - ylo) / abs(dc["counts_hi"] - dc["counts_lo"])))
+    return ComplianceFit(ks, rs, spans, res, max(noise), max(x_noise), int(records.shape[0]))
 
 
 def _white_noise(p: np.ndarray, step: float) -> float:

@@ -609,7 +609,8 @@ def commissioning_problems(fit: dict, physical: dict) -> list[str]:
 
 
 # `physical` keys the evaluation commissions itself (never taken from the simulator's node.json)
-COMMISSIONED_KEYS = ("friction", "loss", "hydraulic_compliance_m_per_Pa", "pressure_noise_Pa")
+COMMISSIONED_KEYS = ("friction", "loss", "hydraulic_compliance_m_per_Pa", "pressure_noise_Pa",
+                     "displacement_noise_m")
 # `physical` keys that define what the sensor stream's counts mean (docs/config.md)
 SENSOR_KEYS = ("ropes", "sample_hz", "adc_bits", "cylinder_area_m2", "pressure_channels",
                "displacement_channels", "speed_m_per_pulse", "hall_marks_m", "battery_V_per_count",
@@ -758,6 +759,7 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
         "fit_warnings": fit.get("bed", {}).get("warnings", []),
         "hydraulic_compliance_m_per_Pa": hyd.get("hydraulic_compliance_m_per_Pa"),
         "pressure_noise_Pa": hyd.get("pressure_noise_Pa"),
+        "displacement_noise_m": hyd.get("displacement_noise_m"),
     }
     for problem in problems:
         case.notes.append(f"**COMMISSIONING FAILED**: {problem}")
@@ -773,7 +775,8 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
             "hydraulic compliance from `ropemon fit-compliance` on a commissioning wind (the same "
             f"plant, seed {seed + COMMISSIONING_SEED_OFFSET}, no sensor faults): k "
             + ", ".join(f"{k * 1e9:.4f}" for k in hyd["hydraulic_compliance_m_per_Pa"])
-            + f" um/kPa, pressure noise {hyd['pressure_noise_Pa'] / 1e3:.2f} kPa")
+            + f" um/kPa, pressure noise {hyd['pressure_noise_Pa'] / 1e3:.2f} kPa, displacement noise "
+            + f"{hyd['displacement_noise_m'] * 1e6:.1f} um")
     oil = np.asarray(truth["oil_temp_C"], float)
     case.notes.append(
         f"node {'NOT ' if problems or refusal else ''}commissioned from a fit of this scenario's own seal on the "

@@ -647,6 +647,7 @@ def _read_friction(path: Path | str) -> Any:
 
 COMPLIANCE_K_MAX = 1e-6      # m/Pa: the node's limit (ropemon.nodeconfig.compliance)
 PRESSURE_NOISE_MAX_PA = 1e6  # rms: the node's limit for pressure_noise_Pa
+DISPLACEMENT_NOISE_MAX_M = 1e-3  # rms: the node's limit for displacement_noise_m
 
 
 def read_compliance(path: Path | str) -> Any:
@@ -657,8 +658,9 @@ def read_compliance(path: Path | str) -> Any:
 def check_compliance(fit: Any, ropes: int, name: str = "compliance") -> dict[str, Any]:
     """Validate a compliance fit (the JSON of `ropemon fit-compliance`) for a site of `ropes` ropes.
 
-    Returns the two keys the `physical` section takes from it: the hydraulic
-    compliance k per rope (0..1e-6 m/Pa) and the rms pressure noise (> 0 Pa).
+    Returns the keys the `physical` section takes from it: the hydraulic compliance
+    k per rope (0..1e-6 m/Pa), the rms pressure noise (> 0 Pa) and, when the fit has
+    it (fits before it was measured do not), the rms displacement noise (> 0 m).
     """
     if not isinstance(fit, dict):
         raise SiteError(f"{name}: must be an object, got {type(fit).__name__}")
@@ -671,7 +673,11 @@ def check_compliance(fit: Any, ropes: int, name: str = "compliance") -> dict[str
     ks = [_check_number(x, f"{name}.{key}[{i}]", ge=0, le=COMPLIANCE_K_MAX) for i, x in enumerate(k)]
     noise = _check_number(fit.get("pressure_noise_Pa"), f"{name}.pressure_noise_Pa", gt=0,
                           le=PRESSURE_NOISE_MAX_PA)
-    return {key: ks, "pressure_noise_Pa": noise}
+    out = {key: ks, "pressure_noise_Pa": noise}
+    if "displacement_noise_m" in fit:
+        out["displacement_noise_m"] = _check_number(fit["displacement_noise_m"], f"{name}.displacement_noise_m",
+                                                    gt=0, le=DISPLACEMENT_NOISE_MAX_M)
+    return out
 
 
 # ---------------------------------------------------------------- physical section

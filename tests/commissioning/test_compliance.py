@@ -57,12 +57,12 @@ def records(ph: dict, p: np.ndarray | list, x: np.ndarray | list) -> np.ndarray:
     return rec
 
 
-def synthetic(ph: dict, p_noise: float = P_NOISE, seed: int = 5) -> np.ndarray:
+def synthetic(ph: dict, p_noise: float = P_NOISE, seed: int = 5, x_noise: float = X_NOISE) -> np.ndarray:
     """x = x0 + k p + noise on every rope, the transmitters' noise on p."""
     rng = np.random.default_rng(seed)
     p = wind_pressure()
     ps = [p + rng.normal(0, p_noise, p.size) for _ in K_TRUE]
-    xs = [x0 + k * p + rng.normal(0, X_NOISE, p.size) for k, x0 in zip(K_TRUE, X0)]
+    xs = [x0 + k * p + rng.normal(0, x_noise, p.size) for k, x0 in zip(K_TRUE, X0)]
     return records(ph, ps, xs)
 
 
@@ -89,6 +89,17 @@ def test_pressure_noise_is_estimated_within_15_percent(ph, noise):
     step = (pc["range_Pa"][1] - pc["range_Pa"][0]) / (pc["counts_20mA"] - pc["counts_4mA"])
     want = np.hypot(noise, step / np.sqrt(12))  # the counts' quantisation is noise the node sees too
     assert res.pressure_noise_pa == pytest.approx(want, rel=0.15)
+
+
+@pytest.mark.parametrize("noise", [1e-5, 2e-5, 4e-5])
+def test_displacement_noise_is_estimated_within_15_percent(ph, noise):
+    # the pistons' compression (k p: the ramp, the humps, the bounce) is signal, not noise
+    res = compliance.fit(ph, synthetic(ph, x_noise=noise))
+    dc = ph["displacement_channels"][0]
+    step = abs(dc["range_m"][1] - dc["range_m"][0]) / abs(dc["counts_hi"] - dc["counts_lo"])
+    want = np.hypot(noise, step / np.sqrt(12))
+    assert res.displacement_noise_m == pytest.approx(want, rel=0.15)
+    assert res.as_dict()["displacement_noise_m"] == res.displacement_noise_m
 
 
 def test_a_recording_without_a_pressure_change_is_refused(ph):
@@ -185,7 +196,7 @@ def test_command_refuses_a_bad_file_with_exit_2(recorded, tmp_path, capsys, ph, 
 # ---------------------------------------------------------------- SITE.toml [compliance]
 
 FIT = {"hydraulic_compliance_m_per_Pa": [3.0e-10, 3.1e-10, 2.9e-10, 3.0e-10], "pressure_noise_Pa": 5200.0,
-       "r": [0.997] * 4, "samples": 25688}
+       "displacement_noise_m": 2.1e-5, "r": [0.997] * 4, "samples": 25688}
 
 
 @pytest.fixture
@@ -221,7 +232,11 @@ def test_site_compliance_file_gives_the_physical_keys(site_dir):
     ph = physical_from_site(site)
     assert ph["hydraulic_compliance_m_per_Pa"] == FIT["hydraulic_compliance_m_per_Pa"]
     assert ph["pressure_noise_Pa"] == FIT["pressure_noise_Pa"]
+    assert ph["displacement_noise_m"] == FIT["displacement_noise_m"]
     assert "r" not in ph and "samples" not in ph
+    # a fit made before the displacement noise was measured leaves the node's default
+    older = {k: v for k, v in FIT.items() if k != "displacement_noise_m"}
+    assert "displacement_noise_m" not in physical_from_site(site, compliance=older)
     # a fit given to physical_from_site overrides the file
     other = dict(FIT, hydraulic_compliance_m_per_Pa=[4e-10] * 4, pressure_noise_Pa=3e3)
     ph = physical_from_site(site, compliance=other)
@@ -251,6 +266,9 @@ def test_site_without_compliance_leaves_the_keys_out(site_dir):
     ({"hydraulic_compliance_m_per_Pa": 3e-10}, r"hydraulic_compliance_m_per_Pa: missing or not a list"),
     ({"pressure_noise_Pa": 0.0}, r"compliance \(compliance.json\).pressure_noise_Pa: must be > 0, got 0"),
     ({"pressure_noise_Pa": None}, r"pressure_noise_Pa: must be a number, got None"),
+    ({"displacement_noise_m": 0}, r"compliance \(compliance.json\).displacement_noise_m: must be > 0, got 0"),
+    ({"displacement_noise_m": 0.002}, r"displacement_noise_m: must be <= 0.001, got 0.002"),
+    ({"displacement_noise_m": "2e-5"}, r"displacement_noise_m: must be a number, got '2e-5'"),
 ])
 def test_bad_compliance_file_is_refused_naming_the_field(site_dir, edit, message):
     site = load_site(with_compliance(site_dir, dict(FIT, **edit)))
