@@ -216,6 +216,7 @@ def test_shipped_site_has_a_measured_compliance():
     ph = physical_from_site(load_site(SCEN / "paper-site.toml"))
     assert all(2.9e-10 < k < 3.1e-10 for k in ph["hydraulic_compliance_m_per_Pa"])
     assert 4e3 < ph["pressure_noise_Pa"] < 7e3
+    assert 2e-5 < ph["displacement_noise_m"] < 3e-5  # 20 um of transmitter noise and the ADC's
 
 
 def with_compliance(site_dir: Path, fit=FIT, table: str = 'file = "compliance.json"') -> Path:
