@@ -19,8 +19,6 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-import numpy as np
-
 from ropemon.protocol import L, Frame
 
 SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
@@ -95,7 +93,7 @@ class AlarmEvent:
 class Debounce:
     """The debounce of one alarm condition (module doc): `step` takes one evaluation and says
     when the debounced condition raises or clears. The engine holds one per alarm;
-    `ropemon.metrics` runs the same over an evaluation's frames (`debounced`)."""
+    `ropemon.metrics.debounced` runs the same over an evaluation's frames."""
 
     timing: Timing
     present: bool = False        # debounced condition
@@ -118,40 +116,6 @@ class Debounce:
         self.since_s, self.since_n = None, 0
         self.present = not self.present
         return "raise" if self.present else "clear"
-
-
-def debounced(times_s, raise_cond, clear_cond, timing: Timing, skip=None) -> tuple[np.ndarray, list[int]]:
-    """`Debounce` over a series of evaluations (arrays): the debounced condition after each,
-    and the indices where it raised. `skip[i]` (optional) drops evaluation i as if no frame
-    came: a pending change restarts. Idle stretches (nothing pending) are jumped over, so
-    the cost follows the evaluations where a condition holds."""
-    n = len(times_s)
-    rc = np.asarray(raise_cond, bool)
-    cc = np.asarray(clear_cond, bool)
-    if skip is not None:
-        rc = rc & ~np.asarray(skip, bool)
-        cc = cc & ~np.asarray(skip, bool)
-    present = np.zeros(n, bool)
-    raises: list[int] = []
-    raise_at, clear_at = np.flatnonzero(rc), np.flatnonzero(cc)
-    d = Debounce(timing)
-    i = 0
-    while i < n:
-        if d.since_s is None:  # idle: on to the next evaluation that can start a change
-            pending = clear_at if d.present else raise_at
-            j = int(np.searchsorted(pending, i))
-            nxt = int(pending[j]) if j < len(pending) else n
-            present[i:nxt] = d.present
-            i = nxt
-            if i >= n:
-                break
-        if skip is not None and skip[i]:
-            d.since_s, d.since_n = None, 0
-        elif d.step(float(times_s[i]), bool(rc[i]), bool(cc[i])) == "raise":
-            raises.append(i)
-        present[i] = d.present
-        i += 1
-    return present, raises
 
 
 @dataclass

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ropemon.alarms import AlarmSettings, debounced
+from ropemon.alarms import AlarmSettings, Debounce, Timing
 
 PHASES = ("rest-pithead", "rest-bottom", "acceleration", "constant-speed",
           "deceleration", "reversal-creep")
@@ -235,6 +235,40 @@ def deviation_step_n(truth_n: np.ndarray, rope: int, deviation: float) -> np.nda
     return ((1.0 + deviation) * m - truth_n[:, rope]) / (1.0 - (1.0 + deviation) / n)
 
 
+def debounced(times_s, raise_cond, clear_cond, timing: Timing, skip=None) -> tuple[np.ndarray, list[int]]:
+    """`Debounce` over a series of evaluations (arrays): the debounced condition after each,
+    and the indices where it raised. `skip[i]` (optional) drops evaluation i as if no frame
+    came: a pending change restarts. Idle stretches (nothing pending) are jumped over, so
+    the cost follows the evaluations where a condition holds."""
+    n = len(times_s)
+    rc = np.asarray(raise_cond, bool)
+    cc = np.asarray(clear_cond, bool)
+    if skip is not None:
+        rc = rc & ~np.asarray(skip, bool)
+        cc = cc & ~np.asarray(skip, bool)
+    present = np.zeros(n, bool)
+    raises: list[int] = []
+    raise_at, clear_at = np.flatnonzero(rc), np.flatnonzero(cc)
+    d = Debounce(timing)
+    i = 0
+    while i < n:
+        if d.since_s is None:  # idle: on to the next evaluation that can start a change
+            pending = clear_at if d.present else raise_at
+            j = int(np.searchsorted(pending, i))
+            nxt = int(pending[j]) if j < len(pending) else n
+            present[i:nxt] = d.present
+            i = nxt
+            if i >= n:
+                break
+        if skip is not None and skip[i]:
+            d.since_s, d.since_n = None, 0
+        elif d.step(float(times_s[i]), bool(rc[i]), bool(cc[i])) == "raise":
+            raises.append(i)
+        present[i] = d.present
+        i += 1
+    return present, raises
+
+
 def alarm_assessment(est_n: np.ndarray, truth_n: np.ndarray, excluded: np.ndarray,
                      window: int, threshold: float = 0.10,
                      levels=(0.08, 0.10, 0.12), frame_s: float | None = None,
@@ -256,7 +290,7 @@ def alarm_assessment(est_n: np.ndarray, truth_n: np.ndarray, excluded: np.ndarra
     `detected_frac` = share of frames the deviating rope is flagged.
 
     With `frame_s` (the frame period), also what the operator would see: the
-    host's own debounce (`ropemon.alarms.debounced`, with `settings`' deviation
+    host's own debounce (`debounced`, with `settings`' deviation
     timing and hysteresis) over each rope's deviation, a skipped window counting
     as no frame. `false_alarms` = raises on a rope whose true |deviation| is not
     above the threshold; `missed_alarm_frames` = frames where the same debounce

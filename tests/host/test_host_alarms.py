@@ -364,7 +364,8 @@ def test_debounced_series_is_the_engines_debounce():
     the engine does, skipped frames included."""
     import numpy as np
 
-    from ropemon.alarms import Debounce, debounced
+    from ropemon.alarms import Debounce
+    from ropemon.metrics import debounced
 
     rng = np.random.default_rng(7)
     timing = AlarmSettings().timing
@@ -389,7 +390,7 @@ def test_debounced_series_is_the_engines_debounce():
 def test_debounced_raises_after_the_engines_hold():
     import numpy as np
 
-    from ropemon.alarms import debounced
+    from ropemon.metrics import debounced
 
     times = np.arange(10) * DT
     cond = np.array([False, True, True, True, True, True, True, False, False, False])
@@ -403,7 +404,7 @@ def test_debounced_raises_after_the_engines_hold():
 def test_a_hold_of_whole_frame_periods_does_not_depend_on_float_rounding():
     import numpy as np
 
-    from ropemon.alarms import debounced
+    from ropemon.metrics import debounced
 
     times = np.arange(100) * DT  # 43 * 0.1 - 38 * 0.1 < 0.5 in floats
     assert times[43] - times[38] < 0.5
