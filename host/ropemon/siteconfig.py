@@ -64,7 +64,9 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
     k = ph.get("hydraulic_compliance_m_per_Pa")
     hydraulic = ([] if k is None else
                  [f"hydraulic compliance {', '.join(f'{x * 1e12:.0f}' for x in k)} um/MPa per rope, "
-                  f"pressure noise {ph['pressure_noise_Pa'] / 1e3:.1f} kPa rms"])
+                  f"pressure noise {ph['pressure_noise_Pa'] / 1e3:.1f} kPa rms"
+                  + (f", displacement noise {ph['displacement_noise_m'] * 1e6:.1f} um rms"
+                     if "displacement_noise_m" in ph else "")])
     return "\n".join([
         f"site {site.name}: node {ph['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
         f"{ph['frame_hz']} Hz frames",

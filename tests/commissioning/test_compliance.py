@@ -307,7 +307,12 @@ def test_config_puts_the_compliance_in_the_node_section(site_dir, capsys):
         assert qi / (1 << sh) == pytest.approx(k * 1e3 * 256e6, rel=1e-3)
     assert fr["warmup_samples"] == 400  # 2 s at 200 Hz: the compliance defaults
     assert node_module("config").parse(doc).ropes == 4
-    assert "hydraulic compliance 300, 310, 290, 300 um/MPa per rope" in capsys.readouterr().out
+    assert ("hydraulic compliance 300, 310, 290, 300 um/MPa per rope, pressure noise 5.2 kPa rms, "
+            "displacement noise 21.0 um rms") in capsys.readouterr().out
+    # the node sizes its stroke threshold from the fit's displacement noise, not the 20 um default
+    assert ph["displacement_noise_m"] == FIT["displacement_noise_m"]
+    default = make_node_json({k: v for k, v in ph.items() if k != "displacement_noise_m"})
+    assert fr["stroke_q8um"] > default["node"]["friction"]["stroke_q8um"]
     # --compliance overrides the site's file; a bad one is refused, nothing written
     (site_dir / "other.json").write_text(json.dumps(dict(FIT, pressure_noise_Pa=-1)))
     out.unlink()
