@@ -11,12 +11,16 @@ friction fit) is driven by:
 3. that, with the node's play (the one it holds for all channels healthy) on the
    dissipation;
 4. the node's observer on the sensor stream: the float reference's friction,
-   noise and all (`lugre-p`'s).
+   noise and all (`lugre-p`'s);
+5. and 6. the two halves of the node's LuGre apart: its elastic path (the
+   LuGre position's increments) with the true piston's increments as the
+   dissipation path, and the other way round.
 
 Each stage's friction takes the place of the plant's seal friction in the true
 tension, so the figures (as `ropemon evaluate` scores them, % of rated rope
 tension and of the true total) are the friction's alone. Stages 1-3 take the
-pressure and velocity of the true position; stage 4 what the node has.
+pressure and velocity of the true position; stage 4 what the node has; stages
+5 and 6 the true pressure and the velocity of their elastic path.
 Prints a Markdown table (docs/accuracy.md, "What limits the pithead figure").
 
     .venv/bin/python tools/observer_losses.py out/evaluate/runs/payload-12t [RUN ...]
@@ -39,7 +43,9 @@ from ropemon.nodeconfig import physical_params
 STAGES = ("LuGre on the true piston position",
           "+ the pressure low-pass",
           "+ the play",
-          "the node's observer on the sensors")
+          "the node's observer on the sensors",
+          "the node's elastic path, the true dissipation path",
+          "the true elastic path, the node's dissipation path")
 
 
 def play_increments(x: np.ndarray, width: float) -> np.ndarray:
@@ -71,9 +77,11 @@ def stage_friction(ph: dict, truth, k: int, recs: np.ndarray) -> list[np.ndarray
                          for i in range(x.shape[1])], axis=1)
 
     d_true, d_lp = inc(x), inc(x_lp)
-    comp = reference.compensate(ph, recs)
+    obs: dict = {}
+    comp = reference.compensate(ph, recs, increments=obs)
     node = np.where(comp.good, comp.friction_n, np.nan)
-    return [run(d_true, d_true), run(d_lp, d_lp), run(d_lp, play_increments(x_lp, pp["plays_m"][-1])), node]
+    return [run(d_true, d_true), run(d_lp, d_lp), run(d_lp, play_increments(x_lp, pp["plays_m"][-1])), node,
+            run(obs["dxs"], d_true), run(d_true, obs["dxp"])]
 
 
 def losses(run_dir: Path) -> list[dict]:

@@ -132,11 +132,14 @@ def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray,
     return zn + c1 * (zn - zprev) + lin["sigma2"] * vq
 
 
-def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Compensated:
+def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
+               increments: dict | None = None) -> Compensated:
     """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`.
 
     `strokes`, a list, receives (sample, rope or -1, e per rope in m) for every start
-    (rope 0-based) and end (-1) of a balancing stroke (tools/stroke_events.py)."""
+    (rope 0-based) and end (-1) of a balancing stroke (tools/stroke_events.py).
+    `increments`, a dict, receives the observer's per-sample increments [sample, rope]
+    (m): "dxs" of the LuGre position and "dxp" of its play (tools/observer_losses.py)."""
     pp = physical_params(ph)
     n = pp["ropes"]
     fs = float(ph["sample_hz"])
@@ -173,6 +176,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None) -> Co
         OK[:, i] = p_ok & x_ok
         POK[:, i] = p_ok
     DX, DXS, DXP = _observer(pp, P, X, OK, POK, fs, strokes)
+    if increments is not None:
+        increments.update(dxs=DXS, dxp=DXP)
     for i in range(n):
         p = P[:, i]
         dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]

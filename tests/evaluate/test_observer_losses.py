@@ -1,4 +1,5 @@
-"""tools/observer_losses.py: the friction error stage by stage (true position, low-pass, play, node)."""
+"""tools/observer_losses.py: the friction error stage by stage (true position, low-pass, play, node,
+and the node's two halves apart)."""
 from __future__ import annotations
 
 import importlib.util
@@ -43,6 +44,9 @@ def test_stages_on_the_short_wind(tmp_path, capsys):
     full = EV.M.evaluate_estimate(case.estimates["lugre-p"], case.truth_n, case.rated_n, case.phase,
                                   case.excluded, case.steady, case.payload_kg)
     assert abs(rows[3]["rope_rms_pct"] - full["rope_rms_pct"]) < 0.1
+    # on this wind either half of the node's LuGre (the other half true) is between the truth and the node
+    for half in rows[4:]:
+        assert rows[0]["rope_rms_pct"] < half["rope_rms_pct"] < rows[3]["rope_rms_pct"]
     assert ol.main([str(work)]) == 0
     table = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| short-test")]
-    assert len(table) == 4
+    assert len(table) == len(ol.STAGES) == 6
