@@ -55,7 +55,8 @@ def creep(run: Path, t0: float, t1: float, settings: dict | None = None) -> list
     return [
         ("creep, true piston (um)", 1e6 * _change(x_true, i0, i1, w)),
         ("creep, node's LuGre position (um)", 1e6 * _change(x_node, i0, i1, w)),
-        ("path, true piston (um)", 1e6 * np.abs(np.diff(x_true[i0:i1], axis=0)).sum(0)),
+        # the increments into samples i0 .. i1-1, as the node's dxp[i0:i1]
+        ("path, true piston (um)", 1e6 * np.abs(np.diff(x_true[i0 - 1:i1], axis=0)).sum(0)),
         ("path, node's dissipation (um)", 1e6 * np.abs(inc["dxp"][i0:i1]).sum(0)),
         ("seal friction change, plant (kN)", _change(np.asarray(truth["friction_N"], float), i0, i1, w) / 1e3),
         ("seal friction change, node (kN)", _change(comp.friction_n, i0, i1, w) / 1e3),
