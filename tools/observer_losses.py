@@ -6,8 +6,8 @@ friction fit) is driven by:
 
 1. the plant's true piston position, no noise and no filter: the model and its
    discretisation alone;
-2. that position through the node's pressure low-pass (`pressure_cutoff_hz`), the
-   bandwidth the LuGre position has;
+2. that position through the node's pressure tracker (`bounce_hz`, docs/model.md),
+   the filter the LuGre position has;
 3. that, with the node's play (the one it holds for all channels healthy) on the
    dissipation;
 4. the node's observer on the sensor stream: the float reference's friction,
@@ -33,7 +33,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ropemon import evaluate as EV
 from ropemon import metrics as M
@@ -41,7 +40,7 @@ from ropemon import reference
 from ropemon.nodeconfig import physical_params
 
 STAGES = ("LuGre on the true piston position",
-          "+ the pressure low-pass",
+          "+ the pressure tracker",
           "+ the play",
           "the node's observer on the sensors",
           "the node's elastic path, the true dissipation path",
@@ -66,8 +65,12 @@ def stage_friction(ph: dict, truth, k: int, recs: np.ndarray) -> list[np.ndarray
     fr = ph["friction"]
     x = np.asarray(truth["piston_x_m"], float)[:k]
     p = np.clip(np.asarray(truth["p_tap_Pa"], float)[:k], 0.0, pp["p_max_pa"])
-    a = pp["alpha_p"]
-    x_lp = lfilter([a], [1.0, a - 1.0], x, axis=0, zi=((1.0 - a) * x[:1]))[0]
+    if pp["tracker"] is None:
+        raise SystemExit("observer_losses: the run's node has no compliance (no pressure tracker)")
+    x_lp = np.empty_like(x)
+    for i in range(x.shape[1]):  # the tracker is linear: it filters a position as a pressure
+        tracker = reference.PressureTracker(pp["tracker"])
+        x_lp[:, i] = [tracker.step(v) for v in x[:, i].tolist()]
 
     def inc(v: np.ndarray) -> np.ndarray:
         return np.diff(v, axis=0, prepend=v[:1])

@@ -3,7 +3,8 @@
 Commissions and simulates a scenario as `ropemon evaluate` does (no firmware run),
 then reruns the float reference `lugre-p+loss` with one setting changed at a time:
 the play multiplier `friction_play_sigmas`, the hydraulic compliance k scaled
-(as if fit-compliance were that far off), the pressure low-pass, the threshold
+(as if fit-compliance were that far off), the pressure tracker's bounce frequency
+(as if fit-compliance had measured it that far off), damping and process noises, the threshold
 of the balancing-stroke tracking (`stroke_sigmas`; 0: none), the rest hold's
 threshold (`rest_sigmas`; 0: none), and no compliance at all. Prints a Markdown
 table (docs/accuracy.md, "Sensitivity").
@@ -21,19 +22,26 @@ from pathlib import Path
 from ropemon import evaluate as EV
 from ropemon import metrics as M
 from ropemon import reference
+from ropemon.nodeconfig import DEFAULTS
 
 
 def variants(ph: dict) -> list[tuple[str, dict]]:
     """(label, physical) pairs: the commissioned config and one change each."""
     out = [("as commissioned", ph)]
-    for m in (1.1, 1.2, 1.4, 1.5, 1.7, 2.0):
+    for m in (1.2, 1.3, 1.6, 1.7, 2.0):
         out.append((f"friction_play_sigmas {m:g}", dict(ph, friction_play_sigmas=m)))
     k = ph.get("hydraulic_compliance_m_per_Pa")
     if k:
         for f in (0.95, 0.98, 1.02, 1.05):
             out.append((f"k x {f:g}", dict(ph, hydraulic_compliance_m_per_Pa=[x * f for x in k])))
-        for hz in (3.0, 8.0):
-            out.append((f"pressure_cutoff_hz {hz:g}", dict(ph, pressure_cutoff_hz=hz)))
+        fb = float(ph.get("bounce_hz", DEFAULTS["bounce_hz"]))
+        for d in (-0.3, 0.3):
+            out.append((f"bounce_hz {fb + d:.2f} ({d:+g} Hz)", dict(ph, bounce_hz=fb + d)))
+        for z in (0.1, 0.3):
+            out.append((f"bounce_filter_damping {z:g}", dict(ph, bounce_filter_damping=z)))
+        for key in ("creep_q_Pa2_s3", "bounce_q_Pa2_s3"):
+            for f in (1 / 3, 3):
+                out.append((f"{key} x {f:.3g}", dict(ph, **{key: float(ph.get(key, DEFAULTS[key])) * f})))
         for m in (4.5, 8.5):
             out.append((f"stroke_sigmas {m:g}", dict(ph, stroke_sigmas=m)))
         out.append(("balancing strokes not tracked (stroke_sigmas 0)", dict(ph, stroke_sigmas=0.0)))
@@ -41,7 +49,7 @@ def variants(ph: dict) -> list[tuple[str, dict]]:
             out.append((f"rest_sigmas {m:g}", dict(ph, rest_sigmas=m)))
         out.append(("no rest hold (rest_sigmas 0)", dict(ph, rest_sigmas=0.0)))
         no_k = copy.deepcopy(ph)
-        for key in ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa"):
+        for key in ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa", "bounce_hz"):
             no_k.pop(key, None)
         out.append(("no compliance (1 Hz position low-pass)", no_k))
     return out

@@ -75,7 +75,7 @@ _FRHZ = const(39)    # frame_hz
 _OFORCE = const(40)  # offset of the loss forces in P
 _OMARKS = const(41)  # offset of the Hall marks in P
 _AZ = const(42)      # LuGre position: gain of the low-pass b, Q14
-_AP = const(43)      # LuGre position: pressure low-pass gain, Q14
+_TA1 = const(43)     # pressure tracker: the bounce's a1, Q14 (0: no tracker)
 _KSH = const(44)     # hydraulic compliance shift
 _WARMN = const(45)   # samples of warm-up of b after the start
 _AE = const(46)      # balancing strokes: gain of the low-passes of e and of the common motion, Q14
@@ -84,7 +84,10 @@ _SVMIN = const(48)   # common motion below this is no direction, um/65536 per sa
 _SSET = const(49)    # samples of one direction before a stroke is looked for
 _AL = const(50)      # rest hold: gain of the slow low-pass x_l, Q14
 _AA = const(51)      # rest hold: gain of the activity low-pass, Q14
-_AREA = const(52)    # cylinder area per rope over the ropes' mean, Q8
+_TA2 = const(52)     # pressure tracker: the bounce's a2, Q14
+_TK = const(53)      # its Kalman gains (4): of c0, c1 in Q14, of b0, b1 in Q(14 + TBSH)
+_TBSH = const(57)    # b is held 2**TBSH finer than c
+_AREA = const(58)    # cylinder area per rope over the ropes' mean, Q8
 _KQ = const(_AREA + ROPES_MAX)  # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
 _PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n healthy pressure channels
 _RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
@@ -147,7 +150,7 @@ OUT_SUB = const(118)
 OUT_DEPTH_MM = const(119)
 XS_Q8UM = const(120)   # per rope: the LuGre's position (sum of its increments), um/256
 XP_Q8UM = const(124)   # its play output
-_PL_Q8 = const(128)     # per rope: low-passed pressure, kPa/256
+_PL_Q8 = const(128)     # per rope: the tracker's pressure p_l it took last, kPa/256
 _XB_Q8UM = const(132)   # b: low-pass of x_f - k p_l, um/256
 _XBREM = const(136)    # its error-feedback remainder
 _XH_Q8UM = const(140)   # x_h = k p_l + b
@@ -161,7 +164,12 @@ _SCNT = const(159)     # samples since that direction began, up to _SSET
 _XL = const(160)       # per rope: the rest hold's slow low-pass x_l of x_s, um/256
 _XLREM = const(164)    # its error-feedback remainder
 _ACT = const(168)      # per rope: low-pass of |x_s - x_l|, um/65536 (quiet below _RTH)
-_S_LEN = const(172)
+_TON = const(172)      # pressure tracker running (0: starts at the next median)
+_TC0 = const(173)      # its creep c_k, kPa/256
+_TC1 = const(174)      # c_(k-1)
+_TB0 = const(175)      # its bounce b_k, kPa/256 / 2**TBSH
+_TB1 = const(176)      # b_(k-1)
+_S_LEN = const(177)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -182,9 +190,10 @@ def pack(c):
         nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts,
         c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window,
         c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz,
-        _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.alpha_p_q14,
+        _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14,
         c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16,
-        c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14)
+        c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (
+        c.tracker_b_shift,)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS),
@@ -282,7 +291,6 @@ def step(rec, P, S, n):
     s2s9 = P[_S2S9]
     s2half = (1 << s2s9) >> 1
     az = P[_AZ]
-    ap = P[_AP]
     ksh4 = P[_KSH] - 4
     ksh8 = P[_KSH] + 8
     warm = P[_WARMN]
@@ -328,10 +336,70 @@ def step(rec, P, S, n):
                 pm += c
             if r == hi:
                 pm += c
-    # p_l the low-passed median in kPa/256 (|p| <= 100000 kPa: p_l < 2**25), k p_l split
-    # at 12 bits (k < 2**17; 1 kPa steps would move the tension by up to 90 N), and its
-    # step this sample; their sum over the ropes, weighted by area, is the oil's common
-    # motion
+    # the pressure tracker (docs/model.md): a steady-state Kalman filter of the median,
+    # y = 2 pm << 2 in kPa/256 (|p| <= 100000 kPa: |y| < 2**25), as a creep c at a constant
+    # rate plus the rope bounce b, a damped oscillator; p_l = c0 + b0. It starts afresh at
+    # the first median after none. Products split at 14 bits: |x| < 2**28, |gain| <= 2**15
+    if m > 0:
+        y = pm << 3
+        if S[_TON] == 0:
+            S[_TON] = 1
+            S[_TC0] = y
+            S[_TC1] = y
+            S[_TB0] = 0
+            S[_TB1] = 0
+        else:
+            c0 = S[_TC0]
+            t = c0 + c0 - S[_TC1]
+            S[_TC1] = c0
+            b0 = S[_TB0]
+            b1 = S[_TB1]
+            a = P[_TA1]
+            d = (b0 >> 14) * a + (((b0 & 16383) * a + 8192) >> 14)
+            a = P[_TA2]
+            d -= (b1 >> 14) * a + (((b1 & 16383) * a + 8192) >> 14)
+            S[_TB1] = b0
+            bsh = P[_TBSH]
+            e = y - t - (d >> bsh)
+            a = P[_TK]
+            t += (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
+            a = P[_TK + 1]
+            c1 = S[_TC1] + (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
+            a = P[_TK + 2]
+            d += (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
+            a = P[_TK + 3]
+            b1 = S[_TB1] + (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
+            # a pressure (c, kPa/256) within +-2**26, the bounce within +-2**26 as held
+            if t > 0x4000000:
+                t = 0x4000000
+            elif t < -0x4000000:
+                t = -0x4000000
+            if c1 > 0x4000000:
+                c1 = 0x4000000
+            elif c1 < -0x4000000:
+                c1 = -0x4000000
+            if d > 0x4000000:
+                d = 0x4000000
+            elif d < -0x4000000:
+                d = -0x4000000
+            if b1 > 0x4000000:
+                b1 = 0x4000000
+            elif b1 < -0x4000000:
+                b1 = -0x4000000
+            S[_TC0] = t
+            S[_TC1] = c1
+            S[_TB0] = d
+            S[_TB1] = b1
+    else:
+        S[_TON] = 0
+    pk = S[_TC0] + (S[_TB0] >> P[_TBSH])
+    if pk > 25600000:  # p_l a pressure within +-100000 kPa, as the median is (< 2**25)
+        pk = 25600000
+    elif pk < -25600000:
+        pk = -25600000
+    # k p_l split at 12 bits (k < 2**17; 1 kPa steps would move the tension by up to 90 N),
+    # and its step this sample; their sum over the ropes, weighted by area, is the oil's
+    # common motion
     cv = 0
     allw = 1  # every rope healthy, started before and warmed up: cv is whole
     for i in range(n):
@@ -346,7 +414,7 @@ def step(rec, P, S, n):
                 S[_XL + i] = x
                 S[_XLREM + i] = 0
                 S[_ACT + i] = 0x400000  # 64 um: not quiet until the activity has settled
-                pl = pm << 3
+                pl = pk
                 S[_PL_Q8 + i] = pl
                 S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8))
                 S[_XBREM + i] = 0
@@ -356,8 +424,7 @@ def step(rec, P, S, n):
                 allw = 0
             pl = S[_PL_Q8 + i]
             m = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8)
-            e = (pm << 3) - pl
-            pl += (e >> 14) * ap + (((e & 16383) * ap + 8192) >> 14)
+            pl = pk
             S[_PL_Q8 + i] = pl
             m = ((pl >> 12) * kq >> ksh4) + (((pl & 4095) * kq) >> ksh8) - m
             if m > dxmax:

@@ -53,7 +53,7 @@ _FRHZ = const(39)
 _OFORCE = const(40)
 _OMARKS = const(41)
 _AZ = const(42)
-_AP = const(43)
+_TA1 = const(43)
 _KSH = const(44)
 _WARMN = const(45)
 _AE = const(46)
@@ -62,7 +62,10 @@ _SVMIN = const(48)
 _SSET = const(49)
 _AL = const(50)
 _AA = const(51)
-_AREA = const(52)
+_TA2 = const(52)
+_TK = const(53)
+_TBSH = const(57)
+_AREA = const(58)
 _KQ = const(_AREA + ROPES_MAX)
 _PLAYS = const(_KQ + ROPES_MAX)
 _RPLAYS = const(_PLAYS + ROPES_MAX)
@@ -137,7 +140,12 @@ _SCNT = const(159)
 _XL = const(160)
 _XLREM = const(164)
 _ACT = const(168)
-_S_LEN = const(172)
+_TON = const(172)
+_TC0 = const(173)
+_TC1 = const(174)
+_TB0 = const(175)
+_TB1 = const(176)
+_S_LEN = const(177)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -151,7 +159,7 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.alpha_p_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_b_shift,)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
@@ -243,7 +251,6 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     s2s9 = (P[_S2S9] ^ s31) - s31
     s2half = 1 << s2s9 >> 1
     az = (P[_AZ] ^ s31) - s31
-    ap = (P[_AP] ^ s31) - s31
     ksh4 = (P[_KSH] ^ s31) - s31 - 4
     ksh8 = (P[_KSH] ^ s31) - s31 + 8
     warm = (P[_WARMN] ^ s31) - s31
@@ -282,6 +289,62 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 pm += c
             if r == hi:
                 pm += c
+    if m > 0:
+        y = pm << 3
+        if (S[_TON] ^ s31) - s31 == 0:
+            S[_TON] = 1
+            S[_TC0] = y
+            S[_TC1] = y
+            S[_TB0] = 0
+            S[_TB1] = 0
+        else:
+            c0 = (S[_TC0] ^ s31) - s31
+            t = c0 + c0 - ((S[_TC1] ^ s31) - s31)
+            S[_TC1] = c0
+            b0 = (S[_TB0] ^ s31) - s31
+            b1 = (S[_TB1] ^ s31) - s31
+            a = (P[_TA1] ^ s31) - s31
+            d = (b0 >> 14) * a + ((b0 & 16383) * a + 8192 >> 14)
+            a = (P[_TA2] ^ s31) - s31
+            d -= (b1 >> 14) * a + ((b1 & 16383) * a + 8192 >> 14)
+            S[_TB1] = b0
+            bsh = (P[_TBSH] ^ s31) - s31
+            e = y - t - (d >> bsh)
+            a = (P[_TK] ^ s31) - s31
+            t += (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
+            a = (P[_TK + 1] ^ s31) - s31
+            c1 = (S[_TC1] ^ s31) - s31 + (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
+            a = (P[_TK + 2] ^ s31) - s31
+            d += (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
+            a = (P[_TK + 3] ^ s31) - s31
+            b1 = (S[_TB1] ^ s31) - s31 + (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
+            if t > 67108864:
+                t = 67108864
+            elif t < -67108864:
+                t = -67108864
+            if c1 > 67108864:
+                c1 = 67108864
+            elif c1 < -67108864:
+                c1 = -67108864
+            if d > 67108864:
+                d = 67108864
+            elif d < -67108864:
+                d = -67108864
+            if b1 > 67108864:
+                b1 = 67108864
+            elif b1 < -67108864:
+                b1 = -67108864
+            S[_TC0] = t
+            S[_TC1] = c1
+            S[_TB0] = d
+            S[_TB1] = b1
+    else:
+        S[_TON] = 0
+    pk = (S[_TC0] ^ s31) - s31 + ((S[_TB0] ^ s31) - s31 >> (P[_TBSH] ^ s31) - s31)
+    if pk > 25600000:
+        pk = 25600000
+    elif pk < -25600000:
+        pk = -25600000
     cv = 0
     allw = 1
     for i in range(n):
@@ -296,7 +359,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 S[_XL + i] = x
                 S[_XLREM + i] = 0
                 S[_ACT + i] = 4194304
-                pl = pm << 3
+                pl = pk
                 S[_PL_Q8 + i] = pl
                 S[_XB_Q8UM + i] = x - (((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8))
                 S[_XBREM + i] = 0
@@ -306,8 +369,7 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 allw = 0
             pl = (S[_PL_Q8 + i] ^ s31) - s31
             m = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8)
-            e = (pm << 3) - pl
-            pl += (e >> 14) * ap + ((e & 16383) * ap + 8192 >> 14)
+            pl = pk
             S[_PL_Q8 + i] = pl
             m = ((pl >> 12) * kq >> ksh4) + ((pl & 4095) * kq >> ksh8) - m
             if m > dxmax:

@@ -8,7 +8,12 @@ piston position on the pressure over a recording (a commissioning wind, or any
 stream with loading and acceleration), on the node's own channel scaling. The
 same recording gives the pressure channels' noise, which sizes the play of the
 node's friction observer (`pressure_noise_Pa`), and the displacement channels'
-noise, which sizes its thresholds on the displacement (`displacement_noise_m`).
+noise, which sizes its thresholds on the displacement (`displacement_noise_m`),
+and the cage's bounce at the pithead (`bounce_hz`), which tunes the node's
+pressure tracker: the strongest line between 1 Hz and sample_hz/8 in the median
+pressure over the first 4 s after the hoist stops at the end of the recording
+(its arrival). A recording without such a stop, or where the line does not stand
+out, gives no `bounce_hz` (`null`), and the node keeps its default.
 
     ropemon fit-compliance NODE.json SENSORS.rsens [--out compliance.json]   # JSON: k per rope, fit figures
 
@@ -34,6 +39,11 @@ from ropemon.reference import read_rsens
 MIN_SPAN_PA = 0.3e6   # the pressure must change at least this much over the recording
 MIN_R = 0.5           # correlation of position and pressure below which the fit is refused
 MAX_REL_SE = 0.02     # standard error of k over k above which the fit is refused
+BOUNCE_WINDOW_S = 4.0     # the arrival's bounce is looked for over this long after the stop
+BOUNCE_MIN_HZ = 1.0       # below this a line is the load's own change, not the bounce
+BOUNCE_MIN_PEAK = 4.0     # the line must stand this many times above the band's median
+MOVING_M_S = 0.1          # the hoist moves (winds) above this speed
+STOPPED_S = 0.25          # the counter stands this long: the hoist has stopped
 
 
 class ComplianceError(ValueError):
@@ -49,11 +59,13 @@ class ComplianceFit:
     pressure_noise_pa: float     # rms sample-to-sample noise of the pressure channels (worst rope)
     displacement_noise_m: float  # the same of the displacement channels (worst rope)
     samples: int
+    bounce_hz: float | None = None  # the bounce after the last arrival (None: not measured)
 
     def as_dict(self) -> dict:
         return {"hydraulic_compliance_m_per_Pa": self.k_m_per_pa,
                 "pressure_noise_Pa": self.pressure_noise_pa,
-                "displacement_noise_m": self.displacement_noise_m, "r": self.r,
+                "displacement_noise_m": self.displacement_noise_m, "bounce_hz": self.bounce_hz,
+                "r": self.r,
                 "pressure_span_Pa": self.span_pa, "residual_rms_m": self.residual_m,
                 "samples": self.samples}
 
@@ -97,7 +109,61 @@ def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
         res.append(float(np.sqrt(np.mean((x - (icpt + slope * p)) ** 2))))
         noise.append(_white_noise(p, abs(hi - lo) / (pc["counts_20mA"] - pc["counts_4mA"])))
         x_noise.append(_white_noise(x, abs(yhi - ylo) / abs(dc["counts_hi"] - dc["counts_lo"])))
-    return ComplianceFit(ks, rs, spans, res, max(noise), max(x_noise), int(records.shape[0]))
+    return ComplianceFit(ks, rs, spans, res, max(noise), max(x_noise), int(records.shape[0]),
+                         bounce_hz(ph, records))
+
+
+def bounce_hz(ph: dict, records: np.ndarray) -> float | None:
+    """The cage's bounce (Hz) at the recording's last arrival: the strongest spectral line
+    of the median pressure (healthy channels) between BOUNCE_MIN_HZ and sample_hz/8 over
+    BOUNCE_WINDOW_S after the hoist stops, the line fitted a parabola on a 16x zero-padded
+    spectrum (linear trend removed, Hann window); None without such a stop, or where the
+    line does not stand BOUNCE_MIN_PEAK times above the band's median."""
+    n, fs = int(ph["ropes"]), float(ph["sample_hz"])
+    try:
+        m_per_pulse = float(ph["speed_m_per_pulse"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    counter = records[:, 2 * n + 2].astype(np.int64)
+    step = (np.diff(counter) + 32768) % 65536 - 32768  # signed pulses per sample, mod 2**16
+    win = max(1, int(round(0.1 * fs)))
+    speed = np.abs(np.convolve(step, np.ones(win), "same")) * m_per_pulse * fs / win
+    fast = np.flatnonzero(speed > MOVING_M_S)
+    if not len(fast):
+        return None
+    still = int(round(STOPPED_S * fs))
+    start = max(0, fast[-1] - win)  # the speed is a moving sum: its last pulses lie within it
+    moved = np.flatnonzero(step[start:] != 0) + start
+    # the stop: the first sample after the last pulse that is followed by STOPPED_S of none
+    stop = None
+    for a, b in zip(moved, np.append(moved[1:], len(step))):
+        if b - a > still:
+            stop = a + 1
+            break
+    n_win = int(round(BOUNCE_WINDOW_S * fs))
+    if stop is None or stop + n_win > len(records):
+        return None
+    cols = []
+    for i in range(n):
+        pc = ph["pressure_channels"][i]
+        lo, hi = namur_limits(pc["counts_4mA"], pc["counts_20mA"])
+        c = records[stop:stop + n_win, i].astype(float)
+        if np.all((c >= lo) & (c <= hi)):
+            plo, phi = pc["range_Pa"]
+            cols.append(plo + (c - pc["counts_4mA"]) * (phi - plo) / (pc["counts_20mA"] - pc["counts_4mA"]))
+    if not cols:
+        return None
+    y = np.median(np.array(cols), axis=0)
+    t = np.arange(n_win)
+    y = (y - np.polyval(np.polyfit(t, y, 1), t)) * np.hanning(n_win)
+    spec = np.abs(np.fft.rfft(y, 16 * n_win))
+    f = np.fft.rfftfreq(16 * n_win, 1 / fs)
+    band = np.flatnonzero((f >= BOUNCE_MIN_HZ) & (f <= fs / 8))
+    k = band[np.argmax(spec[band])]
+    if k in (band[0], band[-1]) or spec[k] < BOUNCE_MIN_PEAK * np.median(spec[band]):
+        return None
+    a, b, c = spec[k - 1], spec[k], spec[k + 1]
+    return float(f[k] + 0.5 * (a - c) / (a - 2 * b + c) * (f[1] - f[0]))
 
 
 def _white_noise(p: np.ndarray, step: float) -> float:

@@ -231,6 +231,9 @@ def _commissioned(sc: dict) -> str:
         return "**FAILED** (see notes)"
     k = c.get("hydraulic_compliance_m_per_Pa") or []
     k_txt = f", k {min(k) * 1e9:.3f}-{max(k) * 1e9:.3f} um/kPa" if k else ""
+    if k:
+        fb = c.get("bounce_hz")
+        k_txt += f", bounce {fb:.2f} Hz" if fb is not None else ", bounce not measured"
     return f"sigma0 {c['sigma0_N_per_m']:.4g} N/m fitted{k_txt}"
 
 
@@ -610,7 +613,7 @@ def commissioning_problems(fit: dict, physical: dict) -> list[str]:
 
 # `physical` keys the evaluation commissions itself (never taken from the simulator's node.json)
 COMMISSIONED_KEYS = ("friction", "loss", "hydraulic_compliance_m_per_Pa", "pressure_noise_Pa",
-                     "displacement_noise_m")
+                     "displacement_noise_m", "bounce_hz")
 # `physical` keys that define what the sensor stream's counts mean (docs/config.md)
 SENSOR_KEYS = ("ropes", "sample_hz", "adc_bits", "cylinder_area_m2", "pressure_channels",
                "displacement_channels", "speed_m_per_pulse", "hall_marks_m", "battery_V_per_count",
@@ -760,6 +763,7 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
         "hydraulic_compliance_m_per_Pa": hyd.get("hydraulic_compliance_m_per_Pa"),
         "pressure_noise_Pa": hyd.get("pressure_noise_Pa"),
         "displacement_noise_m": hyd.get("displacement_noise_m"),
+        "bounce_hz": hyd.get("bounce_hz"),
     }
     for problem in problems:
         case.notes.append(f"**COMMISSIONING FAILED**: {problem}")
@@ -776,7 +780,9 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
             f"plant, seed {seed + COMMISSIONING_SEED_OFFSET}, no sensor faults): k "
             + ", ".join(f"{k * 1e9:.4f}" for k in hyd["hydraulic_compliance_m_per_Pa"])
             + f" um/kPa, pressure noise {hyd['pressure_noise_Pa'] / 1e3:.2f} kPa, displacement noise "
-            + f"{hyd['displacement_noise_m'] * 1e6:.1f} um")
+            + f"{hyd['displacement_noise_m'] * 1e6:.1f} um, bounce at the arrival "
+            + (f"{hyd['bounce_hz']:.2f} Hz" if hyd.get("bounce_hz") is not None
+               else "not measured (the node's default)"))
     oil = np.asarray(truth["oil_temp_C"], float)
     case.notes.append(
         f"node {'NOT ' if problems or refusal else ''}commissioned from a fit of this scenario's own seal on the "

@@ -10,6 +10,7 @@ documented default for the paper's field hoist, shipped as firmware/node.json
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import sys
@@ -36,7 +37,14 @@ DEFAULTS = {
     "friction_cutoff_hz": 1.0,     # low-pass b: 1 Hz without compliance, 0.03 Hz with
     "displacement_noise_m": 2e-5,  # rms noise of the displacement channel (transmitter + ADC)
     "friction_play_sigmas": 2.0,   # play half-width in rms noise of that position
-    "pressure_cutoff_hz": 5.0,     # low-pass of the pressure in k p_l
+    # the pressure tracker that gives p_l (docs/model.md): a steady-state Kalman filter of
+    # the median pressure with a creep at a constant rate and the rope bounce, a damped
+    # oscillator at bounce_hz (measured by fit-compliance); the process noises are the
+    # spectral densities of the creep's and the bounce's random forcing
+    "bounce_hz": 2.8,              # the cage's bounce at the pithead landing
+    "bounce_filter_damping": 0.2,  # the tracker's oscillator (broader than the rope's own)
+    "creep_q_Pa2_s3": 3e9,
+    "bounce_q_Pa2_s3": 3e9,
     "pressure_noise_Pa": 5e3,      # rms noise of the pressure channel (transmitter + ADC)
     "friction_warmup_s": 0.0,      # b a running mean this long after the start: 0 s without, 2 s with
     # balancing strokes (docs/model.md), tracked with a compliance and 2 or more ropes: the
@@ -58,7 +66,7 @@ DEFAULTS = {
 }
 # the defaults that change when a compliance is given
 COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
-                       "friction_play_sigmas": 1.3, "rest_sigmas": 1.0}
+                       "friction_play_sigmas": 1.45, "rest_sigmas": 1.12, "rest_play_sigmas": 4.5}
 # rms of the median of N independent channels of unit rms noise (Gaussian; of two: their
 # mean): the LuGre position's pressure with a compliance (docs/model.md)
 MEDIAN_NOISE = (1.0, 0.7071, 0.6696, 0.5458)
@@ -161,9 +169,89 @@ def compliance(ph: dict, n: int) -> list[float]:
     return [float(x) for x in k]
 
 
-def lowpass_noise(noise: float, alpha: float) -> float:
-    """rms of white noise after the one-pole low-pass y += alpha (x - y)."""
-    return noise * math.sqrt(alpha / (2 - alpha))
+TRACKER_ITERATIONS = 100000  # Riccati steps at most (it converges in a few thousand)
+
+
+@functools.lru_cache(maxsize=64)
+def tracker_gains(fs: float, bounce_hz: float, damping: float, q_creep: float, q_bounce: float,
+                  r: float) -> dict:
+    """The pressure tracker as the node holds it (docs/model.md, "Pressure tracker").
+
+    States (c0, c1, b0, b1): the creep c_{k+1} = 2 c_k - c_{k-1} + w1 and the bounce
+    b_{k+1} = a1 b_k - a2 b_{k-1} + w2 (a damped oscillator), measured as y = c0 + b0 + v;
+    w1, w2 of variance q h**3 (q a spectral density, Pa**2/s**3), v of variance r (Pa**2).
+    Returns a1 and a2 in Q14, the steady-state Kalman gains: of c in Q14, of b in
+    Q(14 + bsh) (b held at 2**bsh finer than c), and `noise_gain`, the rms of the output
+    per rms of white noise at its input (of the quantised filter). Refuses a filter
+    the node cannot hold or that does not settle."""
+    h = 1.0 / fs
+    w = 2 * math.pi * bounce_hz
+    rho = math.exp(-damping * w * h)
+    a1q = round(2 * rho * math.cos(w * h * math.sqrt(max(0.0, 1 - damping * damping))) * 16384)
+    a2q = round(rho * rho * 16384)
+    if not (0 < a2q < 16384 and 0 < a1q < 32768):
+        raise ValueError(f"physical.bounce_hz: {bounce_hz} Hz with damping {damping} at {fs} Hz "
+                         "is outside what the node's tracker holds")
+    a1, a2 = a1q / 16384, a2q / 16384
+    F = ((2.0, -1.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, a1, -a2), (0.0, 0.0, 1.0, 0.0))
+    q = (q_creep * h ** 3, 0.0, q_bounce * h ** 3, 0.0)
+    P = [[r if i == j else 0.0 for j in range(4)] for i in range(4)]
+    K = [0.0] * 4
+    for _ in range(TRACKER_ITERATIONS):
+        FP = [[sum(F[i][m] * P[m][j] for m in range(4)) for j in range(4)] for i in range(4)]
+        Pp = [[sum(FP[i][m] * F[j][m] for m in range(4)) + (q[i] if i == j else 0.0)
+               for j in range(4)] for i in range(4)]
+        ph = [Pp[i][0] + Pp[i][2] for i in range(4)]  # Pp H^T
+        s = ph[0] + ph[2] + r
+        Kn = [x / s for x in ph]
+        P = [[Pp[i][j] - Kn[i] * ph[j] for j in range(4)] for i in range(4)]
+        done = max(abs(x - y) for x, y in zip(Kn, K)) < 1e-13
+        K = Kn
+        if done:
+            break
+    else:
+        raise ValueError("physical.bounce_hz: the pressure tracker's gains do not converge")
+    kc = [round(K[0] * 16384), round(K[1] * 16384)]
+    bsh = 8
+    while bsh > 0 and max(abs(K[2]), abs(K[3])) * (1 << (14 + bsh)) >= 16383.5:
+        bsh -= 1
+    kb = [round(K[2] * (1 << (14 + bsh))), round(K[3] * (1 << (14 + bsh)))]
+    if max(abs(x) for x in kc + kb) > 16384:
+        raise ValueError("physical.creep_q_Pa2_s3: the pressure tracker's gains exceed 1")
+    # the quantised filter's response to a unit impulse: its noise gain, and that it settles
+    g = (kc[0] / 16384, kc[1] / 16384, kb[0] / (1 << (14 + bsh)), kb[1] / (1 << (14 + bsh)))
+    c0 = c1 = b0 = b1 = 0.0
+    acc = tail = 0.0
+    n = int(40 * fs)
+    for j in range(n):
+        c0, c1 = 2 * c0 - c1, c0
+        b0, b1 = a1 * b0 - a2 * b1, b0
+        e = (1.0 if j == 0 else 0.0) - c0 - b0
+        c0 += g[0] * e
+        c1 += g[1] * e
+        b0 += g[2] * e
+        b1 += g[3] * e
+        o = (c0 + b0) ** 2
+        acc += o
+        if j >= n - int(fs):
+            tail += o
+    if not math.isfinite(acc) or tail > 1e-12 * acc:
+        raise ValueError("physical.bounce_hz: the pressure tracker does not settle with these settings")
+    return {"a1_q14": a1q, "a2_q14": a2q, "k_c": kc, "k_b": kb, "b_shift": bsh,
+            "noise_gain": math.sqrt(acc)}
+
+
+def pressure_tracker(ph: dict, fs: float, n: int) -> dict:
+    """tracker_gains for `physical` (with the compliance defaults applied): the median of
+    all n channels' noise, with the node's kPa/16 rounding, is the measurement noise."""
+    return tracker_gains(fs, _num(ph, "bounce_hz", 0.5, fs / 8), _num(ph, "bounce_filter_damping", 0.05, 1.0),
+                         _num(ph, "creep_q_Pa2_s3", 1e3, 1e15), _num(ph, "bounce_q_Pa2_s3", 1e3, 1e15),
+                         (MEDIAN_NOISE[n - 1] * pressure_noise_pa(ph)) ** 2)
+
+
+def pressure_noise_pa(ph: dict) -> float:
+    """rms noise of one pressure channel as the node reads it (in kPa/16 steps)."""
+    return math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6), 1e3 / 16 / math.sqrt(12))
 
 
 def physical_params(ph: dict) -> dict:
@@ -175,11 +263,13 @@ def physical_params(ph: dict) -> dict:
         ph = {**COMPLIANCE_DEFAULTS, **ph}
     fc_hz = _num(ph, "velocity_cutoff_hz", 0.01, fs / 2)
     fz_hz = _num(ph, "friction_cutoff_hz", 0.001, fc_hz)
-    fp_hz = _num(ph, "pressure_cutoff_hz", 0.01, fs / 2)
     # low-pass gains as the node holds them (Q14): a 0.03 Hz gain is 15.4/16384, and the
     # reference must follow the node's 15, not the exact value, to agree within 0.05 %
-    alpha, alpha_z, alpha_p = (max(1, round((1 - math.exp(-2 * math.pi * f / fs)) * 16384)) / 16384
-                               for f in (fc_hz, fz_hz, fp_hz))
+    alpha, alpha_z = (max(1, round((1 - math.exp(-2 * math.pi * f / fs)) * 16384)) / 16384
+                      for f in (fc_hz, fz_hz))
+    if "pressure_cutoff_hz" in ph:
+        raise ValueError("physical.pressure_cutoff_hz: no longer used: the pressure tracker "
+                         "(bounce_hz, docs/config.md) replaced the pressure low-pass")
     xch = _per_rope(ph, "displacement_channels", n)
     try:
         q_m = max((float(c["range_m"][1]) - float(c["range_m"][0]))
@@ -190,12 +280,13 @@ def physical_params(ph: dict) -> dict:
     noise_m = _num(ph, "displacement_noise_m", 0.0, 1e-3)
     # rms noise of the LuGre position that makes false travel: without compliance, the
     # displacement's through both low-passes; with it, k times the noise of the median of
-    # the ropes' pressure channels, each with the node's kPa/16 steps) through its low-pass
-    # (b's noise then wanders too slowly to count). Per count m = 1..n of healthy pressure
-    # channels: the median of fewer is noisier, so a faulted loop widens the play
+    # the ropes' pressure channels, each with the node's kPa/16 steps) through the pressure
+    # tracker (b's noise then wanders too slowly to count). Per count m = 1..n of healthy
+    # pressure channels: the median of fewer is noisier, so a faulted loop widens the play
+    tracker = None
     if any(k):
-        p_noise = lowpass_noise(math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6), 1e3 / 16 / math.sqrt(12)),
-                                alpha_p)
+        tracker = pressure_tracker(ph, fs, n)
+        p_noise = pressure_noise_pa(ph) * tracker["noise_gain"]
         sigmas = [max(k) * MEDIAN_NOISE[m - 1] * p_noise for m in range(1, n + 1)]
     else:
         sigmas = [filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)] * n
@@ -232,7 +323,7 @@ def physical_params(ph: dict) -> dict:
         "ropes": n,
         "alpha": alpha,
         "alpha_z": alpha_z,
-        "alpha_p": alpha_p,
+        "tracker": tracker,          # the pressure tracker (None without a compliance)
         "alpha_e": alpha_e,
         "area_w": area_w,
         "stroke_m": stroke_m,
@@ -251,6 +342,15 @@ def physical_params(ph: dict) -> dict:
         "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
         "p_max_pa": friction_p_max_pa(ph, n),
     }
+
+
+def _tracker_fields(tr: dict | None) -> dict:
+    """The node's `friction.tracker_*` keys (all 0 without a compliance: no tracker runs)."""
+    if tr is None:
+        return {"tracker_a1_q14": 0, "tracker_a2_q14": 0, "tracker_k_q14": [0, 0, 0, 0],
+                "tracker_b_shift": 0}
+    return {"tracker_a1_q14": tr["a1_q14"], "tracker_a2_q14": tr["a2_q14"],
+            "tracker_k_q14": tr["k_c"] + tr["k_b"], "tracker_b_shift": tr["b_shift"]}
 
 
 def sigma0_max(ph: dict) -> float:
@@ -462,7 +562,7 @@ def build_node_section(ph: dict) -> dict:
                       "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
                       "rest_play_q8um": rest_play_q8um, "rest_q16um": rest_q16um,
                       "alpha_l_q14": round(pp["alpha_l"] * 16384), "alpha_a_q14": round(pp["alpha_a"] * 16384),
-                      "alpha_p_q14": max(1, round(pp["alpha_p"] * 16384)), "compliance_q": kq,
+                      **_tracker_fields(pp["tracker"]), "compliance_q": kq,
                       "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),
                       "alpha_e_q14": round(pp["alpha_e"] * 16384), "area_q8": [round(a * 256) for a in pp["area_w"]],
                       "stroke_q8um": stroke_q8um,

@@ -200,6 +200,46 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
 
 
 
+class PressureTracker:
+    """The node's pressure tracker in floats (docs/model.md, "Pressure tracker"), with its
+    quantised gains `tr` (nodeconfig.tracker_gains; None: no compliance, p_l stays 0):
+    a steady-state Kalman filter of the median pressure as a creep at a constant rate plus
+    the rope bounce, a damped oscillator. It starts afresh at the first median after none."""
+
+    def __init__(self, tr: dict | None):
+        self.on = False
+        self.c0 = self.c1 = self.b0 = self.b1 = 0.0
+        self.tr = tr
+        if tr is not None:
+            sb = 1 << (14 + tr["b_shift"])
+            self.a1, self.a2 = tr["a1_q14"] / 16384, tr["a2_q14"] / 16384
+            self.k = (tr["k_c"][0] / 16384, tr["k_c"][1] / 16384, tr["k_b"][0] / sb, tr["k_b"][1] / sb)
+
+    def step(self, y: float | None) -> float:
+        """The estimate p_l after the median `y` (Pa; None: no healthy channel)."""
+        if self.tr is None:
+            return 0.0
+        if y is None:
+            self.on = False
+        elif not self.on:
+            self.on = True
+            self.c0 = self.c1 = y
+            self.b0 = self.b1 = 0.0
+        else:
+            c0, self.c1 = 2 * self.c0 - self.c1, self.c0
+            b0, self.b1 = self.a1 * self.b0 - self.a2 * self.b1, self.b0
+            e = y - c0 - b0
+            k0, k1, k2, k3 = self.k
+            self.c0 = c0 + k0 * e
+            self.c1 += k1 * e
+            self.b0 = b0 + k2 * e
+            self.b1 += k3 * e
+        return min(max(self.c0 + self.b0, -P_L_MAX_PA), P_L_MAX_PA)
+
+
+P_L_MAX_PA = 1e8  # p_l is held within +-100 MPa, as the node holds it (kernel.py)
+
+
 def _median(values: list) -> float:
     """The median (of an even count: the mean of the middle two); 0 for none."""
     v = sorted(values)
@@ -223,7 +263,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
     k, n = P.shape
     alpha, dx_max, plays = pp["alpha"], pp["v_max"] / fs, pp["plays_m"]
     rest, rest_plays, alpha_l, alpha_a = pp["rest_m"], pp["rest_plays_m"], pp["alpha_l"], pp["alpha_a"]
-    alpha_z, alpha_p, alpha_e, warm = pp["alpha_z"], pp["alpha_p"], pp["alpha_e"], pp["warmup"]
+    alpha_z, alpha_e, warm = pp["alpha_z"], pp["alpha_e"], pp["warmup"]
+    tracker = PressureTracker(pp["tracker"])
     kh, aw = pp["compliance"], pp["area_w"]
     th, vmin, settle = pp["stroke_m"], pp["stroke_vmin"], pp["stroke_settle"]
     dx = np.zeros((k, n))
@@ -239,6 +280,7 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
         pm = _median(healthy)
         c = len(healthy) - 1 if healthy else n - 1  # the median of fewer is noisier
         play, rest_play, hold = plays[c], rest_plays[c], rest[c]
+        pk = tracker.step(pm if healthy else None)
         cv = 0.0
         allw = th > 0
         for i in range(n):
@@ -250,13 +292,13 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                 started[i] = True
                 xf[i] = xs[i] = xp[i] = xh[i] = xl[i] = xr[i]
                 act[i] = REST_D_MAX  # not quiet until the activity has settled
-                pl[i] = pm
+                pl[i] = pk
                 xb[i] = xr[i] - kh[i] * pl[i]
                 w[i] = 0
                 e[i] = 0.0
                 allw = False
             m = kh[i] * pl[i]
-            pl[i] += alpha_p * (pm - pl[i])
+            pl[i] = pk
             mot[i] = clamp(kh[i] * pl[i] - m, dx_max)
             cv += mot[i] * aw[i]
             if w[i] < warm:

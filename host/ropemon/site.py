@@ -648,6 +648,7 @@ def _read_friction(path: Path | str) -> Any:
 COMPLIANCE_K_MAX = 1e-6      # m/Pa: the node's limit (ropemon.nodeconfig.compliance)
 PRESSURE_NOISE_MAX_PA = 1e6  # rms: the node's limit for pressure_noise_Pa
 DISPLACEMENT_NOISE_MAX_M = 1e-3  # rms: the node's limit for displacement_noise_m
+BOUNCE_MIN_HZ, BOUNCE_MAX_HZ = 0.5, 125.0  # the node's limits for bounce_hz (at most sample_hz/8)
 
 
 def read_compliance(path: Path | str) -> Any:
@@ -660,7 +661,8 @@ def check_compliance(fit: Any, ropes: int, name: str = "compliance") -> dict[str
 
     Returns the keys the `physical` section takes from it: the hydraulic compliance
     k per rope (0..1e-6 m/Pa), the rms pressure noise (> 0 Pa) and, when the fit has
-    it (fits before it was measured do not), the rms displacement noise (> 0 m).
+    them (fits before they were measured do not; `bounce_hz` null: not measured), the rms
+    displacement noise (> 0 m) and the cage's bounce at the pithead (0.5 .. 125 Hz).
     """
     if not isinstance(fit, dict):
         raise SiteError(f"{name}: must be an object, got {type(fit).__name__}")
@@ -677,6 +679,8 @@ def check_compliance(fit: Any, ropes: int, name: str = "compliance") -> dict[str
     if "displacement_noise_m" in fit:
         out["displacement_noise_m"] = _check_number(fit["displacement_noise_m"], f"{name}.displacement_noise_m",
                                                     gt=0, le=DISPLACEMENT_NOISE_MAX_M)
+    if fit.get("bounce_hz") is not None:  # null: not measured, the node keeps its default
+        out["bounce_hz"] = _check_number(fit["bounce_hz"], f"{name}.bounce_hz", ge=BOUNCE_MIN_HZ, le=BOUNCE_MAX_HZ)
     return out
 
 

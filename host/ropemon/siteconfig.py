@@ -66,7 +66,9 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
                  [f"hydraulic compliance {', '.join(f'{x * 1e12:.0f}' for x in k)} um/MPa per rope, "
                   f"pressure noise {ph['pressure_noise_Pa'] / 1e3:.1f} kPa rms"
                   + (f", displacement noise {ph['displacement_noise_m'] * 1e6:.1f} um rms"
-                     if "displacement_noise_m" in ph else "")])
+                     if "displacement_noise_m" in ph else "")
+                  + (f", bounce at the pithead {ph['bounce_hz']:.2f} Hz" if "bounce_hz" in ph
+                     else ", bounce not measured (the node's default)")])
     return "\n".join([
         f"site {site.name}: node {ph['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
         f"{ph['frame_hz']} Hz frames",

@@ -331,3 +331,38 @@ def test_uncertain_k_is_refused(ph):
     xs = [x0 + k * p + rng.normal(0, 4e-5, p.size) for k, x0 in zip(K_TRUE, X0)]
     with pytest.raises(compliance.ComplianceError, match=r"rope 1: k = .* uncertain by .* %"):
         compliance.fit(ph, records(ph, ps, xs))
+
+
+def arrival(ph: dict, bounce_hz: float | None, amp_pa: float = 20e3, seed: int = 9,
+            stop_s: float = 12.0, moving: bool = True) -> np.ndarray:
+    """A wind's end: the hoist runs at 5 m/s (counter pulses), stops at `stop_s`, and the
+    cage bounces at `bounce_hz` (decaying, 3 s) on 9 MPa, with 5 kPa of transmitter noise."""
+    rng = np.random.default_rng(seed)
+    n_s = int(20 * HZ)
+    t = np.arange(n_s) / HZ
+    p = 9e6 + np.zeros(n_s)
+    if bounce_hz is not None:
+        after = t >= stop_s
+        p[after] += amp_pa * np.exp(-(t[after] - stop_s) / 3) * np.sin(2 * np.pi * bounce_hz * (t[after] - stop_s))
+    ps = [p + rng.normal(0, P_NOISE, n_s) for _ in K_TRUE]
+    xs = [x0 + k * p for k, x0 in zip(K_TRUE, X0)]
+    rec = records(ph, ps, xs)
+    if moving:  # 5 m/s of 10 mm pulses: 2.5 per sample, on a counter that wraps at 2**16
+        pulses = np.floor(np.minimum(t, stop_s) * 5.0 / ph["speed_m_per_pulse"]).astype(np.int64)
+        rec[:, 2 * ph["ropes"] + 2] = (pulses + 60000) % 65536
+    return rec
+
+
+@pytest.mark.parametrize("f", [1.6, 2.3, 2.8, 4.5])
+def test_the_bounce_after_the_arrival_is_measured(ph, f):
+    assert compliance.bounce_hz(ph, arrival(ph, f)) == pytest.approx(f, abs=0.03)
+
+
+def test_no_bounce_is_reported_without_a_stop_or_a_line_above_the_noise(ph):
+    assert compliance.bounce_hz(ph, arrival(ph, 2.3, moving=False)) is None    # the hoist never ran
+    assert compliance.bounce_hz(ph, arrival(ph, 2.3, stop_s=17.0)) is None     # under 4 s after the stop
+    assert compliance.bounce_hz(ph, arrival(ph, None)) is None                 # noise alone
+    assert compliance.bounce_hz(ph, arrival(ph, 2.3, amp_pa=300.0)) is None     # buried in the noise
+    # a fit's output carries it (None when not measured), and `ropemon config` takes it
+    res = compliance.fit(ph, synthetic(ph))
+    assert res.bounce_hz is None and res.as_dict()["bounce_hz"] is None

@@ -1,4 +1,4 @@
-"""tools/observer_losses.py: the friction error stage by stage (true position, low-pass, play, node,
+"""tools/observer_losses.py: the friction error stage by stage (true position, tracker, play, node,
 and the node's two halves apart)."""
 from __future__ import annotations
 
@@ -38,15 +38,16 @@ def test_stages_on_the_short_wind(tmp_path, capsys):
     # the node's LuGre, fitted on the test bed, driven by the plant's own piston position
     # reproduces the plant's seal friction
     assert rows[0]["rope_rms_pct"] < 0.05 and rows[0]["rope_peak_pct"] < 0.1
-    # the pressure low-pass alone already costs accuracy: it hides part of the bounce
+    # the pressure tracker alone already costs accuracy: it hides part of the bounce
     assert rows[1]["rope_rms_pct"] > 5 * rows[0]["rope_rms_pct"]
     # the node's observer, scored friction-only, is near the full compensation's figure
     full = EV.M.evaluate_estimate(case.estimates["lugre-p"], case.truth_n, case.rated_n, case.phase,
                                   case.excluded, case.steady, case.payload_kg)
     assert abs(rows[3]["rope_rms_pct"] - full["rope_rms_pct"]) < 0.1
-    # on this wind either half of the node's LuGre (the other half true) is between the truth and the node
+    # either half of the node's LuGre (the other half true) is off the truth, and of the
+    # node's own size (the two halves' errors partly cancel in the node: one may exceed it)
     for half in rows[4:]:
-        assert rows[0]["rope_rms_pct"] < half["rope_rms_pct"] < rows[3]["rope_rms_pct"]
+        assert rows[0]["rope_rms_pct"] < half["rope_rms_pct"] < 2 * rows[3]["rope_rms_pct"]
     assert ol.main([str(work)]) == 0
     table = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| short-test")]
     assert len(table) == len(ol.STAGES) == 6

@@ -25,9 +25,15 @@ def test_sensitivity_table_has_every_setting(tmp_path, capsys, monkeypatch):
     assert "balancing strokes not tracked (stroke_sigmas 0)" in labels
     assert sum(lab.startswith("rest_sigmas ") for lab in labels) == 2
     assert "no rest hold (rest_sigmas 0)" in labels
-    # each row: play (um) and four figures, numbers; the plays differ with the multiplier
+    # the pressure tracker: its bounce 0.3 Hz either side, its damping and process noises
+    assert sum(lab.startswith("bounce_hz ") for lab in labels) == 2
+    assert sum(lab.startswith("bounce_filter_damping ") for lab in labels) == 2
+    assert sum(lab.startswith(("creep_q_Pa2_s3 x ", "bounce_q_Pa2_s3 x ")) for lab in labels) == 4
+    # each row: play (um) and four figures, numbers; the plays differ with the multiplier,
+    # and with the tracker's bandwidth (more process noise: more of the pressure noise passes)
     plays = {lab: float(r.split("|")[2]) for lab, r in zip(labels, rows)}
-    assert plays["friction_play_sigmas 1.1"] < plays["as commissioned"] < plays["friction_play_sigmas 2"]
+    assert plays["friction_play_sigmas 1.2"] < plays["as commissioned"] < plays["friction_play_sigmas 2"]
+    assert plays["creep_q_Pa2_s3 x 0.333"] < plays["as commissioned"] < plays["creep_q_Pa2_s3 x 3"]
     for r in rows:  # setting | play | rope RMS | rope peak | pithead empty | pithead arrived
         cells = [c.strip() for c in r.strip("|").split("|")]
         assert len(cells) == 6, r

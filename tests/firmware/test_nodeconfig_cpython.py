@@ -8,7 +8,7 @@ import pytest
 
 from ropemon.firmware import FIRMWARE_DIR, node_module
 from ropemon.nodeconfig import (COMPLIANCE_DEFAULTS, MEDIAN_NOISE, build_node_section, example_physical,
-                                make_node_json)
+                                make_node_json, tracker_gains)
 
 config = node_module("config")
 
@@ -112,17 +112,19 @@ def test_lugre_observer_defaults_and_integers():
 def test_with_a_compliance_the_play_widens_as_pressure_channels_fail():
     """With a compliance the play is sized for the noise of the median of the healthy
     pressure channels: per count m = 1..4 of them, k times MEDIAN_NOISE[m - 1] times one
-    channel's noise (kPa/16 steps included) after the 5 Hz low-pass, times the sigmas."""
+    channel's noise (kPa/16 steps included) after the pressure tracker (designed for the
+    median of all four), times the sigmas."""
     ph = example_physical()
     ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
     ph["pressure_noise_Pa"] = 5200.0
     ph.pop("friction_play_sigmas")  # the compliance default
     fr = build_node_section(ph)["friction"]
-    a = round((1 - math.exp(-2 * math.pi * 5.0 / 200)) * 16384) / 16384
-    one = math.hypot(5200.0, 1e3 / 16 / math.sqrt(12)) * math.sqrt(a / (2 - a))
+    raw = math.hypot(5200.0, 1e3 / 16 / math.sqrt(12))
+    one = raw * tracker_gains(200.0, 2.8, 0.2, 3e9, 3e9, (MEDIAN_NOISE[3] * raw) ** 2)["noise_gain"]
     for m in range(1, 5):
         expect = COMPLIANCE_DEFAULTS["friction_play_sigmas"] * 3e-10 * MEDIAN_NOISE[m - 1] * one * 256e6
-        assert abs(fr["play_q8um"][m - 1] - expect) <= 1.28, (m, fr["play_q8um"], expect)
+        # half a 0.01 um play step (1.28) and half a count of um/256
+        assert abs(fr["play_q8um"][m - 1] - expect) <= 1.78, (m, fr["play_q8um"], expect)
     assert fr["play_q8um"][0] > fr["play_q8um"][1] > fr["play_q8um"][2] > fr["play_q8um"][3]
 
 
