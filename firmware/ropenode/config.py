@@ -45,7 +45,8 @@ friction.sigma2_shift 9 30
 friction.alpha_z_q14 1 16384
 friction.tracker_a1_q14 0 32767
 friction.tracker_a2_q14 0 16383
-friction.tracker_b_shift 0 8
+friction.tracker_v_shift 0 12
+friction.tracker_b_shift 0 5
 friction.compliance_shift 5 30
 friction.warmup_samples 0 65535
 friction.alpha_e_q14 1 4096
@@ -309,7 +310,8 @@ def parse_node(nd):
     for i in range(n):
         if c.rest_q16um[i] and c.rest_play_q8um[i] < c.play_q8um[i]:
             raise ConfigError("%s.rest_play_q8um[%d]" % (FP, i), "narrower than play_q8um")
-    # the pressure tracker's Kalman gains: c0, c1 (Q14), b0, b1 (Q(14 + tracker_b_shift))
+    # the pressure tracker's Kalman gains: of c (Q14), v (Q(14 + tracker_v_shift)), b0, b1
+    # (Q(14 + tracker_b_shift))
     c.tracker_k_q14 = _ints(fr, "tracker_k_q14", FP, 4, 4, -16384, 16384)
     c.gexp_q14 = _ints(fr, "gexp_q14", FP, GEXP_POINTS, GEXP_POINTS, 0, 16384)
     if c.gexp_q14[GEXP_POINTS - 1] != 0:

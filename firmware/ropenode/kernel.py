@@ -85,9 +85,10 @@ _SSET = const(49)    # samples of one direction before a stroke is looked for
 _AL = const(50)      # rest hold: gain of the slow low-pass x_l, Q14
 _AA = const(51)      # rest hold: gain of the activity low-pass, Q14
 _TA2 = const(52)     # pressure tracker: the bounce's a2, Q14
-_TK = const(53)      # its Kalman gains (4): of c0, c1 in Q14, of b0, b1 in Q(14 + TBSH)
-_TBSH = const(57)    # b is held 2**TBSH finer than c
-_AREA = const(58)    # cylinder area per rope over the ropes' mean, Q8
+_TK = const(53)      # its Kalman gains (4): of c in Q14, v in Q(14 + TVSH), b0, b1 in Q(14 + TBSH)
+_TVSH = const(57)    # v is held 2**TVSH finer than c
+_TBSH = const(58)    # b is held 2**TBSH finer than c
+_AREA = const(59)    # cylinder area per rope over the ropes' mean, Q8
 _KQ = const(_AREA + ROPES_MAX)  # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
 _PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n healthy pressure channels
 _RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
@@ -165,9 +166,9 @@ _XL = const(160)       # per rope: the rest hold's slow low-pass x_l of x_s, um/
 _XLREM = const(164)    # its error-feedback remainder
 _ACT = const(168)      # per rope: low-pass of |x_s - x_l|, um/65536 (quiet below _RTH)
 _TON = const(172)      # pressure tracker running (0: starts at the next median)
-_TC0 = const(173)      # its creep c_k, kPa/256
-_TC1 = const(174)      # c_(k-1)
-_TB0 = const(175)      # its bounce b_k, kPa/256 / 2**TBSH
+_TC = const(173)       # its creep c, kPa/2048
+_TV = const(174)       # the creep's rate c_k - c_(k-1), kPa/2048 / 2**TVSH per sample
+_TB0 = const(175)      # its bounce b_k, kPa/2048 / 2**TBSH
 _TB1 = const(176)      # b_(k-1)
 _S_LEN = const(177)
 
@@ -193,7 +194,7 @@ def pack(c):
         _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14,
         c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16,
         c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (
-        c.tracker_b_shift,)
+        c.tracker_v_shift, c.tracker_b_shift)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS),
@@ -337,21 +338,20 @@ def step(rec, P, S, n):
             if r == hi:
                 pm += c
     # the pressure tracker (docs/model.md): a steady-state Kalman filter of the median,
-    # y = 2 pm << 2 in kPa/256 (|p| <= 100000 kPa: |y| < 2**25), as a creep c at a constant
-    # rate plus the rope bounce b, a damped oscillator; p_l = c0 + b0. It starts afresh at
-    # the first median after none. Products split at 14 bits: |x| < 2**28, |gain| <= 2**15
+    # y = pm << 6 in kPa/2048 (|p| <= 100000 kPa: |y| < 2**28), as a creep c at the rate v
+    # plus the rope bounce b, a damped oscillator; p_l = c + b0 (kPa/256). It starts afresh
+    # at the first median after none. Products split at 14 bits: |x| < 2**28, |gain| < 2**15
     if m > 0:
-        y = pm << 3
+        y = pm << 6
         if S[_TON] == 0:
             S[_TON] = 1
-            S[_TC0] = y
-            S[_TC1] = y
+            S[_TC] = y
+            S[_TV] = 0
             S[_TB0] = 0
             S[_TB1] = 0
         else:
-            c0 = S[_TC0]
-            t = c0 + c0 - S[_TC1]
-            S[_TC1] = c0
+            a = P[_TVSH]
+            t = S[_TC] + ((S[_TV] + ((1 << a) >> 1)) >> a)
             b0 = S[_TB0]
             b1 = S[_TB1]
             a = P[_TA1]
@@ -359,25 +359,28 @@ def step(rec, P, S, n):
             a = P[_TA2]
             d -= (b1 >> 14) * a + (((b1 & 16383) * a + 8192) >> 14)
             S[_TB1] = b0
-            bsh = P[_TBSH]
-            e = y - t - (d >> bsh)
+            e = y - t - (d >> P[_TBSH])
+            if e > 0x10000000:  # a step of 131 MPa: beyond any pressure
+                e = 0x10000000
+            elif e < -0x10000000:
+                e = -0x10000000
             a = P[_TK]
             t += (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
             a = P[_TK + 1]
-            c1 = S[_TC1] + (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
+            c1 = S[_TV] + (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
             a = P[_TK + 2]
             d += (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
             a = P[_TK + 3]
             b1 = S[_TB1] + (e >> 14) * a + (((e & 16383) * a + 8192) >> 14)
-            # a pressure (c, kPa/256) within +-2**26, the bounce within +-2**26 as held
-            if t > 0x4000000:
-                t = 0x4000000
-            elif t < -0x4000000:
-                t = -0x4000000
-            if c1 > 0x4000000:
-                c1 = 0x4000000
-            elif c1 < -0x4000000:
-                c1 = -0x4000000
+            # c and v within +-2**28, the bounce within +-2**26, as held
+            if t > 0x10000000:
+                t = 0x10000000
+            elif t < -0x10000000:
+                t = -0x10000000
+            if c1 > 0x10000000:
+                c1 = 0x10000000
+            elif c1 < -0x10000000:
+                c1 = -0x10000000
             if d > 0x4000000:
                 d = 0x4000000
             elif d < -0x4000000:
@@ -386,13 +389,13 @@ def step(rec, P, S, n):
                 b1 = 0x4000000
             elif b1 < -0x4000000:
                 b1 = -0x4000000
-            S[_TC0] = t
-            S[_TC1] = c1
+            S[_TC] = t
+            S[_TV] = c1
             S[_TB0] = d
             S[_TB1] = b1
     else:
         S[_TON] = 0
-    pk = S[_TC0] + (S[_TB0] >> P[_TBSH])
+    pk = (S[_TC] + (S[_TB0] >> P[_TBSH]) + 4) >> 3
     if pk > 25600000:  # p_l a pressure within +-100000 kPa, as the median is (< 2**25)
         pk = 25600000
     elif pk < -25600000:

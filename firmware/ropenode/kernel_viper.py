@@ -64,8 +64,9 @@ _AL = const(50)
 _AA = const(51)
 _TA2 = const(52)
 _TK = const(53)
-_TBSH = const(57)
-_AREA = const(58)
+_TVSH = const(57)
+_TBSH = const(58)
+_AREA = const(59)
 _KQ = const(_AREA + ROPES_MAX)
 _PLAYS = const(_KQ + ROPES_MAX)
 _RPLAYS = const(_PLAYS + ROPES_MAX)
@@ -141,8 +142,8 @@ _XL = const(160)
 _XLREM = const(164)
 _ACT = const(168)
 _TON = const(172)
-_TC0 = const(173)
-_TC1 = const(174)
+_TC = const(173)
+_TV = const(174)
 _TB0 = const(175)
 _TB1 = const(176)
 _S_LEN = const(177)
@@ -159,7 +160,7 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_b_shift,)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_v_shift, c.tracker_b_shift)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
@@ -290,17 +291,16 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             if r == hi:
                 pm += c
     if m > 0:
-        y = pm << 3
+        y = pm << 6
         if (S[_TON] ^ s31) - s31 == 0:
             S[_TON] = 1
-            S[_TC0] = y
-            S[_TC1] = y
+            S[_TC] = y
+            S[_TV] = 0
             S[_TB0] = 0
             S[_TB1] = 0
         else:
-            c0 = (S[_TC0] ^ s31) - s31
-            t = c0 + c0 - ((S[_TC1] ^ s31) - s31)
-            S[_TC1] = c0
+            a = (P[_TVSH] ^ s31) - s31
+            t = (S[_TC] ^ s31) - s31 + ((S[_TV] ^ s31) - s31 + (1 << a >> 1) >> a)
             b0 = (S[_TB0] ^ s31) - s31
             b1 = (S[_TB1] ^ s31) - s31
             a = (P[_TA1] ^ s31) - s31
@@ -308,24 +308,27 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             a = (P[_TA2] ^ s31) - s31
             d -= (b1 >> 14) * a + ((b1 & 16383) * a + 8192 >> 14)
             S[_TB1] = b0
-            bsh = (P[_TBSH] ^ s31) - s31
-            e = y - t - (d >> bsh)
+            e = y - t - (d >> (P[_TBSH] ^ s31) - s31)
+            if e > 268435456:
+                e = 268435456
+            elif e < -268435456:
+                e = -268435456
             a = (P[_TK] ^ s31) - s31
             t += (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
             a = (P[_TK + 1] ^ s31) - s31
-            c1 = (S[_TC1] ^ s31) - s31 + (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
+            c1 = (S[_TV] ^ s31) - s31 + (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
             a = (P[_TK + 2] ^ s31) - s31
             d += (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
             a = (P[_TK + 3] ^ s31) - s31
             b1 = (S[_TB1] ^ s31) - s31 + (e >> 14) * a + ((e & 16383) * a + 8192 >> 14)
-            if t > 67108864:
-                t = 67108864
-            elif t < -67108864:
-                t = -67108864
-            if c1 > 67108864:
-                c1 = 67108864
-            elif c1 < -67108864:
-                c1 = -67108864
+            if t > 268435456:
+                t = 268435456
+            elif t < -268435456:
+                t = -268435456
+            if c1 > 268435456:
+                c1 = 268435456
+            elif c1 < -268435456:
+                c1 = -268435456
             if d > 67108864:
                 d = 67108864
             elif d < -67108864:
@@ -334,13 +337,13 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                 b1 = 67108864
             elif b1 < -67108864:
                 b1 = -67108864
-            S[_TC0] = t
-            S[_TC1] = c1
+            S[_TC] = t
+            S[_TV] = c1
             S[_TB0] = d
             S[_TB1] = b1
     else:
         S[_TON] = 0
-    pk = (S[_TC0] ^ s31) - s31 + ((S[_TB0] ^ s31) - s31 >> (P[_TBSH] ^ s31) - s31)
+    pk = (S[_TC] ^ s31) - s31 + ((S[_TB0] ^ s31) - s31 >> (P[_TBSH] ^ s31) - s31) + 4 >> 3
     if pk > 25600000:
         pk = 25600000
     elif pk < -25600000:

@@ -180,10 +180,12 @@ def tracker_gains(fs: float, bounce_hz: float, damping: float, q_creep: float, q
     States (c0, c1, b0, b1): the creep c_{k+1} = 2 c_k - c_{k-1} + w1 and the bounce
     b_{k+1} = a1 b_k - a2 b_{k-1} + w2 (a damped oscillator), measured as y = c0 + b0 + v;
     w1, w2 of variance q h**3 (q a spectral density, Pa**2/s**3), v of variance r (Pa**2).
-    Returns a1 and a2 in Q14, the steady-state Kalman gains: of c in Q14, of b in
-    Q(14 + bsh) (b held at 2**bsh finer than c), and `noise_gain`, the rms of the output
-    per rms of white noise at its input (of the quantised filter). Refuses a filter
-    the node cannot hold or that does not settle."""
+    The node holds the creep as c and its rate v = c(k) - c(k-1): returns a1 and a2 in
+    Q14, the steady-state Kalman gains of (c, v, b0, b1) as the node holds them (`k_q14`:
+    of c in Q14, of v in Q(14 + v_shift), of b in Q(14 + b_shift); v and b held 2**shift
+    finer than c), and `noise_gain`, the rms of the output per rms of white noise at its
+    input (of the quantised filter). Refuses a filter the node cannot hold or that does
+    not settle."""
     h = 1.0 / fs
     w = 2 * math.pi * bounce_hz
     rho = math.exp(-damping * w * h)
@@ -211,33 +213,39 @@ def tracker_gains(fs: float, bounce_hz: float, damping: float, q_creep: float, q
             break
     else:
         raise ValueError("physical.bounce_hz: the pressure tracker's gains do not converge")
-    kc = [round(K[0] * 16384), round(K[1] * 16384)]
-    bsh = 8
+    # the node holds the creep as (c, v), v = c(k) - c(k-1) 2**vsh finer than c, and the
+    # bounce 2**bsh finer than c (c itself in kPa/2048): each gain within 2**14 in its scale
+    kv_f = K[0] - K[1]
+    vsh = 0
+    while vsh < 12 and abs(kv_f) * (1 << (15 + vsh)) < 16383.5:
+        vsh += 1
+    bsh = 5
     while bsh > 0 and max(abs(K[2]), abs(K[3])) * (1 << (14 + bsh)) >= 16383.5:
         bsh -= 1
-    kb = [round(K[2] * (1 << (14 + bsh))), round(K[3] * (1 << (14 + bsh)))]
-    if max(abs(x) for x in kc + kb) > 16384:
+    kq = [round(K[0] * 16384), round(kv_f * (1 << (14 + vsh))),
+          round(K[2] * (1 << (14 + bsh))), round(K[3] * (1 << (14 + bsh)))]
+    if max(abs(x) for x in kq) > 16384:
         raise ValueError("physical.creep_q_Pa2_s3: the pressure tracker's gains exceed 1")
     # the quantised filter's response to a unit impulse: its noise gain, and that it settles
-    g = (kc[0] / 16384, kc[1] / 16384, kb[0] / (1 << (14 + bsh)), kb[1] / (1 << (14 + bsh)))
-    c0 = c1 = b0 = b1 = 0.0
+    g = (kq[0] / 16384, kq[1] / (1 << (14 + vsh)), kq[2] / (1 << (14 + bsh)), kq[3] / (1 << (14 + bsh)))
+    c = v = b0 = b1 = 0.0
     acc = tail = 0.0
     n = int(40 * fs)
     for j in range(n):
-        c0, c1 = 2 * c0 - c1, c0
+        c += v
         b0, b1 = a1 * b0 - a2 * b1, b0
-        e = (1.0 if j == 0 else 0.0) - c0 - b0
-        c0 += g[0] * e
-        c1 += g[1] * e
+        e = (1.0 if j == 0 else 0.0) - c - b0
+        c += g[0] * e
+        v += g[1] * e
         b0 += g[2] * e
         b1 += g[3] * e
-        o = (c0 + b0) ** 2
+        o = (c + b0) ** 2
         acc += o
         if j >= n - int(fs):
             tail += o
     if not math.isfinite(acc) or tail > 1e-12 * acc:
         raise ValueError("physical.bounce_hz: the pressure tracker does not settle with these settings")
-    return {"a1_q14": a1q, "a2_q14": a2q, "k_c": kc, "k_b": kb, "b_shift": bsh,
+    return {"a1_q14": a1q, "a2_q14": a2q, "k_q14": kq, "v_shift": vsh, "b_shift": bsh,
             "noise_gain": math.sqrt(acc)}
 
 
@@ -348,9 +356,9 @@ def _tracker_fields(tr: dict | None) -> dict:
     """The node's `friction.tracker_*` keys (all 0 without a compliance: no tracker runs)."""
     if tr is None:
         return {"tracker_a1_q14": 0, "tracker_a2_q14": 0, "tracker_k_q14": [0, 0, 0, 0],
-                "tracker_b_shift": 0}
-    return {"tracker_a1_q14": tr["a1_q14"], "tracker_a2_q14": tr["a2_q14"],
-            "tracker_k_q14": tr["k_c"] + tr["k_b"], "tracker_b_shift": tr["b_shift"]}
+                "tracker_v_shift": 0, "tracker_b_shift": 0}
+    return {"tracker_a1_q14": tr["a1_q14"], "tracker_a2_q14": tr["a2_q14"], "tracker_k_q14": tr["k_q14"],
+            "tracker_v_shift": tr["v_shift"], "tracker_b_shift": tr["b_shift"]}
 
 
 def sigma0_max(ph: dict) -> float:

@@ -208,12 +208,13 @@ class PressureTracker:
 
     def __init__(self, tr: dict | None):
         self.on = False
-        self.c0 = self.c1 = self.b0 = self.b1 = 0.0
+        self.c = self.v = self.b0 = self.b1 = 0.0
         self.tr = tr
         if tr is not None:
-            sb = 1 << (14 + tr["b_shift"])
+            k = tr["k_q14"]
             self.a1, self.a2 = tr["a1_q14"] / 16384, tr["a2_q14"] / 16384
-            self.k = (tr["k_c"][0] / 16384, tr["k_c"][1] / 16384, tr["k_b"][0] / sb, tr["k_b"][1] / sb)
+            self.k = (k[0] / 16384, k[1] / (1 << (14 + tr["v_shift"])),
+                      k[2] / (1 << (14 + tr["b_shift"])), k[3] / (1 << (14 + tr["b_shift"])))
 
     def step(self, y: float | None) -> float:
         """The estimate p_l after the median `y` (Pa; None: no healthy channel)."""
@@ -223,18 +224,18 @@ class PressureTracker:
             self.on = False
         elif not self.on:
             self.on = True
-            self.c0 = self.c1 = y
-            self.b0 = self.b1 = 0.0
+            self.c = y
+            self.v = self.b0 = self.b1 = 0.0
         else:
-            c0, self.c1 = 2 * self.c0 - self.c1, self.c0
+            c = self.c + self.v
             b0, self.b1 = self.a1 * self.b0 - self.a2 * self.b1, self.b0
-            e = y - c0 - b0
-            k0, k1, k2, k3 = self.k
-            self.c0 = c0 + k0 * e
-            self.c1 += k1 * e
+            e = y - c - b0
+            k0, kv, k2, k3 = self.k
+            self.c = c + k0 * e
+            self.v += kv * e
             self.b0 = b0 + k2 * e
             self.b1 += k3 * e
-        return min(max(self.c0 + self.b0, -P_L_MAX_PA), P_L_MAX_PA)
+        return min(max(self.c + self.b0, -P_L_MAX_PA), P_L_MAX_PA)
 
 
 P_L_MAX_PA = 1e8  # p_l is held within +-100 MPa, as the node holds it (kernel.py)

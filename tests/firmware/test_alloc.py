@@ -61,10 +61,11 @@ def variant_doc(ropes=None, temp_fitted=False, compliance=False):
         nd["friction"].update(rest_q16um=[8 << 16] * nd["ropes"],
                               rest_play_q8um=[p + 256 for p in nd["friction"]["play_q8um"]])
         # the pressure tracker at the extremes of its gains (the oscillator undamped at 0 Hz,
-        # every gain +-1, the bounce as coarse as the creep): it may run away, and its
+        # every gain +-1 in its scale, the rate as fine and the bounce as coarse as they go): it may run away, and its
         # clamps must hold it
         nd["friction"].update(tracker_a1_q14=32767, tracker_a2_q14=16383,
-                              tracker_k_q14=[16384, -16384, 16384, -16384], tracker_b_shift=0)
+                              tracker_k_q14=[16384, -16384, 16384, -16384], tracker_v_shift=12,
+                              tracker_b_shift=0)
         nd["friction"].update(compliance_q=[131071] * nd["ropes"], compliance_shift=9,
                               warmup_samples=400, alpha_e_q14=4096, stroke_q8um=1, stroke_vmin_q16=0,
                               stroke_settle=0, area_q8=[(128, 384)[i % 2] for i in range(nd["ropes"])])
