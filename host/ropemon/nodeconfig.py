@@ -32,7 +32,7 @@ DEFAULTS = {
     # LuGre observer (docs/model.md, "LuGre"): the seal state follows a slower
     # low-pass of position, through a play of a few noise sigmas for the dissipation.
     # With a hydraulic compliance k (m/Pa per rope), that position is x_h = k p_l + b:
-    # the oil's compression from the low-passed pressure p_l, plus b, a slow low-pass of
+    # the oil's compression from the tracked pressure p_l, plus b, a slow low-pass of
     # x_f - k p_l (docs/model.md, "LuGre (noise-robust observer)").
     "friction_cutoff_hz": 1.0,     # low-pass b: 1 Hz without compliance, 0.03 Hz with
     "displacement_noise_m": 2e-5,  # rms noise of the displacement channel (transmitter + ADC)

@@ -256,8 +256,9 @@ REST_D_MAX = 64e-6  # |x_s - x_l| is clamped here for the activity (as the node:
 def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.ndarray, fs: float,
               strokes: list | None = None):
     """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
-    position x_h = k p_l + b (p_l the low-passed median of the healthy pressure channels)
-    and its play, with the balancing-stroke tracking and the rest hold (docs/model.md).
+    position x_h = k p_l + b (p_l the pressure tracker's estimate of the median of the
+    healthy pressure channels) and its play, with the balancing-stroke tracking and the
+    rest hold (docs/model.md).
 
     Runs while both loops of a rope are healthy and starts again (with its warm-up)
     after a fault of either; strokes are tracked only while every rope runs warmed up."""
