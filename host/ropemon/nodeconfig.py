@@ -178,8 +178,8 @@ def tracker_gains(fs: float, bounce_hz: float, damping: float, q_creep: float, q
     """The pressure tracker as the node holds it (docs/model.md, "Pressure tracker").
 
     States (c0, c1, b0, b1): the creep c_{k+1} = 2 c_k - c_{k-1} + w1 and the bounce
-    b_{k+1} = a1 b_k - a2 b_{k-1} + w2 (a damped oscillator), measured as y = c0 + b0 + v;
-    w1, w2 of variance q h**3 (q a spectral density, Pa**2/s**3), v of variance r (Pa**2).
+    b_{k+1} = a1 b_k - a2 b_{k-1} + w2 (a damped oscillator), measured as y = c0 + b0 + n;
+    w1, w2 of variance q h**3 (q a spectral density, Pa**2/s**3), n of variance r (Pa**2).
     The node holds the creep as c and its rate v = c(k) - c(k-1): returns a1 and a2 in
     Q14, the steady-state Kalman gains of (c, v, b0, b1) as the node holds them (`k_q14`:
     of c in Q14, of v in Q(14 + v_shift), of b in Q(14 + b_shift); v and b held 2**shift
