@@ -1,0 +1,113 @@
+"""tools/pithead_spread.py: the pithead total rerun on recombined seeds' inputs."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import runpy
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location("pithead_spread", ROOT / "tools" / "pithead_spread.py")
+ps = importlib.util.module_from_spec(_spec)
+sys.modules["pithead_spread"] = ps  # its dataclass looks itself up there
+_spec.loader.exec_module(ps)
+
+
+def test_spliced_takes_the_donors_columns_over_the_rows_only():
+    base = np.zeros((6, 4), np.uint16)
+    donor = np.arange(24, dtype=np.uint16).reshape(6, 4)
+    out = ps.spliced(base, donor, slice(0, 2), slice(2, 4))
+    assert np.array_equal(out[2:4, 0:2], donor[2:4, 0:2])
+    out[2:4, 0:2] = 0
+    assert not out.any()  # nothing else taken
+    assert not base.any()  # the base is not changed
+    assert np.array_equal(ps.spliced(base, donor, slice(1, 2))[:, 1], donor[:, 1])
+
+
+def test_set_parses_json_values_and_refuses_a_malformed_one():
+    assert ps.parse_set(["a=1,2.5", "b=true"]) == [("a", [1, 2.5]), ("b", [True])]
+    for bad in ("a", "=1", "a=", "a=1,x"):
+        with pytest.raises(SystemExit, match="--set"):
+            ps.parse_set([bad])
+
+
+def test_summary_adds_the_seeds_within_over_the_scenarios():
+    tallies = {"a": {"as evaluated": (7, 10, 0.26), "x0": (10, 10, 0.15)},
+               "b": {"as evaluated": (6, 10, 0.34), "x0": (9, 10, 0.20)}}
+    lines = ps.summary_table(tallies)
+    assert lines[2] == "| experiment | within | a | b | rope RMS % (worst) |"
+    assert lines[4] == "| as evaluated | 13 of 20 | 7 | 6 | 0.34 |"
+    assert lines[5] == "| x0 | 19 of 20 | 10 | 9 | 0.20 |"
+
+
+@pytest.fixture(scope="module")
+def two_seeds(tmp_path_factory):
+    """tools/seed_spread.py's work directory for seeds 1 and 2 of the short wind."""
+    out = tmp_path_factory.mktemp("spread")
+    tool = runpy.run_path(str(ROOT / "tools" / "seed_spread.py"))
+    for seed in (1, 2):
+        tool["run_seed"](seed, ["short-test"], out, quick=True)
+    return out
+
+
+def test_scaling_the_pressure_noise(two_seeds):
+    w = ps.load(two_seeds, "short-test", 2)
+    n = int(w.physical["ropes"])
+    clean = ps.true_pressure_counts(w.physical, w.truth)
+    noise = w.records[:, :n] - clean
+    # x1 gives back the records and the measured noise; x0 the true pressure, rounded
+    recs, ph = ps.scaled_pressure_noise(w, 1.0)
+    assert np.array_equal(recs, w.records)
+    assert math.isclose(ph["pressure_noise_Pa"], w.physical["pressure_noise_Pa"], rel_tol=1e-9)
+    recs, ph = ps.scaled_pressure_noise(w, 0.0)
+    assert np.abs(recs[:, :n] - clean).max() <= 0.5
+    assert np.array_equal(recs[:, n:], w.records[:, n:])  # only the pressure channels change
+    assert math.isclose(ph["pressure_noise_Pa"], ps.count_step_pa(w.physical) / math.sqrt(12))
+    # x0.5: half the noise (plus the rounding to counts), measured on the records
+    recs, _ = ps.scaled_pressure_noise(w, 0.5)
+    ratio = (recs[:, :n] - clean).std() / noise.std()
+    assert 0.48 < ratio < 0.56
+    # a pressure channel outside 4-20 mA (a loop fault) is refused, not scaled
+    w.records = w.records.copy()
+    w.records[10, 0] = 0
+    with pytest.raises(ValueError, match="pressure channel 1"):
+        ps.scaled_pressure_noise(w, 0.5)
+
+
+def test_table_reproduces_the_evaluation_and_its_controls(two_seeds, capsys):
+    assert ps.main([str(two_seeds), "short-test", "--scale", "0", "--set", "friction_play_sigmas=1.45,2"]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split("|")[1].strip(): line for line in out.splitlines() if line.startswith("| ")}
+
+    def per_seed(label):
+        return [float(v) for v in rows[label].rstrip(" |").split("|")[-1].split(",")]
+
+    # as evaluated: each seed's figure as `ropemon evaluate` printed it (2 decimals)
+    want = [json.loads((two_seeds / f"seed-{s}" / "results.json").read_text())
+            ["scenarios"]["short-test"]["estimators"]["lugre-p+loss"]["pithead_total_pct"] for s in (1, 2)]
+    got = per_seed("as evaluated")
+    assert got == pytest.approx(want, abs=0.006)
+    # seed 1 with its own config, its own pressure and its own displacement: the same run
+    for label in ("seed-1 config", "pressure noise only", "displacement noise only"):
+        assert per_seed(label)[0] == got[0], label
+    # seed 2 takes seed 1's config, or gives seed 1 its noise: other runs
+    assert per_seed("pressure noise only")[1] != got[1]
+    # the default play's row is the evaluation; a play of 2 sigma is another
+    assert per_seed("friction_play_sigmas=1.45") == got
+    assert per_seed("friction_play_sigmas=2") != got
+    assert "pressure noise x0 " in out
+    assert "(basis: arrival rest)" in out  # the short wind ends loaded
+    # seed 2's pressure noise in seed 1's wind, one stretch at a time
+    assert "Seed 2's pressure noise in seed 1's wind" in out
+    stretches = [line for line in out.splitlines() if line.startswith(("| until", "| the ", "| then"))]
+    assert stretches and all(len(line.split("|")) == 7 for line in stretches)
+
+
+def test_a_setting_the_config_refuses_is_named(two_seeds):
+    with pytest.raises(SystemExit, match="--set friction_play_sigmas=9: physical.rest_play_sigmas"):
+        ps.main([str(two_seeds), "short-test", "--scale", "", "--set", "friction_play_sigmas=9"])
