@@ -48,6 +48,7 @@ import numpy as np
 from ropemon import evaluate as EV
 from ropemon import metrics as M
 from ropemon import reference
+from ropemon.nodeconfig import namur_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling, however this was loaded
 from seed_spread import PITHEAD_PCT as TARGET_PCT  # noqa: E402  (issue 6: within 0.3 %)
@@ -66,7 +67,7 @@ class Wind:
 
 def load(out: Path, scenario: str, seed: int) -> Wind:
     run = out / f"seed-{seed}" / "runs" / scenario
-    ropes, hz, recs = reference.read_rsens(run / "sim" / "sensors.rsens")
+    _ropes, hz, recs = reference.read_rsens(run / "sim" / "sensors.rsens")
     with np.load(run / "sim" / "truth.npz") as z:
         truth = {k: z[k] for k in z.files}
     physical = json.loads((run / "node-evaluated.json").read_text())["physical"]
@@ -115,13 +116,14 @@ def scaled_pressure_noise(wind: Wind, scale: float) -> tuple[np.ndarray, dict]:
     """Records and config of `wind` with its pressure noise scaled by `scale` around the
     true tap pressure, rounded to counts as the ADC does; the config's pressure noise
     scaled to match (the ADC's rounding, step/sqrt(12), stays). ValueError if a pressure
-    channel is ever outside 4-20 mA (a fault the scaling would not keep)."""
+    channel ever reads a NAMUR fault (a fault the scaling would not keep)."""
     n = int(wind.physical["ropes"])
     clean = true_pressure_counts(wind.physical, wind.truth)
     counts = wind.records[:, :n].astype(float)
     for i, ch in enumerate(wind.physical["pressure_channels"]):
-        if counts[:, i].min() < ch["counts_4mA"] or counts[:, i].max() > ch["counts_20mA"]:
-            raise ValueError(f"seed {wind.seed}: pressure channel {i + 1} leaves 4-20 mA; not scaled")
+        lo, hi = namur_limits(ch["counts_4mA"], ch["counts_20mA"])
+        if counts[:, i].min() < lo or counts[:, i].max() > hi:
+            raise ValueError(f"seed {wind.seed}: pressure channel {i + 1} reads a loop fault; not scaled")
     recs = wind.records.copy()
     recs[:, :n] = np.rint(clean + scale * (counts - clean)).astype(recs.dtype)
     q = count_step_pa(wind.physical) / math.sqrt(12)
@@ -154,11 +156,11 @@ def stretches(wind: Wind) -> list[tuple[str, slice]]:
     return [(label, s) for label, s in cuts if (s.stop is None or s.stop > s.start)]
 
 
-def summary(values: list[float]) -> str:
+def summary(values: list[float]) -> tuple[int, str]:
+    """(seeds within the target, the table cells: within, mean, sd, range)."""
     within = sum(abs(v) <= TARGET_PCT for v in values)
-    sd = statistics.pstdev(values) if len(values) > 1 else 0.0
-    return (f"{within} of {len(values)} | {statistics.mean(values):+.2f} | {sd:.2f} "
-            f"| {min(values):+.2f} / {max(values):+.2f}")
+    return within, (f"{within} of {len(values)} | {statistics.mean(values):+.2f} | "
+                    f"{statistics.pstdev(values):.2f} | {min(values):+.2f} / {max(values):+.2f}")
 
 
 def parse_set(items: list[str]) -> list[tuple[str, list]]:
@@ -225,9 +227,10 @@ def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: li
         if label == "as evaluated":
             own = {s: r["pithead"] for s, r in rows}
         rms = max(r["rms"] for _, r in rows)
-        tally[label] = (sum(abs(v) <= TARGET_PCT for v in vals), len(vals), rms)
+        within, cells = summary(vals)
+        tally[label] = (within, len(vals), rms)
         per = ", ".join(f"{v:+.2f}" for v in vals)
-        print(f"| {label} | {summary(vals)} | {rms:.2f} | {per} |", flush=True)
+        print(f"| {label} | {cells} | {rms:.2f} | {per} |", flush=True)
     print(f"\n(basis: {', '.join(sorted(bases))} rest)")
     base = winds[0]
     ws = window_seed
@@ -238,7 +241,7 @@ def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: li
         if donor is None:
             raise SystemExit(f"--window-seed {ws}: not among the seeds")
         n = int(base.physical["ropes"])
-        ref = score(base.physical, base.records, base)["pithead"]
+        ref = own[base.seed]
         whole = score(base.physical, spliced(base.records, donor.records, slice(0, n)), base)["pithead"]
         print(f"\nSeed {ws}'s pressure noise in seed {base.seed}'s wind ({ref:+.2f} %), one stretch at a time "
               f"(all of it: {whole:+.2f} %, {whole - ref:+.2f}):\n")
