@@ -72,7 +72,7 @@ def test_scaling_the_pressure_noise(two_seeds):
     recs, _ = ps.scaled_pressure_noise(w, 0.5)
     ratio = (recs[:, :n] - clean).std() / noise.std()
     assert 0.48 < ratio < 0.56
-    # a pressure channel outside 4-20 mA (a loop fault) is refused, not scaled
+    # a pressure channel reading a loop fault (0 counts: 0 mA) is refused, not scaled
     w.records = w.records.copy()
     w.records[10, 0] = 0
     with pytest.raises(ValueError, match="pressure channel 1"):
