@@ -16,7 +16,13 @@ config that seed's commissioning made) and reruns the float reference
   scaled by A around the true tap pressure (0: a noise-free transmitter on the
   same ADC), the config's `pressure_noise_Pa` scaled to match;
 - `--set KEY=V1,V2 ...`: each combination of settings of the config's
-  `physical` section (JSON values), as tools/observer_sensitivity.py changes them.
+  `physical` section (JSON values), as tools/observer_sensitivity.py changes them;
+- smoother, plays x F (`--smoother F,...`): each seed's wind with the tracker
+  replaced by the Kalman smoother of the whole wind's median pressure (the
+  tracker's own creep-and-bounce model, run forward and back: the best linear
+  reading of the median a node could make with all of the wind at hand, which
+  no node has), and the play, the rest play and the rest threshold scaled to
+  the smoother's lower noise, times F.
 
 Then, for one seed (`--window-seed`, default the one farthest from the first),
 how much of its difference from the first each stretch of the wind's pressure
@@ -35,6 +41,7 @@ arrival rest where the scenario has no empty one, in % of the true total.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import json
 import math
@@ -44,11 +51,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import scipy.linalg
 
 from ropemon import evaluate as EV
 from ropemon import metrics as M
 from ropemon import reference
-from ropemon.nodeconfig import namur_limits
+from ropemon.nodeconfig import (COMPLIANCE_DEFAULTS, DEFAULTS, MEDIAN_NOISE, namur_limits, pressure_noise_pa,
+                                pressure_tracker)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling, however this was loaded
 from seed_spread import PITHEAD_PCT as TARGET_PCT  # noqa: E402  (issue 6: within 0.3 %)
@@ -133,6 +142,106 @@ def scaled_pressure_noise(wind: Wind, scale: float) -> tuple[np.ndarray, dict]:
     return recs, physical
 
 
+class Smoother:
+    """The steady-state Kalman smoother (Rauch-Tung-Striebel) of the median pressure on the
+    pressure tracker's own model (nodeconfig.tracker_gains: a creep at a constant rate plus
+    the bounce, its quantised oscillator, the same process and measurement noises)."""
+
+    def __init__(self, physical: dict):
+        ph = {**DEFAULTS, **COMPLIANCE_DEFAULTS, **physical}
+        fs, n = float(ph["sample_hz"]), int(ph["ropes"])
+        tracker = pressure_tracker(ph, fs, n)
+        a1, a2 = tracker["a1_q14"] / 16384, tracker["a2_q14"] / 16384
+        h = 1.0 / fs
+        self.F = np.array(((2.0, -1.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, a1, -a2), (0.0, 0.0, 1.0, 0.0)))
+        q = np.diag((float(ph["creep_q_Pa2_s3"]) * h ** 3, 0.0, float(ph["bounce_q_Pa2_s3"]) * h ** 3, 0.0))
+        r = (MEDIAN_NOISE[n - 1] * pressure_noise_pa(ph)) ** 2
+        H = np.array(((1.0, 0.0, 1.0, 0.0),))
+        prior = scipy.linalg.solve_discrete_are(self.F.T, H.T, q, np.array(((r,),)))
+        self.K = (prior @ H.T).ravel() / ((H @ prior @ H.T).item() + r)
+        post = prior - np.outer(self.K, H @ prior)
+        self.C = post @ self.F.T @ np.linalg.inv(prior)
+        self.tracker_noise_gain = tracker["noise_gain"]
+
+    def run(self, y: np.ndarray) -> np.ndarray:
+        """Creep plus bounce (Pa) over the medians `y` (Pa), started as the tracker starts
+        (the creep at the first median, no rate, no bounce)."""
+        m = len(y)
+        pred, est = np.zeros((m, 4)), np.zeros((m, 4))
+        x = np.array((y[0], y[0], 0.0, 0.0))
+        for j in range(m):
+            p = self.F @ x if j else x
+            pred[j] = p
+            x = p + self.K * (y[j] - p[0] - p[2])
+            est[j] = x
+        for j in range(m - 2, -1, -1):
+            est[j] += self.C @ (est[j + 1] - pred[j + 1])
+        return est[:, 0] + est[:, 2]
+
+    def noise_gain(self, fs: float) -> float:
+        """rms of the output per rms of white noise at the input, from the impulse response
+        (the tracker's noise_gain, for the smoother)."""
+        m = int(40 * fs)
+        y = np.zeros(2 * m + 1)
+        y[m] = 1.0
+        return float(np.sqrt(np.sum(self.run(y) ** 2)))
+
+
+@contextlib.contextmanager
+def _pressure_tracker(cls):
+    """reference.compensate with `cls` in place of the node's pressure tracker."""
+    saved = reference.PressureTracker
+    reference.PressureTracker = cls
+    try:
+        yield
+    finally:
+        reference.PressureTracker = saved
+
+
+def smoothed_score(physical: dict, records: np.ndarray, wind: Wind, factor: float) -> dict:
+    """score() with the LuGre position from the smoother of the whole wind's median
+    instead of the tracker, and the plays and the rest threshold scaled by its noise
+    gain over the tracker's, times `factor`."""
+    medians: list = []
+
+    class Medians(reference.PressureTracker):  # the tracker's inputs, as the observer forms them
+        def step(self, y):
+            medians.append(y)
+            return super().step(y)
+
+    with _pressure_tracker(Medians):
+        reference.compensate(physical, records)
+    smoother = Smoother(physical)
+    out, j = [], 0
+    while j < len(medians):  # each run of samples with a median; none: the last estimate held
+        if medians[j] is None:
+            out.append(out[-1] if out else 0.0)
+            j += 1
+            continue
+        k = j
+        while k < len(medians) and medians[k] is not None:
+            k += 1
+        out.extend(smoother.run(np.array(medians[j:k], float)).tolist())
+        j = k
+    replay = iter(out)
+
+    class Replay:
+        def __init__(self, tr):
+            self.tr = tr
+
+        def step(self, y):
+            if self.tr is None:
+                return 0.0
+            return min(max(next(replay), -reference.P_L_MAX_PA), reference.P_L_MAX_PA)
+
+    f = factor * smoother.noise_gain(float(physical["sample_hz"])) / smoother.tracker_noise_gain
+    ph = {**DEFAULTS, **COMPLIANCE_DEFAULTS, **physical}
+    scaled = {**physical, **{key: f * float(ph[key]) for key in ("friction_play_sigmas", "rest_sigmas",
+                                                                  "rest_play_sigmas")}}
+    with _pressure_tracker(Replay):
+        return score(scaled, records, wind)
+
+
 def stretches(wind: Wind) -> list[tuple[str, slice]]:
     """The wind cut at the final stop, 4 s after it, and the start of the scored rest."""
     hz = wind.hz
@@ -177,7 +286,8 @@ def parse_set(items: list[str]) -> list[tuple[str, list]]:
     return out
 
 
-def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, list]]):
+def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, list]],
+                smoothers: list[float] = ()):
     """(label, [(seed, score), ...]) per experiment."""
     base = winds[0]
     n = int(base.physical["ropes"])
@@ -194,6 +304,8 @@ def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, li
             recs, ph = scaled_pressure_noise(w, a)
             rows.append((w.seed, score(ph, recs, w)))
         yield f"pressure noise x{a:g}", rows
+    for f in smoothers:
+        yield f"smoother, plays x{f:g}", [(w.seed, smoothed_score(w.physical, w.records, w, f)) for w in winds]
     if not sets:
         return
     keys = [k for k, _ in sets]
@@ -207,7 +319,8 @@ def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, li
 
 
 def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: list[float],
-                   sets: list[tuple[str, list]], window_seed: int | None) -> dict[str, tuple[int, int, float]]:
+                   sets: list[tuple[str, list]], window_seed: int | None,
+                   smoothers: list[float] = ()) -> dict[str, tuple[int, int, float]]:
     """Print one scenario's tables; (seeds within the target, seeds, worst RMS) per experiment."""
     if seeds is None:
         seeds = sorted(int(p.name.split("-", 1)[1]) for p in out.glob("seed-*")
@@ -221,7 +334,7 @@ def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: li
     own: dict[int, float] = {}
     bases = set()
     tally = {}
-    for label, rows in experiments(winds, scales, sets):
+    for label, rows in experiments(winds, scales, sets, smoothers):
         vals = [r["pithead"] for _, r in rows]
         bases.update(r["basis"] for _, r in rows)
         if label == "as evaluated":
@@ -276,12 +389,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scale", default="0,0.5", help="pressure noise scales, comma-separated ('' for none)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2",
                     help="a setting of `physical` and its values (JSON); repeat for a grid")
+    ap.add_argument("--smoother", default="", metavar="F,...",
+                    help="the whole wind's Kalman smoother for the tracker, its plays x F (comma-separated)")
     ap.add_argument("--window-seed", type=int, default=None)
     a = ap.parse_args(argv)
     seeds = seed_range(a.seeds) if a.seeds else None
     scales = [float(v) for v in a.scale.split(",") if v.strip()]
     sets = parse_set(a.set)
-    tallies = {name: scenario_table(a.out, name, seeds, scales, sets, a.window_seed) for name in a.scenarios}
+    smoothers = [float(v) for v in a.smoother.split(",") if v.strip()]
+    tallies = {name: scenario_table(a.out, name, seeds, scales, sets, a.window_seed, smoothers)
+               for name in a.scenarios}
     if len(tallies) > 1:
         print("\n".join(summary_table(tallies)))
     return 0

@@ -111,3 +111,54 @@ def test_table_reproduces_the_evaluation_and_its_controls(two_seeds, capsys):
 def test_a_setting_the_config_refuses_is_named(two_seeds):
     with pytest.raises(SystemExit, match="--set friction_play_sigmas=9: physical.rest_play_sigmas"):
         ps.main([str(two_seeds), "short-test", "--scale", "", "--set", "friction_play_sigmas=9"])
+
+
+def test_the_smoother_follows_its_model_with_less_noise_than_the_tracker(two_seeds):
+    physical = ps.load(two_seeds, "short-test", 1).physical
+    smoother = ps.Smoother(physical)
+    # its model's own signals pass unchanged: a constant pressure, and a creep at a
+    # constant rate once the start (no rate yet) is behind
+    assert np.array_equal(smoother.run(np.full(400, 3e6)), np.full(400, 3e6))
+    t = np.arange(4000) / 200.0
+    ramp = 1e6 + 2e3 * t
+    assert np.abs(smoother.run(ramp) - ramp)[400:].max() < 1e-3
+    # the noise gain from its impulse response is what white noise shows, and below the
+    # tracker's (it reads each sample with the wind after it as well as before)
+    gain = smoother.noise_gain(200.0)
+    noise = np.random.default_rng(1).standard_normal(40000)
+    assert np.std(smoother.run(noise)[2000:-2000]) == pytest.approx(gain, rel=0.05)
+    assert gain < 0.8 * smoother.tracker_noise_gain
+
+
+def test_the_smoother_row_replays_its_estimate_into_the_reference(two_seeds, capsys, monkeypatch):
+    # the tracker itself put in the smoother's place must give back the evaluation's
+    # figures: the medians, the replay and the play scaling are right (said to be half
+    # as noisy as the tracker, its plays x2 are the tracker's own)
+    from ropemon import nodeconfig, reference
+
+    class TrackerAsSmoother:
+        def __init__(self, physical):
+            self.tr = nodeconfig.physical_params(physical)["tracker"]
+            self.tracker_noise_gain = self.tr["noise_gain"]
+
+        def run(self, y):
+            tracker = reference.PressureTracker(self.tr)
+            return np.array([tracker.step(float(v)) for v in y])
+
+        def noise_gain(self, fs):
+            return 0.5 * self.tracker_noise_gain
+
+    argv = [str(two_seeds), "short-test", "--scale", "", "--smoother", "2,1"]
+
+    def rows():
+        assert ps.main(argv) == 0
+        out = capsys.readouterr().out
+        return {line.split("|")[1].strip(): line.rstrip(" |").split("|")[-1] for line in out.splitlines()
+                if line.startswith("| ")}
+
+    real = rows()
+    monkeypatch.setattr(ps, "Smoother", TrackerAsSmoother)
+    stand_in = rows()
+    assert stand_in["smoother, plays x2"] == stand_in["as evaluated"] == real["as evaluated"]
+    assert stand_in["smoother, plays x1"] != stand_in["as evaluated"]  # the plays do scale
+    assert real["smoother, plays x2"] != real["as evaluated"]  # and the smoother is another estimate
