@@ -212,17 +212,10 @@ def smoothed_score(physical: dict, records: np.ndarray, wind: Wind, factor: floa
     with _pressure_tracker(Medians):
         reference.compensate(physical, records)
     smoother = Smoother(physical)
-    out, j = [], 0
-    while j < len(medians):  # each run of samples with a median; none: the last estimate held
-        if medians[j] is None:
-            out.append(out[-1] if out else 0.0)
-            j += 1
-            continue
-        k = j
-        while k < len(medians) and medians[k] is not None:
-            k += 1
-        out.extend(smoother.run(np.array(medians[j:k], float)).tolist())
-        j = k
+    out: list[float] = []
+    for healthy, run in itertools.groupby(medians, key=lambda y: y is not None):
+        run = list(run)  # each stretch with a median smoothed on its own; without, the last estimate held
+        out.extend(smoother.run(np.array(run, float)).tolist() if healthy else [out[-1] if out else 0.0] * len(run))
     replay = iter(out)
 
     class Replay:

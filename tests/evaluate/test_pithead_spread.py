@@ -162,3 +162,11 @@ def test_the_smoother_row_replays_its_estimate_into_the_reference(two_seeds, cap
     assert stand_in["smoother, plays x2"] == stand_in["as evaluated"] == real["as evaluated"]
     assert stand_in["smoother, plays x1"] != stand_in["as evaluated"]  # the plays do scale
     assert real["smoother, plays x2"] != real["as evaluated"]  # and the smoother is another estimate
+    # and across a stretch where no pressure channel is healthy (each stretch with a
+    # median is smoothed on its own, as the tracker starts afresh after it), the replay
+    # still gives back the tracker's own figure
+    w = ps.load(two_seeds, "short-test", 1)
+    n = int(w.physical["ropes"])
+    recs = w.records.copy()
+    recs[1000:1100, :n] = 0  # 0 mA on every pressure loop for 0.5 s
+    assert ps.smoothed_score(w.physical, recs, w, 2.0) == ps.score(w.physical, recs, w)
