@@ -14,9 +14,13 @@ config that seed's commissioning made) and reruns the float reference
   seed N's pressure (or displacement) channels;
 - pressure noise x A (`--scale A,...`): each seed's wind with its pressure noise
   scaled by A around the true tap pressure (0: a noise-free transmitter on the
-  same ADC), the config's `pressure_noise_Pa` scaled to match;
+  same ADC), the config's `pressure_noise_Pa` scaled to match: transmitters of
+  that noise, commissioned with it;
+- pressure noise x A after commissioning (`--drift A,...`): the same winds with
+  the config as commissioned: the transmitters' noise changed since;
 - `--set KEY=V1,V2 ...`: each combination of settings of the config's
-  `physical` section (JSON values), as tools/observer_sensitivity.py changes them;
+  `physical` section (JSON values), as tools/observer_sensitivity.py changes them,
+  on the winds as evaluated and again at each `--scale` (its own tuning);
 - smoother, plays x F (`--smoother F,...`): each seed's wind with the tracker
   replaced by the Kalman smoother of the whole wind's median pressure (the
   tracker's own creep-and-bounce model, run forward and back: the best linear
@@ -35,8 +39,10 @@ arrival rest where the scenario has no empty one, in % of the true total.
 
     .venv/bin/python tools/seed_spread.py paper-field-trip payload-12t --seeds 1-10 --out out/seed-spread
     .venv/bin/python tools/pithead_spread.py out/seed-spread paper-field-trip payload-12t --scale 0,0.5
-    .venv/bin/python tools/pithead_spread.py out/seed-spread payload-12t \\
+    .venv/bin/python tools/pithead_spread.py out/seed-spread payload-12t --scale "" \\
         --set creep_q_Pa2_s3=3e8,3e9 --set friction_play_sigmas=0.8,1.45
+    .venv/bin/python tools/pithead_spread.py out/seed-spread paper-field-trip --scale 0.5 \\
+        --set friction_play_sigmas=1.45,1.6 --drift 0.9,1.1
 """
 from __future__ import annotations
 
@@ -125,7 +131,11 @@ def scaled_pressure_noise(wind: Wind, scale: float) -> tuple[np.ndarray, dict]:
     """Records and config of `wind` with its pressure noise scaled by `scale` around the
     true tap pressure, rounded to counts as the ADC does; the config's pressure noise
     scaled to match (the ADC's rounding, step/sqrt(12), stays). ValueError if a pressure
-    channel ever reads a NAMUR fault (a fault the scaling would not keep)."""
+    channel ever reads a NAMUR fault (a fault the scaling would not keep).
+
+    The noise before the rounding is taken as uniform within its count (a draw seeded by
+    the wind's seed): scaling the rounded counts themselves would round a small change
+    away (x0.95 kept 99 % of the noise)."""
     n = int(wind.physical["ropes"])
     clean = true_pressure_counts(wind.physical, wind.truth)
     counts = wind.records[:, :n].astype(float)
@@ -134,7 +144,9 @@ def scaled_pressure_noise(wind: Wind, scale: float) -> tuple[np.ndarray, dict]:
         if counts[:, i].min() < lo or counts[:, i].max() > hi:
             raise ValueError(f"seed {wind.seed}: pressure channel {i + 1} reads a loop fault; not scaled")
     recs = wind.records.copy()
-    recs[:, :n] = np.rint(clean + scale * (counts - clean)).astype(recs.dtype)
+    if scale != 1.0:
+        within = np.random.default_rng(wind.seed).uniform(-0.5, 0.5, counts.shape)
+        recs[:, :n] = np.rint(clean + scale * (counts + within - clean)).astype(recs.dtype)
     q = count_step_pa(wind.physical) / math.sqrt(12)
     sigma = float(wind.physical["pressure_noise_Pa"])
     physical = {**wind.physical,
@@ -280,7 +292,7 @@ def parse_set(items: list[str]) -> list[tuple[str, list]]:
 
 
 def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, list]],
-                smoothers: list[float] = ()):
+                smoothers: list[float] = (), drifts: list[float] = ()):
     """(label, [(seed, score), ...]) per experiment."""
     base = winds[0]
     n = int(base.physical["ropes"])
@@ -291,12 +303,12 @@ def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, li
     yield "displacement noise only", [(w.seed, score(base.physical,
                                                      spliced(base.records, w.records, slice(n, 2 * n)), base))
                                       for w in winds]
+    levels = {a: [scaled_pressure_noise(w, a) for w in winds] for a in (*scales, *drifts)}
     for a in scales:
-        rows = []
-        for w in winds:
-            recs, ph = scaled_pressure_noise(w, a)
-            rows.append((w.seed, score(ph, recs, w)))
-        yield f"pressure noise x{a:g}", rows
+        yield f"pressure noise x{a:g}", [(w.seed, score(ph, recs, w)) for w, (recs, ph) in zip(winds, levels[a])]
+    for a in drifts:  # the records of x a, the config as commissioned
+        yield (f"pressure noise x{a:g} after commissioning",
+               [(w.seed, score(w.physical, recs, w)) for w, (recs, _) in zip(winds, levels[a])])
     for f in smoothers:
         yield f"smoother, plays x{f:g}", [(w.seed, smoothed_score(w.physical, w.records, w, f)) for w in winds]
     if not sets:
@@ -305,15 +317,18 @@ def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, li
     for combo in itertools.product(*(v for _, v in sets)):
         change = dict(zip(keys, combo))
         label = " ".join(f"{k}={json.dumps(v)}" for k, v in change.items())
-        try:
-            yield label, [(w.seed, score({**w.physical, **change}, w.records, w)) for w in winds]
-        except ValueError as e:  # the config refuses the setting: say which and why
-            raise SystemExit(f"--set {label}: {e}") from None
+        as_evaluated = [(w.records, w.physical) for w in winds]
+        for a, inputs in ((None, as_evaluated), *((a, levels[a]) for a in scales)):
+            try:
+                rows = [(w.seed, score({**ph, **change}, recs, w)) for w, (recs, ph) in zip(winds, inputs)]
+            except ValueError as e:  # the config refuses the setting: say which and why
+                raise SystemExit(f"--set {label}: {e}") from None
+            yield (label if a is None else f"pressure noise x{a:g}, {label}"), rows
 
 
 def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: list[float],
                    sets: list[tuple[str, list]], window_seed: int | None,
-                   smoothers: list[float] = ()) -> dict[str, tuple[int, int, float]]:
+                   smoothers: list[float] = (), drifts: list[float] = ()) -> dict[str, tuple[int, int, float]]:
     """Print one scenario's tables; (seeds within the target, seeds, worst RMS) per experiment."""
     if seeds is None:
         seeds = sorted(int(p.name.split("-", 1)[1]) for p in out.glob("seed-*")
@@ -327,7 +342,7 @@ def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: li
     own: dict[int, float] = {}
     bases = set()
     tally = {}
-    for label, rows in experiments(winds, scales, sets, smoothers):
+    for label, rows in experiments(winds, scales, sets, smoothers, drifts):
         vals = [r["pithead"] for _, r in rows]
         bases.update(r["basis"] for _, r in rows)
         if label == "as evaluated":
@@ -380,8 +395,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("scenarios", nargs="+")
     ap.add_argument("--seeds", default=None, help="e.g. 1-10 (default: every seed-N under OUT); the first is the base")
     ap.add_argument("--scale", default="0,0.5", help="pressure noise scales, comma-separated ('' for none)")
+    ap.add_argument("--drift", default="", metavar="A,...",
+                    help="pressure noise scales with the config as commissioned (comma-separated)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2",
-                    help="a setting of `physical` and its values (JSON); repeat for a grid")
+                    help="a setting of `physical` and its values (JSON); repeat for a grid; "
+                         "run as evaluated and at each --scale")
     ap.add_argument("--smoother", default="", metavar="F,...",
                     help="the whole wind's Kalman smoother for the tracker, its plays x F (comma-separated)")
     ap.add_argument("--window-seed", type=int, default=None)
@@ -390,7 +408,8 @@ def main(argv: list[str] | None = None) -> int:
     scales = [float(v) for v in a.scale.split(",") if v.strip()]
     sets = parse_set(a.set)
     smoothers = [float(v) for v in a.smoother.split(",") if v.strip()]
-    tallies = {name: scenario_table(a.out, name, seeds, scales, sets, a.window_seed, smoothers)
+    drifts = [float(v) for v in a.drift.split(",") if v.strip()]
+    tallies = {name: scenario_table(a.out, name, seeds, scales, sets, a.window_seed, smoothers, drifts)
                for name in a.scenarios}
     if len(tallies) > 1:
         print("\n".join(summary_table(tallies)))

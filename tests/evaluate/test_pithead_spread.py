@@ -72,6 +72,10 @@ def test_scaling_the_pressure_noise(two_seeds):
     recs, _ = ps.scaled_pressure_noise(w, 0.5)
     ratio = (recs[:, :n] - clean).std() / noise.std()
     assert 0.48 < ratio < 0.56
+    # a small change is not rounded away: x0.95 and x1.05 are that within 1 %
+    for scale in (0.95, 1.05):
+        recs, _ = ps.scaled_pressure_noise(w, scale)
+        assert (recs[:, :n] - clean).std() / noise.std() == pytest.approx(scale, rel=0.01)
     # a pressure channel reading a loop fault (0 counts: 0 mA) is refused, not scaled
     w.records = w.records.copy()
     w.records[10, 0] = 0
@@ -79,13 +83,16 @@ def test_scaling_the_pressure_noise(two_seeds):
         ps.scaled_pressure_noise(w, 0.5)
 
 
+def table_rows(out: str):
+    """The printed table's per-seed figures by experiment: rows(label) -> [seed 1 %, ...]."""
+    rows = {line.split("|")[1].strip(): line for line in out.splitlines() if line.startswith("| ")}
+    return lambda label: [float(v) for v in rows[label].rstrip(" |").split("|")[-1].split(",")]
+
+
 def test_table_reproduces_the_evaluation_and_its_controls(two_seeds, capsys):
     assert ps.main([str(two_seeds), "short-test", "--scale", "0", "--set", "friction_play_sigmas=1.45,2"]) == 0
     out = capsys.readouterr().out
-    rows = {line.split("|")[1].strip(): line for line in out.splitlines() if line.startswith("| ")}
-
-    def per_seed(label):
-        return [float(v) for v in rows[label].rstrip(" |").split("|")[-1].split(",")]
+    per_seed = table_rows(out)
 
     # as evaluated: each seed's figure as `ropemon evaluate` printed it (2 decimals)
     want = [json.loads((two_seeds / f"seed-{s}" / "results.json").read_text())
@@ -106,6 +113,21 @@ def test_table_reproduces_the_evaluation_and_its_controls(two_seeds, capsys):
     assert "Seed 2's pressure noise in seed 1's wind" in out
     stretches = [line for line in out.splitlines() if line.startswith(("| until", "| the ", "| then"))]
     assert stretches and all(len(line.split("|")) == 7 for line in stretches)
+
+
+def test_drift_keeps_the_commissioned_config_and_the_grid_runs_at_each_scale(two_seeds, capsys):
+    assert ps.main([str(two_seeds), "short-test", "--scale", "0.5", "--drift", "1,0.5",
+                    "--set", "friction_play_sigmas=1.45,2"]) == 0
+    per_seed = table_rows(capsys.readouterr().out)
+    # the noise as commissioned is the evaluation itself
+    assert per_seed("pressure noise x1 after commissioning") == per_seed("as evaluated")
+    # half the noise with the config as commissioned (a play twice the noise's) is not
+    # half the noise commissioned with it
+    assert per_seed("pressure noise x0.5 after commissioning") != per_seed("pressure noise x0.5")
+    # the grid at x0.5: the default play is that row, another play another run
+    assert per_seed("pressure noise x0.5, friction_play_sigmas=1.45") == per_seed("pressure noise x0.5")
+    assert per_seed("pressure noise x0.5, friction_play_sigmas=2") != per_seed("pressure noise x0.5")
+    assert per_seed("friction_play_sigmas=1.45") == per_seed("as evaluated")
 
 
 def test_a_setting_the_config_refuses_is_named(two_seeds):
