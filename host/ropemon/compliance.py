@@ -15,7 +15,13 @@ pressure over the first 4 s after the hoist stops at the end of the recording
 (its arrival). A recording without such a stop, or where the line does not stand
 out, gives no `bounce_hz` (`null`), and the node keeps its default.
 
-    ropemon fit-compliance NODE.json SENSORS.rsens [--out compliance.json]   # JSON: k per rope, fit figures
+    ropemon fit-compliance NODE.json SENSORS.rsens [--out compliance.json] [--check]
+
+It prints the fit as JSON. When NODE.json was itself built with a compliance fit,
+the command also re-checks it: it prints on stderr how far k, the pressure noise
+and the bounce have moved since, and names those beyond the `RECHECK_*` tolerances
+(`--check`: exit 1 then), so a wind recorded in service tells whether the node's
+config is still right (docs/commissioning.md, "Re-check in service").
 
 `fit(physical, records)` returns a `ComplianceFit` or raises `ComplianceError`
 naming the rope and the reason (too little pressure change, a poor fit); the
@@ -26,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import struct
 import sys
 from dataclasses import dataclass
@@ -44,6 +51,14 @@ BOUNCE_MIN_HZ = 1.0       # below this a line is the load's own change, not the 
 BOUNCE_MIN_PEAK = 4.0     # the line must stand this many times above the band's median
 MOVING_M_S = 0.1          # the hoist moves (winds) above this speed
 STOPPED_S = 0.25          # the counter stands this long: the hoist has stopped
+
+
+# A re-fit this far from the values NODE.json was built with moves the node's empty-cage
+# pithead total by a few tenths of a per cent (docs/accuracy.md, "Sensitivity" and "The
+# transmitters' noise"); the fit itself repeats within about a tenth of these.
+RECHECK_K_REL = 0.01       # k of any rope, relative
+RECHECK_NOISE_REL = 0.03   # the pressure noise, relative
+RECHECK_BOUNCE_HZ = 0.1    # the bounce
 
 
 class ComplianceError(ValueError):
@@ -180,6 +195,33 @@ def _white_noise(p: np.ndarray, step: float) -> float:
     return float(np.sqrt(np.mean(d2[dev <= lim] ** 2) / 6))
 
 
+def recheck(ph: dict, res: ComplianceFit) -> list[tuple[str, bool]]:
+    """(line, beyond its tolerance) per value NODE.json's `physical` took from an earlier fit:
+    k (the rope farthest off), the pressure noise, the bounce. Empty when it took none."""
+    k_was = ph.get("hydraulic_compliance_m_per_Pa")
+    if not isinstance(k_was, list) or not any(k_was) or len(k_was) != len(res.k_m_per_pa):
+        return []
+    out = []
+    rel = [(now - was) / was if was else math.inf for now, was in zip(res.k_m_per_pa, k_was)]
+    i = max(range(len(rel)), key=lambda j: abs(rel[j]))
+    out.append((f"k {rel[i] * 100:+.1f} % on rope {i + 1}, the farthest ({res.k_m_per_pa[i]:.4g} m/Pa, "
+                f"was {k_was[i]:.4g}; tolerance {RECHECK_K_REL * 100:g} %)", abs(rel[i]) > RECHECK_K_REL))
+    was = ph.get("pressure_noise_Pa")
+    if isinstance(was, (int, float)) and was > 0:
+        r = res.pressure_noise_pa / was - 1
+        out.append((f"pressure noise {r * 100:+.1f} % ({res.pressure_noise_pa:.0f} Pa, was {was:.0f}; "
+                    f"tolerance {RECHECK_NOISE_REL * 100:g} %)", abs(r) > RECHECK_NOISE_REL))
+    was = ph.get("bounce_hz")
+    if isinstance(was, (int, float)):
+        if res.bounce_hz is None:
+            out.append((f"bounce not measured in this recording (was {was:.2f} Hz)", False))
+        else:
+            d = res.bounce_hz - was
+            out.append((f"bounce {d:+.2f} Hz ({res.bounce_hz:.2f} Hz, was {was:.2f}; "
+                        f"tolerance {RECHECK_BOUNCE_HZ:g} Hz)", abs(d) > RECHECK_BOUNCE_HZ))
+    return out
+
+
 def add_arguments(p) -> None:
     p.add_argument("node_json", metavar="NODE.json", type=Path,
                    help="node.json (from `ropemon config`) whose physical section scales the channels")
@@ -187,6 +229,9 @@ def add_arguments(p) -> None:
                    help="recorded sensor stream with a loading or a wind (.rsens, docs/data-formats.md)")
     p.add_argument("--out", metavar="COMPLIANCE.json", type=Path,
                    help="also write the JSON here (name it in SITE.toml [compliance] file)")
+    p.add_argument("--check", action="store_true",
+                   help="exit 1 when k, the pressure noise or the bounce moved beyond its tolerance "
+                        "since the fit NODE.json was built with")
 
 
 def run(args) -> int:
@@ -217,7 +262,16 @@ def run(args) -> int:
     if args.out is not None:
         args.out.write_text(text)
     sys.stdout.write(text)
-    return 0
+    lines = recheck(ph, res)
+    for line, beyond in lines:
+        print(f"ropemon fit-compliance: against {args.node_json.name}: {line}{': CHANGED' if beyond else ''}",
+              file=sys.stderr)
+    changed = any(beyond for _, beyond in lines)
+    if changed:
+        print(f"ropemon fit-compliance: {args.node_json.name} no longer fits this hoist: name this fit in "
+              "SITE.toml [compliance], rebuild the config (ropemon config) and deploy it "
+              "(docs/commissioning.md, \"Re-check in service\")", file=sys.stderr)
+    return 1 if changed and args.check else 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -181,6 +181,9 @@ class Site:
     rates: Rates
     friction_path: Path | None               # friction.json from `ropemon fit-friction`
     compliance_path: Path | None = None      # compliance.json from `ropemon fit-compliance` (optional)
+    # [compliance] friction_play_sigmas: the node's play in rms of its noise (None: the node's
+    # default, 1.45; for transmitters quieter than the default see docs/accuracy.md)
+    play_sigmas: float | None = None
     extra: dict[str, Any] = field(default_factory=dict, compare=False)
 
     @property
@@ -540,15 +543,19 @@ def parse_site(doc: dict[str, Any], path: Path | str = "SITE.toml") -> Site:
         friction_path = base / ft.string("file")
         ft.finish()
     compliance_path = None
+    play_sigmas = None
     if top.has("compliance"):
         ct = top.table("compliance")
         compliance_path = base / ct.string("file")
+        if ct.has("friction_play_sigmas"):
+            play_sigmas = ct.number("friction_play_sigmas", ge=PLAY_SIGMAS_MIN, le=PLAY_SIGMAS_MAX)
         ct.finish()
     # Extra top-level tables (e.g. a simulator's [plant]) are kept for their owners, not checked here.
     extra = {k: v for k, v in doc.items() if k not in top.used}
     site = Site(path=path, name=name, node_id=node_id, key_hex=key_hex, hoist=hoist, alarms=alarms,
                 cylinders=cylinders, pipes=pipes, oil=oil, sensors=sensors, rates=rates,
-                friction_path=friction_path, compliance_path=compliance_path, extra=extra)
+                friction_path=friction_path, compliance_path=compliance_path, play_sigmas=play_sigmas,
+                extra=extra)
     # The transmitters must read 130 % of rated tension (the emergency-stop level of staged alarms).
     for i, ch in enumerate(sensors.pressure):
         if ch.range_MPa[1] < 1.3 * site.rated_pressure_MPa:
@@ -646,6 +653,10 @@ def _read_friction(path: Path | str) -> Any:
 # ---------------------------------------------------------------- compliance file
 
 COMPLIANCE_K_MAX = 1e-6      # m/Pa: the node's limit (ropemon.nodeconfig.compliance)
+# [compliance] friction_play_sigmas: the range evaluated (docs/accuracy.md, "Sensitivity" and
+# "The transmitters' noise"); above 2 the rest play (4.5 sigma of four channels) would be
+# narrower than the play of one channel
+PLAY_SIGMAS_MIN, PLAY_SIGMAS_MAX = 1.2, 2.0
 PRESSURE_NOISE_MAX_PA = 1e6  # rms: the node's limit for pressure_noise_Pa
 DISPLACEMENT_NOISE_MAX_M = 1e-3  # rms: the node's limit for displacement_noise_m
 BOUNCE_MIN_HZ, BOUNCE_MAX_HZ = 0.5, 125.0  # the node's limits for bounce_hz (at most sample_hz/8)
@@ -759,6 +770,8 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
         # LuGre position x_h = k p_l + b (docs/model.md); absent: the node runs without compliance
         **hydraulic,
     }
+    if site.play_sigmas is not None and hydraulic:
+        physical["friction_play_sigmas"] = site.play_sigmas
     # A seal stiffer in pre-sliding than the node can represent (e.g. a fit of a seal
     # with no measurable pre-sliding) is commissioned at the node's stiffest sigma0;
     # `ropemon config` warns about it (siteconfig.site_warnings).

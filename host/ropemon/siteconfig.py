@@ -68,7 +68,9 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
                   + (f", displacement noise {ph['displacement_noise_m'] * 1e6:.1f} um rms"
                      if "displacement_noise_m" in ph else "")
                   + (f", bounce at the pithead {ph['bounce_hz']:.2f} Hz" if "bounce_hz" in ph
-                     else ", bounce not measured (the node's default)")])
+                     else ", bounce not measured (the node's default)")
+                  + (f", play {ph['friction_play_sigmas']:g} sigma (SITE.toml)" if site.play_sigmas is not None
+                     else "")])
     return "\n".join([
         f"site {site.name}: node {ph['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
         f"{ph['frame_hz']} Hz frames",

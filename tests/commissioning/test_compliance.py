@@ -193,6 +193,57 @@ def test_command_refuses_a_bad_file_with_exit_2(recorded, tmp_path, capsys, ph, 
     assert cap.err.startswith("ropemon fit-compliance: error: ") and message in cap.err
 
 
+def test_a_refit_against_a_commissioned_config_names_what_moved(recorded, tmp_path, capsys, ph):
+    node, rsens = recorded
+    fit = compliance.fit(ph, synthetic(ph))
+
+    def run(**took) -> tuple[int, int, str]:
+        node.write_text(json.dumps({"physical": dict(ph, **took)}))
+        out = tmp_path / "compliance.json"
+        out.unlink(missing_ok=True)
+        codes = [ropemon(["fit-compliance", str(node), str(rsens), "--out", str(out)] + check)
+                 for check in ([], ["--check"])]
+        cap = capsys.readouterr()
+        assert json.loads(out.read_text()) == fit.as_dict()  # the fit is written either way
+        return codes[0], codes[1], cap.err
+
+    # built without a compliance: nothing to re-check
+    assert run() == (0, 0, "")
+    # built with this very fit: every value within its tolerance
+    same = dict(hydraulic_compliance_m_per_Pa=fit.k_m_per_pa, pressure_noise_Pa=fit.pressure_noise_pa,
+                bounce_hz=2.59)
+    plain, checked, err = run(**same)
+    assert (plain, checked) == (0, 0)
+    assert "k +0.0 % on rope" in err and "pressure noise +0.0 %" in err
+    assert "bounce not measured in this recording (was 2.59 Hz)" in err  # the synthetic wind has no stop
+    assert "CHANGED" not in err and "no longer fits" not in err
+    # the transmitters 10 % noisier than commissioned, and rope 3's k 2 % higher
+    k = list(fit.k_m_per_pa)
+    k[2] /= 1.02
+    plain, checked, err = run(**dict(same, pressure_noise_Pa=fit.pressure_noise_pa / 1.1,
+                                     hydraulic_compliance_m_per_Pa=k))
+    assert (plain, checked) == (0, 1)
+    assert "pressure noise +10.0 %" in err and "tolerance 3 %): CHANGED" in err
+    assert "k +2.0 % on rope 3, the farthest" in err and "tolerance 1 %): CHANGED" in err
+    assert "node.json no longer fits this hoist" in err
+    # within tolerance: 2 % noisier
+    plain, checked, err = run(**dict(same, pressure_noise_Pa=fit.pressure_noise_pa / 1.02))
+    assert (plain, checked) == (0, 0) and "pressure noise +2.0 %" in err and "CHANGED" not in err
+
+
+def test_recheck_of_the_bounce():
+    fit = compliance.ComplianceFit(k_m_per_pa=[3e-10] * 4, r=[1.0] * 4, span_pa=[1e6] * 4, residual_m=[0.0] * 4,
+                                   pressure_noise_pa=5000.0, displacement_noise_m=2e-5, samples=1000, bounce_hz=2.75)
+    ph = {"hydraulic_compliance_m_per_Pa": [3e-10] * 4, "pressure_noise_Pa": 5000.0}
+    assert [line for line, _ in compliance.recheck(ph, fit)] == [
+        "k +0.0 % on rope 1, the farthest (3e-10 m/Pa, was 3e-10; tolerance 1 %)",
+        "pressure noise +0.0 % (5000 Pa, was 5000; tolerance 3 %)"]  # no bounce in the config: none compared
+    assert compliance.recheck(dict(ph, bounce_hz=2.59), fit)[-1] == (
+        "bounce +0.16 Hz (2.75 Hz, was 2.59; tolerance 0.1 Hz)", True)
+    assert compliance.recheck(dict(ph, bounce_hz=2.70), fit)[-1][1] is False
+    assert compliance.recheck({"hydraulic_compliance_m_per_Pa": [3e-10] * 3}, fit) == []  # another hoist
+
+
 # ---------------------------------------------------------------- SITE.toml [compliance]
 
 FIT = {"hydraulic_compliance_m_per_Pa": [3.0e-10, 3.1e-10, 2.9e-10, 3.0e-10], "pressure_noise_Pa": 5200.0,
@@ -242,6 +293,24 @@ def test_site_compliance_file_gives_the_physical_keys(site_dir):
     other = dict(FIT, hydraulic_compliance_m_per_Pa=[4e-10] * 4, pressure_noise_Pa=3e3)
     ph = physical_from_site(site, compliance=other)
     assert (ph["hydraulic_compliance_m_per_Pa"], ph["pressure_noise_Pa"]) == ([4e-10] * 4, 3e3)
+
+
+def test_site_play_for_quieter_transmitters_reaches_the_node(site_dir, capsys):
+    default = make_node_json(physical_from_site(load_site(with_compliance(site_dir))))
+    site = site_dir / "paper-site.toml"
+    site.write_text(site.read_text() + "friction_play_sigmas = 1.6\n")
+    ph = physical_from_site(load_site(site))
+    assert ph["friction_play_sigmas"] == 1.6
+    wider = make_node_json(ph)
+    play = [p * 1.6 / 1.45 for p in default["node"]["friction"]["play_q8um"]]
+    assert wider["node"]["friction"]["play_q8um"] == pytest.approx(play, abs=2)  # steps of 0.01 um
+    assert ropemon(["config", str(site), "--out", str(site_dir / "node.json")]) == 0
+    assert "play 1.6 sigma (SITE.toml)" in capsys.readouterr().out
+    text = site.read_text()
+    for bad, message in (("1.1", "must be >= 1.2"), ("2.5", "must be <= 2"), ('"wide"', "must be a number")):
+        site.write_text(text.replace("friction_play_sigmas = 1.6", f"friction_play_sigmas = {bad}"))
+        with pytest.raises(SiteError, match=f"compliance.friction_play_sigmas: {message}"):
+            load_site(site)
 
 
 def test_site_without_compliance_leaves_the_keys_out(site_dir):
