@@ -53,9 +53,10 @@ MOVING_M_S = 0.1          # the hoist moves (winds) above this speed
 STOPPED_S = 0.25          # the counter stands this long: the hoist has stopped
 
 
-# A re-fit this far from the values NODE.json was built with moves the node's empty-cage
-# pithead total by a few tenths of a per cent (docs/accuracy.md, "Sensitivity" and "The
-# transmitters' noise"); the fit itself repeats within about a tenth of these.
+# A hoist whose k, pressure noise or bounce is this far from the values NODE.json was built
+# with reads its empty-cage pithead total about 0.1-0.15 % off (docs/accuracy.md,
+# "Sensitivity" and "The transmitters' noise"); a re-fit of the same hoist repeats within
+# about a third of these.
 RECHECK_K_REL = 0.01       # k of any rope, relative
 RECHECK_NOISE_REL = 0.03   # the pressure noise, relative
 RECHECK_BOUNCE_HZ = 0.1    # the bounce
