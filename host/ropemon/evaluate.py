@@ -32,7 +32,7 @@ FIELD_TRIP = "paper-field-trip"
 
 # The scenarios of issue 6 that are variations of the paper's field trip, made here
 # from scenarios/paper-field-trip.toml so the variation is the only difference:
-# name -> (what it tests, change to the scenario document, oil temperature input fitted).
+# name -> (what it tests, change to the scenario document, change to its SITE.toml text or None).
 def _set(path: str, value):
     def change(doc: dict) -> None:
         *keys, last = path.split(".")
@@ -75,6 +75,27 @@ def _long_rest(doc: dict) -> None:
     rests[-1]["duration_s"] = 120.0  # the field trip's last: the empty cage at the pithead
 
 
+def _quiet(doc: dict) -> None:
+    doc.setdefault("sensors", {}).update(pressure_noise_Pa=1.25e3, adc_noise_counts=0.25)
+
+
+def _temperature_input(text: str) -> str:
+    """The site's commented-out oil temperature input, fitted."""
+    if "# " + TEMPERATURE_INPUT not in text:
+        raise EvaluationError(f"the site has no commented-out `{TEMPERATURE_INPUT}` to fit the input with")
+    return text.replace("# " + TEMPERATURE_INPUT, TEMPERATURE_INPUT)
+
+
+def _site_play(sigmas: float):
+    """The site's [compliance] table with the friction observer's play (docs/commissioning.md)."""
+    def change(text: str) -> str:
+        table = "[compliance]\n"
+        if text.count(table) != 1:
+            raise EvaluationError("the site has no single [compliance] table to set the play in")
+        return text.replace(table, f"{table}friction_play_sigmas = {sigmas}\n")
+    return change
+
+
 def _duty(doc: dict) -> None:
     del doc["trip"]
     doc["duty"] = {"trips": 50, "payload_kg": [0.0, 12000.0], "oil_temp_C": [0.0, 40.0],
@@ -83,22 +104,26 @@ def _duty(doc: dict) -> None:
 
 
 VARIANTS = {
-    "payload-0t": ("the field trip with the cage empty both ways", _payload(0.0), False),
-    "payload-12t": ("the field trip with the rated payload (12 t)", _payload(12000.0), False),
-    "oil-0C": ("oil at 0 C, the node assumes 20 C", _set("plant.oil_temp_C", 0.0), False),
-    "oil-20C": ("oil at 20 C, as the node assumes", _set("plant.oil_temp_C", 20.0), False),
-    "oil-40C": ("oil at 40 C, the node assumes 20 C", _set("plant.oil_temp_C", 40.0), False),
-    "oil-0C-temp-input": ("oil at 0 C, node with an oil temperature input", _set("plant.oil_temp_C", 0.0), True),
-    "oil-40C-temp-input": ("oil at 40 C, node with an oil temperature input", _set("plant.oil_temp_C", 40.0), True),
+    "payload-0t": ("the field trip with the cage empty both ways", _payload(0.0), None),
+    "payload-12t": ("the field trip with the rated payload (12 t)", _payload(12000.0), None),
+    "oil-0C": ("oil at 0 C, the node assumes 20 C", _set("plant.oil_temp_C", 0.0), None),
+    "oil-20C": ("oil at 20 C, as the node assumes", _set("plant.oil_temp_C", 20.0), None),
+    "oil-40C": ("oil at 40 C, the node assumes 20 C", _set("plant.oil_temp_C", 40.0), None),
+    "oil-0C-temp-input": ("oil at 0 C, node with an oil temperature input", _set("plant.oil_temp_C", 0.0),
+                          _temperature_input),
+    "oil-40C-temp-input": ("oil at 40 C, node with an oil temperature input", _set("plant.oil_temp_C", 40.0),
+                           _temperature_input),
     "rope-length-5cm": ("rope 1 effectively 5 cm longer than the others",
-                        _set("plant.ropes.offsets_m", [0.05, 0.0, 0.0, 0.0]), False),
+                        _set("plant.ropes.offsets_m", [0.05, 0.0, 0.0, 0.0]), None),
     "pithead-long-rest": ("the field trip with the empty cage resting 120 s at the pithead, not 4 s",
-                          _long_rest, False),
-    "sensor-noise": ("pressure noise 20 kPa, displacement noise 40 um, ADC noise 3 counts", _noisy, False),
-    "stuck-sensor": ("rope 2's pressure transmitter sticks at 30 s", _stuck, False),
-    "pressure-loop-open": ("rope 2's pressure loop opens (0 mA) at 30 s", _open_loop, False),
-    "plant-other-friction": ("the plant's seals follow a Coulomb-Stribeck law, not LuGre", _other_friction, False),
-    "duty-cycle-50": ("50 winds, payload 0-12 t, oil 0-40 C, node assumes 20 C", _duty, False),
+                          _long_rest, None),
+    "sensor-noise": ("pressure noise 20 kPa, displacement noise 40 um, ADC noise 3 counts", _noisy, None),
+    "quiet-sensors": ("pressure transmitters a quarter as noisy (1.25 kPa, ADC noise 0.25 counts), "
+                      "the site's play at 1.6 sigma", _quiet, _site_play(1.6)),
+    "stuck-sensor": ("rope 2's pressure transmitter sticks at 30 s", _stuck, None),
+    "pressure-loop-open": ("rope 2's pressure loop opens (0 mA) at 30 s", _open_loop, None),
+    "plant-other-friction": ("the plant's seals follow a Coulomb-Stribeck law, not LuGre", _other_friction, None),
+    "duty-cycle-50": ("50 winds, payload 0-12 t, oil 0-40 C, node assumes 20 C", _duty, None),
 }
 # Scenarios whose seal `ropemon config` must refuse (site.seal_refusal): a Coulomb-Stribeck
 # seal releases its force at standstill, which the node's LuGre does not. The figures show
@@ -470,20 +495,20 @@ def scenario_doc(name: str, work: Path) -> tuple[dict, Path]:
     doc = tomllib.loads(path.read_text())
     if name not in VARIANTS:
         return doc, path
-    _what, change, temp_input = VARIANTS[name]
+    _what, change, site_edit = VARIANTS[name]
     change(doc)
     doc["name"] = name
-    if temp_input:
+    if site_edit is not None:
         site_path = path.parent / doc["site"]
-        text = site_path.read_text()
-        if "# " + TEMPERATURE_INPUT not in text:
-            raise EvaluationError(f"{site_path}: no commented-out `{TEMPERATURE_INPUT}` to fit the input with")
-        text = text.replace("# " + TEMPERATURE_INPUT, TEMPERATURE_INPUT)
-        # the copy lives in `work`: its friction file must still be found
+        try:
+            text = site_edit(site_path.read_text())
+        except EvaluationError as e:
+            raise EvaluationError(f"{site_path}: {e}") from None
+        # the copy lives in `work`: its friction and compliance files must still be found
         text = text.replace('file = "', f'file = "{site_path.parent}/')
         work.mkdir(parents=True, exist_ok=True)
-        (work / "site-with-temperature.toml").write_text(text)
-        doc["site"] = str((work / "site-with-temperature.toml").resolve())
+        (work / "site-variant.toml").write_text(text)
+        doc["site"] = str((work / "site-variant.toml").resolve())
     return doc, path
 
 

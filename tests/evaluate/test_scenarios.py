@@ -33,6 +33,23 @@ def test_temperature_input_variant_fits_the_input_in_a_site_copy(tmp_path):
     assert site.friction_path.exists()
 
 
+def test_quiet_sensors_variant_quarters_the_pressure_noise_and_sets_the_sites_play(tmp_path):
+    from ropemon.site import load_site, physical_from_site
+
+    doc = ev.scenario_doc("quiet-sensors", tmp_path)[0]
+    ref = base(tmp_path)
+    assert doc["sensors"]["pressure_noise_Pa"] == ref["sensors"]["pressure_noise_Pa"] / 4
+    assert doc["sensors"]["adc_noise_counts"] == ref["sensors"]["adc_noise_counts"] / 4
+    doc["sensors"].update(pressure_noise_Pa=ref["sensors"]["pressure_noise_Pa"],
+                          adc_noise_counts=ref["sensors"]["adc_noise_counts"])
+    site = load_site(doc.pop("site"))
+    ref.pop("site")
+    doc["name"] = ref["name"]
+    assert doc == ref  # nothing else changed
+    assert site.play_sigmas == 1.6 and site.compliance_path.exists() and site.friction_path.exists()
+    assert physical_from_site(site)["friction_play_sigmas"] == 1.6
+
+
 def test_payload_and_duty_variants(tmp_path):
     loads = [p for p in ev.scenario_doc("payload-12t", tmp_path)[0]["trip"]["phase"] if p["kind"] == "load"]
     assert [p["payload_kg"] for p in loads] == [12000.0, 0.0]  # loaded at the bottom, unloaded at the top
