@@ -20,7 +20,8 @@ config that seed's commissioning made) and reruns the float reference
   the config as commissioned: the transmitters' noise changed since;
 - `--set KEY=V1,V2 ...`: each combination of settings of the config's
   `physical` section (JSON values), as tools/observer_sensitivity.py changes them,
-  on the winds as evaluated and again at each `--scale` (its own tuning);
+  on the winds as evaluated and again at each `--scale` (its own tuning) and each
+  `--drift` (the config as commissioned, with the setting);
 - smoother, plays x F (`--smoother F,...`): each seed's wind with the tracker
   replaced by the Kalman smoother of the whole wind's median pressure (the
   tracker's own creep-and-bounce model, run forward and back: the best linear
@@ -318,12 +319,16 @@ def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, li
         change = dict(zip(keys, combo))
         label = " ".join(f"{k}={json.dumps(v)}" for k, v in change.items())
         as_evaluated = [(w.records, w.physical) for w in winds]
-        for a, inputs in ((None, as_evaluated), *((a, levels[a]) for a in scales)):
+        runs = [(label, as_evaluated)]
+        runs += [(f"pressure noise x{a:g}, {label}", levels[a]) for a in scales]
+        runs += [(f"pressure noise x{a:g} after commissioning, {label}",
+                  [(recs, w.physical) for w, (recs, _) in zip(winds, levels[a])]) for a in drifts]
+        for name, inputs in runs:
             try:
                 rows = [(w.seed, score({**ph, **change}, recs, w)) for w, (recs, ph) in zip(winds, inputs)]
             except ValueError as e:  # the config refuses the setting: say which and why
                 raise SystemExit(f"--set {label}: {e}") from None
-            yield (label if a is None else f"pressure noise x{a:g}, {label}"), rows
+            yield name, rows
 
 
 def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: list[float],
@@ -399,7 +404,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="pressure noise scales with the config as commissioned (comma-separated)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2",
                     help="a setting of `physical` and its values (JSON); repeat for a grid; "
-                         "run as evaluated and at each --scale")
+                         "run as evaluated, at each --scale and at each --drift")
     ap.add_argument("--smoother", default="", metavar="F,...",
                     help="the whole wind's Kalman smoother for the tracker, its plays x F (comma-separated)")
     ap.add_argument("--window-seed", type=int, default=None)

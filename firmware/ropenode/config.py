@@ -55,6 +55,8 @@ friction.stroke_vmin_q16 0 536870912
 friction.stroke_settle 0 65535
 friction.alpha_l_q14 1 16384
 friction.alpha_a_q14 1 16384
+friction.noise_ref_q6 0 262144
+friction.noise_shift 0 16
 temperature.fitted 0 1
 temperature.counts_at_0c 0 65535
 temperature.cc_mul -16384 16384
@@ -310,6 +312,12 @@ def parse_node(nd):
     for i in range(n):
         if c.rest_q16um[i] and c.rest_play_q8um[i] < c.play_q8um[i]:
             raise ConfigError("%s.rest_play_q8um[%d]" % (FP, i), "narrower than play_q8um")
+        # noise following scales the threshold up to twice: the quiet's shift stays < 2**30
+        if c.noise_ref_q6 and c.rest_q16um[i] >= 1 << 20:
+            raise ConfigError("%s.rest_q16um[%d]" % (FP, i), "2**20 or more with noise following")
+    # noise following (level in kPa/16, Q6; 0: the plays are fixed) needs its low-pass
+    if (c.noise_ref_q6 == 0) != (c.noise_shift == 0):
+        raise ConfigError(FP + ".noise_shift", "0 exactly when noise_ref_q6 is 0")
     # the pressure tracker's Kalman gains: of c (Q14), v (Q(14 + tracker_v_shift)), b0, b1
     # (Q(14 + tracker_b_shift))
     c.tracker_k_q14 = _ints(fr, "tracker_k_q14", FP, 4, 4, -16384, 16384)

@@ -88,7 +88,9 @@ _TA2 = const(52)     # pressure tracker: the bounce's a2, Q14
 _TK = const(53)      # its Kalman gains (4): of c in Q14, v in Q(14 + TVSH), b0, b1 in Q(14 + TBSH)
 _TVSH = const(57)    # v is held 2**TVSH finer than c
 _TBSH = const(58)    # b is held 2**TBSH finer than c
-_AREA = const(59)    # cylinder area per rope over the ropes' mean, Q8
+_NREF = const(59)    # noise following: the channels' noise level the plays are sized for, kPa/16 Q6 (0: fixed)
+_NSH = const(60)     # its low-pass gain is 2**-NSH
+_AREA = const(61)    # cylinder area per rope over the ropes' mean, Q8
 _KQ = const(_AREA + ROPES_MAX)  # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
 _PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n healthy pressure channels
 _RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
@@ -170,7 +172,13 @@ _TC = const(173)       # its creep c, kPa/2048
 _TV = const(174)       # the creep's rate c_k - c_(k-1), kPa/2048 / 2**TVSH per sample
 _TB0 = const(175)      # its bounce b_k, kPa/2048 / 2**TBSH
 _TB1 = const(176)      # b_(k-1)
-_S_LEN = const(177)
+_NP1 = const(177)      # per rope: noise following: the pressure one sample ago, kPa/16
+_NP2 = const(181)      # two samples ago
+_NL = const(185)       # the channel's noise level: low-pass of the clipped |second difference|, kPa/16 Q6
+_NLREM = const(189)    # its error-feedback remainder
+_NRUN = const(193)     # 2 bits per rope: samples (0..2) the channel has been healthy before this one
+NOISE_Q10 = const(194)  # the median level over _NREF, Q10 (1024: as commissioned): it scales the plays
+_S_LEN = const(195)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -194,7 +202,7 @@ def pack(c):
         _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14,
         c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16,
         c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (
-        c.tracker_v_shift, c.tracker_b_shift)
+        c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS),
@@ -216,6 +224,8 @@ def state(c):
     for i in range(ROPES_MAX):
         s[MIN_N + i] = _BIG
         s[MAX_N + i] = -_BIG
+        s[_NL + i] = c.noise_ref_q6
+    s[NOISE_Q10] = 1024
     return s
 
 
@@ -313,14 +323,72 @@ def step(rec, P, S, n):
         m += (pg >> i) & 1
     lo = (m - 1) >> 1
     hi = m >> 1
+    # noise following (docs/model.md): each healthy channel's level, the low-pass (gain
+    # 2**-NSH, error feedback) of |p_k - 2 p_k-1 + p_k-2| in kPa/16 clipped at 4 times the
+    # level, held within half to twice NREF (Q6: |d| << 6 <= 2**21); the median of the
+    # healthy channels' levels over NREF is the noise ratio r (Q10, 512 .. 2048)
+    nref = P[_NREF]
+    r = S[NOISE_Q10]
+    if nref != 0:
+        nsh = P[_NSH]
+        run = S[_NRUN]
+        for i in range(n):
+            k = (run >> (i + i)) & 3
+            run -= k << (i + i)
+            if (pg >> i) & 1:
+                c = S[P_KPA16 + i]
+                if k == 2:
+                    lv = S[_NL + i]
+                    d = c - S[_NP1 + i] - S[_NP1 + i] + S[_NP2 + i]
+                    if d < 0:
+                        d = -d
+                    if d > (lv >> 4):
+                        d = lv >> 4
+                    e = (d << 6) - lv + S[_NLREM + i]
+                    lv += e >> nsh
+                    S[_NLREM + i] = e & ((1 << nsh) - 1)
+                    if lv > nref + nref:
+                        lv = nref + nref
+                    elif lv < (nref >> 1):
+                        lv = nref >> 1
+                    S[_NL + i] = lv
+                else:
+                    k += 1
+                S[_NP2 + i] = S[_NP1 + i]
+                S[_NP1 + i] = c
+            else:
+                k = 0
+            run += k << (i + i)
+        S[_NRUN] = run
+        if m > 0:
+            t = 0  # twice the median level (< 2**20)
+            for i in range(n):
+                if (pg >> i) & 1:
+                    c = S[_NL + i]
+                    k = 0
+                    for j in range(n):
+                        if j != i and (pg >> j) & 1:
+                            e = S[_NL + j]
+                            if e < c or (e == c and j < i):
+                                k += 1
+                    if k == lo:
+                        t += c
+                    if k == hi:
+                        t += c
+            r = (t << 9) // nref
+            S[NOISE_Q10] = r
     # the play, and the rest hold's play and threshold, for the noise of this median: of
-    # fewer channels it is noisier (without a compliance every entry is the same)
+    # fewer channels it is noisier (without a compliance every entry is the same), times r
+    # (rounded; split so no product exceeds 2**25)
     j = n - 1
     if m > 0:
         j = m - 1
-    play = P[_PLAYS + j]
-    rplay = P[_RPLAYS + j]
-    rth = P[_RTH + j]
+    c = P[_PLAYS + j]
+    play = (c >> 10) * r + (((c & 1023) * r + 512) >> 10)
+    c = P[_RPLAYS + j]
+    rplay = (c >> 10) * r + (((c & 1023) * r + 512) >> 10)
+    c = P[_RTH + j]
+    rth = (c >> 10) * r + (((c & 1023) * r + 512) >> 10)
     al = P[_AL]
     aa = P[_AA]
     pm = 0

@@ -66,7 +66,9 @@ _TA2 = const(52)
 _TK = const(53)
 _TVSH = const(57)
 _TBSH = const(58)
-_AREA = const(59)
+_NREF = const(59)
+_NSH = const(60)
+_AREA = const(61)
 _KQ = const(_AREA + ROPES_MAX)
 _PLAYS = const(_KQ + ROPES_MAX)
 _RPLAYS = const(_PLAYS + ROPES_MAX)
@@ -146,7 +148,13 @@ _TC = const(173)
 _TV = const(174)
 _TB0 = const(175)
 _TB1 = const(176)
-_S_LEN = const(177)
+_NP1 = const(177)
+_NP2 = const(181)
+_NL = const(185)
+_NLREM = const(189)
+_NRUN = const(193)
+NOISE_Q10 = const(194)
+_S_LEN = const(195)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -160,7 +168,7 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_v_shift, c.tracker_b_shift)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
@@ -178,6 +186,8 @@ def state(c):
     for i in range(ROPES_MAX):
         s[MIN_N + i] = _BIG
         s[MAX_N + i] = -_BIG
+        s[_NL + i] = c.noise_ref_q6
+    s[NOISE_Q10] = 1024
     return s
 
 @micropython.viper
@@ -268,12 +278,65 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         m += pg >> i & 1
     lo = m - 1 >> 1
     hi = m >> 1
+    nref = (P[_NREF] ^ s31) - s31
+    r = (S[NOISE_Q10] ^ s31) - s31
+    if nref != 0:
+        nsh = (P[_NSH] ^ s31) - s31
+        run = (S[_NRUN] ^ s31) - s31
+        for i in range(n):
+            k = run >> i + i & 3
+            run -= k << i + i
+            if pg >> i & 1:
+                c = (S[P_KPA16 + i] ^ s31) - s31
+                if k == 2:
+                    lv = (S[_NL + i] ^ s31) - s31
+                    d = c - ((S[_NP1 + i] ^ s31) - s31) - ((S[_NP1 + i] ^ s31) - s31) + ((S[_NP2 + i] ^ s31) - s31)
+                    if d < 0:
+                        d = -d
+                    if d > lv >> 4:
+                        d = lv >> 4
+                    e = (d << 6) - lv + ((S[_NLREM + i] ^ s31) - s31)
+                    lv += e >> nsh
+                    S[_NLREM + i] = e & (1 << nsh) - 1
+                    if lv > nref + nref:
+                        lv = nref + nref
+                    elif lv < nref >> 1:
+                        lv = nref >> 1
+                    S[_NL + i] = lv
+                else:
+                    k += 1
+                S[_NP2 + i] = (S[_NP1 + i] ^ s31) - s31
+                S[_NP1 + i] = c
+            else:
+                k = 0
+            run += k << i + i
+        S[_NRUN] = run
+        if m > 0:
+            t = 0
+            for i in range(n):
+                if pg >> i & 1:
+                    c = (S[_NL + i] ^ s31) - s31
+                    k = 0
+                    for j in range(n):
+                        if j != i and pg >> j & 1:
+                            e = (S[_NL + j] ^ s31) - s31
+                            if e < c or (e == c and j < i):
+                                k += 1
+                    if k == lo:
+                        t += c
+                    if k == hi:
+                        t += c
+            r = (t << 9) // nref
+            S[NOISE_Q10] = r
     j = n - 1
     if m > 0:
         j = m - 1
-    play = (P[_PLAYS + j] ^ s31) - s31
-    rplay = (P[_RPLAYS + j] ^ s31) - s31
-    rth = (P[_RTH + j] ^ s31) - s31
+    c = (P[_PLAYS + j] ^ s31) - s31
+    play = (c >> 10) * r + ((c & 1023) * r + 512 >> 10)
+    c = (P[_RPLAYS + j] ^ s31) - s31
+    rplay = (c >> 10) * r + ((c & 1023) * r + 512 >> 10)
+    c = (P[_RTH + j] ^ s31) - s31
+    rth = (c >> 10) * r + ((c & 1023) * r + 512 >> 10)
     al = (P[_AL] ^ s31) - s31
     aa = (P[_AA] ^ s31) - s31
     pm = 0

@@ -63,15 +63,22 @@ DEFAULTS = {
     "rest_play_sigmas": 4.0,
     "rest_slow_cutoff_hz": 0.2,
     "rest_cutoff_hz": 0.5,
+    # noise following (docs/model.md), with a compliance: the node measures each pressure
+    # channel's noise (the low-pass, this slow, of |second difference|) and scales the plays
+    # and the rest threshold by the median channel's over pressure_noise_Pa's (0: fixed)
+    "noise_follow_s": 0.0,
 }
 # the defaults that change when a compliance is given
 COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
-                       "friction_play_sigmas": 1.45, "rest_sigmas": 1.12, "rest_play_sigmas": 4.5}
+                       "friction_play_sigmas": 1.45, "rest_sigmas": 1.12, "rest_play_sigmas": 4.5,
+                       "noise_follow_s": 20.0}
 # rms of the median of N independent channels of unit rms noise (Gaussian; of two: their
 # mean): the LuGre position's pressure with a compliance (docs/model.md)
 MEDIAN_NOISE = (1.0, 0.7071, 0.6696, 0.5458)
 
 PLAY_STEP_M = 0.01e-6        # resolution of the LuGre play half-width
+NOISE_CLIP = 4               # noise following: |second difference| clipped at this many times the level
+NOISE_RANGE = 2              # and the level held within 1/this .. this times the commissioned one
 PRESSURE_Q_MAX = 1 << 14    # |count difference| <= 65535: a mul below 2**14 keeps d * mul < 2**30
 
 
@@ -154,6 +161,17 @@ def filtered_noise_m(noise_m: float, alpha: float, alpha_z: float) -> float:
         xs += alpha_z * (xf - xs)
         acc += xs * xs
     return noise_m * math.sqrt(acc)
+
+
+def noise_level_per_rms() -> float:
+    """The noise following's level per rms of white Gaussian channel noise: the mean of
+    |second difference| (rms sqrt(6)) clipped at NOISE_CLIP times that mean, its fixed point."""
+    s = math.sqrt(6)
+    level = s * math.sqrt(2 / math.pi)
+    for _ in range(50):
+        c = NOISE_CLIP * level / s  # the clip in rms of the second difference
+        level = s * (math.sqrt(2 / math.pi) * (1 - math.exp(-c * c / 2)) + c * math.erfc(c / math.sqrt(2)))
+    return level
 
 
 def compliance(ph: dict, n: int) -> list[float]:
@@ -308,6 +326,12 @@ def physical_params(ph: dict) -> dict:
     rest_plays = in_steps("rest_play_sigmas", 20.0)
     if any(rest) and min(rest_plays) < max(plays):
         raise ValueError("physical.rest_play_sigmas: must be at least friction_play_sigmas")
+    # noise following: the level the plays are sized for (Pa) and the low-pass's shift
+    follow_s = _num(ph, "noise_follow_s", 0.0, 3600.0)
+    noise_ref, noise_shift = 0.0, 0
+    if any(k) and follow_s > 0:
+        noise_ref = pressure_noise_pa(ph) * noise_level_per_rms()
+        noise_shift = min(16, max(1, round(math.log2(follow_s * fs))))
     alpha_l, alpha_a = (max(1, round((1 - math.exp(-2 * math.pi * _num(ph, key, 0.001, fs / 2) / fs)) * 16384))
                         / 16384 for key in ("rest_slow_cutoff_hz", "rest_cutoff_hz"))
     fe_hz = _num(ph, "stroke_cutoff_hz", 0.01, fs / 2)
@@ -345,6 +369,8 @@ def physical_params(ph: dict) -> dict:
         "plays_m": plays,
         "rest_m": rest,              # activity threshold per count (all 0: no rest hold)
         "rest_plays_m": rest_plays,  # the play while quiet
+        "noise_ref_pa": noise_ref,   # noise following: the level the plays are sized for (0: fixed)
+        "noise_shift": noise_shift,  # its low-pass gain is 2**-noise_shift
         "alpha_l": alpha_l,
         "alpha_a": alpha_a,
         "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
@@ -494,6 +520,13 @@ def build_node_section(ph: dict) -> dict:
     _check("physical.friction_play_sigmas (play half-width, um/256)", max(play_q8um), 1 << 24)
     _check("physical.rest_play_sigmas (play half-width, um/256)", max(rest_play_q8um), (1 << 20) + 1)
     _check("physical.rest_sigmas (activity threshold, um/65536)", max(rest_q16um), (1 << 21) + 1)
+    # noise following: the level in kPa/16, Q6; it scales the plays and the threshold up to
+    # NOISE_RANGE times, which the node's products and the rest hold's quiet stay within
+    noise_ref_q6 = round(pp["noise_ref_pa"] / 62.5 * 64)
+    if pp["noise_shift"]:
+        _check("physical.pressure_noise_Pa (noise following's level, kPa/16 Q6)", noise_ref_q6, (1 << 18) + 1)
+        _check("physical.rest_sigmas (activity threshold with noise following, um/65536)",
+               max(rest_q16um), 1 << 20)
 
     fr = _get(ph, "friction")
     if not isinstance(fr, dict):
@@ -569,6 +602,7 @@ def build_node_section(ph: dict) -> dict:
     nd["friction"] = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s,
                       "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
                       "rest_play_q8um": rest_play_q8um, "rest_q16um": rest_q16um,
+                      "noise_ref_q6": noise_ref_q6 if pp["noise_shift"] else 0, "noise_shift": pp["noise_shift"],
                       "alpha_l_q14": round(pp["alpha_l"] * 16384), "alpha_a_q14": round(pp["alpha_a"] * 16384),
                       **_tracker_fields(pp["tracker"]), "compliance_q": kq,
                       "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),

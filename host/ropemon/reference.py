@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ropemon.firmware import node_module
-from ropemon.nodeconfig import DEFAULTS, namur_limits, physical_params
+from ropemon.nodeconfig import DEFAULTS, NOISE_CLIP, NOISE_RANGE, namur_limits, physical_params
 
 RS = node_module("rsens")  # the .rsens format is firmware/ropenode/rsens.py's, never restated
 RSENS_HEADER = struct.Struct(RS.HEADER)
@@ -139,7 +139,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
     `strokes`, a list, receives (sample, rope or -1, e per rope in m) for every start
     (rope 0-based) and end (-1) of a balancing stroke (tools/stroke_events.py).
     `increments`, a dict, receives the observer's per-sample increments [sample, rope]
-    (m): "dxs" of the LuGre position and "dxp" of its play (tools/observer_losses.py)."""
+    (m): "dxs" of the LuGre position and "dxp" of its play (tools/observer_losses.py),
+    and "noise_ratio"[sample], the noise following's ratio (1: as commissioned)."""
     pp = physical_params(ph)
     n = pp["ropes"]
     fs = float(ph["sample_hz"])
@@ -175,9 +176,9 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
         OK[:, i] = p_ok & x_ok
         POK[:, i] = p_ok
-    DX, DXS, DXP = _observer(pp, P, X, OK, POK, fs, strokes)
+    DX, DXS, DXP, NR = _observer(pp, P, X, OK, POK, fs, strokes)
     if increments is not None:
-        increments.update(dxs=DXS, dxp=DXP)
+        increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR)
     for i in range(n):
         p = P[:, i]
         dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]
@@ -263,6 +264,11 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
     Runs while both loops of a rope are healthy and starts again (with its warm-up)
     after a fault of either; strokes are tracked only while every rope runs warmed up."""
     k, n = P.shape
+    nref, nsh = pp["noise_ref_pa"], pp["noise_shift"]
+    a_n = 2.0 ** -nsh
+    lv, p1, p2, run = [nref] * n, [0.0] * n, [0.0] * n, [0] * n
+    ratio = 1.0
+    nr = np.ones(k)
     alpha, dx_max, plays = pp["alpha"], pp["v_max"] / fs, pp["plays_m"]
     rest, rest_plays, alpha_l, alpha_a = pp["rest_m"], pp["rest_plays_m"], pp["alpha_l"], pp["alpha_a"]
     alpha_z, alpha_e, warm = pp["alpha_z"], pp["alpha_e"], pp["warmup"]
@@ -281,7 +287,24 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
         healthy = [p for p, ok in zip(pr, pokr) if ok]
         pm = _median(healthy)
         c = len(healthy) - 1 if healthy else n - 1  # the median of fewer is noisier
-        play, rest_play, hold = plays[c], rest_plays[c], rest[c]
+        if nsh:
+            # noise following: each healthy channel's level, a low-pass of its clipped
+            # |second difference|, within 1/NOISE_RANGE .. NOISE_RANGE of nref; the plays
+            # and the threshold scale by the healthy channels' median level over nref
+            for i in range(n):
+                if not pokr[i]:
+                    run[i] = 0
+                    continue
+                if run[i] == 2:
+                    d = min(abs(pr[i] - 2 * p1[i] + p2[i]), NOISE_CLIP * lv[i])
+                    lv[i] = min(max(lv[i] + a_n * (d - lv[i]), nref / NOISE_RANGE), NOISE_RANGE * nref)
+                else:
+                    run[i] += 1
+                p2[i], p1[i] = p1[i], pr[i]
+            if healthy:
+                ratio = math.floor(_median([lv[i] for i in range(n) if pokr[i]]) / nref * 1024) / 1024
+            nr[j] = ratio
+        play, rest_play, hold = plays[c] * ratio, rest_plays[c] * ratio, rest[c] * ratio
         pk = tracker.step(pm if healthy else None)
         cv = 0.0
         allw = th > 0
@@ -399,7 +422,7 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                 xb[i] += e[i]
                 xh[i] += e[i]
                 e[i] = 0.0
-    return dx, dxs, dxp
+    return dx, dxs, dxp, nr
 
 def decimate(ph: dict, comp: Compensated) -> Frames:
     """Frame-window mean/min/max of the good samples (NaN for a window with none)."""

@@ -165,3 +165,26 @@ def test_node_refuses_a_rest_play_narrower_than_the_play():
     with pytest.raises(config.ConfigError) as e:
         config.parse_node(nd)
     assert e.value.field == "node.friction.rest_play_q8um[2]", e.value.field
+
+
+def test_noise_following_is_built_from_the_commissioned_noise_and_refused_when_inconsistent():
+    """With a compliance the builder turns the noise following on (noise_follow_s 20 s:
+    a low-pass of 4096 samples at 200 Hz) at the level of pressure_noise_Pa as the node
+    reads it; 0 turns it off. The node refuses a level without a low-pass (and the reverse)
+    and, with following, a rest threshold it could not double."""
+    ph = example_physical()
+    ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
+    ph["pressure_noise_Pa"] = 5000.0
+    fr = build_node_section(ph)["friction"]
+    level = math.hypot(5000.0, 1e3 / 16 / math.sqrt(12)) * math.sqrt(6) * 0.7975 / 62.5 * 64
+    assert fr["noise_shift"] == 12 and fr["noise_ref_q6"] == pytest.approx(level, abs=1)
+    off = build_node_section(dict(ph, noise_follow_s=0.0))["friction"]
+    assert (off["noise_ref_q6"], off["noise_shift"]) == (0, 0)
+    assert build_node_section(example_physical())["friction"]["noise_shift"] == 0  # no compliance
+    for key, value, field in (("noise_shift", 0, "noise_shift"), ("noise_ref_q6", 0, "noise_shift"),
+                              ("rest_q16um", [1 << 20] * 4, "rest_q16um[0]")):
+        nd = build_node_section(ph)
+        nd["friction"][key] = value
+        with pytest.raises(config.ConfigError) as e:
+            config.parse_node(nd)
+        assert e.value.field == "node.friction." + field, e.value.field
