@@ -184,6 +184,9 @@ class Site:
     # [compliance] friction_play_sigmas: the node's play in rms of its noise (None: the node's
     # default, 1.45; for transmitters quieter than the default see docs/accuracy.md)
     play_sigmas: float | None = None
+    # [compliance] noise_follow_s: how long the node averages its transmitters' noise to
+    # follow it (None: the node's default, 20 s; 0: the plays stay as commissioned)
+    noise_follow_s: float | None = None
     extra: dict[str, Any] = field(default_factory=dict, compare=False)
 
     @property
@@ -544,18 +547,25 @@ def parse_site(doc: dict[str, Any], path: Path | str = "SITE.toml") -> Site:
         ft.finish()
     compliance_path = None
     play_sigmas = None
+    noise_follow_s = None
     if top.has("compliance"):
         ct = top.table("compliance")
         compliance_path = base / ct.string("file")
         if ct.has("friction_play_sigmas"):
             play_sigmas = ct.number("friction_play_sigmas", ge=PLAY_SIGMAS_MIN, le=PLAY_SIGMAS_MAX)
+        if ct.has("noise_follow_s"):
+            noise_follow_s = ct.number("noise_follow_s", ge=0.0, le=NOISE_FOLLOW_MAX_S)
+            if 0 < noise_follow_s < NOISE_FOLLOW_MIN_S:
+                raise SiteError(f"{ct.field('noise_follow_s')}: must be 0 (off) or at least "
+                                f"{NOISE_FOLLOW_MIN_S:g} s (a shorter average measures the noise too "
+                                f"roughly), got {noise_follow_s:g}")
         ct.finish()
     # Extra top-level tables (e.g. a simulator's [plant]) are kept for their owners, not checked here.
     extra = {k: v for k, v in doc.items() if k not in top.used}
     site = Site(path=path, name=name, node_id=node_id, key_hex=key_hex, hoist=hoist, alarms=alarms,
                 cylinders=cylinders, pipes=pipes, oil=oil, sensors=sensors, rates=rates,
                 friction_path=friction_path, compliance_path=compliance_path, play_sigmas=play_sigmas,
-                extra=extra)
+                noise_follow_s=noise_follow_s, extra=extra)
     # The transmitters must read 130 % of rated tension (the emergency-stop level of staged alarms).
     for i, ch in enumerate(sensors.pressure):
         if ch.range_MPa[1] < 1.3 * site.rated_pressure_MPa:
@@ -657,6 +667,9 @@ COMPLIANCE_K_MAX = 1e-6      # m/Pa: the node's limit (ropemon.nodeconfig.compli
 # "The transmitters' noise"); above 2 the rest play (4.5 sigma of four channels) would be
 # narrower than the play of one channel
 PLAY_SIGMAS_MIN, PLAY_SIGMAS_MAX = 1.2, 2.0
+# [compliance] noise_follow_s: 0 (off) or this range; at 5 s each channel's noise level is
+# good to about 2.5 %, at 20 s (the node's default) to about 1 % (docs/model.md)
+NOISE_FOLLOW_MIN_S, NOISE_FOLLOW_MAX_S = 5.0, 600.0
 PRESSURE_NOISE_MAX_PA = 1e6  # rms: the node's limit for pressure_noise_Pa
 DISPLACEMENT_NOISE_MAX_M = 1e-3  # rms: the node's limit for displacement_noise_m
 BOUNCE_MIN_HZ, BOUNCE_MAX_HZ = 0.5, 125.0  # the node's limits for bounce_hz (at most sample_hz/8)
@@ -772,6 +785,8 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
     }
     if site.play_sigmas is not None and hydraulic:
         physical["friction_play_sigmas"] = site.play_sigmas
+    if site.noise_follow_s is not None and hydraulic:
+        physical["noise_follow_s"] = site.noise_follow_s
     # A seal stiffer in pre-sliding than the node can represent (e.g. a fit of a seal
     # with no measurable pre-sliding) is commissioned at the node's stiffest sigma0;
     # `ropemon config` warns about it (siteconfig.site_warnings).

@@ -70,7 +70,10 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
                   + (f", bounce at the pithead {ph['bounce_hz']:.2f} Hz" if "bounce_hz" in ph
                      else ", bounce not measured (the node's default)")
                   + (f", play {ph['friction_play_sigmas']:g} sigma (SITE.toml)" if site.play_sigmas is not None
-                     else "")])
+                     else "")
+                  + ((", noise following off (SITE.toml)" if site.noise_follow_s == 0 else
+                      f", noise followed over {site.noise_follow_s:g} s (SITE.toml)")
+                     if site.noise_follow_s is not None else "")])
     return "\n".join([
         f"site {site.name}: node {ph['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
         f"{ph['frame_hz']} Hz frames",

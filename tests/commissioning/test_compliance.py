@@ -320,6 +320,24 @@ def test_site_play_for_quieter_transmitters_reaches_the_node(site_dir, capsys):
             load_site(site)
 
 
+def test_site_noise_following_setting_reaches_the_node(site_dir, capsys):
+    site = with_compliance(site_dir)
+    assert make_node_json(physical_from_site(load_site(site)))["node"]["friction"]["noise_shift"] == 12  # 20 s
+    text = site.read_text()
+    site.write_text(text + "noise_follow_s = 0\n")
+    ph = physical_from_site(load_site(site))
+    assert ph["noise_follow_s"] == 0
+    assert make_node_json(ph)["node"]["friction"]["noise_ref_q6"] == 0  # the plays stay as built
+    assert ropemon(["config", str(site), "--out", str(site_dir / "node.json")]) == 0
+    assert "noise following off (SITE.toml)" in capsys.readouterr().out
+    site.write_text(text + "noise_follow_s = 80\n")
+    assert make_node_json(physical_from_site(load_site(site)))["node"]["friction"]["noise_shift"] == 14
+    for bad, message in (("2", "must be 0 \\(off\\) or at least 5 s"), ("900", "must be <= 600")):
+        site.write_text(text + f"noise_follow_s = {bad}\n")
+        with pytest.raises(SiteError, match=f"compliance.noise_follow_s: {message}"):
+            load_site(site)
+
+
 def test_site_without_compliance_leaves_the_keys_out(site_dir):
     site = load_site(site_dir / "paper-site.toml")
     assert site.compliance_path is None

@@ -115,7 +115,7 @@ def test_table_reproduces_the_evaluation_and_its_controls(two_seeds, capsys):
     assert stretches and all(len(line.split("|")) == 7 for line in stretches)
 
 
-def test_drift_keeps_the_commissioned_config_and_the_grid_runs_at_each_scale(two_seeds, capsys):
+def test_drift_keeps_the_commissioned_config_and_the_grid_runs_at_each_scale_and_drift(two_seeds, capsys):
     assert ps.main([str(two_seeds), "short-test", "--scale", "0.5", "--drift", "1,0.5",
                     "--set", "friction_play_sigmas=1.45,2"]) == 0
     per_seed = table_rows(capsys.readouterr().out)
@@ -128,6 +128,10 @@ def test_drift_keeps_the_commissioned_config_and_the_grid_runs_at_each_scale(two
     assert per_seed("pressure noise x0.5, friction_play_sigmas=1.45") == per_seed("pressure noise x0.5")
     assert per_seed("pressure noise x0.5, friction_play_sigmas=2") != per_seed("pressure noise x0.5")
     assert per_seed("friction_play_sigmas=1.45") == per_seed("as evaluated")
+    # and after commissioning: the default play is the drift row, another play another run
+    drift = "pressure noise x0.5 after commissioning"
+    assert per_seed(f"{drift}, friction_play_sigmas=1.45") == per_seed(drift)
+    assert per_seed(f"{drift}, friction_play_sigmas=2") != per_seed(drift)
 
 
 def test_a_setting_the_config_refuses_is_named(two_seeds):

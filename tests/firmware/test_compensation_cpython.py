@@ -501,7 +501,7 @@ def test_noise_following_sizes_the_plays_for_the_noise_the_transmitters_have_now
     kPa): the noise following (docs/model.md) measures each channel's level and scales
     the plays and the rest threshold by the ratio, which reaches 1.2 or 0.8 within 3 %
     over a 70 s rest (noise_follow_s 20 s) and stays within 2 % of 1 at the noise as
-    commissioned; the node's ratio is the reference's within 0.5 %. Without the rest
+    commissioned; the node's ratio is the reference's within 2/1024. Without the rest
     hold, the noise relaxes the seals over the rest by nearly as much as at the noise as
     commissioned: less than 0.6 of the difference that fixed plays make."""
     kernel = node_module("kernel")
@@ -520,7 +520,7 @@ def test_noise_following_sizes_the_plays_for_the_noise_the_transmitters_have_now
                 assert ratio == pytest.approx(noise / 5200.0, rel=0.03 if noise != 5200.0 else 0.02), noise
                 node = Node(config.parse(doc))
                 ten, good, _ = run_node(node, recs)
-                assert node.S[kernel.NOISE_Q10] / 1024 == pytest.approx(ratio, rel=0.005)
+                assert abs(node.S[kernel.NOISE_Q10] - ratio * 1024) <= 2  # steps of 1/1024
                 err = np.abs(ten - ref.tension_n)[good]
                 assert err.max() <= _tolerance_n(doc), (noise, err.max())
             else:
