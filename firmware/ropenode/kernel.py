@@ -321,24 +321,26 @@ def step(rec, P, S, n):
     m = 0
     for i in range(n):
         m += (pg >> i) & 1
-    lo = (m - 1) >> 1
-    hi = m >> 1
     # noise following (docs/model.md): each healthy channel's level, the low-pass (gain
     # 2**-NSH, error feedback) of |p_k - 2 p_k-1 + p_k-2| in kPa/16 clipped at 4 times the
     # level, held within half to twice NREF (Q6: |d| << 6 <= 2**21); the median of the
-    # healthy channels' levels over NREF is the noise ratio r (Q10, 512 .. 2048)
+    # healthy channels' levels over NREF is the noise ratio r (Q10, 512 .. 2048). Then lo
+    # and hi: the ranks of the pressure median's middle one or two
     nref = P[_NREF]
     r = S[NOISE_Q10]
     if nref != 0:
         nsh = P[_NSH]
         run = S[_NRUN]
+        t = 0  # the healthy channels' levels: sum, least, largest (the median from them)
+        lo = nref + nref + 1  # above any level
+        hi = 0
         for i in range(n):
             k = (run >> (i + i)) & 3
             run -= k << (i + i)
             if (pg >> i) & 1:
                 c = S[P_KPA16 + i]
+                lv = S[_NL + i]
                 if k == 2:
-                    lv = S[_NL + i]
                     d = c - S[_NP1 + i] - S[_NP1 + i] + S[_NP2 + i]
                     if d < 0:
                         d = -d
@@ -356,39 +358,41 @@ def step(rec, P, S, n):
                     k += 1
                 S[_NP2 + i] = S[_NP1 + i]
                 S[_NP1 + i] = c
+                t += lv
+                if lv < lo:
+                    lo = lv
+                if lv > hi:
+                    hi = lv
             else:
                 k = 0
             run += k << (i + i)
         S[_NRUN] = run
+        # twice the median (< 2**21): of 4 the sum of the middle two, of 3 twice the
+        # middle one, of 2 the sum, of 1 twice the one
+        if m == 4:
+            t = t - lo - hi
+        elif m == 3:
+            t = (t - lo - hi) << 1
+        elif m == 1:
+            t = t << 1
         if m > 0:
-            t = 0  # twice the median level (< 2**20)
-            for i in range(n):
-                if (pg >> i) & 1:
-                    c = S[_NL + i]
-                    k = 0
-                    for j in range(n):
-                        if j != i and (pg >> j) & 1:
-                            e = S[_NL + j]
-                            if e < c or (e == c and j < i):
-                                k += 1
-                    if k == lo:
-                        t += c
-                    if k == hi:
-                        t += c
             r = (t << 9) // nref
             S[NOISE_Q10] = r
+    lo = (m - 1) >> 1
+    hi = m >> 1
     # the play, and the rest hold's play and threshold, for the noise of this median: of
     # fewer channels it is noisier (without a compliance every entry is the same), times r
     # (rounded; split so no product exceeds 2**25)
     j = n - 1
     if m > 0:
         j = m - 1
-    c = P[_PLAYS + j]
-    play = (c >> 10) * r + (((c & 1023) * r + 512) >> 10)
-    c = P[_RPLAYS + j]
-    rplay = (c >> 10) * r + (((c & 1023) * r + 512) >> 10)
-    c = P[_RTH + j]
-    rth = (c >> 10) * r + (((c & 1023) * r + 512) >> 10)
+    play = P[_PLAYS + j]
+    rplay = P[_RPLAYS + j]
+    rth = P[_RTH + j]
+    if r != 1024:
+        play = (play >> 10) * r + (((play & 1023) * r + 512) >> 10)
+        rplay = (rplay >> 10) * r + (((rplay & 1023) * r + 512) >> 10)
+        rth = (rth >> 10) * r + (((rth & 1023) * r + 512) >> 10)
     al = P[_AL]
     aa = P[_AA]
     pm = 0

@@ -276,20 +276,21 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     m = 0
     for i in range(n):
         m += pg >> i & 1
-    lo = m - 1 >> 1
-    hi = m >> 1
     nref = (P[_NREF] ^ s31) - s31
     r = (S[NOISE_Q10] ^ s31) - s31
     if nref != 0:
         nsh = (P[_NSH] ^ s31) - s31
         run = (S[_NRUN] ^ s31) - s31
+        t = 0
+        lo = nref + nref + 1
+        hi = 0
         for i in range(n):
             k = run >> i + i & 3
             run -= k << i + i
             if pg >> i & 1:
                 c = (S[P_KPA16 + i] ^ s31) - s31
+                lv = (S[_NL + i] ^ s31) - s31
                 if k == 2:
-                    lv = (S[_NL + i] ^ s31) - s31
                     d = c - ((S[_NP1 + i] ^ s31) - s31) - ((S[_NP1 + i] ^ s31) - s31) + ((S[_NP2 + i] ^ s31) - s31)
                     if d < 0:
                         d = -d
@@ -307,36 +308,36 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
                     k += 1
                 S[_NP2 + i] = (S[_NP1 + i] ^ s31) - s31
                 S[_NP1 + i] = c
+                t += lv
+                if lv < lo:
+                    lo = lv
+                if lv > hi:
+                    hi = lv
             else:
                 k = 0
             run += k << i + i
         S[_NRUN] = run
+        if m == 4:
+            t = t - lo - hi
+        elif m == 3:
+            t = t - lo - hi << 1
+        elif m == 1:
+            t = t << 1
         if m > 0:
-            t = 0
-            for i in range(n):
-                if pg >> i & 1:
-                    c = (S[_NL + i] ^ s31) - s31
-                    k = 0
-                    for j in range(n):
-                        if j != i and pg >> j & 1:
-                            e = (S[_NL + j] ^ s31) - s31
-                            if e < c or (e == c and j < i):
-                                k += 1
-                    if k == lo:
-                        t += c
-                    if k == hi:
-                        t += c
             r = (t << 9) // nref
             S[NOISE_Q10] = r
+    lo = m - 1 >> 1
+    hi = m >> 1
     j = n - 1
     if m > 0:
         j = m - 1
-    c = (P[_PLAYS + j] ^ s31) - s31
-    play = (c >> 10) * r + ((c & 1023) * r + 512 >> 10)
-    c = (P[_RPLAYS + j] ^ s31) - s31
-    rplay = (c >> 10) * r + ((c & 1023) * r + 512 >> 10)
-    c = (P[_RTH + j] ^ s31) - s31
-    rth = (c >> 10) * r + ((c & 1023) * r + 512 >> 10)
+    play = (P[_PLAYS + j] ^ s31) - s31
+    rplay = (P[_RPLAYS + j] ^ s31) - s31
+    rth = (P[_RTH + j] ^ s31) - s31
+    if r != 1024:
+        play = (play >> 10) * r + ((play & 1023) * r + 512 >> 10)
+        rplay = (rplay >> 10) * r + ((rplay & 1023) * r + 512 >> 10)
+        rth = (rth >> 10) * r + ((rth & 1023) * r + 512 >> 10)
     al = (P[_AL] ^ s31) - s31
     aa = (P[_AA] ^ s31) - s31
     pm = 0
