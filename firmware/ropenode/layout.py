@@ -53,6 +53,10 @@ ST_IMBALANCE = const(0x0020)          # a rope's window mean deviates beyond the
 ST_SPEED_FAULT = const(0x0040)        # counter glitch (jump beyond max pulses/sample), or a Hall mark with no speed pulses
 ST_TEMP_ABSENT = const(0x0080)        # no oil temperature input: assumed temperature used
 ST_OVERRUN = const(0x0100)            # samples were missed (processing slower than the timer)
+ST_NOISE_CHANGED = const(0x0200)      # the pressure channels' noise moved beyond NOISE_TOL_Q10 of the commissioned
+# noise following (docs/model.md): the node flags a ratio of its measured pressure noise to
+# the commissioned one beyond 1 +- this/1024 (the host's fit-compliance re-check tolerance)
+NOISE_TOL_Q10 = const(256)
 
 STATUS_BITS = (
     ("pressure_fault", ST_PRESSURE_FAULT),
@@ -64,6 +68,7 @@ STATUS_BITS = (
     ("speed_fault", ST_SPEED_FAULT),
     ("temp_absent", ST_TEMP_ABSENT),
     ("overrun", ST_OVERRUN),
+    ("noise_changed", ST_NOISE_CHANGED),
 )
 
 OIL_TEMP_ABSENT = const(-32768)  # oil_temp_cc value when no temperature input is fitted

@@ -65,6 +65,7 @@ class Node:
         self.P = K.pack(cfg)
         self.S = K.state(cfg)
         self.step = step or K.step
+        self.follows_noise = cfg.noise_ref_q6 != 0
 
     @property
     def temp_cc(self):
@@ -137,6 +138,9 @@ class Node:
                 status |= layout.ST_SPEED_FAULT
             if t == layout.OIL_TEMP_ABSENT:
                 status |= layout.ST_TEMP_ABSENT
+            r = S[K.NOISE_Q10] - 1024
+            if self.follows_noise and (r > layout.NOISE_TOL_Q10 or r < -layout.NOISE_TOL_Q10):
+                status |= layout.ST_NOISE_CHANGED
             n = wr.pack(layout.KIND_DATA, f, self.frame_seq.next(), self._time_ms(), status, ropes, S[K.OUT_DEPTH_MM],
                         S[K.OUT_SPEED], S[K.OUT_BATT_MV], t)
         self.ready = False

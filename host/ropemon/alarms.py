@@ -12,7 +12,9 @@ caller logs them, e.g. `Store.add_event`).
 Kinds: deviation (a rope vs the mean of the ropes), overload (total vs rated),
 slack (a rope below a floor), sensor_fault (fault bits), sensor_stuck (a rope's
 pressure frozen while the others move, see `_StuckTracker`), config_fault, silent
-(no frame from a node), battery_low, link_integrity (MAC failures or replays).
+(no frame from a node), battery_low, pressure_noise (the node's noise_changed bit:
+its transmitters' noise moved beyond what it follows without a re-check),
+link_integrity (MAC failures or replays).
 """
 from __future__ import annotations
 
@@ -289,6 +291,11 @@ class AlarmEngine:
             lo, hi = bit, not bit
         self._step(ev, f"battery_low:n{node}", "battery_low", node, None, s.timing, now_s,
                    lo, hi, mv, s.battery_low_mv, f"battery {mv} mV low")
+        noisy = bool(frame.status & L.ST_NOISE_CHANGED)
+        self._step(ev, f"pressure_noise:n{node}", "pressure_noise", node, None, s.fault_timing, now_s,
+                   noisy, not noisy, None, None,
+                   f"pressure transmitters' noise more than {L.NOISE_TOL_Q10 * 100 // 1024} % off the "
+                   "commissioned: re-check the config (ropemon fit-compliance --check)")
         return self._log(ev)
 
     def tick(self, now_s: float) -> list[AlarmEvent]:

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ropemon.nodeconfig import namur_limits, physical_params
+from ropemon.protocol import L
 from ropemon.reference import read_rsens
 
 MIN_SPAN_PA = 0.3e6   # the pressure must change at least this much over the recording
@@ -62,8 +63,9 @@ RECHECK_NOISE_REL = 0.03   # the pressure noise, relative, with the node's plays
 RECHECK_BOUNCE_HZ = 0.1    # the bounce
 # With noise following (docs/model.md) the node scales its plays by the noise it measures
 # itself: this far, the pithead total's mean moves by about 0.1 % (docs/accuracy.md, "The
-# transmitters' noise": 0.07 % at 20 %, 0.13 % at 33 %).
-RECHECK_NOISE_FOLLOWED_REL = 0.25
+# transmitters' noise": 0.07 % at 20 %, 0.13 % at 33 %). Beyond it the node flags its
+# frames noise_changed (the same tolerance, layout.NOISE_TOL_Q10).
+RECHECK_NOISE_FOLLOWED_REL = L.NOISE_TOL_Q10 / 1024
 
 
 class ComplianceError(ValueError):

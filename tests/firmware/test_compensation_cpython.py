@@ -531,3 +531,25 @@ def test_noise_following_sizes_the_plays_for_the_noise_the_transmitters_have_now
         followed = np.abs(relax[20.0, noise] - relax[20.0, 5200.0])
         fixed = np.abs(relax[0.0, noise] - relax[0.0, 5200.0])
         assert (followed < 0.6 * fixed).all(), (noise, followed, fixed)
+
+
+def test_frames_flag_a_noise_beyond_what_the_node_follows_unchecked():
+    """The node flags its frames noise_changed once its noise ratio is beyond 1 +- 25 %
+    (layout.NOISE_TOL_Q10, fit-compliance's re-check tolerance with following): with the
+    transmitters 50 % noisier, from 10-20 s after the start to the end; never at the
+    noise as commissioned, nor 20 % noisier, nor with the following off."""
+    from ropemon.decoder import StreamDecoder
+
+    def flagged(follow: float, noise: float) -> np.ndarray:
+        doc = make_node_json(_rest_physical(noise_follow_s=follow))
+        recs, _t = _rest_records(doc["physical"], 40, 5, noise)
+        _ten, _good, frames = run_node(Node(config.parse(doc)), recs)
+        decoded = StreamDecoder().feed(b"".join(frames))
+        assert len(decoded) == len(frames)
+        return np.array([bool(f.status & L.ST_NOISE_CHANGED) for f in decoded])
+
+    noisy = flagged(20.0, 7800.0)
+    first = int(np.flatnonzero(noisy)[0])  # 15 s: the level low-pass (20 s) passes 1.25 of 1.5
+    assert 100 <= first <= 200 and noisy[first:].all(), np.flatnonzero(noisy)[:5]
+    for follow, noise in ((20.0, 5200.0), (20.0, 6240.0), (0.0, 7800.0)):
+        assert not flagged(follow, noise).any(), (follow, noise)

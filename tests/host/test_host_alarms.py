@@ -129,6 +129,16 @@ def test_fault_bits_config_fault_battery():
     assert ids(run(eng2, [[5000] * 4] * 10, status=L.ST_BATTERY_LOW)) == [("raise", "battery_low:n1")]
 
 
+def test_the_nodes_noise_changed_bit_raises_pressure_noise_and_clears():
+    eng = AlarmEngine()
+    assert ids(run(eng, [[5000] * 4])) == []  # one frame is not an alarm
+    ev = run(eng, [[5000] * 4] * 3, t0=1, status=L.ST_NOISE_CHANGED)
+    assert ids(ev) == [("raise", "pressure_noise:n1")]
+    assert "more than 25 % off the commissioned" in ev[0].message and "fit-compliance --check" in ev[0].message
+    ev = run(eng, [[5000] * 4] * 30, t0=2)  # 2 s without the bit
+    assert ("clear", "pressure_noise:n1") in ids(ev)
+
+
 def test_node_silent_raises_on_tick_and_clears_when_frames_return():
     eng = AlarmEngine(AlarmSettings(silent_s=5.0))
     run(eng, [[5000] * 4] * 3)
