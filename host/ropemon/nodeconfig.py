@@ -522,7 +522,7 @@ def build_node_section(ph: dict) -> dict:
     _check("physical.rest_sigmas (activity threshold, um/65536)", max(rest_q16um), (1 << 21) + 1)
     # noise following: the level in kPa/16, Q6; it scales the plays and the threshold up to
     # NOISE_RANGE times, which the node's products and the rest hold's quiet stay within
-    noise_ref_q6 = round(pp["noise_ref_pa"] / 62.5 * 64)
+    noise_ref_q6 = round(pp["noise_ref_pa"] / 62.5 * 64)  # 0 without following
     if pp["noise_shift"]:
         _check("physical.pressure_noise_Pa (noise following's level, kPa/16 Q6)", noise_ref_q6, (1 << 18) + 1)
         _check("physical.rest_sigmas (activity threshold with noise following, um/65536)",
@@ -602,7 +602,7 @@ def build_node_section(ph: dict) -> dict:
     nd["friction"] = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s,
                       "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
                       "rest_play_q8um": rest_play_q8um, "rest_q16um": rest_q16um,
-                      "noise_ref_q6": noise_ref_q6 if pp["noise_shift"] else 0, "noise_shift": pp["noise_shift"],
+                      "noise_ref_q6": noise_ref_q6, "noise_shift": pp["noise_shift"],
                       "alpha_l_q14": round(pp["alpha_l"] * 16384), "alpha_a_q14": round(pp["alpha_a"] * 16384),
                       **_tracker_fields(pp["tracker"]), "compliance_q": kq,
                       "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),
