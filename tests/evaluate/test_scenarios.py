@@ -50,6 +50,30 @@ def test_quiet_sensors_variant_quarters_the_pressure_noise_and_sets_the_sites_pl
     assert physical_from_site(site)["friction_play_sigmas"] == 1.6
 
 
+def test_noise_drift_variant_is_commissioned_at_the_field_trips_noise(tmp_path, monkeypatch):
+    doc = ev.scenario_doc("pressure-noise-drift", tmp_path)[0]
+    ref = base(tmp_path)
+    assert doc["sensors"]["pressure_noise_Pa"] == 1.2 * ref["sensors"]["pressure_noise_Pa"]
+    doc["sensors"]["pressure_noise_Pa"] = ref["sensors"]["pressure_noise_Pa"]
+    doc["name"] = ref["name"]
+    assert doc == ref  # nothing else changed
+    # its commissioning wind is recorded at the field trip's noise; another variant's at its own
+    seen = {}
+
+    def fake_simulate(name, out_dir, seed, change=None):
+        wind = ev.scenario_doc(name, out_dir)[0]
+        change(wind)
+        seen[name] = wind["sensors"]["pressure_noise_Pa"]
+        raise ev.EvaluationError("stop here")
+
+    monkeypatch.setattr(ev, "simulate", fake_simulate)
+    for name in ("pressure-noise-drift", "quiet-sensors"):
+        with pytest.raises(ev.EvaluationError, match="stop here"):
+            ev.fit_compliance(name, {}, tmp_path / name, 1)
+    assert seen == {"pressure-noise-drift": ref["sensors"]["pressure_noise_Pa"],
+                    "quiet-sensors": ref["sensors"]["pressure_noise_Pa"] / 4}
+
+
 def test_payload_and_duty_variants(tmp_path):
     loads = [p for p in ev.scenario_doc("payload-12t", tmp_path)[0]["trip"]["phase"] if p["kind"] == "load"]
     assert [p["payload_kg"] for p in loads] == [12000.0, 0.0]  # loaded at the bottom, unloaded at the top
