@@ -7,7 +7,9 @@ from the drawings, so the node's k is measured: a least-squares line of the
 piston position on the pressure over a recording (a commissioning wind, or any
 stream with loading and acceleration), on the node's own channel scaling. The
 same recording gives the pressure channels' noise, which sizes the play of the
-node's friction observer (`pressure_noise_Pa`), and the displacement channels'
+node's friction observer (`pressure_noise_Pa`: the median channel's, as the node's
+observer follows the median pressure and its noise following the median channel's
+level; one noisier transmitter does not widen it), and the displacement channels'
 noise, which sizes its thresholds on the displacement (`displacement_noise_m`),
 and the cage's bounce at the pithead (`bounce_hz`), which tunes the node's
 pressure tracker: the strongest line between 1 Hz and sample_hz/8 in the median
@@ -78,7 +80,7 @@ class ComplianceFit:
     r: list[float]               # correlation of position and pressure
     span_pa: list[float]         # pressure range used (5th to 95th percentile)
     residual_m: list[float]      # rms of position about the line (noise and slow flows)
-    pressure_noise_pa: float     # rms sample-to-sample noise of the pressure channels (worst rope)
+    pressure_noise_pa: float     # rms sample-to-sample noise of the pressure channels (median rope)
     displacement_noise_m: float  # the same of the displacement channels (worst rope)
     samples: int
     bounce_hz: float | None = None  # the bounce after the last arrival (None: not measured)
@@ -131,7 +133,7 @@ def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
         res.append(float(np.sqrt(np.mean((x - (icpt + slope * p)) ** 2))))
         noise.append(_white_noise(p, abs(hi - lo) / (pc["counts_20mA"] - pc["counts_4mA"])))
         x_noise.append(_white_noise(x, abs(yhi - ylo) / abs(dc["counts_hi"] - dc["counts_lo"])))
-    return ComplianceFit(ks, rs, spans, res, max(noise), max(x_noise), int(records.shape[0]),
+    return ComplianceFit(ks, rs, spans, res, float(np.median(noise)), max(x_noise), int(records.shape[0]),
                          bounce_hz(ph, records))
 
 

@@ -91,6 +91,20 @@ def test_pressure_noise_is_estimated_within_15_percent(ph, noise):
     assert res.pressure_noise_pa == pytest.approx(want, rel=0.15)
 
 
+def test_the_pressure_noise_is_the_median_channels(ph):
+    # one transmitter 40 % noisier than the other three does not size the node's observer:
+    # its LuGre position follows the median pressure, its noise following the median
+    # channel's level (docs/model.md), so the fit gives the median channel's noise
+    rng = np.random.default_rng(3)
+    p = wind_pressure()
+    ps = [p + rng.normal(0, s, p.size) for s in (P_NOISE, P_NOISE, 1.4 * P_NOISE, P_NOISE)]
+    xs = [x0 + k * p + rng.normal(0, X_NOISE, p.size) for k, x0 in zip(K_TRUE, X0)]
+    res = compliance.fit(ph, records(ph, ps, xs))
+    pc = ph["pressure_channels"][0]
+    step = (pc["range_Pa"][1] - pc["range_Pa"][0]) / (pc["counts_20mA"] - pc["counts_4mA"])
+    assert res.pressure_noise_pa == pytest.approx(np.hypot(P_NOISE, step / np.sqrt(12)), rel=0.1)
+
+
 @pytest.mark.parametrize("noise", [1e-5, 2e-5, 4e-5])
 def test_displacement_noise_is_estimated_within_15_percent(ph, noise):
     # the pistons' compression (k p: the ramp, the humps, the bounce) is signal, not noise
