@@ -12,7 +12,12 @@ the operator alarms those frames make through the host's debounce
 8 % test: the largest deviation the estimate reads, outside shock windows,
 with one rope truly 8 % off the mean.
 
+`--noise-scale F` first scales the pressure channels' noise by F, the config
+commissioned with it, as `tools/pithead_spread.py --scale` does; `--set KEY=VALUE`
+(JSON) changes a setting of the commissioned `physical` section.
+
     .venv/bin/python tools/alarm_frames.py out/evaluate/runs/duty-cycle-50
+    .venv/bin/python tools/alarm_frames.py RUN --noise-scale 0.25 --set friction_play_sigmas=1.6
 """
 from __future__ import annotations
 
@@ -26,6 +31,9 @@ import numpy as np
 from ropemon import evaluate as EV
 from ropemon import metrics as M
 from ropemon import reference
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling, however this was loaded
+import pithead_spread as PS  # noqa: E402
 
 
 def alarm_frames(est_n: np.ndarray, truth_n: np.ndarray, window: int, threshold: float = 0.10) -> dict:
@@ -71,27 +79,49 @@ def largest_at_8(est_n: np.ndarray, truth_n: np.ndarray, window: int,
     return best
 
 
+def inputs(run: Path, noise_scale: float = 1.0, settings: dict | None = None) -> tuple:
+    """(physical, hz, records, truth) of a run directory, its pressure noise scaled by
+    `noise_scale` (the config commissioned with it) and `settings` put in `physical`."""
+    ph = json.loads((run / "node-evaluated.json").read_text())["physical"]
+    _r, hz, recs = reference.read_rsens(run / "sim" / "sensors.rsens")
+    with np.load(run / "sim" / "truth.npz") as z:
+        truth = {key: z[key] for key in z.files}
+    k = min(len(recs), len(truth["tension_N"]))
+    recs, truth = recs[:k], {key: v[:k] for key, v in truth.items()}
+    if noise_scale != 1.0:
+        seed = int(json.loads((run / "sim" / "truth.json").read_text())["seed"])
+        recs, ph = PS.scaled_pressure_noise(PS.Wind(seed, recs, truth, ph, hz), noise_scale)
+    return {**ph, **(settings or {})}, hz, recs, truth
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run", type=Path, help="a scenario's directory under out/evaluate/runs")
+    ap.add_argument("--noise-scale", type=float, default=1.0, metavar="F",
+                    help="the pressure channels' noise times F, commissioned with it")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="change a setting of the physical section (JSON value); repeatable")
     a = ap.parse_args(argv)
-    ph = json.loads((a.run / "node-evaluated.json").read_text())["physical"]
-    _r, hz, recs = reference.read_rsens(a.run / "sim" / "sensors.rsens")
-    truth = np.load(a.run / "sim" / "truth.npz")
-    truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]
-    recs = recs[: len(truth_n)]
+    settings = {}
+    for key, values in PS.parse_set(a.set):
+        if len(values) != 1:
+            ap.error(f"--set {key}: one value")
+        settings[key] = values[0]
+    ph, hz, recs, truth = inputs(a.run, a.noise_scale, settings)
+    truth_n = np.asarray(truth["tension_N"], float)
     window = hz // int(ph["frame_hz"])
     est = reference.compensate(ph, recs).tension_n
-    k = len(truth_n)
-    phase = M.classify_phases(truth["cage_depth_m"][:k], truth["wheel_speed_m_s"][:k],
-                              truth["wheel_accel_m_s2"][:k], float(ph["hall_marks_m"][-1]))[::window]
+    phase = M.classify_phases(truth["cage_depth_m"], truth["wheel_speed_m_s"],
+                              truth["wheel_accel_m_s2"], float(ph["hall_marks_m"][-1]))[::window]
     frames = alarm_frames(est, truth_n, window)
     _phase, excluded, _steady, _payload = EV.scoring_masks(truth, truth_n, hz, float(ph["rated_rope_tension_N"]),
                                                            float(ph["hall_marks_m"][-1]))
     operator = M.alarm_assessment(est, truth_n, excluded, window, frame_s=window / hz)
     mean_kn = M.window_means(truth_n, window).mean(axis=1) / 1e3
     n = len(frames["false"])
-    print(f"{a.run}: {n} frames, the ropes' mean tension median {np.median(mean_kn[:n]):.1f} kN")
+    changed = (f", pressure noise x{a.noise_scale:g}" if a.noise_scale != 1.0 else "") + "".join(
+        f", {key}={json.dumps(v)}" for key, v in settings.items())
+    print(f"{a.run}{changed}: {n} frames, the ropes' mean tension median {np.median(mean_kn[:n]):.1f} kN")
     for kind, label in (("false", "false at 8 %"), ("missed", "missed at 12 %")):
         idx = np.where(frames[kind])[0]
         by_phase = np.bincount(phase[idx], minlength=len(M.PHASES))

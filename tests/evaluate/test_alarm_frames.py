@@ -5,6 +5,10 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
+
+from ropemon import evaluate as EV
+from ropemon import reference
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("alarm_frames", ROOT / "tools" / "alarm_frames.py")
@@ -39,3 +43,24 @@ def test_the_narrowest_margin_is_the_largest_deviation_read_with_a_rope_truly_8_
     excluded[100:] = True
     dev, _rope, frame = af.largest_at_8(est, truth, 20, excluded)
     assert frame < 5 and abs(dev - 0.08) < 1e-9
+
+
+def test_the_run_rerun_with_its_noise_scaled_and_a_setting_changed(tmp_path, capsys):
+    work = tmp_path / "short-test"
+    EV.build_case("short-test", work, 1, firmware=False, bed=EV.BED_QUICK)
+    ph, hz, recs, truth = af.inputs(work)
+    assert hz == 200 and len(recs) == len(truth["tension_N"])
+    n = int(ph["ropes"])
+    half, hz, recs_h, _ = af.inputs(work, 0.5, {"friction_play_sigmas": 1.6})
+    # half the pressure channels' noise about the same true pressure, and the config
+    # commissioned with it; the other channels and the truth as they were
+    clean = af.PS.true_pressure_counts(ph, truth)
+    ratio = (recs_h[:, :n] - clean).std() / (recs[:, :n] - clean).std()
+    assert 0.48 < ratio < 0.56
+    assert np.array_equal(recs_h[:, n:], recs[:, n:])
+    assert half["pressure_noise_Pa"] < 0.6 * ph["pressure_noise_Pa"] and half["friction_play_sigmas"] == 1.6
+    assert not np.array_equal(reference.compensate(half, recs_h).tension_n, reference.compensate(ph, recs).tension_n)
+    assert af.main([str(work), "--noise-scale", "0.5", "--set", "friction_play_sigmas=1.6"]) == 0
+    assert "pressure noise x0.5, friction_play_sigmas=1.6: " in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        af.main([str(work), "--set", "friction_play_sigmas=1.5,1.6"])
