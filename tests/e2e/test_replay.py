@@ -58,3 +58,93 @@ def test_bad_inputs_are_refused_with_the_reason(tmp_path, capsys):
     three = rsens(tmp_path / "three.rsens", samples=10, ropes=3)
     assert main(["replay", str(three), "--out", str(tmp_path / "o.bin")]) == 1
     assert "3 ropes" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- --db: the station's data path
+
+SCENARIOS = FIRMWARE_DIR.parent / "scenarios"
+
+
+@pytest.fixture(scope="module")
+def wind(tmp_path_factory):
+    """short-test, but a 12 m creep (a trip for the report) and a 4 s rest after it (the trip ends)."""
+    d = tmp_path_factory.mktemp("wind")
+    text = (SCENARIOS / "short-test.toml").read_text()
+    text = text.replace('site = "paper-site.toml"', f'site = "{SCENARIOS / "paper-site.toml"}"')
+    text = text.replace("to_depth_m = 5.0", "to_depth_m = 14.0")
+    text = text.replace('duration_s = 1.0\nlabel = "rest below the landing"',
+                        'duration_s = 4.0\nlabel = "rest below the landing"')
+    (d / "wind.toml").write_text(text)
+    assert main(["simulate", str(d / "wind.toml"), "--out", str(d / "sim")]) == 0
+    return d / "sim"
+
+
+def rows(path):
+    import csv
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_replay_into_a_log_that_report_and_export_read(wind, tmp_path, capsys):
+    db, out = tmp_path / "wind.db", tmp_path / "f.bin"
+    capsys.readouterr()
+    assert main(["replay", str(wind / "sensors.rsens"), "--config", str(wind / "node.json"),
+                 "--db", str(db), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    sent = read_frames_bin(out).frames
+    assert len(sent) > 100
+    assert f"{db}: {len(sent)} frames stored, 1 trips" in text
+    assert "alarm events: none" in text             # a balanced hoist at rest and creeping
+    assert main(["report", str(db), "--config", str(wind / "node.json"), "--out", str(tmp_path / "rep")]) == 0
+    report = capsys.readouterr().out
+    assert "trip 1 (node 1): pithead -> bottom" in report and "rope 4" in report
+    assert main(["export", str(db), "--out", str(tmp_path / "csv")]) == 0
+    frames = rows(tmp_path / "csv" / "frames.csv")
+    assert [int(r["seq"]) for r in frames] == [f.seq for f in sent]
+    assert all(r["receiver"] == "replay" and r["authenticated"] == "1" for r in frames)
+    # the station's clock was the node's: rx_time is the frame's node time
+    assert [float(r["rx_time"]) for r in frames] == pytest.approx([f.time_ms / 1000 for f in sent])
+    trips = rows(tmp_path / "csv" / "trips.csv")
+    assert len(trips) == 1 and trips[0]["end_time"] != ""
+    assert float(trips[0]["end_time"]) < sent[-1].time_ms / 1000
+
+
+def test_an_imbalanced_rope_raises_the_deviation_alarm_on_node_time(wind, tmp_path, capsys):
+    """Rope 2's cylinder area 30 % too large in the config: the node reads it ~+21 % from the
+    mean from the first frame, so DEVIATION rope 2 raises after its 0.5 s hold of node time."""
+    from ropemon.nodeconfig import make_node_json
+    from ropemon.store import Store
+
+    doc = json.loads((wind / "node.json").read_text())
+    doc["physical"]["cylinder_area_m2"][1] *= 1.3
+    cfg = tmp_path / "imbalanced.json"
+    cfg.write_text(json.dumps(make_node_json(doc["physical"])))
+    db = tmp_path / "imb.db"
+    capsys.readouterr()
+    assert main(["replay", str(wind / "sensors.rsens"), "--config", str(cfg), "--db", str(db)]) == 0
+    text = capsys.readouterr().out
+    assert "deviation      1      0" in text and "raised at the end: deviation:n1:r1" in text
+    with Store(db) as st:
+        events = st.events()
+        first = st.frames()[0].frame.time_ms / 1000
+    assert [(e["action"], e["alarm"], e["rope"]) for e in events] == [("raise", "deviation:n1:r1", 1)]
+    assert events[0]["value"] == pytest.approx(0.21, abs=0.02)
+    assert events[0]["time_s"] == pytest.approx(first + 0.5)
+
+
+def test_db_refusals_name_the_reason(wind, tmp_path, capsys):
+    s = str(wind / "sensors.rsens")
+    assert main(["replay", s]) == 2
+    assert "give --out FRAMES.bin, --db FILE or both" in capsys.readouterr().err
+    db = tmp_path / "old.db"
+    db.write_text("")
+    assert main(["replay", s, "--config", str(wind / "node.json"), "--db", str(db)]) == 1
+    assert "exists; --db writes a new log" in capsys.readouterr().err
+    doc = json.loads((wind / "node.json").read_text())
+    del doc["physical"]["key_hex"]
+    cfg = tmp_path / "nokey.json"
+    cfg.write_text(json.dumps(doc))
+    out = tmp_path / "n.bin"
+    assert main(["replay", s, "--config", str(cfg), "--db", str(tmp_path / "n.db"), "--out", str(out)]) == 1
+    assert "physical.node_id and physical.key_hex" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "n.db").exists()   # refused before the firmware ran
