@@ -24,6 +24,7 @@ import numpy as np
 
 from ropemon import estimators as E
 from ropemon import metrics as M
+from ropemon import population
 
 REPO = Path(__file__).resolve().parents[2]
 SCENARIO_DIR = REPO / "scenarios"
@@ -159,6 +160,7 @@ class Case:
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)  # full compensation fed with truths
     notes: list[str] = field(default_factory=list)
     physical: dict = field(default_factory=dict)  # the commissioned config's physical section
+    frames: list = field(default_factory=list)    # the firmware's decoded data frames, in order
 
     @property
     def window(self) -> int:
@@ -477,9 +479,21 @@ class EvaluationError(RuntimeError):
     """A scenario that could not be evaluated; the message says which step and why."""
 
 
-def scenario_path(name: str) -> Path:
-    """A scenario name (scenarios/NAME.toml or a variant of VARIANTS) or a path to a TOML file."""
+def variant(name: str):
+    """(what it tests, change to the scenario document, change to its SITE.toml text or None) of a
+    field-trip variant: one of VARIANTS or a drawn hoist of the population (`population-SEED`)."""
     if name in VARIANTS:
+        return VARIANTS[name]
+    seed = population.seed_of(name)
+    if seed is None:
+        return None
+    h = population.draw(seed)
+    return (f"drawn hoist (seed {seed}): {h.describe()}", population.change_doc(h), population.change_site(h))
+
+
+def scenario_path(name: str) -> Path:
+    """A scenario name (scenarios/NAME.toml or a variant, see `variant`) or a path to a TOML file."""
+    if variant(name) is not None:
         return SCENARIO_DIR / f"{FIELD_TRIP}.toml"
     p = Path(name)
     if p.suffix == ".toml" and p.exists():
@@ -498,16 +512,16 @@ def scenario_doc(name: str, work: Path) -> tuple[dict, Path]:
 
     path = scenario_path(name)
     doc = tomllib.loads(path.read_text())
-    if name not in VARIANTS:
+    if variant(name) is None:
         return doc, path
-    _what, change, site_edit = VARIANTS[name]
+    _what, change, site_edit = variant(name)
     change(doc)
     doc["name"] = name
     if site_edit is not None:
         site_path = path.parent / doc["site"]
         try:
             text = site_edit(site_path.read_text())
-        except EvaluationError as e:
+        except (EvaluationError, ValueError) as e:
             raise EvaluationError(f"{site_path}: {e}") from None
         # the copy lives in `work`: its friction and compliance files must still be found
         text = text.replace('file = "', f'file = "{site_path.parent}/')
@@ -706,9 +720,9 @@ def _site_physical(truth_meta: dict, friction: dict, compliance: dict | None = N
     return physical
 
 
-def _firmware_frames(physical: dict, rsens: Path, work: Path) -> np.ndarray:
-    """Frame means (N) from the fixed-point firmware under `micropython` (`ropemon replay`)
-    on the commissioned config `build_case` wrote (`node-evaluated.json`)."""
+def _firmware_frames(physical: dict, rsens: Path, work: Path) -> list:
+    """The data frames of the fixed-point firmware under `micropython` (`ropemon replay`)
+    on the commissioned config `build_case` wrote (`node-evaluated.json`), decoded, in order."""
     from ropemon.decoder import StreamDecoder
 
     node_json = work / NODE_EVALUATED
@@ -724,7 +738,7 @@ def _firmware_frames(physical: dict, rsens: Path, work: Path) -> np.ndarray:
     frames.sort(key=lambda f: f.seq)
     if frames and [f.seq for f in frames] != list(range(frames[0].seq, frames[0].seq + len(frames))):
         raise EvaluationError("firmware frames: sequence numbers not consecutive")
-    return frame_means_n(frames)
+    return frames
 
 
 def frame_means_n(frames) -> np.ndarray:
@@ -757,8 +771,10 @@ def scoring_masks(truth, truth_n: np.ndarray, hz: int, rated_n: float, shaft_dep
     return phase, excluded, steady, payload
 
 
-def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed: dict | None = None) -> Case:
-    """Simulate, commission and run every estimator on one scenario."""
+def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed: dict | None = None,
+               diagnostics: bool = True) -> Case:
+    """Simulate, commission and run every estimator on one scenario (with `diagnostics`, also the
+    runs fed with what the node cannot know, `_add_diagnostics`)."""
     from ropemon import reference
 
     sim = work / "sim"
@@ -854,11 +870,13 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
 
         (work / NODE_EVALUATED).write_text(json.dumps(make_node_json(physical), indent=1))
     if firmware and not refused:
-        case.firmware_n = _firmware_frames(physical, sim / "sensors.rsens", work)
+        case.frames = _firmware_frames(physical, sim / "sensors.rsens", work)
+        case.firmware_n = frame_means_n(case.frames)
     elif firmware:
         case.notes.append("**firmware NOT run**: the node refuses the commissioned config (above); "
                           "no fixed-point vs float check for this scenario")
-    _add_diagnostics(case, physical, meta, truth, recs)
+    if diagnostics:
+        _add_diagnostics(case, physical, meta, truth, recs)
     return case
 
 
@@ -946,6 +964,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a short friction test bed (smoke runs and tests, not for the docs)")
     p.add_argument("--no-firmware", action="store_true",
                    help="skip the fixed-point run under micropython (float estimators only)")
+    p.add_argument("--population", type=int, metavar="N",
+                   help="evaluate N drawn hoists (ropemon.population) instead of the named scenarios")
+    p.add_argument("--seeds", choices=("scoring", "tuning"), default="scoring",
+                   help="population seeds: scoring (101-200, the reported figures: no setting was chosen "
+                        "on them) or tuning (1-20, where settings are chosen); default scoring")
+    p.add_argument("--jobs", type=int, default=2, help="population winds run at a time (default 2)")
 
 
 def default_scenarios() -> list[str]:
@@ -960,8 +984,8 @@ def evaluate(names: list[str], work: Path, seed: int = 1, firmware: bool = True,
         t0 = time.monotonic()
         try:
             case = build_case(name, work / Path(name).stem, seed, firmware, bed)
-            if name in VARIANTS:
-                case.notes.insert(0, f"{FIELD_TRIP} variant: {VARIANTS[name][0]}")
+            if variant(name) is not None:
+                case.notes.insert(0, f"{FIELD_TRIP} variant: {variant(name)[0]}")
             res = score(case)
             if plots is not None:
                 plot(case, plots)
@@ -985,7 +1009,41 @@ def _command_line(args: argparse.Namespace, names: list[str]) -> str:
     return " ".join(["ropemon evaluate", *names, *opts])
 
 
+def run_population(args: argparse.Namespace) -> int:
+    """`--population N`: N drawn hoists from the scoring (or tuning) seeds, scored."""
+    pool = population.SCORING_SEEDS if args.seeds == "scoring" else population.TUNING_SEEDS
+    if not 1 <= args.population <= len(pool):
+        print(f"ropemon evaluate: --population must be 1..{len(pool)} for the {args.seeds} seeds", file=sys.stderr)
+        return 2
+    seeds = pool[: args.population]
+    log = (lambda s: print(s, file=sys.stderr, flush=True))
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="ropemon-population-") as tmp:
+        work = args.out / "population" if args.out else Path(tmp)
+        winds = population.run(seeds, work, args.jobs, not args.no_firmware,
+                               BED_QUICK if args.quick else None, log)
+    out = jsonable({"population": population.summary(winds, "node"),
+                    "baseline": population.summary(winds, "baseline"),
+                    "by_law": population.by_law(winds), "seeds": args.seeds, "quick": bool(args.quick),
+                    "wall_s": round(time.monotonic() - t0, 1), "winds": winds})
+    md = population.markdown(out)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "population.json").write_text(json.dumps(out, indent=1, allow_nan=False) + "\n")
+        (args.out / "population.md").write_text(
+            f"Made by `ropemon evaluate --population {args.population} --seeds {args.seeds}"
+            f"{' --quick' if args.quick else ''}`\n\n" + md)
+    if args.json:
+        json.dump(out, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(md)
+    return 1 if out["population"]["errors"] else 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.population is not None:
+        return run_population(args)
     names = args.scenarios or default_scenarios()
     if not names:
         print("ropemon evaluate: no scenarios found in scenarios/", file=sys.stderr)

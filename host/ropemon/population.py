@@ -1,0 +1,467 @@
+"""A population of simulated hoists for `ropemon evaluate --population`: drawn, commissioned, scored.
+
+Each seed draws one hoist from documented ranges (`RANGES`, docs/simulator.md
+"Population"), built on the paper's field trip (scenarios/paper-field-trip.toml and
+its site): the seals' law and parameters (one seal type per hoist, each rope's seal
+scattered about it), rope length offsets, cylinder bore, hose lengths, oil
+temperature and payload. The evaluation then commissions it as a site would (its
+seal type on the test bed, `ropemon fit-friction`; `ropemon fit-compliance` on an
+ordinary wind of the same hoist) and runs the node on a wind.
+
+Settings are chosen on `TUNING_SEEDS` and figures reported on `SCORING_SEEDS`, which
+no setting was chosen on.
+
+Scoring of one wind (`score_wind`), from the node's frames as the host decodes them:
+- accuracy: the firmware's frame means against the true rope tensions averaged over
+  the same windows (worst rope RMS and peak, % of rated; the empty-cage pithead total);
+- alarms: the host's own `AlarmEngine` on the frames. A rope truly beyond the
+  deviation limit for `SILENT_MIN_S` or more must raise at least DEVIATION POSSIBLE
+  within that episode, or the wind is *silent*. A raise on a rope whose true deviation
+  is within `FALSE_BELOW` is a *false warning*. Both on the wind as it is and with a
+  deviation of `SUPERPOSED` superposed on each rope in turn, both signs (the force
+  carried as pressure, as `metrics.alarm_assessment` does).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+TUNING_SEEDS = tuple(range(1, 21))
+SCORING_SEEDS = tuple(range(101, 201))
+PREFIX = "population-"
+
+LAWS = ("lugre", "maxwell-slip", "elasto-plastic")
+# The ranges each hoist is drawn from (uniform unless `log`: uniform in the logarithm).
+RANGES = {
+    "force_level": (0.25, 1.0, "log"),     # seal forces x this, relative to the field trip's (worn) seal
+    "slope_ratio": (0.5, 1.5, "lin"),      # pressure slopes of the force lines x this, besides the level
+    "vs_scale": (0.5, 2.0, "log"),         # Stribeck velocity
+    "stiffness_scale": (0.5, 2.0, "log"),  # pre-sliding stiffness (sigma0, element stiffnesses)
+    "rope_force_scale": (0.85, 1.15, "lin"),   # each rope's seal about the type's
+    "offset_m": (-0.010, 0.010, "lin"),    # each rope's effective length offset
+    "bore_m": (0.090, 0.125, "lin"),       # cylinder bore, the same on every rope
+    "hose_scale": (0.6, 1.6, "lin"),       # each rope's pipe lengths to its tap
+    "oil_temp_C": (0.0, 40.0, "lin"),      # the node assumes the site's 20 C
+    "payload_kg": (0.0, 12000.0, "lin"),   # taken on at the bottom, unloaded at the pithead
+}
+ROPES = 4
+
+SILENT_MIN_S = 2.0
+DEVIATION_LIMIT = 0.10
+FALSE_BELOW = 0.08
+SUPERPOSED = 0.12
+
+
+@dataclass(frozen=True)
+class Hoist:
+    """One drawn hoist: what the plant is, and nothing the node may know."""
+
+    seed: int
+    law: str
+    friction: dict            # the plant's [plant.friction] table (with each rope's force_scale)
+    offsets_m: tuple
+    bore_m: float
+    hose_scale: tuple
+    oil_temp_C: float
+    payload_kg: float
+    draws: dict               # the raw factors, for the report
+
+    @property
+    def name(self) -> str:
+        return f"{PREFIX}{self.seed}"
+
+    def describe(self) -> str:
+        d = self.draws
+        return (f"{self.law} seal x{d['force_level']:.2f} (ropes " + ", ".join(f"{s:.2f}" for s in
+                                                                             self.friction["force_scale"])
+                + f"), offsets " + ", ".join(f"{o * 1e3:+.1f}" for o in self.offsets_m)
+                + f" mm, bore {self.bore_m * 1e3:.0f} mm, oil {self.oil_temp_C:.0f} C, "
+                f"payload {self.payload_kg / 1e3:.1f} t")
+
+
+def seed_of(name: str) -> int | None:
+    """The seed of a population scenario name (`population-N`), else None."""
+    m = re.fullmatch(re.escape(PREFIX) + r"(\d+)", name)
+    return int(m.group(1)) if m else None
+
+
+def _uniform(rng: np.random.Generator, key: str, size=None):
+    lo, hi, kind = RANGES[key]
+    if kind == "log":
+        return np.exp(rng.uniform(math.log(lo), math.log(hi), size))
+    return rng.uniform(lo, hi, size)
+
+
+def _scale_line(line: dict, level: float, slope_ratio: float = 1.0) -> dict:
+    return {"intercept": line["intercept"] * level, "slope": line.get("slope", 0.0) * level * slope_ratio}
+
+
+def seal_table(law: str, draws: dict, rope_scale) -> dict:
+    """The plant's friction table for a law from its example (`plant.friction.example_table`),
+    scaled by the draws."""
+    from ropemon.plant.friction import example_table
+
+    t = example_table(law)
+    level, ratio = draws["force_level"], draws["slope_ratio"]
+    out = dict(t)
+    for k in ("Fs", "Fc", "sigma2"):
+        out[k] = _scale_line(t[k], level, ratio)
+    out["vs"] = {"intercept": t["vs"]["intercept"] * draws["vs_scale"],
+                 "slope": t["vs"].get("slope", 0.0) * draws["vs_scale"]}
+    stiff = level * draws["stiffness_scale"]  # the pre-sliding distance moves with stiffness_scale only
+    if "sigma0" in t:
+        out["sigma0"] = t["sigma0"] * stiff
+    if "sigma1" in t:
+        out["sigma1"] = t["sigma1"] * math.sqrt(stiff)
+    if "elements" in t:
+        out["elements"] = [{**e, "k": e["k"] * stiff} for e in t["elements"]]
+    out["force_scale"] = [round(float(s), 4) for s in rope_scale]
+    return out
+
+
+def draw(seed: int) -> Hoist:
+    """The hoist of one seed (reproducible: the same seed gives the same hoist)."""
+    rng = np.random.default_rng([seed, 0x0E5A1])
+    law = LAWS[int(rng.integers(len(LAWS)))]
+    draws = {k: float(_uniform(rng, k)) for k in ("force_level", "slope_ratio", "vs_scale", "stiffness_scale",
+                                                   "bore_m", "oil_temp_C", "payload_kg")}
+    rope_scale = _uniform(rng, "rope_force_scale", ROPES)
+    offsets = _uniform(rng, "offset_m", ROPES)
+    hoses = _uniform(rng, "hose_scale", ROPES)
+    return Hoist(seed=seed, law=law, friction=seal_table(law, draws, rope_scale),
+                 offsets_m=tuple(round(float(o), 5) for o in offsets), bore_m=round(draws["bore_m"], 4),
+                 hose_scale=tuple(round(float(h), 3) for h in hoses), oil_temp_C=round(draws["oil_temp_C"], 1),
+                 payload_kg=round(draws["payload_kg"], -1), draws=draws)
+
+
+def change_doc(h: Hoist):
+    """The change to the field trip's scenario document that makes it this hoist."""
+    def change(doc: dict) -> None:
+        plant = doc["plant"]
+        plant["friction"] = dict(h.friction)
+        plant["ropes"]["offsets_m"] = list(h.offsets_m)
+        plant["oil_temp_C"] = h.oil_temp_C
+        loads = [ph for ph in doc["trip"]["phase"] if ph["kind"] == "load" and ph["payload_kg"] > 0]
+        for ph in loads:
+            ph["payload_kg"] = h.payload_kg
+    return change
+
+
+def change_site(h: Hoist):
+    """The change to the site description (SITE.toml text) that makes it this hoist: what a
+    site would write of its own hoist (bore, hoses); the seal and offsets are not in it."""
+    def change(text: str) -> str:
+        text, n = re.subn(r"(?m)^(bore_m\s*=\s*)[0-9.eE+-]+", lambda m: f"{m.group(1)}{h.bore_m}", text)
+        if n != 1:
+            raise ValueError("the site has no single [cylinders] bore_m to set")
+        blocks = text.split("[[pipes]]")
+        if len(blocks) != ROPES + 1:
+            raise ValueError(f"the site has {len(blocks) - 1} [[pipes]] tables, not {ROPES}")
+        for i in range(ROPES):
+            head, sep, rest = blocks[i + 1].partition("fittings")
+            head = re.sub(r"length_m\s*=\s*([0-9.eE+-]+)",
+                          lambda m: f"length_m = {float(m.group(1)) * h.hose_scale[i]:.3f}", head)
+            blocks[i + 1] = head + sep + rest
+        return "[[pipes]]".join(blocks)
+    return change
+
+
+# ---------------------------------------------------------------- scoring
+
+
+def _alarm_presence(frames, times_s, engine_factory, bands_factory=None):
+    """Per frame and rope: is a deviation alarm (certain or possible) present, and the frame
+    indices where one was raised per rope. `engine_factory()` gives a fresh AlarmEngine."""
+    from ropemon.alarms import AlarmEngine  # noqa: F401  (the engine's type)
+
+    eng = engine_factory()
+    n = len(frames)
+    ropes = len(frames[0].ropes) if frames else 0
+    present = np.zeros((n, ropes), bool)
+    raised = np.zeros((n, ropes), bool)
+    for k, (f, t) in enumerate(zip(frames, times_s)):
+        for ev in eng.update(f, float(t)):
+            if ev.kind in DEVIATION_KINDS and ev.action == "raise" and ev.rope is not None:
+                raised[k, ev.rope] = True
+        for a in eng.active():
+            if a.kind in DEVIATION_KINDS and a.present and a.rope is not None:
+                present[k, a.rope] = True
+    return present, raised
+
+
+DEVIATION_KINDS = ("deviation", "deviation_possible")
+
+
+def episodes(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) index pairs of the runs of True in a 1-D mask."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.flatnonzero(np.diff(m.astype(int)))
+    return list(zip(d[::2].tolist(), d[1::2].tolist()))
+
+
+def alarm_figures(frames, truth_frames_n: np.ndarray, frame_s: float, engine_factory,
+                  valid: np.ndarray | None = None) -> dict:
+    """Silent episodes and false warnings of the host's alarms on one wind's frames.
+
+    truth_frames_n: (frames, ropes) true tensions averaged over each frame's window.
+    valid: frames that count (e.g. not in a shock window); others neither need nor excuse an alarm.
+    """
+    times = np.arange(len(frames)) * frame_s
+    present, raised = _alarm_presence(frames, times, engine_factory)
+    d_true = np.abs((truth_frames_n - truth_frames_n.mean(axis=1, keepdims=True))
+                    / truth_frames_n.mean(axis=1, keepdims=True))
+    ok = np.ones(len(frames), bool) if valid is None else np.asarray(valid, bool)
+    need = int(math.ceil(SILENT_MIN_S / frame_s - 1e-9))
+    silent, eps = [], 0
+    for r in range(d_true.shape[1]):
+        for a, b in episodes((d_true[:, r] > DEVIATION_LIMIT) & ok):
+            if b - a < need:
+                continue
+            eps += 1
+            if not present[a:b, r].any():
+                silent.append({"rope": r + 1, "t0_s": round(a * frame_s, 1), "t1_s": round(b * frame_s, 1),
+                               "true_max_pct": round(float(d_true[a:b, r].max()) * 100, 2)})
+    false = int((raised & (d_true < FALSE_BELOW)).sum())
+    return {"episodes": eps, "silent": silent, "false_warnings": false,
+            "true_max_dev_pct": round(float(d_true[ok].max()) * 100, 2) if ok.any() else None}
+
+
+def superposed_frames(frames, rope: int, step_n: np.ndarray, area_m2: float):
+    """The frames with `step_n` (per frame) added to one rope, carried as pressure: the mean,
+    min and max tensions and the raw pressure move together, the friction estimate does not."""
+    from ropemon.protocol import L
+
+    out = []
+    for f, dn in zip(frames, step_n):
+        ropes = list(f.ropes)
+        r = ropes[rope]
+        if r.mean_dan != L.TENSION_ABSENT and np.isfinite(dn):
+            dd = int(round(dn / 10.0))
+            dk = int(round(dn / area_m2 / 1000.0))
+
+            def clamp(v):
+                return max(-32767, min(32767, v))
+            raw = r.raw_kpa if r.raw_kpa == L.RAW_KPA_ABSENT else max(0, min(0xFFFE, r.raw_kpa + dk))
+            ropes[rope] = r._replace(mean_dan=clamp(r.mean_dan + dd), min_dan=clamp(r.min_dan + dd),
+                                     max_dan=clamp(r.max_dan + dd), raw_kpa=raw)
+        out.append(dataclasses.replace(f, ropes=tuple(ropes)))
+    return out
+
+
+def superposed_alarm_figures(frames, truth_frames_n, frame_s, engine_factory, area_m2, valid=None,
+                             level: float = SUPERPOSED) -> dict:
+    """`alarm_figures` with a true deviation of +-level superposed on each rope in turn."""
+    from ropemon.metrics import deviation_step_n
+
+    out = {"episodes": 0, "silent": [], "false_warnings": 0, "cases": 0}
+    for rope in range(truth_frames_n.shape[1]):
+        for sign in (1.0, -1.0):
+            step = deviation_step_n(truth_frames_n, rope, sign * level)
+            t = truth_frames_n.copy()
+            t[:, rope] += step
+            fig = alarm_figures(superposed_frames(frames, rope, step, area_m2), t, frame_s, engine_factory,
+                                valid)
+            out["cases"] += 1
+            out["episodes"] += fig["episodes"]
+            out["false_warnings"] += fig["false_warnings"]
+            out["silent"] += [{**s, "superposed": f"{sign * level:+.0%} rope {rope + 1}"} for s in fig["silent"]]
+    return out
+
+
+def quantiles(values) -> dict:
+    """Median and 95th percentile of the finite values (None when there are none)."""
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    if not v.size:
+        return {"median": None, "p95": None, "n": 0}
+    return {"median": round(float(np.median(v)), 4), "p95": round(float(np.percentile(v, 95)), 4), "n": int(v.size)}
+
+
+# ---------------------------------------------------------------- running
+
+
+def engine_factories(physical: dict) -> dict:
+    """The host alarm configurations scored on every wind: `baseline` is the deviation alarm
+    alone on the frame means (the station before the uncertainty band), `node` the station as it
+    is (the certain alarm and DEVIATION POSSIBLE from the band)."""
+    from ropemon.alarms import AlarmEngine, AlarmSettings
+
+    def baseline():
+        return AlarmEngine(AlarmSettings(stuck_s=None))
+
+    def node():
+        return AlarmEngine(AlarmSettings(stuck_s=None), physical=physical)
+
+    return {"baseline": baseline, "node": node}
+
+
+def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) -> dict:
+    """Draw, commission, run and score one hoist's wind (`score_wind`); errors are reported."""
+    import time
+    from pathlib import Path
+
+    from ropemon import evaluate as EV
+    from ropemon import metrics as M
+
+    h = draw(seed)
+    t0 = time.monotonic()
+    out: dict = {"seed": seed, "law": h.law, "hoist": h.describe()}
+    try:
+        case = EV.build_case(h.name, Path(work) / h.name, seed, firmware, bed, diagnostics=False)
+        res = EV.score(case)
+    except (EV.EvaluationError, OSError, ValueError, KeyError) as e:
+        out["error"] = f"{type(e).__name__}: {e}"
+        out["wall_s"] = round(time.monotonic() - t0, 1)
+        return out
+    com = res["commissioning"]
+    out["commissioning"] = {"ok": com["ok"] and not com["seal_refused"], "problems": com["problems"],
+                            "seal_refused": com["seal_refused"]}
+    out["estimators"] = {name: {k: fig.get(k) for k in ("rope_rms_pct", "rope_peak_pct", "pithead_total_pct")}
+                         for name, fig in res["estimators"].items()}
+    fw = res["estimators"].get(EV.FIRMWARE)
+    if fw is not None:
+        out["firmware_vs_float_max_pct"] = fw.get("vs_reference_max_pct")
+        w = case.window
+        n = len(case.frames)
+        truth = M.window_means(case.truth_n, w)[:n]
+        valid = M.window_means(case.excluded.astype(float), w)[:n] == 0.0
+        frame_s = w / case.sample_hz
+        area = float(np.mean(case.physical["cylinder_area_m2"]))
+        out["alarms"] = {}
+        for which, factory in engine_factories(case.physical).items():
+            out["alarms"][which] = {
+                "natural": alarm_figures(case.frames, truth, frame_s, factory, valid),
+                "superposed": superposed_alarm_figures(case.frames, truth, frame_s, factory, area, valid)}
+    out["wall_s"] = round(time.monotonic() - t0, 1)
+    return out
+
+
+def run(seeds, work, jobs: int = 2, firmware: bool = True, bed: dict | None = None, log=None) -> list[dict]:
+    """`run_wind` over the seeds, `jobs` at a time (processes), in seed order."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    seeds = list(seeds)
+    if jobs <= 1:
+        results = []
+        for s in seeds:
+            results.append(run_wind(s, work, firmware, bed))
+            if log:
+                log(_line(results[-1]))
+        return results
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(run_wind, s, work, firmware, bed) for s in seeds]
+        results = []
+        for f in futures:
+            results.append(f.result())
+            if log:
+                log(_line(results[-1]))
+    return results
+
+
+def _line(r: dict) -> str:
+    if "error" in r:
+        return f"{PREFIX}{r['seed']}: ERROR {r['error']} ({r['wall_s']} s)"
+    fw = r.get("estimators", {}).get("firmware", {})
+    al = r.get("alarms", {}).get("node", {})
+    silent = len(al.get("natural", {}).get("silent", [])) + len(al.get("superposed", {}).get("silent", []))
+    return (f"{PREFIX}{r['seed']}: {r['hoist']}: rope RMS {fw.get('rope_rms_pct', float('nan')):.2f} %, "
+            f"pithead {fw.get('pithead_total_pct', float('nan')):+.2f} %, silent {silent}, "
+            f"false {al.get('natural', {}).get('false_warnings', '-')} ({r['wall_s']} s)")
+
+
+def summary(results: list[dict], which: str) -> dict:
+    """The figures of one alarm configuration over the winds (`baseline` or `node`), in the
+    shape `ropemon evaluate --population --json` prints."""
+    from ropemon.evaluate import FIRMWARE
+
+    scored = [r for r in results if "error" not in r and FIRMWARE in r.get("estimators", {})]
+    fw = [r["estimators"][FIRMWARE] for r in scored]
+    silent = false = 0
+    silent_seeds = []
+    for r in scored:
+        al = r["alarms"][which]
+        if al["natural"]["silent"] or al["superposed"]["silent"]:
+            silent += 1
+            silent_seeds.append(r["seed"])
+        false += al["natural"]["false_warnings"]
+    vs = [r.get("firmware_vs_float_max_pct") for r in scored]
+    vs = [v for v in vs if v is not None and np.isfinite(v)]
+    return {
+        "winds": len(scored),
+        "errors": len(results) - len(scored),
+        "commissioning_refused": sum(1 for r in scored if not r["commissioning"]["ok"]),
+        "rope_rms_pct": quantiles(f["rope_rms_pct"] for f in fw),
+        "rope_peak_pct": quantiles(f["rope_peak_pct"] for f in fw),
+        "pithead_total_abs_pct": quantiles(abs(f["pithead_total_pct"]) if f["pithead_total_pct"] is not None
+                                           else None for f in fw),
+        "silent_winds": silent,
+        "silent_seeds": silent_seeds,
+        "false_warnings_per_wind": round(false / len(scored), 3) if scored else None,
+        "superposed_false_warnings_per_wind": round(
+            sum(r["alarms"][which]["superposed"]["false_warnings"] for r in scored) / max(1, len(scored)), 3),
+        "firmware_vs_float_max_pct": round(max(vs), 4) if vs else None,
+    }
+
+
+def by_law(results: list[dict]) -> dict:
+    """Estimator x seal family: median and 95th percentile of the worst rope's RMS (% of rated)
+    and of |pithead total| (%)."""
+    table: dict = {}
+    for r in results:
+        for est, fig in r.get("estimators", {}).items():
+            cell = table.setdefault(est, {}).setdefault(r["law"], {"rms": [], "pithead": []})
+            cell["rms"].append(fig.get("rope_rms_pct"))
+            p = fig.get("pithead_total_pct")
+            cell["pithead"].append(abs(p) if p is not None else None)
+    return {est: {law: {"rope_rms_pct": quantiles(c["rms"]), "pithead_total_abs_pct": quantiles(c["pithead"])}
+                  for law, c in laws.items()} for est, laws in table.items()}
+
+
+def _q(cell: dict | None, digits: int = 2) -> str:
+    if not cell or cell.get("median") is None:
+        return "-"
+    return f"{cell['median']:.{digits}f} / {cell['p95']:.{digits}f}"
+
+
+def markdown(out: dict) -> str:
+    """The population's tables: the node against the baseline, estimator x seal family, each wind."""
+    pop, base = out["population"], out["baseline"]
+    lines = [f"Population: {pop['winds']} winds from the {out['seeds']} seeds"
+             f"{' (quick test bed)' if out.get('quick') else ''}, {pop['errors']} errors, "
+             f"{pop['commissioning_refused']} refused at commissioning; {out['wall_s']} s.", "",
+             "| figure (median / 95th percentile) | node | baseline |", "|---|---|---|"]
+    for key, label in (("rope_rms_pct", "worst rope RMS, % of rated"), ("rope_peak_pct", "worst rope peak, % of rated"),
+                       ("pithead_total_abs_pct", "empty-cage pithead total, abs %")):
+        lines.append(f"| {label} | {_q(pop[key])} | {_q(base[key])} |")
+    lines += [f"| silent winds | {pop['silent_winds']} {pop['silent_seeds'] or ''} | "
+              f"{base['silent_winds']} {base['silent_seeds'] or ''} |",
+              f"| false warnings per wind (ropes truly within {FALSE_BELOW:.0%}) | {pop['false_warnings_per_wind']} | "
+              f"{base['false_warnings_per_wind']} |",
+              f"| false warnings per wind, {SUPERPOSED:.0%} superposed on each rope | "
+              f"{pop['superposed_false_warnings_per_wind']} | {base['superposed_false_warnings_per_wind']} |",
+              f"| firmware vs float reference, max % of rated | {pop['firmware_vs_float_max_pct']} | "
+              f"{base['firmware_vs_float_max_pct']} |", ""]
+    laws = sorted({law for cells in out["by_law"].values() for law in cells})
+    lines += ["Worst rope RMS, % of rated (median / 95th percentile), by estimator and seal family:", "",
+              "| estimator | " + " | ".join(laws) + " |", "|---|" + "---|" * len(laws)]
+    for est, cells in out["by_law"].items():
+        lines.append(f"| {est} | " + " | ".join(_q(cells.get(law, {}).get("rope_rms_pct")) for law in laws) + " |")
+    lines += ["", "| seed | hoist | firmware RMS % | peak % | pithead % | true max dev % | silent | false |",
+              "|---|---|---|---|---|---|---|---|"]
+    for r in out["winds"]:
+        if "error" in r:
+            lines.append(f"| {r['seed']} | {r['hoist']} | ERROR: {r['error']} | | | | | |")
+            continue
+        fw = r["estimators"].get("firmware", {})
+        al = r.get("alarms", {}).get("node", {})
+        nat, sup = al.get("natural", {}), al.get("superposed", {})
+
+        def f(x, fmt="{:.2f}"):
+            return "-" if x is None else fmt.format(x)
+        lines.append(f"| {r['seed']} | {r['hoist']} | {f(fw.get('rope_rms_pct'))} | {f(fw.get('rope_peak_pct'))} | "
+                     f"{f(fw.get('pithead_total_pct'), '{:+.2f}')} | {f(nat.get('true_max_dev_pct'))} | "
+                     f"{len(nat.get('silent', []))} + {len(sup.get('silent', []))} | {nat.get('false_warnings', '-')} |")
+    return "\n".join(lines) + "\n"

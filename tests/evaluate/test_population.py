@@ -1,0 +1,135 @@
+"""The population of drawn hoists: reproducible draws, and the silent / false-warning scoring."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ropemon import population as P
+from ropemon.alarms import AlarmEngine, AlarmSettings
+from ropemon.protocol import decode_raw, encode_frame
+
+FRAME_S = 0.1
+AREA = 7.854e-3
+
+
+def frames_from(tensions_n: np.ndarray, raw_kpa: np.ndarray | None = None):
+    """Decoded frames whose rope means are the given tensions (N); raw pressure as given or p = T/A."""
+    out = []
+    for k, row in enumerate(tensions_n):
+        ropes = []
+        for i, t in enumerate(row):
+            dan = int(round(t / 10))
+            kpa = int(round((t if raw_kpa is None else raw_kpa[k, i]) / AREA / 1000))
+            ropes.append((dan, dan, dan, kpa))
+        raw, _ = encode_frame(node=1, seq=k, time_ms=int(k * FRAME_S * 1000), ropes=ropes, battery_mv=4000)
+        out.append(decode_raw(raw))
+    return out
+
+
+def baseline():
+    return AlarmEngine(AlarmSettings(stuck_s=None))
+
+
+def test_the_draw_is_seeded_and_reproducible():
+    a, b = P.draw(101), P.draw(101)
+    assert a == b
+    c = P.draw(102)
+    assert a != c
+    for seed in (1, 20, 101, 200):
+        h = P.draw(seed)
+        assert h.law in P.LAWS
+        assert all(abs(o) <= 0.010 for o in h.offsets_m)
+        assert 0.090 <= h.bore_m <= 0.125
+        assert 0.0 <= h.oil_temp_C <= 40.0 and 0.0 <= h.payload_kg <= 12000.0
+        assert len(h.friction["force_scale"]) == P.ROPES
+
+
+def test_tuning_and_scoring_seeds_do_not_overlap():
+    assert not set(P.TUNING_SEEDS) & set(P.SCORING_SEEDS)
+    assert len(P.SCORING_SEEDS) == 100
+
+
+def test_the_draws_cover_every_law():
+    laws = {P.draw(s).law for s in P.SCORING_SEEDS}
+    assert laws == set(P.LAWS)
+
+
+def test_population_names_round_trip():
+    assert P.seed_of("population-137") == 137
+    assert P.seed_of("population-x") is None and P.seed_of("paper-field-trip") is None
+
+
+def test_site_change_sets_bore_and_scales_each_ropes_hoses():
+    from ropemon.evaluate import SCENARIO_DIR
+
+    h = P.draw(103)
+    text = (SCENARIO_DIR / "paper-site.toml").read_text()
+    import tomllib
+
+    before, after = tomllib.loads(text), tomllib.loads(P.change_site(h)(text))
+    assert after["cylinders"]["bore_m"] == h.bore_m
+    for i in range(P.ROPES):
+        for s0, s1 in zip(before["pipes"][i]["segments"], after["pipes"][i]["segments"]):
+            assert s1["length_m"] == pytest.approx(s0["length_m"] * h.hose_scale[i], abs=1e-3)
+    with pytest.raises(ValueError, match="bore_m"):
+        P.change_site(h)(text.replace("bore_m = 0.100", "# no bore"))
+
+
+def wind(dev_rope2: np.ndarray, mean_n: float = 50e3) -> np.ndarray:
+    """Four ropes at mean_n whose rope 2 deviates by dev_rope2 (fractions, per frame) from their mean."""
+    n = len(dev_rope2)
+    t = np.full((n, 4), mean_n)
+    # rope 2 at (1 + d) m, the others share the rest so the mean stays m
+    t[:, 1] = mean_n * (1 + dev_rope2)
+    t[:, [0, 2, 3]] = ((4 * mean_n - t[:, 1]) / 3)[:, None]
+    return t
+
+
+def test_a_true_deviation_the_node_does_not_see_is_a_silent_episode():
+    dev = np.zeros(200)
+    dev[50:100] = 0.12            # 5 s beyond the limit
+    truth = wind(dev)
+    shown = wind(np.where(dev > 0, 0.06, 0.0))   # the node shows 6 %
+    fig = P.alarm_figures(frames_from(shown), truth, FRAME_S, baseline)
+    assert fig["episodes"] == 1
+    assert fig["silent"] and fig["silent"][0]["rope"] == 2
+    assert fig["silent"][0]["true_max_pct"] == pytest.approx(12.0, abs=0.01)
+
+
+def test_a_seen_deviation_is_not_silent_and_a_short_one_is_not_an_episode():
+    dev = np.zeros(200)
+    dev[50:100] = 0.12
+    dev[150:165] = 0.12           # 1.5 s: shorter than SILENT_MIN_S
+    truth = wind(dev)
+    fig = P.alarm_figures(frames_from(truth), truth, FRAME_S, baseline)
+    assert fig["episodes"] == 1 and fig["silent"] == []
+
+
+def test_an_alarm_on_a_rope_truly_within_8_percent_is_a_false_warning():
+    truth = wind(np.full(100, 0.05))
+    shown = wind(np.full(100, 0.11))
+    fig = P.alarm_figures(frames_from(shown), truth, FRAME_S, baseline)
+    assert fig["false_warnings"] >= 1 and fig["episodes"] == 0
+    fig = P.alarm_figures(frames_from(truth), truth, FRAME_S, baseline)
+    assert fig["false_warnings"] == 0
+
+
+def test_superposed_deviation_moves_tension_and_pressure_together():
+    truth = wind(np.zeros(60))
+    frames = frames_from(truth)
+    step = np.full(60, 6000.0)
+    out = P.superposed_frames(frames, 2, step, AREA)
+    for f0, f1 in zip(frames, out):
+        assert f1.ropes[2].mean_dan - f0.ropes[2].mean_dan == 600
+        assert f1.ropes[2].raw_kpa - f0.ropes[2].raw_kpa == round(6000 / AREA / 1000)
+        assert f1.ropes[0] == f0.ropes[0]
+    # an exact node: every superposed 12 % is seen, none is silent, and nothing is false
+    fig = P.superposed_alarm_figures(frames, truth, FRAME_S, baseline, AREA)
+    assert fig["cases"] == 8 and fig["episodes"] == 8
+    assert fig["silent"] == [] and fig["false_warnings"] == 0
+
+
+def test_quantiles_ignore_missing_values():
+    q = P.quantiles([1.0, None, float("nan"), 3.0, 2.0])
+    assert q == {"median": 2.0, "p95": pytest.approx(2.9), "n": 3}
+    assert P.quantiles([None])["median"] is None
