@@ -9,7 +9,9 @@ raises nor clears. A raised alarm latches until acknowledged. Every raise, clear
 and acknowledgement is returned as an `AlarmEvent` with time and values (the
 caller logs them, e.g. `Store.add_event`).
 
-Kinds: deviation (a rope vs the mean of the ropes), overload (total vs rated),
+Kinds: deviation (a rope vs the mean of the ropes), deviation_possible (a warning: the
+band of the deviation reaches the limit while the node's deviation does not; from
+`ropemon.uncertainty`, only with `AlarmSettings.band`), overload (total vs rated),
 slack (a rope below a floor), sensor_fault (fault bits), sensor_stuck (a rope's
 pressure frozen while the others move, see `_StuckTracker`), config_fault, silent
 (no frame from a node), battery_low, pressure_noise (the node's noise_changed bit:
@@ -21,7 +23,8 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-from ropemon.protocol import L, Frame
+from ropemon.protocol import DAN_TO_N, L, Frame
+from ropemon.uncertainty import BandParams, DeviationBand, RopeInterval, SealBandTracker, deviation_bounds
 
 SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
 # A condition "held for 0.5 s" over frames 0.1 s apart holds at the sixth frame, whatever the
@@ -63,6 +66,9 @@ class AlarmSettings:
     fault_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=2.0, min_frames=2)
     silent_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=1.0, min_frames=1)
     link_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=10.0, min_frames=1)
+    # the seal's friction lines and the band's parameters (ropemon.uncertainty): with them the
+    # engine keeps a band per rope and raises deviation_possible; None: no band, no such warning
+    band: BandParams | None = None
 
     @classmethod
     def from_loads(cls, rated_load_dan: int, empty_load_dan: int, n_ropes: int,
@@ -132,6 +138,7 @@ class _Alarm:
     threshold: float | None = None
     message: str = ""
     raised_s: float | None = None
+    band: float | None = None    # deviation_possible: the deviation's band (fraction)
 
     @property
     def present(self) -> bool:
@@ -156,6 +163,15 @@ class ActiveAlarm:
     threshold: float | None
     message: str
     raised_s: float | None
+    band: float | None = None    # deviation_possible: how far beyond |value| the deviation may reach
+
+    @property
+    def warning(self) -> bool:
+        """A warning (lower priority than the alarms): deviation_possible."""
+        return self.kind in WARNING_KINDS
+
+
+WARNING_KINDS = frozenset({"deviation_possible"})
 
 
 class _StuckTracker:
@@ -228,6 +244,7 @@ class AlarmEngine:
         self.settings = settings or AlarmSettings()
         self._alarms: dict[str, _Alarm] = {}
         self._stuck: dict[int, _StuckTracker] = {}
+        self._bands: dict[int, SealBandTracker] = {}
         self._last_frame_s: dict[int, float] = {}
         self._link_bad: dict[str, int] = {}
         self.events: deque[AlarmEvent] = deque(maxlen=10000)  # recent history; the store keeps all
@@ -246,6 +263,11 @@ class AlarmEngine:
         # Ropes whose sensor gave no healthy sample carry TENSION_ABSENT: they are not judged
         # (their alarms hold their state; sensor_fault reports them) and not averaged in.
         present = [(i, r.mean_dan) for i, r in enumerate(ropes) if r.mean_dan != L.TENSION_ABSENT]
+        if s.band is not None and s.deviation_frac is not None and ropes:
+            tr = self._bands.get(node)
+            if tr is None:
+                tr = self._bands[node] = SealBandTracker(s.band)
+            tr.update(frame)
         if present:
             tensions = [t for _, t in present]
             mean = sum(tensions) / len(tensions)
@@ -260,6 +282,9 @@ class AlarmEngine:
                     self._step(ev, f"deviation:n{node}:r{i}", "deviation", node, i, s.timing, now_s,
                                a > thr, a < thr - s.deviation_hysteresis_frac, round(dev, 4), thr,
                                f"rope {i + 1} {t} daN is {dev:+.1%} from the mean {mean:.0f} daN")
+            if s.band is not None and s.deviation_frac is not None:
+                # after the deviation alarms: the warning yields to a raised certain alarm
+                self._check_possible(ev, node, self._bands[node].last, now_s, None)
             if s.rated_load_dan is not None:
                 limit = s.rated_load_dan * s.overload_frac
                 low = s.rated_load_dan * (s.overload_frac - s.overload_hysteresis_frac)
@@ -307,6 +332,8 @@ class AlarmEngine:
             self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
                        quiet > s.silent_s, quiet <= s.silent_s, round(quiet, 3), s.silent_s,
                        f"no frame from node {node} for {quiet:.1f} s")
+            if node in self._bands and quiet > 0:
+                self._check_possible(ev, node, self._bands[node].intervals(quiet), now_s, quiet)
         return self._log(ev)
 
     def update_link(self, source: str, mac_fail: int, replayed: int, now_s: float,
@@ -338,10 +365,19 @@ class AlarmEngine:
     # -- outputs --------------------------------------------------------------
 
     def active(self) -> list[ActiveAlarm]:
-        """Alarms present or latched, oldest raise first."""
+        """Alarms present or latched, oldest raise first; warnings after the alarms."""
         out = [ActiveAlarm(a.id, a.kind, a.node, a.rope, a.present, a.latched, a.value, a.threshold,
-                           a.message, a.raised_s) for a in self._alarms.values() if a.active]
-        return sorted(out, key=lambda x: (x.raised_s or 0.0, x.id))
+                           a.message, a.raised_s, a.band) for a in self._alarms.values() if a.active]
+        return sorted(out, key=lambda x: (x.warning, x.raised_s or 0.0, x.id))
+
+    def deviation_bands(self, node: int, now_s: float | None = None) -> list[DeviationBand | None]:
+        """Per rope of `node`'s last frame: its deviation and band (`ropemon.uncertainty`), widened
+        for the time since that frame when `now_s` is given; [] without a band."""
+        tr = self._bands.get(node)
+        if tr is None:
+            return []
+        age = 0.0 if now_s is None else max(0.0, now_s - self._last_frame_s.get(node, now_s))
+        return deviation_bounds(tr.intervals(age))
 
     # -- internals ------------------------------------------------------------
 
@@ -369,14 +405,48 @@ class AlarmEngine:
                        f"rope {i + 1} pressure {kpa} kPa unchanged (+-{s.stuck_deadband_kpa} kPa) for "
                        f"{still_s:.1f} s while the other ropes moved {moved:.0f} kPa: transmitter stuck")
 
+    def _check_possible(self, ev, node: int, iv: list[RopeInterval], now_s: float,
+                        quiet_s: float | None) -> None:
+        """deviation_possible per rope: the deviation's band reaches the limit (its largest
+        |d| over the ropes' intervals, `ropemon.uncertainty.deviation_bounds`) while the certain
+        deviation alarm is not raised; it clears below the limit minus the hysteresis, or once
+        the certain alarm is raised. A rope without a tension is not judged (sensor_fault)."""
+        s = self.settings
+        thr = s.deviation_frac
+        assert thr is not None
+        used = [r.t_hat for r in iv if r.present]
+        if not used or sum(used) / len(used) < s.deviation_min_mean_dan * DAN_TO_N:
+            return  # unloaded ropes: no check, as the deviation alarm
+        blind = [k + 1 for k, r in enumerate(iv) if not r.vouched]
+        for i, b in enumerate(deviation_bounds(iv)):
+            if b is None:
+                continue
+            certain = self._alarms.get(f"deviation:n{node}:r{i}")
+            certain_on = certain is not None and certain.present
+            reach = b.reach
+            aid = f"deviation_possible:n{node}:r{i}"
+            if aid not in self._alarms and (certain_on or reach < thr):
+                continue  # the usual case: skip the message
+            if quiet_s:
+                why = f" (no frame for {quiet_s:.1f} s)"
+            elif blind:
+                why = f" (rope{'s' if len(blind) > 1 else ''} {','.join(map(str, blind))} not vouched for)"
+            else:
+                why = ""
+            self._step(ev, aid, "deviation_possible", node, i, s.timing, now_s,
+                       reach >= thr and not certain_on, reach < thr - s.deviation_hysteresis_frac or certain_on,
+                       round(b.dev, 4), thr,
+                       f"rope {i + 1} {b.dev:+.1%} +-{b.band:.1%} from the mean, may reach {reach:.1%} "
+                       f"(limit {thr:.0%}){why}: check the rope tensions at the next landing", band=round(b.band, 4))
+
     def _step(self, ev, aid, kind, node, rope, timing: Timing, now_s, raise_cond, clear_cond,
-              value, threshold, message) -> None:
+              value, threshold, message, band: float | None = None) -> None:
         a = self._alarms.get(aid)
         if a is None:
             if not raise_cond:
                 return  # nothing to track until the condition first appears
             a = self._alarms[aid] = _Alarm(aid, kind, node, rope, Debounce(timing))
-        a.value, a.threshold = value, threshold
+        a.value, a.threshold, a.band = value, threshold, band
         change = a.debounce.step(now_s, raise_cond, clear_cond)
         if change is None:
             if a.present and not clear_cond:

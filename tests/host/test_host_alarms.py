@@ -426,3 +426,126 @@ def test_a_hold_of_whole_frame_periods_does_not_depend_on_float_rounding():
         rows = [dev_row(0.0)] * start + [dev_row(0.2)] * 6 + [dev_row(0.0)] * 4
         ev = [e for i, row in enumerate(rows) for e in eng.update(frame(row, seq=i), times[i])]
         assert ids(ev) == [("raise", "deviation:n1:r3")], start
+
+
+# ---------------------------------------------------------------- deviation_possible: the band
+
+BAND_PHYS = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,   # 1 kPa -> 10 N
+             "friction": {"Fs": {"intercept": 0.0, "slope": 600.0}, "Fc": {"intercept": 0.0, "slope": 400.0},
+                          "residual": 50.0}}
+
+
+def band_engine():
+    from ropemon.uncertainty import BandParams
+    return AlarmEngine(AlarmSettings(band=BandParams.from_physical(BAND_PHYS)))
+
+
+def band_frame(ropes, seq, fault_mask=0):
+    """ropes: per rope (tension daN, friction estimate N): its raw pressure is (T - F) / A."""
+    from ropemon.protocol import Frame, Rope
+    recs = tuple(Rope(t, t, t, round((t * 10 - f) / 10)) for t, f in ropes)
+    return Frame(1, 0, 1, fault_mask, seq, seq * 100, 0, recs, 0, 0, 7400, L.OIL_TEMP_ABSENT)
+
+
+class BandRun:
+    """Frames at DT; first every rope's estimate driven to +2 kN (Fc) by a pressure rise of 10 kN of
+    p A, beyond S: every rope anchored, the band at its floor (100 N)."""
+
+    def __init__(self):
+        self.eng, self.seq, self.events = band_engine(), 0, []
+        for k in range(11):
+            self.feed([(4200 + 100 * k, 2000.0)] * 4)
+
+    def feed(self, ropes, n=1, **kw):
+        for _ in range(n):
+            self.events += self.eng.update(band_frame(ropes, self.seq, **kw), self.seq * DT)
+            self.seq += 1
+        return self
+
+    def kinds(self):
+        return {a.kind for a in self.eng.active()}
+
+
+def off_by(frac, f3=2000.0):
+    """Ropes 1-3 at 5200 daN (estimate +2 kN), rope 4 `frac` off their mean, with estimate f3."""
+    c = round(5200 * 3 * (1 + frac) / (3 - frac))
+    return [(5200, 2000.0)] * 3 + [(c, f3)]
+
+
+def test_six_percent_with_a_small_band_raises_nothing():
+    r = BandRun().feed(off_by(0.06), n=30)
+    b = r.eng.deviation_bands(1)[3]
+    assert b.dev == pytest.approx(0.06, abs=1e-3) and b.band < 0.01
+    assert r.events == []
+
+
+def test_six_percent_whose_band_reaches_ten_raises_deviation_possible_only():
+    """Rope 4's estimate flipped to -2 kN with its pressure barely moved: the seal may still hold +2 kN."""
+    r = BandRun().feed(off_by(0.06, f3=-2000.0), n=30)
+    b = r.eng.deviation_bands(1)[3]
+    assert b.dev == pytest.approx(0.06, abs=1e-3) and abs(b.dev) + b.band >= 0.10
+    assert ids(r.events) == [("raise", "deviation_possible:n1:r3")]
+    ev = r.events[0]
+    assert ev.time_s - (11 * DT) == pytest.approx(0.5)          # the deviation alarm's debounce
+    assert ev.kind == "deviation_possible" and ev.rope == 3 and ev.value == pytest.approx(0.06, abs=1e-3)
+    assert ev.message.startswith("rope 4 +6.0% +-") and "(limit 10%)" in ev.message and "next landing" in ev.message
+    (a,) = r.eng.active()
+    assert a.warning and a.band == pytest.approx(b.band, abs=1e-4)
+
+
+def test_twelve_percent_raises_deviation_and_the_warning_yields_to_it():
+    r = BandRun().feed(off_by(0.12), n=30)
+    assert ids(r.events) == [("raise", "deviation:n1:r3")]
+    r = BandRun().feed(off_by(0.06, f3=-2000.0), n=10)
+    assert r.kinds() == {"deviation_possible"}
+    r.feed(off_by(0.12, f3=-2000.0), n=40)
+    assert ("raise", "deviation:n1:r3") in ids(r.events)
+    assert ("clear", "deviation_possible:n1:r3") in ids(r.events)
+    assert [a.kind for a in r.eng.active() if a.present] == ["deviation"]
+
+
+def test_deviation_possible_clears_with_hysteresis():
+    r = BandRun().feed(off_by(0.06, f3=-2000.0), n=10)
+    r.eng.ack("*", r.seq * DT)
+    r.feed(off_by(0.0), n=5)                               # anchor not yet confirmed: the band is still wide
+    # back to the anchor's side, driven again: the band shrinks to the floor and the warning clears
+    for k in range(11):
+        r.feed([(5200 + 100 * k, 2000.0)] * 4)
+    r.feed([(6200, 2000.0)] * 4, n=25)
+    assert ("clear", "deviation_possible:n1:r3") in ids(r.events)
+    assert r.eng.active() == []
+
+
+def test_the_warning_raises_while_frames_stop_before_node_silent():
+    """Not green while blind: without frames the band widens to the physical range over 2 s."""
+    r = BandRun().feed(off_by(0.06), n=10)
+    assert r.events == []
+    t0 = (r.seq - 1) * DT
+    ev = []
+    for k in range(1, 16):
+        ev += r.eng.tick(t0 + 0.25 * k)                     # up to 3.75 s: node silent only after 5 s
+    assert ("raise", "deviation_possible:n1:r3") in ids(ev)
+    assert "silent" not in {e.kind for e in ev}
+    assert "no frame for" in next(e.message for e in ev if e.kind == "deviation_possible")
+
+
+def test_a_rope_without_tension_raises_sensor_fault_and_is_not_judged_possible():
+    r = BandRun()
+    absent = band_frame([(5200, 2000.0)] * 4, 0)
+    ropes = list(absent.ropes)
+    ropes[1] = ropes[1]._replace(mean_dan=L.TENSION_ABSENT, min_dan=L.TENSION_ABSENT, max_dan=L.TENSION_ABSENT,
+                                 raw_kpa=L.RAW_KPA_ABSENT)
+    for _ in range(10):
+        f = band_frame([(5200, 2000.0)] * 4, r.seq, fault_mask=0x02)
+        f.ropes = tuple(ropes)
+        r.events += r.eng.update(f, r.seq * DT)
+        r.seq += 1
+    kinds = r.kinds()
+    assert "sensor_fault" in kinds
+    assert not any(a.kind == "deviation_possible" and a.rope == 1 for a in r.eng.active())
+    assert r.eng.deviation_bands(1)[1] is None
+
+
+def test_without_friction_lines_there_is_no_band():
+    eng = AlarmEngine()
+    assert run(eng, [dev_row(0.06)] * 20) == [] and eng.deviation_bands(1) == []
