@@ -3,9 +3,15 @@
 The oil in a cylinder, its hoses and the connecting assembly compresses with
 pressure, so a piston moves by k dp when its pressure changes (docs/model.md,
 "LuGre (noise-robust observer)"). Oil with entrained air makes k uncertain by tens of per cent
-from the drawings, so the node's k is measured: a least-squares line of the
-piston position on the pressure over a recording (a commissioning wind, or any
-stream with loading and acceleration), on the node's own channel scaling. The
+from the drawings, so the node's k is measured from a recorded wind, on the node's own channel
+scaling: a least-squares line of the piston position on the pressure, with an
+offset of its own per piece of at most PIECE_S, over the parts of the wind where
+no piston runs off its line. The cylinders share one manifold, so in long
+decompressions one piston at a time takes all of the common motion while the
+others stick (a balancing stroke), and a piston may creep; those stretches (and
+STROKE_PAD_S around them) are left out, and the fit says how much of the
+recording it used. That sum_i A_i x_i follows sum_i A_i k_i p_i over the whole
+recording (the oil's volume is kept) is checked and warned when it does not. The
 same recording gives the pressure channels' noise, which sizes the play of the
 node's friction observer (`pressure_noise_Pa`: the median channel's, as the node's
 observer follows the median pressure and its noise following the median channel's
@@ -37,7 +43,7 @@ import json
 import math
 import struct
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +55,14 @@ from ropemon.reference import read_rsens
 MIN_SPAN_PA = 0.3e6   # the pressure must change at least this much over the recording
 MIN_R = 0.5           # correlation of position and pressure below which the fit is refused
 MAX_REL_SE = 0.02     # standard error of k over k above which the fit is refused
+BLOCK_S = 0.1             # the position and pressure are averaged over blocks this long
+STROKE_SPAN_S = 2.0       # a rope's departure from its line is measured between means this long
+STROKE_SIGMAS = 6.0       # ... and a block is left out where it runs off faster than this many rms
+STROKE_MIN_M_S = 5e-6     # ... or this speed, whichever is larger
+STROKE_PAD_S = 1.0        # left out around a departure (its start and end)
+STROKE_SHARE = 0.75       # a piston that takes this share of the common motion strokes
+PIECE_S = 10.0            # k is fitted with an offset of its own per piece this long at most (slow creep)
+MAX_VOLUME_DEV = 0.03     # sum A_i x_i against sum A_i k_i p_i: warned beyond this, relative
 BOUNCE_WINDOW_S = 4.0     # the arrival's bounce is looked for over this long after the stop
 BOUNCE_MIN_HZ = 1.0       # below this a line is the load's own change, not the bounce
 BOUNCE_MIN_PEAK = 4.0     # the line must stand this many times above the band's median
@@ -84,6 +98,10 @@ class ComplianceFit:
     displacement_noise_m: float  # the same of the displacement channels (worst rope)
     samples: int
     bounce_hz: float | None = None  # the bounce after the last arrival (None: not measured)
+    used_fraction: float = 1.0      # share of the recording k was fitted on (outside strokes and creep)
+    left_out_s: float = 0.0         # seconds left out (balancing strokes, creep)
+    volume_ratio: float | None = None  # sum A x against sum A k p over the recording (1: consistent)
+    warnings: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"hydraulic_compliance_m_per_Pa": self.k_m_per_pa,
@@ -91,50 +109,220 @@ class ComplianceFit:
                 "displacement_noise_m": self.displacement_noise_m, "bounce_hz": self.bounce_hz,
                 "r": self.r,
                 "pressure_span_Pa": self.span_pa, "residual_rms_m": self.residual_m,
-                "samples": self.samples}
+                "samples": self.samples, "used_fraction": self.used_fraction,
+                "left_out_s": self.left_out_s, "volume_ratio": self.volume_ratio,
+                "warnings": self.warnings}
+
+
+def _scaled(ph: dict, records: np.ndarray, i: int):
+    """Rope i's pressure (Pa), position (m), health mask, and the channels' steps (per count)."""
+    n = int(ph["ropes"])
+    pc = ph["pressure_channels"][i]
+    dc = ph["displacement_channels"][i]
+    cp = records[:, i].astype(float)
+    cx = records[:, n + i].astype(float)
+    plo, phi = namur_limits(pc["counts_4mA"], pc["counts_20mA"])
+    xlo, xhi = namur_limits(dc["counts_lo"], dc["counts_hi"])
+    ok = (cp >= plo) & (cp <= phi) & (cx >= xlo) & (cx <= xhi)
+    lo, hi = pc["range_Pa"]
+    p = lo + (cp - pc["counts_4mA"]) * (hi - lo) / (pc["counts_20mA"] - pc["counts_4mA"])
+    ylo, yhi = dc["range_m"]
+    x = ylo + (cx - dc["counts_lo"]) * (yhi - ylo) / (dc["counts_hi"] - dc["counts_lo"])
+    p_step = abs(hi - lo) / abs(pc["counts_20mA"] - pc["counts_4mA"])
+    x_step = abs(yhi - ylo) / abs(dc["counts_hi"] - dc["counts_lo"])
+    return p, x, ok, p_step, x_step
+
+
+def _blocks(v: np.ndarray, ok: np.ndarray, b: int) -> np.ndarray:
+    """Means over blocks of b samples; NaN where any sample of the block is unhealthy."""
+    m = len(v) // b
+    out = v[: m * b].reshape(m, b).mean(axis=1)
+    out[~ok[: m * b].reshape(m, b).all(axis=1)] = np.nan
+    return out
+
+
+def _departure(r: np.ndarray, h: int, block_s: float) -> np.ndarray:
+    """Speed (m/s) at which r (block means) runs off: the mean of the h blocks after each
+    block minus the mean of the h before it, over the time between them. NaN at the ends."""
+    out = np.full(r.size, np.nan)
+    if r.size < 2 * h + 1:
+        return out
+    c = np.concatenate([[0.0], np.cumsum(np.nan_to_num(r))])
+    bad = np.concatenate([[0], np.cumsum(np.isnan(r))])
+    b = np.arange(h, r.size - h)
+    after = (c[b + 1 + h] - c[b + 1]) / h
+    before = (c[b] - c[b - h]) / h
+    valid = ((bad[b + 1 + h] - bad[b - h]) == 0)
+    out[b] = np.where(valid, (after - before) / ((h + 1) * block_s), np.nan)
+    return out
 
 
 def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
-    """Fit k per rope from records[k, 2N+4] with the channel scaling of `physical` ph."""
-    n = int(ph["ropes"])
-    ks, rs, spans, res, noise, x_noise = [], [], [], [], [], []
+    """Fit k per rope from records[k, 2N+4] with the channel scaling of `physical` ph.
+
+    k is fitted on the short-time changes of position and pressure (block means over
+    BLOCK_S, their increments), leaving out the stretches where any rope's position runs
+    off its line x = c + k p (a balancing stroke: one piston takes the common motion, the
+    others stick; or a creep), so a wind with strokes gives each rope's compression."""
+    n, fs = int(ph["ropes"]), float(ph["sample_hz"])
+    b = max(1, int(round(BLOCK_S * fs)))
+    block_s = b / fs
+    chans, noise, x_noise = [], [], []
     for i in range(n):
-        pc = ph["pressure_channels"][i]
-        dc = ph["displacement_channels"][i]
-        cp = records[:, i].astype(float)
-        cx = records[:, n + i].astype(float)
-        plo, phi = namur_limits(pc["counts_4mA"], pc["counts_20mA"])
-        xlo, xhi = namur_limits(dc["counts_lo"], dc["counts_hi"])
-        ok = (cp >= plo) & (cp <= phi) & (cx >= xlo) & (cx <= xhi)
+        p, x, ok, p_step, x_step = _scaled(ph, records, i)
         if ok.sum() < 100:
             raise ComplianceError(f"rope {i + 1}: fewer than 100 samples with both channels healthy")
-        lo, hi = pc["range_Pa"]
-        p = lo + (cp[ok] - pc["counts_4mA"]) * (hi - lo) / (pc["counts_20mA"] - pc["counts_4mA"])
-        ylo, yhi = dc["range_m"]
-        x = ylo + (cx[ok] - dc["counts_lo"]) * (yhi - ylo) / (dc["counts_hi"] - dc["counts_lo"])
-        span = float(np.percentile(p, 95) - np.percentile(p, 5))
+        span = float(np.percentile(p[ok], 95) - np.percentile(p[ok], 5))
         if span < MIN_SPAN_PA:
             raise ComplianceError(f"rope {i + 1}: the pressure changes by {span / 1e6:.3f} MPa "
                                   f"(5th to 95th percentile); k needs at least "
                                   f"{MIN_SPAN_PA / 1e6:.1f} MPa (record a loading or a wind)")
-        slope, icpt = np.polyfit(p, x, 1)
-        r = float(np.corrcoef(p, x)[0, 1])
-        if slope <= 0 or r < MIN_R:
+        noise.append(_white_noise(p[ok], p_step))
+        x_noise.append(_white_noise(x[ok], x_step))
+        chans.append((_blocks(p, ok, b), _blocks(x, ok, b)))
+    P = np.array([c[0] for c in chans])
+    X = np.array([c[1] for c in chans])
+    var_dp = [2 * s ** 2 / b for s in noise]  # the pressure noise in an increment of block means
+    var_p = [s ** 2 / b for s in noise]  # the pressure noise left in a block mean
+    k = _first_k(P, X, _areas(ph, n), var_p)
+    h = max(1, int(round(STROKE_SPAN_S / block_s)))
+    pad = int(round(STROKE_PAD_S / block_s))
+    piece = max(2, int(round(PIECE_S / block_s)))
+    valid = ~np.isnan(P).any(axis=0) & ~np.isnan(X).any(axis=0)
+    for _ in range(8):
+        off = np.zeros(P.shape[1], bool)
+        for i in range(n):
+            s = _departure(X[i] - k[i] * P[i], h, block_s)
+            # the rms of s from the channels' noise alone (two means of h blocks)
+            sig = math.sqrt(2 * (x_noise[i] ** 2 + (k[i] * noise[i]) ** 2) / (h * b)) / ((h + 1) * block_s)
+            off |= np.abs(np.nan_to_num(s)) > max(STROKE_SIGMAS * sig, STROKE_MIN_M_S)
+        if pad:
+            off = np.convolve(off, np.ones(2 * pad + 1), "same") > 0
+        pieces = _pieces(valid & ~off, piece)
+        k_new = np.array([_slope(P[i], X[i], pieces, var_p[i])[0] for i in range(n)])
+        done = np.allclose(k_new, k, rtol=1e-4, atol=0)
+        k = k_new
+        if done:
+            break
+    used = float((valid & ~off).sum() / max(1, valid.sum()))
+    left_out_s = float((valid & ~np.isnan(P).all(axis=0) & off).sum() * block_s)
+    ks, rs, spans, res = [], [], [], []
+    for i in range(n):
+        kk, se, pk, xk = _slope(P[i], X[i], pieces, var_p[i])
+        kept = P[i][valid & ~off]
+        span = float(np.percentile(kept, 95) - np.percentile(kept, 5)) if kept.size else 0.0
+        if span < MIN_SPAN_PA:
+            raise ComplianceError(
+                f"rope {i + 1}: position does not follow pressure: where it does (outside balancing "
+                f"strokes and creep, {used * 100:.0f} % of the recording), the pressure changes by "
+                f"{span / 1e6:.3f} MPa; k needs at least {MIN_SPAN_PA / 1e6:.1f} MPa (record a full wind "
+                f"with its loading and its stop at the landing)")
+        r = float(np.corrcoef(pk, xk)[0, 1])
+        if kk <= 0 or r < MIN_R:
             raise ComplianceError(f"rope {i + 1}: position does not follow pressure (slope "
-                                  f"{slope:.3g} m/Pa, r = {r:.3f}; needs r >= {MIN_R})")
-        resid = x - (icpt + slope * p)
-        se = float(np.sqrt(np.mean(resid ** 2) / (len(p) * np.var(p))))
-        if se > MAX_REL_SE * slope:
-            raise ComplianceError(f"rope {i + 1}: k = {slope:.4g} m/Pa is uncertain by {100 * se / slope:.1f} % "
+                                  f"{kk:.3g} m/Pa, r = {r:.3f}; needs r >= {MIN_R}; on the "
+                                  f"{used * 100:.0f} % of the recording outside balancing strokes)")
+        if se > MAX_REL_SE * kk:
+            raise ComplianceError(f"rope {i + 1}: k = {kk:.4g} m/Pa is uncertain by {100 * se / kk:.1f} % "
                                   f"(needs <= {100 * MAX_REL_SE:.0f} %): record more pressure change")
-        ks.append(float(slope))
+        ks.append(float(kk))
         rs.append(r)
         spans.append(span)
-        res.append(float(np.sqrt(np.mean((x - (icpt + slope * p)) ** 2))))
-        noise.append(_white_noise(p, abs(hi - lo) / (pc["counts_20mA"] - pc["counts_4mA"])))
-        x_noise.append(_white_noise(x, abs(yhi - ylo) / abs(dc["counts_hi"] - dc["counts_lo"])))
+        res.append(float(np.sqrt(np.mean((xk - kk * pk) ** 2))))
+    ratio, warnings = _volume_check(ph, P, X, np.array(ks))
     return ComplianceFit(ks, rs, spans, res, float(np.median(noise)), max(x_noise), int(records.shape[0]),
-                         bounce_hz(ph, records))
+                         bounce_hz(ph, records), used_fraction=used, left_out_s=left_out_s,
+                         volume_ratio=ratio, warnings=warnings)
+
+
+def _pieces(keep: np.ndarray, most: int) -> list[np.ndarray]:
+    """Index arrays of the runs of kept blocks, cut into pieces of at most `most` blocks."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(np.int8), [0]])))
+    out = []
+    for s, e in zip(edges[::2], edges[1::2]):
+        for a in range(s, e, most):
+            if min(a + most, e) - a >= 2:
+                out.append(np.arange(a, min(a + most, e)))
+    return out
+
+
+def _slope(p: np.ndarray, x: np.ndarray, pieces: list[np.ndarray],
+           var_p: float) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """(k, its standard error, p and x about each piece's mean, joined): least squares of
+    position on pressure with an offset of its own in each piece (a stroke or a creep between
+    pieces moves the offset, not k), the pressure noise's share of the sum of squares taken out."""
+    if not pieces:
+        return 0.0, math.inf, np.zeros(0), np.zeros(0)
+    pk = np.concatenate([p[j] - p[j].mean() for j in pieces])
+    xk = np.concatenate([x[j] - x[j].mean() for j in pieces])
+    dof = pk.size - len(pieces)
+    den = float(np.sum(pk * pk)) - dof * var_p
+    if dof < 2 or den <= 0:
+        return 0.0, math.inf, pk, xk
+    kk = float(np.sum(pk * xk)) / den
+    e = xk - kk * pk
+    return kk, float(np.sqrt(np.sum(e * e) / (dof - 1) / den)), pk, xk
+
+
+def _areas(ph: dict, n: int) -> np.ndarray:
+    a = ph.get("cylinder_area_m2", 1.0)
+    return np.asarray(a if isinstance(a, (list, tuple)) else [a] * n, float)
+
+
+def _first_k(P: np.ndarray, X: np.ndarray, areas: np.ndarray, var_p: list[float]) -> np.ndarray:
+    """A first k per rope, from 1 s increments where the pressure changes well beyond its
+    noise, leaving out those where one piston takes most of the common motion (a stroke).
+    The common motion is what the manifold's volume gives: sum A_i dx_i = K dp, K = sum A_i k_i
+    the slope of sum A_i x_i on the median pressure over the whole recording (a stroke moves
+    oil between the cylinders, not out of them). Each rope's k is then the dp^2-weighted median
+    of dx/dp over the rest; the plain line of position on pressure where too few remain."""
+    n = P.shape[0]
+    lag = max(1, int(round(1.0 / BLOCK_S)))
+    pm = np.median(P, axis=0)
+    ok = ~np.isnan(P).any(axis=0) & ~np.isnan(X).any(axis=0)
+    d_p = pm[lag:] - pm[:-lag]
+    d_x = X[:, lag:] - X[:, :-lag]
+    big = ~np.isnan(d_p) & ~np.isnan(d_x).any(axis=0) & (np.abs(d_p) > 20 * math.sqrt(max(var_p)))
+    if n > 1 and ok.sum() > 10:
+        v = areas @ X[:, ok]
+        q = pm[ok] - pm[ok].mean()
+        kv = float(np.sum((v - v.mean()) * q) / np.sum(q * q)) if np.any(q) else 0.0
+        if kv > 0:
+            share = areas[:, None] * d_x / (kv * np.where(big, d_p, 1.0))
+            big &= share.max(axis=0) < STROKE_SHARE
+    out = np.zeros(n)
+    for i in range(n):
+        if big.sum() < 10:
+            sel = ~np.isnan(P[i]) & ~np.isnan(X[i])
+            out[i] = float(np.polyfit(P[i][sel], X[i][sel], 1)[0])
+            continue
+        ratio, w = d_x[i][big] / d_p[big], d_p[big] ** 2
+        o = np.argsort(ratio)
+        c = np.cumsum(w[o])
+        out[i] = float(ratio[o][np.searchsorted(c, 0.5 * c[-1])])
+    return out
+
+
+def _volume_check(ph: dict, P: np.ndarray, X: np.ndarray, k: np.ndarray) -> tuple[float | None, list[str]]:
+    """The shared manifold keeps the oil's volume: sum A_i x_i moves by sum A_i k_i dp_i,
+    strokes included. The slope of the one on the other over the whole recording (1 when
+    the k fit), and a warning when it is off by more than MAX_VOLUME_DEV."""
+    n = P.shape[0]
+    a = _areas(ph, n)
+    ok = ~np.isnan(P).any(axis=0) & ~np.isnan(X).any(axis=0)
+    if n < 2 or ok.sum() < 10:
+        return None, []
+    v = a @ X[:, ok]
+    q = (a * k) @ P[:, ok]
+    q = q - q.mean()
+    if not np.any(q):
+        return None, []
+    ratio = float(np.sum((v - v.mean()) * q) / np.sum(q * q))
+    if abs(ratio - 1) <= MAX_VOLUME_DEV:
+        return ratio, []
+    return ratio, [f"the pistons' oil volume sum A_i x_i moves {ratio:.3f} times the compression "
+                   f"sum A_i k_i p_i over the recording (expected 1 within {MAX_VOLUME_DEV * 100:g} %): "
+                   "oil leaves or enters the circuit, or a piston creeps outside what was left out"]
 
 
 def bounce_hz(ph: dict, records: np.ndarray) -> float | None:
@@ -281,6 +469,8 @@ def run(args) -> int:
     for line, beyond in lines:
         print(f"ropemon fit-compliance: against {args.node_json.name}: {line}{': CHANGED' if beyond else ''}",
               file=sys.stderr)
+    for w in res.warnings:
+        print(f"ropemon fit-compliance: warning: {w}", file=sys.stderr)
     changed = any(beyond for _, beyond in lines)
     if changed:
         print(f"ropemon fit-compliance: {args.node_json.name} no longer fits this hoist: name this fit in "

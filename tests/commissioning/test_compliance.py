@@ -474,3 +474,118 @@ def test_no_bounce_is_reported_without_a_stop_or_a_line_above_the_noise(ph):
     # a fit's output carries it (None when not measured), and `ropemon config` takes it
     res = compliance.fit(ph, synthetic(ph))
     assert res.bounce_hz is None and res.as_dict()["bounce_hz"] is None
+
+
+# ---------------------------------------------------------------- a wind with balancing strokes
+
+AREAS = [1.0, 1.0, 1.0, 1.0]  # equal cylinders (the example site's)
+
+
+def stroke_wind(ph: dict, seed: int = 4, strokes: bool = True, bounce: float = 2.4) -> np.ndarray:
+    """A full commissioning wind as a sensor stream: loading at the bottom (5 -> 9 MPa), the
+    wind up (acceleration hump, the tail-rope shift, deceleration dip, rope bounce), the stop
+    at the pithead with the cage's bounce at `bounce` Hz, unloading (9 -> 4 MPa), rest.
+
+    With `strokes` the shared manifold's balancing strokes: rope 2 takes all of the common
+    motion through the deceleration and rope 4 all of the unloading's (the others stick;
+    sum A_i x_i keeps following sum A_i k_i p_i), and rope 3 creeps 3 mm out through the
+    wind while ropes 1, 2, 4 give 1 mm each back."""
+    rng = np.random.default_rng(seed)
+
+    def seg(p0, p1, s):
+        return np.linspace(p0, p1, int(s * HZ), endpoint=False)
+
+    parts = [seg(5e6, 5e6, 10), seg(5e6, 9e6, 20), seg(9e6, 9e6, 6),     # rest, loading, rest
+             seg(9e6, 9.6e6, 5), seg(9.6e6, 9.0e6, 8),                    # acceleration
+             seg(9.0e6, 8.6e6, 60),                                       # full speed (tail ropes shift)
+             seg(8.6e6, 8.0e6, 8), seg(8.0e6, 8.6e6, 5),                  # deceleration
+             seg(8.6e6, 8.6e6, 12), seg(8.6e6, 4.0e6, 15), seg(4e6, 4e6, 10)]  # pithead, unloading
+    p = np.concatenate(parts)
+    t = np.arange(p.size) / HZ
+    edges = np.cumsum([0] + [q.size for q in parts]) / HZ
+    t_go, t_stop = edges[3], edges[8]
+    moving = (t >= t_go) & (t < t_stop)
+    p = p + 0.15e6 * np.sin(2 * np.pi * 1.1 * t) * moving                  # the rope bounce in the wind
+    after = t >= t_stop
+    p[after] += 0.12e6 * np.exp(-(t[after] - t_stop) / 2.5) * np.sin(2 * np.pi * bounce * (t[after] - t_stop))
+    k = np.array(K_TRUE)
+    a = np.array(AREAS)
+    x = X0 + np.outer(p, k)                                                # the oil's compression
+    if strokes:
+        for j, (t0, t1) in ((1, (edges[5] + 30, edges[8])), (3, (edges[9] + 2, edges[10]))):
+            inside = (t >= t0) & (t < t1)
+            i0 = np.argmax(inside)
+            i1 = np.flatnonzero(inside)[-1]
+            dp = np.zeros(p.size)
+            dp[inside] = p[inside] - p[i0]
+            dp[i1 + 1:] = p[i1] - p[i0]
+            for i in range(4):  # the others stick, rope j takes their motion
+                if i != j:
+                    x[:, i] -= k[i] * dp
+                    x[:, j] += a[i] * k[i] * dp / a[j]
+        creep = np.clip((t - t_go) / (t_stop - t_go), 0, 1) * 3e-3
+        x += np.outer(creep, [-1 / 3, -1 / 3, 1.0, -1 / 3]) * a[2] / a
+    ps = [p + rng.normal(0, P_NOISE, p.size) for _ in K_TRUE]
+    xs = [x[:, i] + rng.normal(0, X_NOISE, p.size) for i in range(4)]
+    rec = records(ph, ps, xs)
+    speed = np.interp(t, [t_go, t_go + 12, t_stop - 12, t_stop], [0, 10.0, 10.0, 0], left=0, right=0)
+    depth = 808.0 - np.cumsum(speed) / HZ                                  # up the shaft: counts down
+    rec[:, 2 * ph["ropes"] + 2] = np.floor((depth - 808.0) / ph["speed_m_per_pulse"]).astype(np.int64) % 65536
+    return rec
+
+
+def scaled(ph: dict, rec: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rope i's pressure (Pa) and position (m) from the records' counts."""
+    pc, dc, n = ph["pressure_channels"][i], ph["displacement_channels"][i], ph["ropes"]
+    (plo, phi), (xlo, xhi) = pc["range_Pa"], dc["range_m"]
+    p = plo + (rec[:, i] - pc["counts_4mA"]) * (phi - plo) / (pc["counts_20mA"] - pc["counts_4mA"])
+    x = xlo + (rec[:, n + i] - dc["counts_lo"]) * (xhi - xlo) / (dc["counts_hi"] - dc["counts_lo"])
+    return p, x
+
+
+def test_fit_compliance_accepts_a_wind_with_strokes(ph):
+    """Balancing strokes and a creep put the pistons off a line of position on pressure
+    over the whole wind; k comes from the rest of it, and the pithead bounce is measured."""
+    rec = stroke_wind(ph)
+    # the whole wind's line of position on pressure is broken on every rope
+    for i, want in enumerate(K_TRUE):
+        p, x = scaled(ph, rec, i)
+        assert abs(np.polyfit(p, x, 1)[0] / want - 1) > 0.1
+    res = compliance.fit(ph, rec)
+    for got, want in zip(res.k_m_per_pa, K_TRUE):
+        assert got == pytest.approx(want, rel=0.02)
+    assert res.bounce_hz == pytest.approx(2.4, abs=0.05)
+    # the strokes and the creep were left out, and the fit says how much of the wind it used
+    assert res.left_out_s > 5 and 0.2 < res.used_fraction < 0.97
+    # the oil's volume is kept: sum A x follows sum A k p over the whole wind, strokes included
+    assert res.volume_ratio == pytest.approx(1.0, abs=0.02) and res.warnings == []
+    # the same wind without strokes: nothing left out beyond the noise's few false alarms
+    clean = compliance.fit(ph, stroke_wind(ph, strokes=False))
+    assert clean.used_fraction > 0.97
+    for got, want in zip(clean.k_m_per_pa, K_TRUE):
+        assert got == pytest.approx(want, rel=0.01)
+
+
+def test_command_fits_a_wind_with_strokes(tmp_path, ph, capsys):
+    node = tmp_path / "node.json"
+    node.write_text(json.dumps(make_node_json(ph)))
+    rsens = tmp_path / "wind.rsens"
+    write_rsens(rsens, stroke_wind(ph), HZ)
+    assert ropemon(["fit-compliance", str(node), str(rsens)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["hydraulic_compliance_m_per_Pa"] == pytest.approx(K_TRUE, rel=0.02)
+    assert doc["left_out_s"] > 5 and doc["bounce_hz"] == pytest.approx(2.4, abs=0.05)
+
+
+def test_a_volume_that_does_not_follow_the_compression_is_warned(ph):
+    # oil leaving the circuit (a leak on rope 3's cylinder, 20 um/s through the wind):
+    # the sum of the pistons' volumes drifts away from the compression, which is warned
+    rec = stroke_wind(ph, strokes=False)
+    t = np.arange(rec.shape[0]) / HZ
+    _, x = scaled(ph, rec, 2)
+    leak = -np.clip(t - 36, 0, None) * 2e-5
+    dc = ph["displacement_channels"][2]
+    rec[:, 4 + 2] = counts(x + leak, dc["counts_lo"], dc["counts_hi"], *dc["range_m"])
+    res = compliance.fit(ph, rec)
+    assert abs(res.volume_ratio - 1) > 0.03
+    assert res.warnings and "oil leaves or enters the circuit" in res.warnings[0]
