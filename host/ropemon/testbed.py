@@ -1,17 +1,18 @@
 """A simulated friction test bed: the CSV `ropemon fit-friction` reads, from known seal friction.
 
 It plays the test procedure of docs/commissioning.md on a cylinder whose seal
-friction is known (LuGre with Fs, Fc, vs, sigma2 linear in pressure, or any law
-object with `force(v_m_s, p_MPa, h_s) -> N`), and records what the real bed's
-instruments would: time, oil pressure, piston velocity and friction force, each
-with measurement noise. Used by the tests, the docs, the example fit
+friction is known (LuGre with Fs, Fc, vs, sigma2 linear in pressure, any ropemon.plant
+law of a scenario's [plant.friction], or any object with `force(v_m_s, p_MPa, h_s) -> N`),
+and records what the real bed's instruments would: time, oil pressure, piston velocity
+and friction force, each with measurement noise. Used by the tests, the docs, the example fit
 scenarios/paper-friction.json and the accuracy evaluation.
 
     python -m ropemon.testbed --out bed.csv [--seed N] [--no-presliding]
     python -m ropemon.testbed --scenario scenarios/paper-field-trip.toml --out bed.csv
 
 With --scenario the bed runs that scenario's hidden seal ([plant.friction], read
-by ropemon.plant), so a site's fit describes the seal its plant actually has.
+by ropemon.plant, any law; --rope N picks rope N's seal when the table has a per-rope
+force_scale), so a site's fit describes the seal its plant actually has.
 """
 from __future__ import annotations
 
@@ -93,21 +94,31 @@ class LuGre:
 
 
 class PlantLaw:
-    """A ropemon.plant friction law without presliding state (e.g. coulomb-stribeck) as a bed law."""
+    """A ropemon.plant friction law as a bed law. Laws with pre-sliding states (Maxwell-slip,
+    elasto-plastic: `implicit_step`) advance them by implicit Euler over each step, starting
+    unloaded; a law without (coulomb-stribeck) is evaluated as it is."""
 
     def __init__(self, law: Any):
         self.law = law
+        self.stateful = hasattr(law, "implicit_step")
+        self.z: Any = [0.0] * law.n_z if law.n_z > 1 else 0.0
 
     def force(self, v: float, p: float, h: float) -> float:
-        out = self.law.evaluate(np.array([v]), np.zeros(1), np.array([p * 1e6]))
-        return float(out.F[0])
+        if not self.stateful:
+            out = self.law.evaluate(np.array([v]), np.zeros(1), np.array([p * 1e6]))
+            return float(out.F[0])
+        pm = max(p, 0.0)
+        if h:
+            self.z = self.law.implicit_step(v, self.z, pm, h)
+        return float(self.law.terms(v, self.z, pm, 0.0, False)[0])
 
 
-def scenario_seal(path: Path | str) -> tuple[dict[str, Any] | None, Any]:
-    """(params, law_factory) for `run` from a scenario's hidden [plant.friction] table.
+def scenario_seal(path: Path | str, rope: int | None = None) -> tuple[dict[str, Any] | None, Any]:
+    """(params, law_factory) for `run` from a scenario's hidden [plant.friction] table, of any law.
 
     A LuGre seal gives its parameters (law_factory None: the bed's own LuGre); any
-    other law is wrapped as it is (params None: no lines to scatter about).
+    other law is wrapped as it is (params None: no lines to scatter about). With a
+    per-rope `force_scale`, `rope` picks that rope's seal; None is the seal at scale 1.
     """
     from ropemon import tomlfields
     from ropemon.plant import friction as plant_friction
@@ -116,9 +127,12 @@ def scenario_seal(path: Path | str) -> tuple[dict[str, Any] | None, Any]:
     doc = tomlfields.load(path, ScenarioError)
     law = plant_friction.from_table(table(table(doc, "plant", ""), "friction", "plant"),
                                     "plant.friction")
-    if isinstance(law, plant_friction.LuGre):
-        return law.as_fit(), None
-    return None, lambda _level: PlantLaw(law)
+    if rope is not None and law.force_scale is not None and not 0 <= rope < len(law.force_scale):
+        raise ScenarioError(f"plant.friction.force_scale: no rope {rope} (it has {len(law.force_scale)})")
+    seal = law.rope_seal(rope)
+    if isinstance(seal, plant_friction.LuGre):
+        return seal.as_fit(), None
+    return None, lambda _level: PlantLaw(seal)
 
 
 def velocity_profile(speeds: tuple[float, ...], hold_s: float, ramp_s: float, dt: float,
@@ -233,6 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scenario", help="run this scenario's hidden seal ([plant.friction]) "
                     "instead of the example seal PAPER_SEAL")
+    ap.add_argument("--rope", type=int, help="with --scenario: this rope's seal (its force_scale); default scale 1")
     ap.add_argument("--no-presliding", action="store_true", help="leave out the slow reversals")
     ap.add_argument("--truth", action="store_true", help="add the noiseless true_* columns")
     ap.add_argument("--scatter", type=float, default=0.0,
@@ -242,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.scenario:
         from ropemon.plant.scenario import ScenarioError
         try:
-            params, factory = scenario_seal(a.scenario)
+            params, factory = scenario_seal(a.scenario, a.rope)
         except ScenarioError as e:
             print(f"python -m ropemon.testbed: {e}", file=sys.stderr)
             return 2

@@ -5,8 +5,9 @@ right-hand side, the Jacobian and whole runs against the numpy model), but
 written for speed: with 4 ropes, numpy's per-call overhead on 4-element arrays
 dominates, so here everything is Python floats, and the linear system of each
 step, W = I - gamma h J, is solved by block elimination instead of a dense
-inverse. Per rope, the x, z and q rows are eliminated into a 2x2 system in (v, p);
-its solution is affine in the three shared unknowns (cage r, rd and junction
+inverse. Per rope, the x, z and q rows are eliminated into a 2x2 system in (v, p)
+(a law with M states per rope, Maxwell-slip, has M z rows, each coupled only to v, its
+own z and p, so each eliminates like a single z); its solution is affine in the three shared unknowns (cage r, rd and junction
 pressure pj), which a 3x3 system gives. W's factors are built once per step (ROS2:
 they serve both stages).
 """
@@ -16,7 +17,7 @@ import math
 
 import numpy as np
 
-from ropemon.plant.friction import CoulombStribeck, LuGre
+from ropemon.plant.friction import CoulombStribeck, ElastoPlastic, LuGre, MaxwellSlip
 from ropemon.plant.model import G
 from ropemon.plant.solver import GAMMA
 
@@ -36,14 +37,21 @@ class Stepper:
         self.delta = [float(a) for a in plant.delta]
         self.hoist = plant.hoist
         fr = plant.friction
+        self.nz = plant.nz
         self.lugre = isinstance(fr, LuGre)
-        if not self.lugre and not isinstance(fr, CoulombStribeck):
+        # 0: LuGre, 1: Coulomb-Stribeck (both inline), 2: a law's own scalar `terms` per rope
+        self.kind = 0 if self.lugre else 1 if isinstance(fr, CoulombStribeck) else 2
+        if self.kind == 2 and not isinstance(fr, (MaxwellSlip, ElastoPlastic)):
             raise TypeError(f"no fast kernel for friction law {type(fr).__name__}")
+        self.terms = fr.terms if self.kind == 2 else None
+        self.scale = None if fr.force_scale is None else [float(a) for a in fr.force_scale]
+        if self.nz > 1:
+            self.factor, self.solve = self._factor_multi, self._solve_multi
         self.fl = tuple(float(v) for v in (fr.Fs.intercept, fr.Fs.slope, fr.Fc.intercept, fr.Fc.slope,
                                            fr.vs.intercept, fr.vs.slope, fr.sigma2.intercept, fr.sigma2.slope))
         self.s0 = float(fr.sigma0) if self.lugre else 0.0
         self.s1 = float(fr.sigma1) if self.lugre else 0.0
-        self.vth = 0.0 if self.lugre else float(fr.v_threshold)
+        self.vth = float(fr.v_threshold) if self.kind == 1 else 0.0
         ps = plant.to_junction
         # per rope: laminar coefficients (x mu) and Blasius coefficients (x rho^.75 mu^.25) of its segments
         self.seg = [[] for _ in range(n)]
@@ -55,7 +63,8 @@ class Stepper:
         self.seg_q_turb = [min((cl / cb) ** (4.0 / 3.0) for cl, cb in segs) for segs in self.seg]
         self.lin_loc = [float(a) for a in ps.lin_loc]
         self.rope = [(self.A[i], self.m[i], self.delta[i], self.V0[i], self.seg_q_turb[i], self.seg_lam_sum[i],
-                      self.lin_loc[i], float(ps.quad_per_rho[i]), float(ps.inertance_per_rho[i]), tuple(self.seg[i]))
+                      self.lin_loc[i], float(ps.quad_per_rho[i]), float(ps.inertance_per_rho[i]), tuple(self.seg[i]),
+                      1.0 if self.scale is None else self.scale[i])
                      for i in range(n)]
         self.quad = [float(a) for a in ps.quad_per_rho]
         self.inert_per_rho = [float(a) for a in ps.inertance_per_rho]
@@ -87,17 +96,21 @@ class Stepper:
         bl_scale = rho ** 0.75 * mu ** 0.25
         nu = mu / rho
         fs0, fs1, fc0, fc1, vs0, vs1, s20, s21 = self.fl
-        s0, s1, vth, lugre = self.s0, self.s1, self.vth, self.lugre
+        s0, s1, vth, kind, terms = self.s0, self.s1, self.vth, self.kind, self.terms
+        scaled = self.scale is not None
         beta = self.beta
-        pj = y[2 + 5 * n]
+        nz = self.nz
+        o = 2 + 2 * n + n * nz    # first pressure
+        pj = y[o + 2 * n]
+        zs = y[2 + 2 * n:o] if nz == 1 else [y[2 + 2 * n + i * nz:2 + 2 * n + (i + 1) * nz] for i in range(n)]
         fx, fv, fz, fp, fq = [], [], [], [], []
         sumT = 0.0
         sumq = 0.0
         J = [] if jac else None
         shk = shc = 0.0
-        for (A, m, delta, V0, q_turb, lam_sum, lin_loc, quad, inert_pr, seg), x, v, z, p, q, kri, cri, fli, yli, ydli \
-                in zip(self.rope, y[2:2 + n], y[2 + n:2 + 2 * n], y[2 + 2 * n:2 + 3 * n], y[2 + 3 * n:2 + 4 * n],
-                       y[2 + 4 * n:2 + 5 * n], kr, cr, fl, yl, ydl):
+        for (A, m, delta, V0, q_turb, lam_sum, lin_loc, quad, inert_pr, seg, sc), x, v, z, p, q, kri, cri, fli, yli, \
+                ydli in zip(self.rope, y[2:2 + n], y[2 + n:2 + 2 * n], zs, y[o:o + n], y[o + n:o + 2 * n],
+                            kr, cr, fl, yl, ydl):
             e = fli + kri * (r + yli - x - delta) + cri * (rd + ydli - v)
             if e > 0.0:
                 T, hk, hc = e, kri, cri
@@ -109,19 +122,25 @@ class Stepper:
                 pm, dpos = p * 1e-6, 1e-6
             else:
                 pm, dpos = 0.0, 0.0
-            fs, fc, vs = fs0 + fs1 * pm, fc0 + fc1 * pm, vs0 + vs1 * pm
-            s2 = s20 + s21 * pm
-            w = v / vs
-            ex = exp(-w * w)
-            g = fc + (fs - fc) * ex
-            av = v if v >= 0.0 else -v
-            if lugre:
-                zdot = v - s0 * av * z / g
-                F = s0 * z + s1 * zdot + s2 * v
+            if kind == 2:
+                res = terms(v, z, pm, dpos, jac)
+                F, zdot = res[0], res[1]
             else:
-                th = tanh(v / vth)
-                zdot = -z
-                F = g * th + s2 * v
+                fs, fc, vs = fs0 + fs1 * pm, fc0 + fc1 * pm, vs0 + vs1 * pm
+                s2 = s20 + s21 * pm
+                w = v / vs
+                ex = exp(-w * w)
+                g = fc + (fs - fc) * ex
+                av = v if v >= 0.0 else -v
+                if kind == 0:
+                    zdot = v - s0 * av * z / g
+                    F = s0 * z + s1 * zdot + s2 * v
+                else:
+                    th = tanh(v / vth)
+                    zdot = -z
+                    F = g * th + s2 * v
+            if scaled:
+                F *= sc
             # pipe to the junction
             aq = q if q >= 0.0 else -q
             if aq <= q_turb * nu:
@@ -152,14 +171,22 @@ class Stepper:
             net = A * v - q
             fx.append(v)
             fv.append((T - p * A - F) / m)
-            fz.append(zdot)
+            if nz == 1:
+                fz.append(zdot)
+            else:
+                fz.extend(zdot)
             fp.append(bv * net)
             fq.append((p - pj - dp) / inert)
             sumq += q
             if jac:
-                g_v = (fs - fc) * ex * (-2.0 * v / (vs * vs))
-                g_p = fc1 + (fs1 - fc1) * ex + (fs - fc) * ex * (2.0 * v * v / (vs * vs * vs)) * vs1
-                if lugre:
+                if kind == 2:
+                    F_v, F_z, F_p, zd_v, zd_z, zd_p = res[2:]
+                    if nz > 1:   # F_z per element, here already over m and scaled
+                        F_z = [sc * a / m for a in F_z] if scaled else [a / m for a in F_z]
+                        zd_v, zd_z, zd_p = tuple(zd_v), tuple(zd_z), tuple(zd_p)
+                elif kind == 0:
+                    g_v = (fs - fc) * ex * (-2.0 * v / (vs * vs))
+                    g_p = fc1 + (fs1 - fc1) * ex + (fs - fc) * ex * (2.0 * v * v / (vs * vs * vs)) * vs1
                     sg = 1.0 if v > 0 else (-1.0 if v < 0 else 0.0)
                     zd_v = 1.0 - s0 * z * (sg * g - av * g_v) / (g * g)
                     zd_z = -s0 * av / g
@@ -168,13 +195,21 @@ class Stepper:
                     F_z = s0 + s1 * zd_z
                     F_p = s1 * zd_p + s21 * v * dpos
                 else:
+                    g_v = (fs - fc) * ex * (-2.0 * v / (vs * vs))
+                    g_p = fc1 + (fs1 - fc1) * ex + (fs - fc) * ex * (2.0 * v * v / (vs * vs * vs)) * vs1
                     zd_v, zd_z, zd_p = 0.0, -1.0, 0.0
                     F_v = g_v * th + g * (1.0 - th * th) / vth + s2
                     F_z = 0.0
                     F_p = (g_p * th + s21 * v) * dpos
+                if scaled:
+                    F_v *= sc
+                    F_p *= sc
+                    if nz == 1:
+                        F_z *= sc
                 shk += hk
                 shc += hc
-                J.append((hk / m, hc / m, -hk / m, (-hc - F_v) / m, -F_z / m, (-A - F_p) / m,
+                J.append((hk / m, hc / m, -hk / m, (-hc - F_v) / m, -F_z / m if nz == 1 else tuple(-a for a in F_z),
+                          (-A - F_p) / m,
                           zd_v, zd_z, zd_p, bv * net * A / vol, bv * A, -bv,
                           1.0 / inert, -1.0 / inert, -ddp / inert, hk, hc))
         if self.hoist:
@@ -269,6 +304,98 @@ class Stepper:
             X.append(x + c * vv)
             V.append(vv)
             Z.append(dz * (zz + cjzv * vv + cjzp * pp))
+            P.append(pp)
+            Q.append(dq * q + cq * pp + cqpj * PJ)
+        return [R, RD] + X + V + Z + P + Q + [PJ]
+
+
+    # ------------------------------------------------------------------ several z per rope
+
+    def _factor_multi(self, jac, c):
+        """`factor` for M > 1 friction states per rope: each z_j row eliminates on its own."""
+        rows, cage = jac
+        cc = c * c
+        per1, per2 = [], []
+        m10 = m11 = m12 = 0.0
+        m20 = m21 = m22 = 0.0
+        hoist = cage is not None
+        if hoist:
+            invM, jrdr, jrdrd = cage
+        for (jvr, jvrd, jvx, jvv, jvz, jvp, jzv, jzz, jzp, jpx, jpv, jpq, jqp, jqpj, jqq, hk, hc) in rows:
+            dz = [1.0 / (1.0 - c * a) for a in jzz]
+            svv = svp = 0.0
+            for a, b, d, e in zip(jvz, jzv, jzp, dz):
+                svv += a * b * e
+                svp += a * d * e
+            dq = 1.0 / (1.0 - c * jqq)
+            a11 = 1.0 - c * jvv - cc * jvx - cc * svv
+            a12 = -c * jvp - cc * svp
+            a21 = -c * jpv - cc * jpx
+            a22 = 1.0 - cc * jpq * jqp * dq
+            det = a11 * a22 - a12 * a21
+            i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
+            e1r, e1rd, e2pj = c * jvr, c * jvrd, cc * jpq * dq * jqpj
+            Vr, Vrd, Vpj = i11 * e1r, i11 * e1rd, i12 * e2pj
+            Pr, Prd, Ppj = i21 * e1r, i21 * e1rd, i22 * e2pj
+            cq = dq * c * jqp
+            Qr, Qrd, Qpj = cq * Pr, cq * Prd, cq * Ppj + dq * c * jqpj
+            jrdx = hk * invM if hoist else 0.0
+            w = (c * hk + hc) * invM if hoist else 0.0
+            m10 += w * Vr
+            m11 += w * Vrd
+            m12 += w * Vpj
+            m20 += Qr
+            m21 += Qrd
+            m22 += Qpj
+            per1.append((dq, i11, i12, i21, i22, c * jvx, tuple(c * a * e for a, e in zip(jvz, dz)), c * jpx,
+                         c * jpq * dq, cq, w, jrdx))
+            per2.append((dz, dq, cq, Vr, Vrd, Vpj, Pr, Prd, Ppj, tuple(c * a for a in jzv), tuple(c * a for a in jzp),
+                         dq * c * jqpj))
+        cb = c * self.bVj
+        if hoist:
+            a = ((1.0, -c, 0.0),
+                 (-c * jrdr - c * m10, 1.0 - c * jrdrd - c * m11, -c * m12),
+                 (-cb * m20, -cb * m21, 1.0 - cb * m22))
+        else:
+            a = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-cb * m20, -cb * m21, 1.0 - cb * m22))
+        return per1, per2, _inv3(a), c, cb
+
+    def _solve_multi(self, fac, b):
+        per1, per2, ai, c, cb = fac
+        n, nz = self.n, self.nz
+        o = 2 + 2 * n + n * nz
+        bx, bv, bp, bq = b[2:2 + n], b[2 + n:2 + 2 * n], b[o:o + n], b[o + n:o + 2 * n]
+        bz = [b[2 + 2 * n + i * nz:2 + 2 * n + (i + 1) * nz] for i in range(n)]
+        s_r = 0.0
+        s_q = 0.0
+        V0s, P0s = [], []
+        for (dq, i11, i12, i21, i22, cjvx, cjvzdz, cjpx, cjpqdq, cq, w, jrdx), x, v, zz, p, q \
+                in zip(per1, bx, bv, bz, bp, bq):
+            s1 = v + cjvx * x
+            for a, e in zip(cjvzdz, zz):
+                s1 += a * e
+            s2 = p + cjpx * x + cjpqdq * q
+            V0 = i11 * s1 + i12 * s2
+            P0 = i21 * s1 + i22 * s2
+            s_r += jrdx * x + w * V0
+            s_q += dq * q + cq * P0
+            V0s.append(V0)
+            P0s.append(P0)
+        g0 = b[0]
+        g1 = b[1] + c * s_r
+        g2 = b[o + 2 * n] + cb * s_q
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = ai
+        R = a00 * g0 + a01 * g1 + a02 * g2
+        RD = a10 * g0 + a11 * g1 + a12 * g2
+        PJ = a20 * g0 + a21 * g1 + a22 * g2
+        X, V, Z, P, Q = [], [], [], [], []
+        for (dz, dq, cq, Vr, Vrd, Vpj, Pr, Prd, Ppj, cjzv, cjzp, cqpj), V0, P0, x, zz, q \
+                in zip(per2, V0s, P0s, bx, bz, bq):
+            vv = V0 + Vr * R + Vrd * RD + Vpj * PJ
+            pp = P0 + Pr * R + Prd * RD + Ppj * PJ
+            X.append(x + c * vv)
+            V.append(vv)
+            Z.extend([d * (e + a * vv + f * pp) for d, e, a, f in zip(dz, zz, cjzv, cjzp)])
             P.append(pp)
             Q.append(dq * q + cq * pp + cqpj * PJ)
         return [R, RD] + X + V + Z + P + Q + [PJ]

@@ -1,10 +1,11 @@
 """The plant's equations: cage on head ropes, pistons with seal friction, cavities, pipes, junction.
 
-State y (n = 3 + 5N), signs and units of docs/model.md:
+State y (n = 3 + 4N + N M), signs and units of docs/model.md:
 
     r, rd        cage depth relative to the wheel's paid-out rope (rope stretch), and its rate
     x[N], v[N]   piston positions and velocities (x > 0: pulled out by the rope)
-    z[N]         friction-law internal state (LuGre bristle deflection)
+    z[N M]       friction-law internal states, M = `friction.n_z` per rope, rope by rope
+                 (M = 1: LuGre bristle deflection; M elements: Maxwell-slip)
     p[N]         cavity pressures (Pa)
     q[N]         pipe flows cavity -> connecting assembly (m^3/s)
     pj           pressure in the connecting assembly (Pa)
@@ -75,17 +76,21 @@ class Plant:
         self.friction = friction
         self.delta = np.asarray(offsets_m, dtype=float)
         self.hoist = bool(hoist)
-        self.size = 3 + 5 * n
+        self.nz = nz = int(getattr(friction, "n_z", 1))
+        self.size = 3 + 4 * n + n * nz
         self.ix = slice(2, 2 + n)
         self.iv = slice(2 + n, 2 + 2 * n)
-        self.iz = slice(2 + 2 * n, 2 + 3 * n)
-        self.ip = slice(2 + 3 * n, 2 + 4 * n)
-        self.iq = slice(2 + 4 * n, 2 + 5 * n)
-        self.ipj = 2 + 5 * n
+        self.iz = slice(2 + 2 * n, 2 + 2 * n + n * nz)
+        o = 2 + 2 * n + n * nz
+        self.ip = slice(o, o + n)
+        self.iq = slice(o + n, o + 2 * n)
+        self.ipj = o + 2 * n
         # structural nonzeros of the Jacobian, in the order rhs() fills them
         X, V, Z, P, Q = (np.arange(s.start, s.stop) for s in (self.ix, self.iv, self.iz, self.ip, self.iq))
         R, RD, PJ = np.zeros(n, int), np.ones(n, int), np.full(n, self.ipj)
-        pairs = [(X, V), (V, R), (V, RD), (V, X), (V, V), (V, Z), (V, P), (Z, V), (Z, Z), (Z, P),
+        zr = np.repeat(np.arange(n), nz)   # rope of each z
+        VZ, PZ = V[zr], P[zr]
+        pairs = [(X, V), (V, R), (V, RD), (V, X), (V, V), (VZ, Z), (V, P), (Z, VZ), (Z, Z), (Z, PZ),
                  (P, X), (P, V), (P, Q), (Q, P), (Q, PJ), (Q, Q), (PJ, Q), (RD, X), (RD, V)]
         rows = [a for a, _ in pairs] + [np.array([0, 1, 1])]
         cols = [b for _, b in pairs] + [np.array([1, 0, 1])]
@@ -104,6 +109,8 @@ class Plant:
         n = self.n
         r, rd = y[0], y[1]
         x, v, z, p, q = y[self.ix], y[self.iv], y[self.iz], y[self.ip], y[self.iq]
+        if self.nz > 1:
+            z = z.reshape(n, self.nz)
         pj = y[self.ipj]
         kr, cr = u.k_rope[k], u.c_rope[k]
         e = u.f_load[k] + kr * (r + u.y_load[k] - x - self.delta) + cr * (rd + u.ydot_load[k] - v)
@@ -119,7 +126,7 @@ class Plant:
         net = A * v - q
         f[self.ix] = v
         f[self.iv] = (T - p * A - fr.F) / m
-        f[self.iz] = fr.zdot
+        f[self.iz] = fr.zdot.ravel()
         f[self.ip] = beta / vol * net
         f[self.iq] = (p - pj - dp) / inert
         f[self.ipj] = beta / self.Vj * (q.sum() + u.q_pump[k])
@@ -140,9 +147,10 @@ class Plant:
             cage = [hk / M, hc / M, np.array([1.0, -hk.sum() / M, -hc.sum() / M])]
         else:
             cage = [0.0 * ones, 0.0 * ones, np.zeros(3)]
+        F_z_m = -fr.F_z / m if self.nz == 1 else (-fr.F_z / m[:, None]).ravel()
         vals = np.concatenate([
-            ones, hk / m, hc / m, -hk / m, (-hc - fr.F_v) / m, -fr.F_z / m, (-A - fr.F_p) / m,
-            fr.zd_v, fr.zd_z, fr.zd_p,
+            ones, hk / m, hc / m, -hk / m, (-hc - fr.F_v) / m, F_z_m, (-A - fr.F_p) / m,
+            fr.zd_v.ravel(), fr.zd_z.ravel(), fr.zd_p.ravel(),
             bv * net * A / vol, bv * A, -bv,
             1.0 / inert, -1.0 / inert, -ddp / inert,
             (beta / self.Vj) * ones] + cage)
@@ -153,7 +161,7 @@ class Plant:
     # ------------------------------------------------------------------ initial state
 
     def rest_state(self, u: Inputs) -> np.ndarray:
-        """Static equilibrium at t = 0: no motion, no flow, friction unloaded (z = 0), equal pressures.
+        """Static equilibrium at t = 0: no motion, no flow, friction unloaded (every z = 0), equal pressures.
 
         Hoist: sum T = M g, T_i = k_i (r - x_i - delta_i), sum A_i x_i = 0.
         Bench: T_i = F_load,i + k_i (y_i - x_i), sum A_i x_i = 0 (k = 0: x = 0, p = F/A).
@@ -186,15 +194,19 @@ class Plant:
         """Every truth quantity at every grid time, vectorised over time (Y has shape (K, n))."""
         r, rd = Y[:, 0:1], Y[:, 1:2]
         x, v, z, p, q = Y[:, self.ix], Y[:, self.iv], Y[:, self.iz], Y[:, self.ip], Y[:, self.iq]
+        if self.nz > 1:
+            z = z.reshape(len(Y), self.n, self.nz)
         e = u.f_load + u.k_rope * (r + u.y_load - x - self.delta) + u.c_rope * (rd + u.ydot_load - v)
         T = np.maximum(e, 0.0)
         fr = self.friction.evaluate(v, z, p)
         dp_tap, _ = self.to_tap.dp(q, u.rho, u.mu)
         out = {
-            "tension_N": T, "friction_N": fr.F, "z_m": z,
+            "tension_N": T, "friction_N": fr.F, "z_m": z if self.nz == 1 else self.friction.deflection(z),
             "p_cav_Pa": p, "p_tap_Pa": p - dp_tap, "p_junction_Pa": Y[:, self.ipj],
             "piston_x_m": x, "piston_v_m_s": v, "flow_piston_m3_s": self.A * v, "flow_pipe_m3_s": q,
         }
+        if self.nz > 1:
+            out["z_elements_m"] = z
         if self.hoist:
             M = u.m_inertia
             acc_rel = (u.m_weight * G - T.sum(axis=1)) / M - u.a_wheel

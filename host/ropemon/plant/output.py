@@ -17,7 +17,9 @@ TRUTH_ARRAYS = {
     "t_s": ("s", "sample time, k / sample_hz"),
     "tension_N": ("N", "rope-end tension T_i at the piston rod"),
     "friction_N": ("N", "seal friction F_i (sign of v_i); T = p_cav A + F"),
-    "z_m": ("m", "friction-law internal state (LuGre bristle deflection)"),
+    "z_m": ("m", "friction-law internal state (LuGre, elasto-plastic: bristle deflection; Maxwell-slip: "
+                 "sum k_j z_j / sum k_j; Coulomb-Stribeck: unused, 0)"),
+    "z_elements_m": ("m", "Maxwell-slip only: element deflections z_j, third axis = element"),
     "p_cav_Pa": ("Pa", "cavity pressure"),
     "p_tap_Pa": ("Pa", "pressure at the sensor tap, p_cav - dp(q)"),
     "p_junction_Pa": ("Pa", "pressure in the connecting assembly"),

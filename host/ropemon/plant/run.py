@@ -47,5 +47,7 @@ def simulate(sc: Scenario, progress: Callable[[int, int], None] | None = None) -
             if v.ndim == 1:
                 truth[k] = np.interp(ts, u.t, v)
             else:
-                truth[k] = np.stack([np.interp(ts, u.t, v[:, i]) for i in range(v.shape[1])], axis=1)
+                flat = v.reshape(len(v), -1)
+                truth[k] = np.stack([np.interp(ts, u.t, flat[:, i]) for i in range(flat.shape[1])],
+                                    axis=1).reshape((len(ts),) + v.shape[1:])
     return Result(sc, ts, truth, wall)

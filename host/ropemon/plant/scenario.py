@@ -290,8 +290,8 @@ def _paths(pt: dict, n: int, tap_paths: list[PipePath]) -> tuple[PathSet, PathSe
     return PathSet([t.then(rest) for t in taps]), PathSet(taps), [t.volume_m3() + rest.volume_m3() for t in taps]
 
 
-def _friction(pt: dict):
-    return friction_mod.from_table(table(pt, "friction", "plant"), "plant.friction")
+def _friction(pt: dict, n: int):
+    return friction_mod.from_table(table(pt, "friction", "plant"), "plant.friction", n_ropes=n)
 
 
 def _temps(pt: dict, t: np.ndarray) -> np.ndarray:
@@ -346,7 +346,7 @@ def _build_hoist(doc: dict, path: Path, site, eager: bool = True) -> Scenario:
     dead = per_rope(pt, "dead_volume_m3", "plant", n, 0.3e-3)
     from_site = [PipePath.from_site_pipe(p) for p in site.pipes]
     to_j, to_tap, pipe_vol = _paths(pt, n, from_site)
-    fr = _friction(pt)
+    fr = _friction(pt, n)
     plant = Plant(area_m2=area, v0_m3=area * stroke / 2 + dead + np.array(pipe_vol) / 2,
                   piston_mass_kg=per_rope(pt, "piston_mass_kg", "plant", n, 30.0),
                   beta_Pa=number(pt, "beta_Pa", "plant", 1.0e9, gt=1e7, lt=3e9),
@@ -518,7 +518,7 @@ def _build_bench(doc: dict, path: Path, site) -> Scenario:
     rho, mu = oil.rho_kg_m3(temp), oil.mu_Pa_s(temp)
     dead = per_rope(pt, "dead_volume_m3", "plant", n, 0.2e-3)
     to_j, to_tap, pipe_vol = _paths(pt, n, tap_paths)
-    fr = _friction(pt)
+    fr = _friction(pt, n)
     plant = Plant(area_m2=area, v0_m3=area * stroke / 2 + dead + np.array(pipe_vol) / 2,
                   piston_mass_kg=per_rope(pt, "piston_mass_kg", "plant", n, 20.0),
                   beta_Pa=number(pt, "beta_Pa", "plant", 1.0e9, gt=1e7, lt=3e9),
