@@ -33,6 +33,7 @@ from ropemon.decode_cli import node_id
 from ropemon.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, StreamDecoder
 from ropemon.link import DEFAULT_BAUDRATE, FrameHub
 from ropemon.protocol import DAN_TO_N, Frame, L, keys_from_options
+from ropemon.uncertainty import BandParams, DeviationBand
 
 TENSION_ABSENT = L.TENSION_ABSENT   # a rope whose sensor failed for the whole window
 
@@ -63,6 +64,7 @@ class SiteFigures:
     conveyance_weight_n: float | None = None  # weight of the empty cage alone; None: no slack alarm
     slack_frac: float = 0.60                 # slack below this share of a rope's part of conveyance_weight_n
     overload_frac: float = 1.0               # overload above this share of rated_load_n
+    band: BandParams | None = None           # the seal's friction lines: each rope's band (ropemon.uncertainty)
 
     @classmethod
     def from_node_json(cls, path: str | Path) -> "SiteFigures":
@@ -90,7 +92,12 @@ class SiteFigures:
         overload_frac = phys.get("overload_frac", 1.0)
         if isinstance(overload_frac, bool) or not isinstance(overload_frac, (int, float)) or not overload_frac >= 1:
             raise ValueError(f"{path}: physical.overload_frac: {overload_frac!r} is not a factor >= 1")
+        try:
+            band = BandParams.from_physical(phys)
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from None
         return cls(
+            band=band,
             cylinder_area_m2=[float(a) for a in area],
             rated_rope_tension_n=float(rated) if rated is not None else None,
             rated_load_n=float(rated_load) if rated_load is not None else None,
@@ -127,6 +134,7 @@ class MonitorView:
         self.merge_text = ""
         self.alarm_rows: list[tuple[str, bool]] = []  # (text, acknowledged)
         self.refused: dict[int, tuple[int, int]] = {}  # node -> (newest boot, refused boot)
+        self.bands: dict[int, list[DeviationBand | None]] = {}  # node -> per rope deviation and band
         self.confirm_accept: int | None = None  # node awaiting the operator's `y`
         self.frames = 0
 
@@ -245,7 +253,7 @@ class MonitorView:
         table.add_column("rope", justify="right")
         table.add_column(f"comp {kn}", justify="right")
         table.add_column(f"raw {kn}", justify="right")
-        table.add_column("dev %", justify="right")
+        table.add_column("dev %", justify="right", no_wrap=True)
         table.add_column(f"min..max {kn}", justify="right")
         table.add_column(f"trend ({self.trend_len / 10:.1f} s)", justify="left", no_wrap=True)
         f = self.last
@@ -258,6 +266,7 @@ class MonitorView:
         used = [c for c, good in zip(comp, ok) if good]
         mean = sum(used) / len(used) if used else 0.0
         lim = self.site.imbalance_frac
+        bands = self.bands.get(f.node, [])
         # Each rope on its own scale (the shape of its last seconds), but never
         # finer than 1 % of rated, so sensor noise does not look like a swing.
         min_span = 0.01 * (self.site.rated_rope_tension_n or max(comp) or 1.0)
@@ -270,7 +279,10 @@ class MonitorView:
                 raw_ok = False
                 continue
             dev = (comp[i] - mean) / mean if mean > 0 else 0.0
-            style = "bold red reverse" if abs(dev) > lim else ("yellow" if abs(dev) > 0.8 * lim else "")
+            band = bands[i] if i < len(bands) else None
+            reach = band.reach if band is not None else abs(dev)
+            style = "bold red reverse" if abs(dev) > lim else ("yellow" if abs(dev) > 0.8 * lim or reach >= lim else "")
+            dev_txt = f"{dev * 100:+.1f}" + (f" +-{band.band * 100:.1f}" if band is not None else "")
             raw = self.raw_n(i, r.raw_kpa)
             if raw is None:
                 raw_ok = False
@@ -278,7 +290,7 @@ class MonitorView:
             else:
                 raw_sum += raw
                 raw_txt = f"{raw / 1000:.1f}"
-            table.add_row(str(i + 1), f"{comp[i] / 1000:.1f}", raw_txt, Text(f"{dev * 100:+.1f}", style=style),
+            table.add_row(str(i + 1), f"{comp[i] / 1000:.1f}", raw_txt, Text(dev_txt, style=style),
                           f"{r.min_dan * DAN_TO_N / 1000:.1f}..{r.max_dan * DAN_TO_N / 1000:.1f}",
                           self._spark(i, min_span))
         total = sum(used)
@@ -305,12 +317,14 @@ class MonitorView:
         if not self.alarm_rows:
             t.append(" alarms: none", style="green")
             return t
-        t.append(" ALARMS", style="bold red reverse")
+        only_warnings = all(is_warning(text) for text, _ in self.alarm_rows)
+        t.append(" ALARMS", style="bold yellow reverse" if only_warnings else "bold red reverse")
         shown = self.alarm_rows[:5]
         for text, acked in shown:
             t.append("\n ")
+            new_style = "bold yellow" if is_warning(text) else "bold red"
             t.append(("  ack " if acked else "! NEW ") + text[:70],
-                     style="yellow" if acked else "bold red")
+                     style="yellow" if acked else new_style)
         if len(self.alarm_rows) > len(shown):
             t.append(f"\n  ... and {len(self.alarm_rows) - len(shown)} more")
         return t
@@ -360,12 +374,19 @@ def merge_figures(merger_stats: dict) -> str:
     return f"frames {unique}  lost {lost}{pct}  duplicates dropped {dup}"
 
 
+def is_warning(text: str) -> bool:
+    """An alarm row of a warning (shown in yellow, after the alarms): DEVIATION POSSIBLE."""
+    return text.startswith("DEVIATION POSSIBLE")
+
+
 def alarm_text(a: ActiveAlarm) -> str:
     """One line for the operator; ropes numbered from 1 as on the cage."""
     rope = f" rope {a.rope + 1}" if a.rope is not None else ""
     v, thr = a.value, a.threshold
     if a.kind == "deviation" and v is not None and thr is not None:
         what = f"{v * 100:+.1f} % from mean (limit {thr * 100:.0f} %)"
+    elif a.kind == "deviation_possible" and v is not None and thr is not None and a.band is not None:
+        what = f"{v * 100:+.1f} % +-{a.band * 100:.1f} from mean: may reach {thr * 100:.0f} %"
     elif a.kind == "overload" and v is not None and thr is not None:
         what = f"total {v * DAN_TO_N / 1000:.1f} kN > {thr * DAN_TO_N / 1000:.1f} kN"
     elif a.kind == "slack" and v is not None and thr is not None:
@@ -465,6 +486,7 @@ class HostSession:
                     self.frames.append(f)
                 if self.view is not None:
                     self.view.on_frame(f, now)
+                    self.view.bands[f.node] = self.alarms.deviation_bands(f.node)
             if item.rebased_from is not None:
                 self._log_rebase(item)
         if self.keys:
@@ -578,6 +600,9 @@ class HostSession:
         if self.hub.dropped:
             self.view.merge_text += f"  HOST OVERLOADED: {self.hub.dropped} frames not processed"
         self.view.alarm_rows = [(alarm_text(a), not a.latched) for a in self.alarms.active()]
+        now = self.clock()
+        for node in self.view.nodes:
+            self.view.bands[node] = self.alarms.deviation_bands(node, now)
         self.view.refused = self.hub.rewound()
         if self.view.confirm_accept not in self.view.refused:
             self.view.confirm_accept = None
@@ -634,12 +659,14 @@ def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
     """Alarm thresholds from the node config's figures (regulation defaults otherwise).
 
     With the empty conveyance's weight (`physical.conveyance_weight_N`, written by `ropemon config`)
-    the slack-rope alarm is on: a rope below `slack_frac` of its share of that load."""
+    the slack-rope alarm is on: a rope below `slack_frac` of its share of that load. With the seal's
+    friction lines (`physical.friction`) each rope gets a band and DEVIATION POSSIBLE is on."""
     kw: dict[str, Any] = dict(
         deviation_frac=site.imbalance_frac,
         battery_low_mv=int(site.battery_low_v * 1000) if site.battery_low_v else None,
         silent_s=silent_s,
         overload_frac=site.overload_frac,
+        band=site.band,
     )
     rated_dan = int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None
     n_ropes = len(site.cylinder_area_m2)

@@ -106,3 +106,43 @@ def test_two_cage_nodes_one_shown_the_other_summarised_and_switchable():
     text = draw(v, now_s=2.0)
     assert "node 2 seq 1" in text and "node 1: 184.0 kN" in text
     assert rows(text)["sum"][1] == "120.0"
+
+
+def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
+    """With the seal's friction lines each rope shows its deviation's band; a rope whose estimate
+    flipped while its pressure barely moved reads +6 % but may reach 10 %: DEVIATION POSSIBLE, yellow."""
+    from ropemon.monitor import HostSession, alarm_settings
+    from ropemon.uncertainty import BandParams
+
+    phys = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,
+            "friction": {"Fs": {"intercept": 0.0, "slope": 600.0}, "Fc": {"intercept": 0.0, "slope": 400.0},
+                         "residual": 50.0}}
+    site = SiteFigures([0.01] * 4, rated_rope_tension_n=80_000, imbalance_frac=0.10,
+                       band=BandParams.from_physical(phys))
+    clk = [0.0]
+    s = HostSession(None, alarm_settings(site), view=MonitorView(site), clock=lambda: clk[0])
+
+    def send(seq, ropes):          # (tension daN, friction estimate N) per rope
+        rs = [Rope(t, t, t, round((t * 10 - f) / 10)) for t, f in ropes]
+        clk[0] = seq * 0.1
+        s.feed("pithead", encode_frame(node=1, seq=seq, time_ms=seq * 100, ropes=rs, battery_mv=3900)[1])
+
+    for k in range(11):            # a pressure rise drives every estimate to +2 kN: anchored
+        send(k, [(4200 + 100 * k, 2000.0)] * 4)
+    for k in range(11, 20):        # at rest, every rope on its anchor
+        send(k, [(5200, 2000.0)] * 4)
+    s.tick()
+    r = rows(draw(s.view, clk[0]))
+    assert r["1"][3:5] == ["+0.0", "+-0.3"]    # deviation % and its band: 100 N floors on 52 kN ropes
+    assert not s.alarms.active()
+    flipped = round(5200 * 3 * 1.06 / 2.94)
+    for k in range(20, 40):
+        send(k, [(5200, 2000.0)] * 3 + [(flipped, -2000.0)])
+    s.tick()
+    text = draw(s.view, clk[0])
+    r = rows(text)
+    assert r["4"][3] == "+6.0" and float(r["4"][4].removeprefix("+-")) >= 4.0
+    assert "DEVIATION POSSIBLE rope 4: +6.0 % +-" in text and "from mean: may reach 10 %" in text
+    alarms = s.view._alarms()
+    assert any(sp.style == "bold yellow" for sp in alarms.spans)
+    assert not any(sp.style == "bold red" for sp in alarms.spans)
