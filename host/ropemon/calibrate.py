@@ -18,6 +18,12 @@ Method (docs/commissioning.md, "Friction calibration"):
    force is `standstill_hold_ratio` (median over the standstills); the node's
    model needs one near 1, and `ropemon config` refuses a seal below
    MIN_STANDSTILL_HOLD (site.check_friction).
+6. The residual (`residual`): the fitted LuGre re-run over the whole record
+   (measured velocity and pressure, z from rest at each pressure level) against
+   the measured force, per level, for the sliding and the pre-sliding samples
+   separately, in N and as a fraction of the level's Fs. Beyond
+   RESIDUAL_MAX_SLIDING or RESIDUAL_MAX_PRESLIDING (RMS over Fs) the seal is one
+   the node's model cannot represent: a warning, and `representable` false.
 
 Every refusal (bad columns, NaN, one pressure level, one direction, too few
 points, no convergence) raises FitError with the reason; the command exits 1.
@@ -58,6 +64,13 @@ SIGMA1_MAX_REL_ERR = 0.5       # sigma1 (weakly seen by any bed: it acts only wh
 MIN_STANDSTILL_S = 0.3        # a standstill this long right after a run shows what the seal holds
 STANDSTILL_AFTER_RUN_S = 1.0   # (the ramp down from the run lies between them)
 MIN_STANDSTILL_HOLD = 0.5      # a LuGre seal holds ~0.9 of its sliding force; below this it is not one
+
+# The residual's limits, worst level's RMS over its Fs(p) (docs/commissioning.md, "How well the
+# model fits"). The simulated bed: a LuGre seal with the bed's instrument noise gives 1.2-1.4 %
+# in both parts (six seeds), with 3 % scatter of the seal's lines about straight lines up to
+# 4.4 % sliding and 4.8 % pre-sliding (eight seeds); a Coulomb-Stribeck seal 63-70 % and 30-32 %.
+RESIDUAL_MAX_SLIDING = 0.05
+RESIDUAL_MAX_PRESLIDING = 0.10
 
 PARAMS = ("Fs", "Fc", "vs", "sigma2")
 UNITS = {"Fs": "N", "Fc": "N", "vs": "m/s", "sigma2": "N s/m"}
@@ -445,6 +458,129 @@ def fit_presliding(rec: Record, lines: dict[str, Any], runs: list[tuple[int, int
             "rms_N": math.sqrt(sse / n), "samples": n, "stretches": k}
 
 
+# ---------------------------------------------------------------- residual of the fitted model
+
+
+def model_force(rec: Record, doc: dict[str, Any]) -> np.ndarray:
+    """The fitted LuGre (`doc`: its lines, sigma0, sigma1) run over the record: the force it
+    predicts at every sample. The state starts from rest (z = 0) at the record's start and
+    after every time gap (a new pressure level); the velocity is the median-filtered one with
+    a deadband at its noise floor and the pressure median-filtered, as in the pre-sliding fit;
+    PRESLIDING_SUBSTEPS steps per sample with the exact update."""
+    s0, s1 = float(doc["sigma0"]), float(doc["sigma1"])
+    dt = _sample_period(rec)
+    p = _median_filter(rec.p, 5)
+    vm, floor = _velocity_smooth(rec)
+    v = np.where(np.abs(vm) < 2 * floor, 0.0, vm)
+    dts = np.diff(rec.t, prepend=rec.t[0] - dt)
+    n_sub = PRESLIDING_SUBSTEPS
+    starts = np.zeros(len(v), bool)
+    starts[0] = True
+    starts[1:] = np.diff(rec.t) > 5 * dt
+    dts[starts] = dt          # the state starts at that sample: no step across a gap
+    v_prev = np.concatenate([v[:1], v[:-1]])
+    v_prev[starts] = 0.0
+    frac = (np.arange(n_sub) + 0.5) / n_sub
+    v_sub = v_prev[:, None] + (v - v_prev)[:, None] * frac[None, :]
+
+    def g_of(vel: np.ndarray, pres: np.ndarray) -> np.ndarray:
+        fc, fs, vs = (line_at(doc, k, pres) for k in ("Fc", "Fs", "vs"))
+        return np.maximum(fc + (fs - fc) * np.exp(-(vel / np.maximum(vs, 1e-9)) ** 2), 1e-9)
+
+    g_sub = g_of(v_sub, p[:, None])
+    w_ss = np.sign(v_sub) * g_sub
+    decay = np.exp(-s0 * np.abs(v_sub) / g_sub * (dts / n_sub)[:, None])
+    w = np.empty(len(v))
+    edges = list(np.flatnonzero(starts)) + [len(v)]
+    for a, b in zip(edges, edges[1:]):
+        w[a:b] = bristle_force(w_ss[a:b].ravel(), decay[a:b].ravel(), 0.0)[n_sub - 1::n_sub]
+    g = g_of(v, p)
+    zdot = v - np.abs(v) * w / g
+    return w + s1 * zdot + line_at(doc, "sigma2", p) * v
+
+
+def _part(r: np.ndarray, ref_N: float) -> dict[str, Any] | None:
+    if not r.size:
+        return None
+    rms, mx = float(np.sqrt(np.mean(r * r))), float(np.max(np.abs(r)))
+    return {"samples": int(r.size), "rms_N": rms, "max_N": mx, "rms_frac": rms / ref_N, "max_frac": mx / ref_N}
+
+
+def residual(rec: Record, doc: dict[str, Any]) -> dict[str, Any]:
+    """How well the fitted LuGre reproduces the bed's own record (the `residual` section).
+
+    Per pressure level of the fit: the measured force minus `model_force`, over the
+    sliding samples (|v| at or above a quarter of the level's vs, or its noise band) and
+    the pre-sliding ones (slower: reversals, standstills), RMS and largest, in N and
+    over Fs at the level's pressure. A sample belongs to the level nearest its pressure
+    (within LEVEL_GAP_MPA or 10 %). The worst level's RMS fractions are compared with
+    RESIDUAL_MAX_SLIDING and RESIDUAL_MAX_PRESLIDING (`representable`).
+    """
+    r = rec.F - model_force(rec, doc)
+    vm, floor = _velocity_smooth(rec)
+    p = _median_filter(rec.p, 5)
+    lv_p = np.array([lv["pressure_MPa"] for lv in doc["levels"]])
+    nearest = np.argmin(np.abs(p[:, None] - lv_p[None, :]), axis=1)
+    near = np.abs(p - lv_p[nearest]) <= np.maximum(LEVEL_GAP_MPA, 0.1 * np.abs(lv_p[nearest]))
+    slow = np.abs(vm) < np.maximum(line_at(doc, "vs", p) / 4, 4 * floor)
+    levels = []
+    for i, pl in enumerate(lv_p.tolist()):
+        fs = float(line_at(doc, "Fs", pl))
+        here = near & (nearest == i)
+        levels.append({"pressure_MPa": pl, "Fs_N": fs,
+                       "sliding": _part(r[here & ~slow], fs), "presliding": _part(r[here & slow], fs)})
+
+    def worst(part: str) -> float | None:
+        vals = [lv[part]["rms_frac"] for lv in levels if lv[part] is not None]
+        return max(vals) if vals else None
+
+    ws, wp = worst("sliding"), worst("presliding")
+    return {"levels": levels, "sliding_rms_frac": ws, "presliding_rms_frac": wp,
+            "max_sliding_rms_frac": RESIDUAL_MAX_SLIDING, "max_presliding_rms_frac": RESIDUAL_MAX_PRESLIDING,
+            "representable": (ws is None or ws <= RESIDUAL_MAX_SLIDING)
+            and (wp is None or wp <= RESIDUAL_MAX_PRESLIDING)}
+
+
+def residual_warning(res: dict[str, Any]) -> str | None:
+    """The warning for a seal beyond the residual thresholds, or None."""
+    if res["representable"]:
+        return None
+    bad = []
+    for part, lim in (("sliding", RESIDUAL_MAX_SLIDING), ("presliding", RESIDUAL_MAX_PRESLIDING)):
+        over = [lv for lv in res["levels"] if lv[part] is not None and lv[part]["rms_frac"] > lim]
+        if over:
+            lv = max(over, key=lambda x: x[part]["rms_frac"])
+            bad.append(f"{part.replace('presliding', 'pre-sliding')} RMS {lv[part]['rms_frac'] * 100:.1f} % of Fs "
+                       f"at {lv['pressure_MPa']:.1f} MPa ({lv[part]['rms_N']:.0f} N; limit {lim * 100:.0f} %)")
+    return ("residual: the fitted LuGre does not reproduce this seal's force on its own record: "
+            + "; ".join(bad) + ". The node's friction model cannot represent this seal: its compensated "
+            "tensions carry an error of this size")
+
+
+def residual_table(res: dict[str, Any]) -> str:
+    """The residual per level as printed by the command."""
+    rows = ["residual of the fitted model on the record (RMS / max, N and % of Fs(p)):",
+            f"  {'MPa':>6} {'Fs N':>7}  {'sliding':^27}  {'pre-sliding':^27}"]
+
+    def cell(c: dict[str, Any] | None) -> str:
+        if c is None:
+            return f"{'-':^27}"
+        return (f"{c['rms_N']:6.0f} /{c['max_N']:6.0f} N {c['rms_frac'] * 100:4.1f}/"
+                f"{c['max_frac'] * 100:4.1f} %")
+
+    for lv in res["levels"]:
+        rows.append(f"  {lv['pressure_MPa']:6.2f} {lv['Fs_N']:7.0f}  {cell(lv['sliding'])}  {cell(lv['presliding'])}")
+    verdict = "within" if res["representable"] else "BEYOND"
+    rows.append(f"  worst RMS: sliding {_pct(res['sliding_rms_frac'])}, pre-sliding "
+                f"{_pct(res['presliding_rms_frac'])}: {verdict} the limits "
+                f"({RESIDUAL_MAX_SLIDING * 100:.0f} %, {RESIDUAL_MAX_PRESLIDING * 100:.0f} %)")
+    return "\n".join(rows)
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{x * 100:.1f} %"
+
+
 # ---------------------------------------------------------------- the whole fit
 
 
@@ -542,6 +678,10 @@ def fit(rec: Record, source: str = "") -> tuple[dict[str, Any], list[Level], lis
     doc["pressure_range_MPa"] = [p_lo, p_hi]
     doc["levels"] = [{"pressure_MPa": lv.pressure_MPa, "points": len(lv.v), "rms_N": lv.rms_N,
                       **lv.params, "stderr": lv.stderr} for lv in levels]
+    doc["residual"] = residual(rec, doc)
+    w = residual_warning(doc["residual"])
+    if w:
+        warnings.append(w)
     doc["source"] = source
     doc["warnings"] = warnings
     return doc, levels, warnings
@@ -633,6 +773,7 @@ def run(args) -> int:
     out = Path(args.out)
     out.write_text(json.dumps(doc, indent=2) + "\n")
     print(summary(doc))
+    print(residual_table(doc["residual"]))
     print(f"wrote {out}")
     if args.plots:
         for path in write_plots(Path(args.plots), rec, doc, levels):

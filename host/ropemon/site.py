@@ -644,6 +644,19 @@ def check_friction(fr: Any, p_max_MPa: float, name: str = "friction", refuse_unh
     return out
 
 
+def friction_residual(fr: dict[str, Any], name: str = "friction") -> dict[str, float]:
+    """The fitted model's worst-level RMS residual over Fs on its test-bed record
+    (`residual` of `ropemon fit-friction`), {"sliding": frac, "presliding": frac}, for the
+    host's uncertainty band; empty for a fit written without it."""
+    res = fr.get("residual")
+    if res is None:
+        return {}
+    if not isinstance(res, dict):
+        raise SiteError(f"{name}.residual: must be an object, got {type(res).__name__}")
+    return {part: _check_number(res[f"{part}_rms_frac"], f"{name}.residual.{part}_rms_frac", ge=0)
+            for part in ("sliding", "presliding") if res.get(f"{part}_rms_frac") is not None}
+
+
 def _read_json(path: Path | str, name: str) -> Any:
     """A fit's JSON file (validated by the caller); `name` is the SITE.toml field naming it."""
     path = Path(path)
@@ -783,6 +796,9 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
         # LuGre position x_h = k p_l + b (docs/model.md); absent: the node runs without compliance
         **hydraulic,
     }
+    residual = friction_residual(friction, name)
+    if residual:
+        physical["friction_residual_frac"] = residual
     if site.play_sigmas is not None and hydraulic:
         physical["friction_play_sigmas"] = site.play_sigmas
     if site.noise_follow_s is not None and hydraulic:
