@@ -8,8 +8,9 @@ seal friction its LuGre observer estimates. The cylinders share one oil manifold
 
 - the physical range: a seal holds at most its static friction, so the true friction
   lies in `[-S, +S]`, `S = (1 + band_margin) Fs(p) + f` with the floor `f = 2 r`
-  (`r`: the friction fit's residual, `physical.friction.residual` in N, else 5 % of
-  `Fc(p)`); the true tension in `[pA - S, pA + S]`;
+  (`r`: the friction fit's residual: `physical.friction.residual` in N, else the larger
+  of `physical.friction_residual_frac`'s sliding and pre-sliding parts times `Fs(p)`
+  (`ropemon fit-friction`), else 5 % of `Fc(p)`); the true tension in `[pA - S, pA + S]`;
 - the anchor `F_a`: the estimate when it was last trustworthy, i.e. saturated
   (`|F^| >= band_saturation Fc(p)`: the node believes the seal slides) and driven there:
   while it stayed saturated on one side, the rope's `p A` moved that way (the sliding
@@ -90,7 +91,8 @@ class BandParams:
     fs: Line
     fc: Line
     p_max_mpa: float | None = None      # friction lines held above this (friction_p_max_MPa)
-    residual_n: float | None = None     # friction fit residual; None: RESIDUAL_FRAC_OF_FC x Fc(p)
+    residual_n: float | None = None     # friction fit residual, N
+    residual_frac_fs: float | None = None  # else: this fraction of Fs(p); else RESIDUAL_FRAC_OF_FC x Fc(p)
     margin: float = DEFAULTS["band_margin"]
     gain: float = DEFAULTS["band_gain"]
     saturation: float = DEFAULTS["band_saturation"]
@@ -120,6 +122,13 @@ class BandParams:
             res = _number(res, "physical.friction.residual")
             if res < 0:
                 raise ValueError(f"physical.friction.residual: {res} N is negative")
+        frac = phys.get("friction_residual_frac")
+        if isinstance(frac, dict) and frac:
+            frac = max(_number(v, "physical.friction_residual_frac") for v in frac.values())
+            if frac < 0:
+                raise ValueError(f"physical.friction_residual_frac: {frac} is negative")
+        else:
+            frac = None
         pmax = phys.get("friction_p_max_MPa")
         kw = {}
         for key, (lo, hi) in _RANGES.items():
@@ -128,7 +137,7 @@ class BandParams:
                 raise ValueError(f"physical.{key}: {v} out of range {lo}..{hi}")
             kw[key.removeprefix("band_")] = v
         return cls(areas, fs, fc, None if pmax is None else _number(pmax, "physical.friction_p_max_MPa"),
-                   res, **kw)
+                   res, frac, **kw)
 
     def limits(self, p_kpa: float) -> tuple[float, float, float]:
         """(S, Fc, f) in N at tap pressure p_kpa: the friction bound, the sliding friction, the floor."""
@@ -136,9 +145,15 @@ class BandParams:
         if self.p_max_mpa is not None:
             p = min(p, self.p_max_mpa)
         fc = max(0.0, self.fc.at(p))
-        res = self.residual_n if self.residual_n is not None else RESIDUAL_FRAC_OF_FC * fc
+        fs = max(0.0, self.fs.at(p))
+        if self.residual_n is not None:
+            res = self.residual_n
+        elif self.residual_frac_fs is not None:
+            res = self.residual_frac_fs * fs
+        else:
+            res = RESIDUAL_FRAC_OF_FC * fc
         floor = 2.0 * res
-        s = (1.0 + self.margin) * max(0.0, self.fs.at(p)) + floor
+        s = (1.0 + self.margin) * fs + floor
         return s, fc, floor
 
 

@@ -62,10 +62,17 @@ def test_params_defaults_validation_and_residual():
     no_res = BandParams.from_physical({**PHYS, "friction": {k: v for k, v in PHYS["friction"].items()
                                                               if k != "residual"}})
     assert no_res.limits(5000)[2] == pytest.approx(2 * 0.05 * 4000)   # 5 % of Fc(p)
+    fitted = BandParams.from_physical({**PHYS, "friction": no_res_friction(),
+                                       "friction_residual_frac": {"sliding": 0.02, "presliding": 0.08}})
+    assert fitted.limits(5000)[2] == pytest.approx(2 * 0.08 * 5000)   # the larger part, of Fs(p)
     assert BandParams.from_physical({"ropes": 4, "cylinder_area_m2": [AREA] * 4}) is None
     with pytest.raises(ValueError, match="physical.band_gain"):
         BandParams.from_physical({**PHYS, "band_gain": -1})
     assert BandParams.from_physical({**PHYS, "band_margin": 0.3}).margin == 0.3
+
+
+def no_res_friction():
+    return {k: v for k, v in PHYS["friction"].items() if k != "residual"}
 
 
 def test_no_anchor_at_start_is_the_whole_physical_range():
