@@ -123,18 +123,26 @@ class Trip:
 
 
 class _TripDetector:
-    """Motion between two rests, from frame speed: starts at |speed| >= moving, ends after rest_s at rest."""
+    """Motion between two rests, from frame speed. A trip starts on sustained motion: consecutive
+    frames with |speed| >= moving in one direction that cover start_m (their speed times the time
+    between them); it starts at the first of them. A frame or a few with an encoder pulse (the
+    ropes stretching while the cage is loaded at rest) do not start one. It ends after rest_s
+    with |speed| below moving, at the first of those frames."""
 
-    def __init__(self, moving_mm_s: int, rest_s: float):
+    def __init__(self, moving_mm_s: int, rest_s: float, start_m: float = 0.5):
         self.moving_mm_s = moving_mm_s
         self.rest_s = rest_s
+        self.start_m = start_m
         self.open: dict[int, int] = {}         # node -> trip id
         self.rest_since: dict[int, tuple[float, int, int]] = {}  # node -> (time, depth, frame id)
+        # node -> (time, depth, frame id) of the run's first frame, its direction, metres covered, last time
+        self.run: dict[int, tuple[float, int, int, int, float, float]] = {}
 
 
 class Store:
     def __init__(self, path: str | Path, *, batch_frames: int = 50, max_latency_s: float = 0.5,
-                 synchronous: str = "FULL", trip_moving_mm_s: int = 100, trip_rest_s: float = 3.0):
+                 synchronous: str = "FULL", trip_moving_mm_s: int = 100, trip_rest_s: float = 3.0,
+                 trip_start_m: float = 0.5):
         self.path = str(path)
         self.batch_frames = batch_frames
         self.max_latency_s = max_latency_s
@@ -155,7 +163,7 @@ class Store:
         for col in _LINK_COLS_ADDED:
             if col not in have:
                 self.db.execute(f"ALTER TABLE link_stats ADD COLUMN {col} INTEGER")
-        self._trip = _TripDetector(trip_moving_mm_s, trip_rest_s)
+        self._trip = _TripDetector(trip_moving_mm_s, trip_rest_s, trip_start_m)
         for tid, node in self.db.execute("SELECT id, node FROM trips WHERE end_time IS NULL"):
             self._trip.open[node] = tid
         self._pending = 0
@@ -200,11 +208,22 @@ class Store:
         if moving:
             d.rest_since.pop(node, None)
             if tid is None:
-                cur = self.db.execute(
-                    "INSERT INTO trips (node, start_time, start_depth_mm, first_frame_id) VALUES (?,?,?,?)",
-                    (node, t, frame.depth_mm, fid))
-                d.open[node] = int(cur.lastrowid or 0)
-        elif tid is not None:
+                sign = 1 if frame.speed_mm_s > 0 else -1
+                run = d.run.get(node)
+                if run is None or run[3] != sign:
+                    run = (t, frame.depth_mm, fid, sign, 0.0, t)
+                else:  # the speed is the window's mean: the distance since the run's last frame
+                    run = run[:4] + (run[4] + abs(frame.speed_mm_s) / 1000 * min(max(t - run[5], 0.0), 1.0), t)
+                d.run[node] = run
+                if run[4] >= d.start_m:
+                    cur = self.db.execute(
+                        "INSERT INTO trips (node, start_time, start_depth_mm, first_frame_id) VALUES (?,?,?,?)",
+                        (node, run[0], run[1], run[2]))
+                    d.open[node] = int(cur.lastrowid or 0)
+                    del d.run[node]
+            return
+        d.run.pop(node, None)
+        if tid is not None:
             rest = d.rest_since.setdefault(node, (t, frame.depth_mm, fid))
             if t - rest[0] >= d.rest_s:
                 self.db.execute("UPDATE trips SET end_time=?, end_depth_mm=?, last_frame_id=? WHERE id=?",
