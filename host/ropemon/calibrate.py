@@ -68,7 +68,8 @@ MIN_STANDSTILL_HOLD = 0.5      # a LuGre seal holds ~0.9 of its sliding force; b
 # The residual's limits, worst level's RMS over its Fs(p) (docs/commissioning.md, "How well the
 # model fits"). The simulated bed: a LuGre seal with the bed's instrument noise gives 1.2-1.4 %
 # in both parts (six seeds), with 3 % scatter of the seal's lines about straight lines up to
-# 4.4 % sliding and 4.8 % pre-sliding (eight seeds); a Coulomb-Stribeck seal 63-70 % and 30-32 %.
+# 4.4 % sliding and 4.8 % pre-sliding (eight seeds); a Coulomb-Stribeck seal 63-70 % and 30-32 %,
+# the plant's example elasto-plastic seal 3.6 % and 13 %, its Maxwell-slip seal 2.9 % and 7.3 %.
 RESIDUAL_MAX_SLIDING = 0.05
 RESIDUAL_MAX_PRESLIDING = 0.10
 

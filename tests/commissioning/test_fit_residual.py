@@ -10,9 +10,9 @@ import pytest
 
 from ropemon import calibrate, testbed
 from ropemon.cli import main as ropemon
+from ropemon.plant.friction import example_table
 
 ROOT = Path(__file__).resolve().parents[2]
-FIELD = ROOT / "scenarios" / "paper-field-trip.toml"
 PRESSURES = (2.0, 5.0, 8.0, 11.0)
 
 
@@ -63,12 +63,23 @@ def test_a_wrong_model_makes_a_large_residual(lugre_fit):
     assert res["presliding_rms_frac"] > 3 * doc["residual"]["presliding_rms_frac"]
 
 
-def test_a_seal_the_node_does_not_assume_is_flagged(tmp_path, capsys):
-    # Coulomb-Stribeck: the plant's other law (no pre-sliding state: it releases its force at rest)
-    text = FIELD.read_text().replace('law = "lugre"', 'law = "coulomb-stribeck"')
-    text = text.replace("sigma0 = 1.0e8", "v_threshold = 2e-5").replace("sigma1 = 5.0e4", "")
-    (tmp_path / "cs.toml").write_text(text)
-    params, factory = testbed.scenario_seal(tmp_path / "cs.toml")
+def seal_file(path: Path, table: dict) -> Path:
+    """A scenario holding only [plant.friction] (all testbed.scenario_seal reads)."""
+    rows = ["[plant.friction]"]
+    for k, v in table.items():
+        if isinstance(v, dict):
+            rows.append(f"{k} = {{ intercept = {v['intercept']!r}, slope = {v['slope']!r} }}")
+        else:
+            rows.append(f"{k} = {json.dumps(v)}")
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_coulomb_stribeck_seal_is_flagged_sliding_and_presliding(tmp_path, capsys):
+    # no pre-sliding state: the force follows the velocity and vanishes at rest
+    table = example_table("coulomb-stribeck")
+    table["v_threshold"] = 2e-5
+    params, factory = testbed.scenario_seal(seal_file(tmp_path / "cs.toml", table))
     doc, out, err = fit_bed(tmp_path, testbed.run(params, law_factory=factory, pressures_MPa=PRESSURES,
                                                   seed=7), capsys)
     res = doc["residual"]
@@ -78,6 +89,21 @@ def test_a_seal_the_node_does_not_assume_is_flagged(tmp_path, capsys):
     assert "warning: residual: the fitted LuGre does not reproduce this seal's force" in err
     assert "BEYOND the limits" in out
     assert any(w.startswith("residual:") for w in doc["warnings"])
+
+
+def test_an_elasto_plastic_seal_is_flagged_in_presliding(tmp_path, capsys, lugre_fit):
+    """Its steady state is LuGre's (sliding fits within the limit), its pre-sliding is not:
+    purely elastic up to 40 % of the break-away deflection, then a plastic blend."""
+    params, factory = testbed.scenario_seal(seal_file(tmp_path / "ep.toml", example_table("elasto-plastic")))
+    doc, out, err = fit_bed(tmp_path, testbed.run(params, law_factory=factory, pressures_MPa=PRESSURES,
+                                                  seed=7, presliding_period_s=testbed.presliding_period_s(params)),
+                            capsys)
+    res = doc["residual"]
+    assert res["sliding_rms_frac"] <= calibrate.RESIDUAL_MAX_SLIDING
+    assert res["presliding_rms_frac"] > calibrate.RESIDUAL_MAX_PRESLIDING
+    assert res["presliding_rms_frac"] > 4 * lugre_fit[0]["residual"]["presliding_rms_frac"]
+    assert res["representable"] is False
+    assert "pre-sliding RMS" in err and "limit 10 %" in err
 
 
 def test_the_command_prints_the_table(lugre_fit, capsys):
