@@ -50,6 +50,7 @@ class Hoist:
     tail_ropes: int
     tail_rope_kg_per_m: float
     max_speed_m_s: float       # fastest hoisting speed (the node rejects larger encoder jumps)
+    start_depth_m: float       # where the cage stands when the node starts (it counts depth from there)
 
     @property
     def empty_load_N(self) -> float:
@@ -290,15 +291,22 @@ def _pair(t: _Table, key: str, *, ascending: bool = True) -> tuple[float, float]
 
 
 def _hoist(t: _Table) -> Hoist:
+    # No default for the start depth: a node that counts from a guessed depth reports a wrong
+    # one all shaft long (a Hall mark only corrects a count within hall_snap_m of it).
+    if "start_depth_m" not in t.data:
+        raise SiteError(f"{t.field('start_depth_m')}: missing (the depth in m of the landing where the "
+                        "cage stands when the node is started, e.g. the loading landing)")
+    shaft = t.number("shaft_depth_m", gt=0)
     h = Hoist(
         ropes=t.integer("ropes", lo=1, hi=4),
-        shaft_depth_m=t.number("shaft_depth_m", gt=0),
+        shaft_depth_m=shaft,
         cage_mass_kg=t.number("cage_mass_kg", gt=0),
         rated_payload_kg=t.number("rated_payload_kg", ge=0),
         rated_rope_tension_N=t.number("rated_rope_tension_N", gt=0),
         tail_ropes=t.integer("tail_ropes", 0, lo=0),
         tail_rope_kg_per_m=t.number("tail_rope_kg_per_m", 0.0, ge=0),
         max_speed_m_s=t.number("max_speed_m_s", gt=0, le=25),
+        start_depth_m=t.number("start_depth_m", ge=-100.0, le=shaft),
     )
     t.finish()
     if h.tail_ropes and not h.tail_rope_kg_per_m > 0:
@@ -776,6 +784,7 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
                                    "range_m": [c.range_m[0], c.range_m[1]]} for c in s.displacement],
         "speed_m_per_pulse": s.speed_m_per_pulse,
         "hall_marks_m": list(s.hall_marks_m),
+        "start_depth_m": site.hoist.start_depth_m,
         "battery_V_per_count": s.battery_V_per_count,
         "temperature": (None if s.temperature is None else
                         {"counts_at_0C": s.temperature.counts_at_0C, "counts_per_C": s.temperature.counts_per_C}),

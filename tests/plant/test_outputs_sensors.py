@@ -77,13 +77,18 @@ def test_node_json_is_a_complete_node_config(short_out):
                                    "cage_depth_m", "flow_pipe_m3_s"}
 
 
-def test_node_boots_at_the_cage_start_depth_and_tracks_it(short_out):
-    """The node config starts where the cage starts, so frame depths follow the truth."""
+def test_node_boots_at_the_sites_start_depth_and_tracks_the_cage_from_there(short_out):
+    """The node config starts at the site's start depth (SITE.toml), never at the simulated
+    cage's; the node's depth then follows the cage's travel from there."""
     from ropemon import reference
+    from ropemon.site import load_site
 
     doc = json.loads((short_out / "node.json").read_text())
     truth = np.load(short_out / "truth.npz")
-    assert doc["physical"]["start_depth_m"] == pytest.approx(truth["cage_depth_m"][0], abs=1e-3)
+    meta = json.loads((short_out / "truth.json").read_text())
+    start = load_site(meta["site_file"]).hoist.start_depth_m
+    assert doc["physical"]["start_depth_m"] == start
+    offset = start - truth["cage_depth_m"][0]
     from ropemon.firmware import node_module
 
     Node = node_module("node").Node
@@ -97,7 +102,7 @@ def test_node_boots_at_the_cage_start_depth_and_tracks_it(short_out):
     for k, row in enumerate(rec):
         node.sample(array.array("H", row.tolist()))
         if k % 50 == 49:
-            worst = max(worst, abs(node.S[kernel.DEPTH_MM] / 1000.0 - truth["cage_depth_m"][k]))
+            worst = max(worst, abs(node.S[kernel.DEPTH_MM] / 1000.0 - offset - truth["cage_depth_m"][k]))
     assert worst < 0.5, worst
 
 

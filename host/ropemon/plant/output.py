@@ -61,10 +61,9 @@ def node_physical(res: Result) -> tuple[dict[str, Any], str]:
             raise
         physical = physical_from_site(site, fit())
         source = f"plant's true friction (site friction unusable: {e})"
-    # The node boots with the cage where the scenario starts it (a site commissions the
-    # node at a known landing); from there it integrates speed and snaps at Hall marks.
-    if "cage_depth_m" in res.truth:
-        physical["start_depth_m"] = round(float(res.truth["cage_depth_m"][0]), 3)
+    # The node boots at the site's start depth (SITE.toml [hoist] start_depth_m), as a real one
+    # does, never at the simulated cage's: a scenario that starts the cage elsewhere shows the
+    # node's depth off by the difference.
     return physical, source
 
 
