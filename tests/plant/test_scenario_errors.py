@@ -29,6 +29,8 @@ def _field_trip_text(scenarios_dir):
     ("EA_N = 7.1e7", "EA_N = 0", "plant.ropes.EA_N"),
     ("offsets_m = [0.012, -0.004, 0.0, -0.010]", "offsets_m = [0.012, 0.0]", "plant.ropes.offsets_m"),
     ("offsets_m = [0.012, -0.004, 0.0, -0.010]", "offsets_m = [0.5, 0.0, 0.0, 0.0]", "plant.ropes.offsets_m"),
+    ("offsets_m = [0.012, -0.004, 0.0, -0.010]", "groove_creep = [1e-4, 0.0, 0.0, 0.0]", "plant.ropes.groove_creep"),
+    ("offsets_m = [0.012, -0.004, 0.0, -0.010]", "groove_creep = [0.0, 0.0]", "plant.ropes.groove_creep"),
     ('law = "lugre"', 'law = "magic"', "plant.friction.law"),
     ("sigma0 = 1.0e8", "", "plant.friction.sigma0"),
     ("Fs = { intercept = 2500.0, slope = 2000.0 }", "Fs = 2500.0", "plant.friction.Fs"),

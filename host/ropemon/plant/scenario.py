@@ -325,13 +325,18 @@ def _build_hoist(doc: dict, path: Path, site, eager: bool = True) -> Scenario:
     sample_hz = site.rates.sample_hz
     h = _step(doc, 0.5 / sample_hz, sample_hz)
     rt = table(pt, "ropes", "plant")
-    known(rt, "plant.ropes", {"EA_N", "kg_per_m", "headframe_m", "damping_ratio", "offsets_m"})
+    known(rt, "plant.ropes", {"EA_N", "kg_per_m", "headframe_m", "damping_ratio", "offsets_m", "groove_creep"})
     head = HeadRopes(EA_N=number(rt, "EA_N", "plant.ropes", gt=0), kg_per_m=number(rt, "kg_per_m", "plant.ropes", gt=0),
                      headframe_m=number(rt, "headframe_m", "plant.ropes", gt=0),
                      damping_ratio=number(rt, "damping_ratio", "plant.ropes", 0.03, ge=0, lt=1),
                      offsets_m=tuple(per_rope(rt, "offsets_m", "plant.ropes", n, 0.0)))
     if max(abs(o) for o in head.offsets_m) > 0.5 * min(c.stroke_m for c in site.cylinders):
         raise ScenarioError("plant.ropes.offsets_m: an offset beyond half the stroke cannot be absorbed")
+    # each rope pays out this much more rope per metre the wheel winds (groove diameters differ)
+    creep = np.array(per_rope(rt, "groove_creep", "plant.ropes", n, 0.0))
+    if np.abs(creep).max() * site.hoist.shaft_depth_m > 0.25 * min(c.stroke_m for c in site.cylinders):
+        raise ScenarioError("plant.ropes.groove_creep: over the shaft's depth the ropes would part by more "
+                            "than a quarter of the stroke")
     tail = TailRopes(site.hoist.tail_ropes, site.hoist.tail_rope_kg_per_m,
                      number(pt, "tail_loop_depth_m", "plant", site.hoist.shaft_depth_m, gt=0))
     # motion
@@ -354,6 +359,8 @@ def _build_hoist(doc: dict, path: Path, site, eager: bool = True) -> Scenario:
                   to_junction=to_j, to_tap=to_tap, friction=fr, offsets_m=head.offsets_m, hoist=True)
     m_cage = site.hoist.cage_mass_kg
 
+    s_w0 = float(timeline.evaluate(np.zeros(1))[0][0])
+
     def make_inputs(t: np.ndarray) -> Inputs:
         """Inputs at times t (any window of the grid: long duty cycles are built piece by piece)."""
         s_w, u_w, a_w = timeline.evaluate(t)
@@ -364,7 +371,10 @@ def _build_hoist(doc: dict, path: Path, site, eager: bool = True) -> Scenario:
         m_inertia = m_weight + n * head.kg_per_m * head.length_m(s_w) / 3
         c_rope = 2 * head.damping_ratio * np.sqrt(k_rope * (m_inertia / n)[:, None])
         zeros = np.zeros((len(t), n))
-        return Inputs(t=t, k_rope=k_rope, c_rope=c_rope, f_load=zeros, y_load=zeros, ydot_load=zeros, a_wheel=a_w,
+        # a rope paying out more than the wheel's travel is longer (less tension) as the cage goes down
+        y_load = -(s_w - s_w0)[:, None] * creep
+        ydot_load = -u_w[:, None] * creep
+        return Inputs(t=t, k_rope=k_rope, c_rope=c_rope, f_load=zeros, y_load=y_load, ydot_load=ydot_load, a_wheel=a_w,
                       s_wheel=s_w, u_wheel=u_w, m_weight=m_weight, m_inertia=m_inertia, q_pump=np.zeros(len(t)),
                       rho=oil.rho_kg_m3(temp), mu=oil.mu_Pa_s(temp), oil_temp_C=temp, payload_kg=payload)
 
