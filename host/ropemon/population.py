@@ -41,8 +41,11 @@ RANGES = {
     "slope_ratio": (0.5, 1.5, "lin"),      # pressure slopes of the force lines x this, besides the level
     "vs_scale": (0.5, 2.0, "log"),         # Stribeck velocity
     "stiffness_scale": (0.5, 2.0, "log"),  # pre-sliding stiffness (sigma0, element stiffnesses)
+    "element_spread": (0.5, 2.0, "log"),   # Maxwell-slip: each element's break displacement x this
+    "z_ba_fraction": (0.2, 0.8, "lin"),    # elasto-plastic: the purely elastic share of pre-sliding
     "rope_force_scale": (0.85, 1.15, "lin"),   # each rope's seal about the type's
-    "offset_m": (-0.010, 0.010, "lin"),    # each rope's effective length offset
+    "offset_m": (-0.010, 0.010, "lin"),    # each rope's effective length offset at the start
+    "groove_creep": (-1.25e-5, 1.25e-5, "lin"),  # each rope's extra pay-out per metre wound: +-10 mm per wind
     "bore_m": (0.090, 0.125, "lin"),       # cylinder bore, the same on every rope
     "hose_scale": (0.6, 1.6, "lin"),       # each rope's pipe lengths to its tap
     "oil_temp_C": (0.0, 40.0, "lin"),      # the node assumes the site's 20 C
@@ -64,6 +67,7 @@ class Hoist:
     law: str
     friction: dict            # the plant's [plant.friction] table (with each rope's force_scale)
     offsets_m: tuple
+    groove_creep: tuple
     bore_m: float
     hose_scale: tuple
     oil_temp_C: float
@@ -78,8 +82,8 @@ class Hoist:
         d = self.draws
         return (f"{self.law} seal x{d['force_level']:.2f} (ropes " + ", ".join(f"{s:.2f}" for s in
                                                                              self.friction["force_scale"])
-                + f"), offsets " + ", ".join(f"{o * 1e3:+.1f}" for o in self.offsets_m)
-                + f" mm, bore {self.bore_m * 1e3:.0f} mm, oil {self.oil_temp_C:.0f} C, "
+                + f"), ropes part " + ", ".join(f"{c * 806e3:+.1f}" for c in self.groove_creep)
+                + f" mm per wind, bore {self.bore_m * 1e3:.0f} mm, oil {self.oil_temp_C:.0f} C, "
                 f"payload {self.payload_kg / 1e3:.1f} t")
 
 
@@ -117,8 +121,10 @@ def seal_table(law: str, draws: dict, rope_scale) -> dict:
         out["sigma0"] = t["sigma0"] * stiff
     if "sigma1" in t:
         out["sigma1"] = t["sigma1"] * math.sqrt(stiff)
-    if "elements" in t:
-        out["elements"] = [{**e, "k": e["k"] * stiff} for e in t["elements"]]
+    if law == "maxwell-slip":  # each element's break displacement scattered about the example's
+        out["k"] = [k * stiff / d for k, d in zip(t["k"], draws["element_spread"])]
+    if law == "elasto-plastic":
+        out["z_ba_fraction"] = round(draws["z_ba_fraction"], 3)
     out["force_scale"] = [round(float(s), 4) for s in rope_scale]
     return out
 
@@ -128,12 +134,15 @@ def draw(seed: int) -> Hoist:
     rng = np.random.default_rng([seed, 0x0E5A1])
     law = LAWS[int(rng.integers(len(LAWS)))]
     draws = {k: float(_uniform(rng, k)) for k in ("force_level", "slope_ratio", "vs_scale", "stiffness_scale",
-                                                   "bore_m", "oil_temp_C", "payload_kg")}
+                                                   "bore_m", "oil_temp_C", "payload_kg", "z_ba_fraction")}
+    draws["element_spread"] = [float(x) for x in _uniform(rng, "element_spread", 4)]
     rope_scale = _uniform(rng, "rope_force_scale", ROPES)
     offsets = _uniform(rng, "offset_m", ROPES)
     hoses = _uniform(rng, "hose_scale", ROPES)
+    creep = _uniform(rng, "groove_creep", ROPES)
     return Hoist(seed=seed, law=law, friction=seal_table(law, draws, rope_scale),
-                 offsets_m=tuple(round(float(o), 5) for o in offsets), bore_m=round(draws["bore_m"], 4),
+                 offsets_m=tuple(round(float(o), 5) for o in offsets),
+                 groove_creep=tuple(float(f"{c:.3e}") for c in creep), bore_m=round(draws["bore_m"], 4),
                  hose_scale=tuple(round(float(h), 3) for h in hoses), oil_temp_C=round(draws["oil_temp_C"], 1),
                  payload_kg=round(draws["payload_kg"], -1), draws=draws)
 
@@ -144,6 +153,7 @@ def change_doc(h: Hoist):
         plant = doc["plant"]
         plant["friction"] = dict(h.friction)
         plant["ropes"]["offsets_m"] = list(h.offsets_m)
+        plant["ropes"]["groove_creep"] = list(h.groove_creep)
         plant["oil_temp_C"] = h.oil_temp_C
         loads = [ph for ph in doc["trip"]["phase"] if ph["kind"] == "load" and ph["payload_kg"] > 0]
         for ph in loads:
@@ -288,12 +298,15 @@ def engine_factories(physical: dict) -> dict:
     alone on the frame means (the station before the uncertainty band), `node` the station as it
     is (the certain alarm and DEVIATION POSSIBLE from the band)."""
     from ropemon.alarms import AlarmEngine, AlarmSettings
+    from ropemon.uncertainty import BandParams
+
+    band = BandParams.from_physical(physical)
 
     def baseline():
         return AlarmEngine(AlarmSettings(stuck_s=None))
 
     def node():
-        return AlarmEngine(AlarmSettings(stuck_s=None), physical=physical)
+        return AlarmEngine(AlarmSettings(stuck_s=None, band=band))
 
     return {"baseline": baseline, "node": node}
 
