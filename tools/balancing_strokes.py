@@ -5,7 +5,7 @@ Reads `truth.npz` (docs/simulator.md) and the plant's compliance, and prints, in
 connecting assembly shares the oil), and how the motion is shared where the
 pistons move (at least 10 um together): the largest share of one piston, and
 the balancing strokes (one piston taking more than half of it). This is the
-analysis behind docs/model.md, "Balancing strokes", and docs/accuracy.md.
+analysis behind docs/model.md, "Balancing strokes", and notes/accuracy-research.md.
 
     .venv/bin/python tools/balancing_strokes.py out/evaluate/runs/duty-cycle-50/sim/truth.npz
 """

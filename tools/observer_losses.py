@@ -21,7 +21,7 @@ tension, so the figures (as `ropemon evaluate` scores them, % of rated rope
 tension and of the true total) are the friction's alone. Stages 1-3 take the
 pressure and velocity of the true position; stage 4 what the node has; stages
 5 and 6 the true pressure and the velocity of their elastic path.
-Prints a Markdown table (docs/accuracy.md, "What limits the pithead figure").
+Prints a Markdown table (notes/accuracy-research.md, "What limits the pithead figure").
 
     .venv/bin/python tools/observer_losses.py out/evaluate/runs/payload-12t [RUN ...]
 """

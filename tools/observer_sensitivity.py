@@ -7,7 +7,7 @@ the play multiplier `friction_play_sigmas`, the hydraulic compliance k scaled
 (as if fit-compliance had measured it that far off), damping and process noises, the threshold
 of the balancing-stroke tracking (`stroke_sigmas`; 0: none), the rest hold's
 threshold (`rest_sigmas`; 0: none), and no compliance at all. Prints a Markdown
-table (docs/accuracy.md, "Sensitivity").
+table (notes/accuracy-research.md, "Sensitivity").
 
     .venv/bin/python tools/observer_sensitivity.py [SCENARIO] [--out DIR] [--seed N] [--quick]
 """

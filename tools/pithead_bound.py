@@ -1,7 +1,7 @@
 """How closely any estimator could read the pithead total through the pressure noise.
 
 A resting seal relaxes by the path the cage's bounce makes its piston travel, and the
-node reads that path from the pressure channels, through their noise (docs/accuracy.md,
+node reads that path from the pressure channels, through their noise (notes/accuracy-research.md,
 "Where the spread comes from"). This tool bounds the spread that noise leaves, for an
 estimator far better informed than the node: it knows the plant's seal law with its true
 parameters, the pistons' true creep, and the bounce's shape (frequency, decay, phase),

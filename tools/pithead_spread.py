@@ -1,7 +1,7 @@
 """Where the pithead total's seed-to-seed spread comes from, and what would narrow it.
 
 `tools/seed_spread.py` shows that the full compensation's pithead total moves with
-the noise seed (docs/accuracy.md, "Seed spread"). This takes its work directory
+the noise seed (notes/accuracy-research.md, "Seed spread"). This takes its work directory
 (OUT/seed-N/runs/SCENARIO: each seed's simulated wind, the truth, and the node
 config that seed's commissioning made) and reruns the float reference
 (`lugre-p+loss`) on recombined inputs, one experiment per row:

@@ -1,7 +1,7 @@
 """The pistons' creep and path against the node's, over a time window of a run.
 
 A resting seal settles where the creep that loads it balances the back-and-forth
-path that relaxes it (docs/accuracy.md, "Sensitivity"). For a window [T0, T1] of
+path that relaxes it (notes/accuracy-research.md, "Sensitivity"). For a window [T0, T1] of
 a run directory as `ropemon evaluate` left it, this prints per rope:
 
 - creep: the net piston travel (mean of 0.1 s either side of T0 and T1), the

@@ -4,7 +4,7 @@
 noise (so one friction fit) and of the commissioning wind (so one k and one
 pressure noise). This runs `ropemon evaluate SCENARIO... --seed N --no-firmware
 --json` for several seeds, exactly as a user would, and prints, per scenario,
-the spread of `lugre-p+loss` against the issue's targets (docs/accuracy.md,
+the spread of `lugre-p+loss` against the issue's targets (notes/accuracy-research.md,
 "Seed spread"). The firmware is left out: it tracks the float reference within
 0.05 % of rated on every scenario (`ropemon evaluate` without --no-firmware).
 
@@ -22,7 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 # the single-wind scenarios with a LuGre seal and the default sensors: where the
-# targets of docs/accuracy.md apply
+# targets of notes/accuracy-research.md ("Targets of issue 6") apply
 DEFAULT_SCENARIOS = ("paper-field-trip", "payload-0t", "payload-12t", "oil-0C", "oil-20C", "oil-40C",
                      "oil-0C-temp-input", "oil-40C-temp-input", "rope-length-5cm", "pithead-long-rest")
 ESTIMATOR = "lugre-p+loss"

@@ -71,14 +71,14 @@ STOPPED_S = 0.25          # the counter stands this long: the hoist has stopped
 
 
 # A hoist whose k, pressure noise or bounce is this far from the values NODE.json was built
-# with reads its empty-cage pithead total about 0.1-0.15 % off (docs/accuracy.md,
+# with reads its empty-cage pithead total about 0.1-0.15 % off (notes/accuracy-research.md,
 # "Sensitivity" and "The transmitters' noise"); a re-fit of the same hoist repeats within
 # about a third of these.
 RECHECK_K_REL = 0.01       # k of any rope, relative
 RECHECK_NOISE_REL = 0.03   # the pressure noise, relative, with the node's plays fixed
 RECHECK_BOUNCE_HZ = 0.1    # the bounce
 # With noise following (docs/model.md) the node scales its plays by the noise it measures
-# itself: this far, the pithead total's mean moves by about 0.1 % (docs/accuracy.md, "The
+# itself: this far, the pithead total's mean moves by about 0.1 % (notes/accuracy-research.md, "The
 # transmitters' noise": 0.07 % at 20 %, 0.13 % at 33 %). Beyond it the node flags its
 # frames noise_changed (the same tolerance, layout.NOISE_TOL_Q10).
 RECHECK_NOISE_FOLLOWED_REL = L.NOISE_TOL_Q10 / 1024

@@ -1,7 +1,8 @@
 """Accuracy metrics of a tension estimate against simulator truth.
 
-Everything here is plain numpy on arrays the caller hands in, so the numbers in
-docs/accuracy.md can be checked by hand (tests/evaluate/test_metrics.py does).
+Everything here is plain numpy on arrays the caller hands in, so the figures of
+`ropemon evaluate` (docs/evaluation/, docs/accuracy.md) can be checked by hand
+(tests/evaluate/test_metrics.py does).
 
 Units of the figures:
 - rope errors in % of the rated rope tension (`rated_rope_tension_N`);

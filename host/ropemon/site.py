@@ -183,7 +183,8 @@ class Site:
     friction_path: Path | None               # friction.json from `ropemon fit-friction`
     compliance_path: Path | None = None      # compliance.json from `ropemon fit-compliance` (optional)
     # [compliance] friction_play_sigmas: the node's play in rms of its noise (None: the node's
-    # default, 1.45; for transmitters quieter than the default see docs/accuracy.md)
+    # default, 1.45; for transmitters quieter than the default see notes/accuracy-research.md,
+    # "The transmitters' noise")
     play_sigmas: float | None = None
     # [compliance] noise_follow_s: how long the node averages its transmitters' noise to
     # follow it (None: the node's default, 20 s; 0: the plays stay as commissioned)
@@ -684,7 +685,7 @@ def _read_friction(path: Path | str) -> Any:
 # ---------------------------------------------------------------- compliance file
 
 COMPLIANCE_K_MAX = 1e-6      # m/Pa: the node's limit (ropemon.nodeconfig.compliance)
-# [compliance] friction_play_sigmas: the range evaluated (docs/accuracy.md, "Sensitivity" and
+# [compliance] friction_play_sigmas: the range evaluated (notes/accuracy-research.md, "Sensitivity" and
 # "The transmitters' noise"); above 2 the rest play (4.5 sigma of four channels) would be
 # narrower than the play of one channel
 PLAY_SIGMAS_MIN, PLAY_SIGMAS_MAX = 1.2, 2.0

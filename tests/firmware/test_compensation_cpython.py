@@ -256,7 +256,7 @@ def test_a_pressure_loop_fault_restarts_the_lugre_position_not_the_seal_state():
 
 def _stroke_wind(ph: dict, k_m: float, seed: int, stroke: bool = True):
     """(records, true positions, pressure) of a balancing stroke, as the 50-wind duty cycle
-    has them (docs/accuracy.md): the pressure falls at 55 kPa/s for 20 s (the oil
+    has them (notes/accuracy-research.md, "The duty cycle"): the pressure falls at 55 kPa/s for 20 s (the oil
     decompresses, the pistons share the common motion 4 k dp), from 12 s on rope 1's piston
     alone takes it while the others stick, and at 26 s the fall turns into a rise with a
     2 Hz bounce that all four pistons share again. 2 counts of displacement noise."""
