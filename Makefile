@@ -34,8 +34,14 @@ bench: $(STAMP)
 	$(BIN)/ropemon bench plant
 	$(BIN)/ropemon bench host
 
+# The named scenarios, then the population of drawn hoists on the scoring seeds; their tables
+# go to docs/evaluation/ (generated: each file's first line names the command that made it).
 evaluate: $(STAMP)
 	$(BIN)/ropemon evaluate --out out/evaluate
+	$(BIN)/ropemon evaluate --population 100 --seeds scoring --out out/evaluate
+	mkdir -p docs/evaluation
+	cp out/evaluate/accuracy.md docs/evaluation/scenarios.md
+	cp out/evaluate/population.md docs/evaluation/population.md
 
 clean:
 	rm -rf $(VENV) node_modules out
