@@ -658,6 +658,8 @@ def commissioning_problems(fit: dict, physical: dict) -> list[str]:
 # `physical` keys the evaluation commissions itself (never taken from the simulator's node.json)
 COMMISSIONED_KEYS = ("friction", "loss", "hydraulic_compliance_m_per_Pa", "pressure_noise_Pa",
                      "displacement_noise_m", "bounce_hz")
+# `physical` keys only the site description gives (the simulator's truth must not supply them)
+SITE_KEYS = ("start_depth_m",)
 # `physical` keys that define what the sensor stream's counts mean (docs/config.md)
 SENSOR_KEYS = ("ropes", "sample_hz", "adc_bits", "cylinder_area_m2", "pressure_channels",
                "displacement_channels", "speed_m_per_pulse", "hall_marks_m", "battery_V_per_count",
@@ -708,11 +710,11 @@ def _site_physical(truth_meta: dict, friction: dict, compliance: dict | None = N
     site = load_site(site_file)
     physical = physical_from_site(site, friction, compliance, refuse_unheld=False)  # refusal: build_case
     # The sensor stream was made with the simulator's node config: how counts map to
-    # physical units must be the same. What the simulator sets per run (e.g. the depth
-    # the node boots at) is taken from it, as an installer would set it.
+    # physical units must be the same. What the simulator sets per run is taken from it, as
+    # an installer would set it; what the site says (SITE_KEYS) never comes from the simulator.
     plant_ph = truth_meta.get("node_physical") or {}
     for k, v in plant_ph.items():
-        if k in COMMISSIONED_KEYS or physical.get(k) == v:
+        if k in COMMISSIONED_KEYS or k in SITE_KEYS or physical.get(k) == v:
             continue
         if k in SENSOR_KEYS:
             raise EvaluationError(f"site {site_file}: `{k}` differs from the config the simulator's sensors use")

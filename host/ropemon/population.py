@@ -478,3 +478,37 @@ def markdown(out: dict) -> str:
                      f"{f(fw.get('pithead_total_pct'), '{:+.2f}')} | {f(nat.get('true_max_dev_pct'))} | "
                      f"{len(nat.get('silent', []))} + {len(sup.get('silent', []))} | {nat.get('false_warnings', '-')} |")
     return "\n".join(lines) + "\n"
+
+
+def rescore_wind(run_dir, overrides: dict | None = None) -> dict:
+    """The alarm figures of a wind already run (`run_wind` with an `--out` directory), from its
+    frames and truth, with `overrides` set in the commissioned config's `physical` (e.g. the
+    band's keys): for choosing settings on the tuning seeds without re-simulating."""
+    import json
+    from pathlib import Path
+
+    from ropemon import evaluate as EV
+    from ropemon import metrics as M
+    from ropemon.decoder import StreamDecoder
+
+    run_dir = Path(run_dir)
+    physical = json.loads((run_dir / EV.NODE_EVALUATED).read_text())["physical"]
+    physical.update(overrides or {})
+    dec = StreamDecoder({int(physical["node_id"]): bytes.fromhex(physical["key_hex"])})
+    frames = sorted((f for f in dec.feed((run_dir / "frames.bin").read_bytes()) if f.ropes), key=lambda f: f.seq)
+    truth = np.load(run_dir / "sim" / "truth.npz")
+    hz = int(physical["sample_hz"])
+    w = hz // int(physical["frame_hz"])
+    n = len(frames)
+    truth_n = np.asarray(truth["tension_N"], float)[: n * w]
+    _phase, excluded, _steady, _payload = EV.scoring_masks(truth, truth_n, hz, float(physical["rated_rope_tension_N"]),
+                                                          float(physical["hall_marks_m"][-1]))
+    t = M.window_means(truth_n, w)[:n]
+    valid = M.window_means(excluded.astype(float), w)[:n] == 0.0
+    frames = frames[: len(t)]
+    area = float(np.mean(physical["cylinder_area_m2"]))
+    out = {}
+    for which, factory in engine_factories(physical).items():
+        out[which] = {"natural": alarm_figures(frames, t, w / hz, factory, valid),
+                      "superposed": superposed_alarm_figures(frames, t, w / hz, factory, area, valid)}
+    return out
