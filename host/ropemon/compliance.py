@@ -11,7 +11,12 @@ decompressions one piston at a time takes all of the common motion while the
 others stick (a balancing stroke), and a piston may creep; those stretches (and
 STROKE_PAD_S around them) are left out, and the fit says how much of the
 recording it used. That sum_i A_i x_i follows sum_i A_i k_i p_i over the whole
-recording (the oil's volume is kept) is checked and warned when it does not. The
+recording (the oil's volume is kept) is checked and warned when it does not. Where
+the ropes part through the wind (groove creep: the pistons move differentially all
+through it) too little is left to give a rope's own k; the fit then falls back, with a
+warning and `method: "common"`, to the manifold's common compliance K = sum A_i k_i (the
+slope of sum A_i x_i on the median pressure, where differential motions cancel), split
+in equal volume shares k_i = K / (n A_i), and refuses only when K is not determined. The
 same recording gives the pressure channels' noise, which sizes the play of the
 node's friction observer (`pressure_noise_Pa`: the median channel's, as the node's
 observer follows the median pressure and its noise following the median channel's
@@ -102,6 +107,8 @@ class ComplianceFit:
     left_out_s: float = 0.0         # seconds left out (balancing strokes, creep)
     volume_ratio: float | None = None  # sum A x against sum A k p over the recording (1: consistent)
     warnings: list[str] = field(default_factory=list)
+    method: str = "per-rope"        # "common": the ropes part, k_i = K / (n A_i) from the volume line
+    common_m3_per_pa: float | None = None  # K = sum A_i k_i (the fitted common K when method is common)
 
     def as_dict(self) -> dict:
         return {"hydraulic_compliance_m_per_Pa": self.k_m_per_pa,
@@ -111,6 +118,7 @@ class ComplianceFit:
                 "pressure_span_Pa": self.span_pa, "residual_rms_m": self.residual_m,
                 "samples": self.samples, "used_fraction": self.used_fraction,
                 "left_out_s": self.left_out_s, "volume_ratio": self.volume_ratio,
+                "method": self.method, "common_compliance_m3_per_Pa": self.common_m3_per_pa,
                 "warnings": self.warnings}
 
 
@@ -184,7 +192,8 @@ def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
     X = np.array([c[1] for c in chans])
     var_dp = [2 * s ** 2 / b for s in noise]  # the pressure noise in an increment of block means
     var_p = [s ** 2 / b for s in noise]  # the pressure noise left in a block mean
-    k = _first_k(P, X, _areas(ph, n), var_p)
+    areas = _areas(ph, n)
+    k = _first_k(P, X, areas, var_p)
     h = max(1, int(round(STROKE_SPAN_S / block_s)))
     pad = int(round(STROKE_PAD_S / block_s))
     piece = max(2, int(round(PIECE_S / block_s)))
@@ -206,33 +215,76 @@ def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
             break
     used = float((valid & ~off).sum() / max(1, valid.sum()))
     left_out_s = float((valid & ~np.isnan(P).all(axis=0) & off).sum() * block_s)
-    ks, rs, spans, res = [], [], [], []
+    ks, rs, spans, res, failed = [], [], [], [], []
     for i in range(n):
         kk, se, pk, xk = _slope(P[i], X[i], pieces, var_p[i])
         kept = P[i][valid & ~off]
         span = float(np.percentile(kept, 95) - np.percentile(kept, 5)) if kept.size else 0.0
+        r = float(np.corrcoef(pk, xk)[0, 1]) if pk.size > 2 and np.any(pk) and np.any(xk) else 0.0
         if span < MIN_SPAN_PA:
-            raise ComplianceError(
-                f"rope {i + 1}: position does not follow pressure: where it does (outside balancing "
-                f"strokes and creep, {used * 100:.0f} % of the recording), the pressure changes by "
-                f"{span / 1e6:.3f} MPa; k needs at least {MIN_SPAN_PA / 1e6:.1f} MPa (record a full wind "
-                f"with its loading and its stop at the landing)")
-        r = float(np.corrcoef(pk, xk)[0, 1])
-        if kk <= 0 or r < MIN_R:
-            raise ComplianceError(f"rope {i + 1}: position does not follow pressure (slope "
-                                  f"{kk:.3g} m/Pa, r = {r:.3f}; needs r >= {MIN_R}; on the "
-                                  f"{used * 100:.0f} % of the recording outside balancing strokes)")
-        if se > MAX_REL_SE * kk:
-            raise ComplianceError(f"rope {i + 1}: k = {kk:.4g} m/Pa is uncertain by {100 * se / kk:.1f} % "
-                                  f"(needs <= {100 * MAX_REL_SE:.0f} %): record more pressure change")
+            failed.append((i, f"rope {i + 1}: position does not follow pressure: where it does (outside "
+                              f"balancing strokes and creep, {used * 100:.0f} % of the recording), the pressure "
+                              f"changes by {span / 1e6:.3f} MPa; k needs at least {MIN_SPAN_PA / 1e6:.1f} MPa"))
+        elif kk <= 0 or r < MIN_R:
+            failed.append((i, f"rope {i + 1}: position does not follow pressure (slope {kk:.3g} m/Pa, "
+                              f"r = {r:.3f}; needs r >= {MIN_R}; on the {used * 100:.0f} % of the recording "
+                              f"outside balancing strokes)"))
+        elif se > MAX_REL_SE * kk:
+            failed.append((i, f"rope {i + 1}: k = {kk:.4g} m/Pa is uncertain by {100 * se / kk:.1f} % "
+                              f"(needs <= {100 * MAX_REL_SE:.0f} %)"))
         ks.append(float(kk))
         rs.append(r)
         spans.append(span)
-        res.append(float(np.sqrt(np.mean((xk - kk * pk) ** 2))))
-    ratio, warnings = _volume_check(ph, P, X, np.array(ks))
+        res.append(float(np.sqrt(np.mean((xk - kk * pk) ** 2))) if xk.size else 0.0)
+    method, common, warnings = "per-rope", None, []
+    if failed:
+        common = _common(P, X, areas, valid, piece, noise, b)
+        why = "; ".join(m for _, m in failed)
+        if common["problem"]:
+            raise ComplianceError(f"{why}; nor can the common compliance be measured: {common['problem']} "
+                                  "(record a full wind with its loading and its stop at the landing)")
+        method = "common"
+        ks = [float(common["K"] / (n * a)) for a in areas]
+        bad = ", ".join(str(i + 1) for i, _ in failed)
+        warnings.append(
+            f"per-rope k not measured: rope{'s' if len(failed) > 1 else ''} {bad} could not be fitted on "
+            f"{'their' if len(failed) > 1 else 'its'} own ({why}): the ropes part through the wind (groove "
+            f"creep, balancing strokes), so the pistons move together too little of it; k is the manifold's common compliance "
+            f"K = sum A_i k_i = {common['K']:.4g} m^3/Pa (uncertain by {100 * common['rel_se']:.2f} %, "
+            f"r = {common['r']:.3f}), split in equal volume shares k_i = K / ({n} A_i)")
+    ratio, vwarn = _volume_check(ph, P, X, np.array(ks))
     return ComplianceFit(ks, rs, spans, res, float(np.median(noise)), max(x_noise), int(records.shape[0]),
                          bounce_hz(ph, records), used_fraction=used, left_out_s=left_out_s,
-                         volume_ratio=ratio, warnings=warnings)
+                         volume_ratio=ratio, warnings=warnings + vwarn, method=method,
+                         common_m3_per_pa=(common["K"] if common else float(areas @ np.array(ks))))
+
+
+def _common(P: np.ndarray, X: np.ndarray, areas: np.ndarray, valid: np.ndarray, piece: int,
+            noise: list[float], b: int) -> dict:
+    """The manifold's common compliance K (m^3/Pa): the slope of the pistons' oil volume
+    sum A_i x_i on the median pressure over the whole recording, strokes and creep included
+    (differential motions cancel in the sum), with an offset of its own per piece of at most
+    PIECE_S (a slow drift of the oil's temperature moves the offset); `problem` says why it
+    cannot be used (None: it can)."""
+    pm = np.median(P, axis=0)
+    v = areas @ np.nan_to_num(X)
+    pieces = _pieces(valid, piece)
+    n = P.shape[0]
+    # the median of n channels' noise: about 0.55-0.71 of one channel's (docs/model.md)
+    var_pm = (float(np.median(noise)) * (0.546 if n >= 4 else 0.707)) ** 2 / b
+    K, se, pk, vk = _slope(pm, v, pieces, var_pm)
+    span = float(np.percentile(pm[valid], 95) - np.percentile(pm[valid], 5)) if valid.any() else 0.0
+    r = float(np.corrcoef(pk, vk)[0, 1]) if pk.size > 2 and np.any(pk) and np.any(vk) else 0.0
+    rel = se / K if K > 0 else math.inf
+    problem = None
+    if span < MIN_SPAN_PA:
+        problem = f"the median pressure changes by {span / 1e6:.3f} MPa, K needs at least {MIN_SPAN_PA / 1e6:.1f} MPa"
+    elif K <= 0 or r < MIN_R:
+        problem = (f"the pistons' oil volume sum A_i x_i does not follow the pressure (slope {K:.3g} m^3/Pa, "
+                   f"r = {r:.3f}; needs r >= {MIN_R})")
+    elif rel > MAX_REL_SE:
+        problem = (f"K = {K:.4g} m^3/Pa is uncertain by {100 * rel:.1f} % (needs <= {100 * MAX_REL_SE:.0f} %)")
+    return {"K": K, "rel_se": rel, "r": r, "span": span, "problem": problem}
 
 
 def _pieces(keep: np.ndarray, most: int) -> list[np.ndarray]:
@@ -394,15 +446,25 @@ def _white_noise(p: np.ndarray, step: float) -> float:
 
 def recheck(ph: dict, res: ComplianceFit) -> list[tuple[str, bool]]:
     """(line, beyond its tolerance) per value NODE.json's `physical` took from an earlier fit:
-    k (the rope farthest off), the pressure noise, the bounce. Empty when it took none."""
+    k (the rope farthest off; for a common fit, K = sum A_i k_i), the pressure noise, the
+    bounce. Empty when it took none."""
     k_was = ph.get("hydraulic_compliance_m_per_Pa")
     if not isinstance(k_was, list) or not any(k_was) or len(k_was) != len(res.k_m_per_pa):
         return []
     out = []
-    rel = [(now - was) / was if was else math.inf for now, was in zip(res.k_m_per_pa, k_was)]
-    i = max(range(len(rel)), key=lambda j: abs(rel[j]))
-    out.append((f"k {rel[i] * 100:+.1f} % on rope {i + 1}, the farthest ({res.k_m_per_pa[i]:.4g} m/Pa, "
-                f"was {k_was[i]:.4g}; tolerance {RECHECK_K_REL * 100:g} %)", abs(rel[i]) > RECHECK_K_REL))
+    if res.method == "common":
+        # equal volume shares, not each rope's k: what the fit measures is K = sum A_i k_i
+        a = _areas(ph, len(k_was))
+        now_k, was_k = float(a @ np.asarray(res.k_m_per_pa)), float(a @ np.asarray(k_was, float))
+        rel_k = (now_k - was_k) / was_k if was_k else math.inf
+        out.append((f"K {rel_k * 100:+.1f} %, the common compliance sum A_i k_i ({now_k:.4g} m^3/Pa, was "
+                    f"{was_k:.4g}; tolerance {RECHECK_K_REL * 100:g} %; the ropes part, per-rope k not "
+                    f"measured)", abs(rel_k) > RECHECK_K_REL))
+    else:
+        rel = [(now - was) / was if was else math.inf for now, was in zip(res.k_m_per_pa, k_was)]
+        i = max(range(len(rel)), key=lambda j: abs(rel[j]))
+        out.append((f"k {rel[i] * 100:+.1f} % on rope {i + 1}, the farthest ({res.k_m_per_pa[i]:.4g} m/Pa, "
+                    f"was {k_was[i]:.4g}; tolerance {RECHECK_K_REL * 100:g} %)", abs(rel[i]) > RECHECK_K_REL))
     was = ph.get("pressure_noise_Pa")
     if isinstance(was, (int, float)) and was > 0:
         r = res.pressure_noise_pa / was - 1
