@@ -140,7 +140,15 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
     (rope 0-based) and end (-1) of a balancing stroke (tools/stroke_events.py).
     `increments`, a dict, receives the observer's per-sample increments [sample, rope]
     (m): "dxs" of the LuGre position and "dxp" of its play (tools/observer_losses.py),
-    and "noise_ratio"[sample], the noise following's ratio (1: as commissioned)."""
+    and "noise_ratio"[sample], the noise following's ratio (1: as commissioned).
+
+    Opt-in prototype, not in the node (absent: the node's observer, bit for bit):
+    `ph["slide_follow"] = {"lo": 3, "hi": 5, "start": 0.25, "gain": 1/64, "stroke_travel": bool}`.
+    Outside a stroke, what e holds beyond `start` x the stroke threshold is taken into x_h
+    at `gain` per sample as now, but a share f = clip((|e| - lo sig_e) / ((hi - lo) sig_e), 0, 1)
+    of it (sig_e: e's rms noise, threshold / stroke_sigmas) enters as seal travel (x_s and
+    the play, next sample) instead of re-anchoring x_h; with `stroke_travel` the stroke
+    piston's e at a stroke's end does too."""
     pp = physical_params(ph)
     n = pp["ropes"]
     fs = float(ph["sample_hz"])
@@ -176,6 +184,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
         OK[:, i] = p_ok & x_ok
         POK[:, i] = p_ok
+    pp = {**pp, "slide": ph.get("slide_follow"),
+          "stroke_sigmas": float(ph.get("stroke_sigmas", DEFAULTS["stroke_sigmas"]))}  # opt-in prototype (default: none)
     DX, DXS, DXP, NR = _observer(pp, P, X, OK, POK, fs, strokes)
     if increments is not None:
         increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR)
@@ -282,6 +292,16 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
     xf, xs, xp, xh, pl, xb, e, mot, xl, act = ([0.0] * n for _ in range(10))
     w = [0] * n
     cl, mode, sgn, cnt = 0.0, 0, 0, 0
+    # opt-in prototype `slide_follow` (physical; none: the node's observer): what e holds
+    # beyond `lo` .. `hi` times its noise is proven travel of the piston: the share taken
+    # into x_h goes in as seal travel (through x_s and the play), not re-anchored
+    sl = pp.get("slide")
+    sl_on = bool(sl) and th > 0
+    if sl_on:
+        sig_e = th / pp["stroke_sigmas"]  # e's rms noise
+        sl_lo, sl_hi = float(sl.get("lo", 3.0)) * sig_e, float(sl.get("hi", 5.0)) * sig_e
+        sl_g = float(sl.get("gain", 1.0 / 64))
+        sl_start = float(sl.get("start", 0.25)) * th
     clamp = lambda v, lim: lim if v > lim else (-lim if v < -lim else v)  # noqa: E731
     for j, (xr, pr, okr, pokr) in enumerate(zip(X.tolist(), P.tolist(), OK.tolist(), POK.tolist())):
         healthy = [p for p, ok in zip(pr, pokr) if ok]
@@ -379,10 +399,20 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
         s = 1 if cl > 0 else -1
         moving = abs(cl) > vmin
         re = False
+        was = mode
         if mode == 0:
             # e beyond a quarter of the threshold (noise: 1.6 sigma) is real unequal
             # sharing: x_h takes it over at 1/64 per sample, without seal travel
             for i in range(n):
+                if sl_on:
+                    a = abs(e[i]) - sl_start
+                    if a > 0:
+                        f = min(max((abs(e[i]) - sl_lo) / (sl_hi - sl_lo), 0.0), 1.0)
+                        a = math.copysign(a * sl_g, e[i])
+                        xb[i] += a
+                        xh[i] += a * (1 - f)  # the rest moves x_h (and x_s) at the next step
+                        e[i] -= a
+                    continue
                 a = abs(e[i]) - th / 4
                 if a > 0:
                     a = math.copysign(a / 64, e[i])
@@ -420,7 +450,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
         if re:  # a stroke starts or ends: x_h re-anchored by e, without seal travel
             for i in range(n):
                 xb[i] += e[i]
-                xh[i] += e[i]
+                if not (sl_on and sl.get("stroke_travel") and i == was - 1):
+                    xh[i] += e[i]  # (prototype: the stroke piston's lag goes in as travel)
                 e[i] = 0.0
     return dx, dxs, dxp, nr
 
