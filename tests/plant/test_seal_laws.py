@@ -447,3 +447,61 @@ def test_bed_gives_a_lugre_rope_seal_as_scaled_parameters(tmp_path):
     assert params["Fs"] == {"intercept": 1250.0, "slope": 1000.0}
     assert params["sigma0"] == 0.5e8 and params["vs"] == {"intercept": 0.004, "slope": -0.0001}
     assert testbed.scenario_seal(path)[0]["Fs"] == {"intercept": 2500.0, "slope": 2000.0}
+
+
+# ---------------------------------------------------------------- Maxwell-slip on a drawn hoist
+
+
+def _population_17(tmp_path, until_s):
+    """The population's hoist of seed 17 (a Maxwell-slip seal whose elements ran away to ~400 um,
+    hundreds of break displacements, and the seal friction to 25-70 kN while the cage was loaded,
+    when the BDF2 step was one linearised Newton step), its grid up to until_s."""
+    from ropemon import evaluate, population
+
+    doc, path = evaluate.scenario_doc("population-17", tmp_path)
+    sc = build(doc, path, 17)
+    assert sc.plant.friction == from_table(population.draw(17).friction, "plant.friction")
+    return sc, sc.steps[sc.steps <= int(round(until_s / sc.step_s))]
+
+
+def _break_ratios(law, Y, plant):
+    """Per state: |k_j z_j| / (alpha_j s(v, p)), and |F| / (force_scale Fs(p))."""
+    n, nz = plant.n, plant.nz
+    z = Y[:, plant.iz].reshape(len(Y), n, nz)
+    v, p = Y[:, plant.iv], Y[:, plant.ip]
+    pm = np.maximum(p, 0.0) * 1e-6
+    fs, fc, vs = law.Fs.at(pm), law.Fc.at(pm), law.vs.at(pm)
+    s = fc + (fs - fc) * np.exp(-(v / vs) ** 2)
+    elem = np.abs(np.asarray(law.k) * z) / (np.asarray(law.alpha) * s[..., None])
+    force = np.abs(law.evaluate(v, z, p).F) / (np.asarray(law.force_scale) * fs)
+    return elem, force, p
+
+
+def test_maxwell_slip_elements_stay_at_their_break_on_a_drawn_hoist(tmp_path):
+    """Loading and the start of the wind of population-17 (20 ms steps while the cage is loaded):
+    every element's force stays within its break force alpha_j s(v, p) and the seal friction within
+    force_scale Fs(p) (+ sigma2 v), and the oil pressure only rises while the cage is loaded."""
+    sc, steps = _population_17(tmp_path, 16.0)
+    p, u = sc.plant, sc.inputs
+    Y = integrate_fast(p, u, p.rest_state(u), steps.tolist(), method="bdf2")
+    elem, force, pres = _break_ratios(p.friction, Y, p)
+    assert elem.max() <= 1.1, elem.max()          # was 460
+    assert force.max() <= 1.02, force.max()       # was 6800
+    assert np.abs(Y[:, p.iz]).max() < 100e-6      # was 1.8 mm
+    loading = (u.t[steps] > 3.0) & (u.t[steps] < 13.0)
+    assert pres[loading].min() >= pres[0].min() - 1e3   # was 1.4 MPa from 3.05 MPa
+    assert elem.max() > 0.99                      # the elements did reach their breaks
+
+
+def test_maxwell_slip_fast_kernel_is_the_dense_model_on_a_drawn_hoist(tmp_path):
+    """The kernel's and the dense solver's BDF2 (both by the settled Newton iteration) agree
+    through the first element breaks of population-17's loading, at its base step."""
+    sc, _ = _population_17(tmp_path, 0.0)
+    p, u = sc.plant, sc.inputs
+    y0 = p.rest_state(u)
+    k = int(round(3.8 / sc.step_s))
+    dense = integrate(p, u.take(np.arange(k)), sc.step_s, y0, method="bdf2")
+    fast = integrate_fast(p, u, y0, list(range(k)), method="bdf2")
+    assert np.allclose(fast, dense, rtol=1e-6, atol=1e-8 * np.abs(dense).max(axis=0))
+    elem, _, _ = _break_ratios(p.friction, fast, p)
+    assert 0.99 < elem.max() <= 1.1

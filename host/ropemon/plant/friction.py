@@ -315,6 +315,64 @@ class MaxwellSlip:
         """The element states after h at constant v and pm (MPa), implicit Euler (the test bed)."""
         return _implicit_step(self, v, z, pm, h)
 
+    def solve_states(self, v: float, zh, pm: float, c: float, guess) -> list[float]:
+        """The element states z+ of an implicit step's own equations, solved exactly at the step's
+        new velocity v and pressure pm (MPa): z_j+ = zh_j + c v (1 - phi(u_j(z_j+, v, pm))), zh the
+        method's history (implicit Euler: z; BDF2: a z - b z-), c = beta h.
+
+        The plant's BDF2 takes one linearised (Newton) step for the whole state; for an element
+        at its break that linearisation is wrong whenever the step reverses v (d(dz/dt)/dv =
+        1 - phi < 0 beyond the break, so a reversal would push z further out), which let elements
+        run away to hundreds of their break displacements. Each element's equation couples only
+        to v and p, so once the linear step has given them, the element's root is found exactly:
+        Newton from the linear step's value `guess`, kept by bisection inside the bracket between
+        zh and its explicit update (phi increases). Unscaled: the states do not depend on
+        force_scale. Returns a list, one per element."""
+        if v == 0.0 or c == 0.0:
+            return [float(a) for a in zh]
+        fl = self._lines()
+        fs0, fs1, fc0, fc1, vs0, vs1 = fl[:6]
+        fs, fc, vs = fs0 + fs1 * pm, fc0 + fc1 * pm, vs0 + vs1 * pm
+        w = v / vs
+        g = fc + (fs - fc) * math.exp(-w * w)
+        cv = c * v
+        sg = 1.0 if v > 0.0 else -1.0
+        n = self.sharpness
+        log1p, exp = math.log1p, math.exp
+        out = []
+        for a, kj, z0, z in zip(self.alpha, self.k, zh, guess):
+            zmax = a * g / kj
+            cu = sg / zmax            # u = cu z
+            x = n * (cu * z0 - 1.0)
+            phi = (x + log1p(exp(-x))) / LN2 if x > 0.0 else log1p(exp(x)) / LN2
+            z1 = z0 + cv * (1.0 - phi)
+            lo, hi = (z0, z1) if z1 >= z0 else (z1, z0)
+            if not lo <= z <= hi:
+                z = z1
+            tol = 1e-13 * zmax
+            for _ in range(60):
+                x = n * (cu * z - 1.0)
+                if x > 0.0:
+                    e = exp(-x)
+                    phi, d = (x + log1p(e)) / LN2, n / ((1.0 + e) * LN2)
+                else:
+                    e = exp(x)
+                    phi, d = log1p(e) / LN2, n * e / ((1.0 + e) * LN2)
+                G = z - z0 - cv * (1.0 - phi)
+                if G < 0.0:
+                    lo = z
+                else:
+                    hi = z
+                zn = z - G / (1.0 + cv * d * cu)
+                if not lo <= zn <= hi:
+                    zn = 0.5 * (lo + hi)
+                if abs(zn - z) <= tol:
+                    z = zn
+                    break
+                z = zn
+            out.append(z)
+        return out
+
     def deflection(self, z):
         """The elements' elastic force over their total stiffness, sum k_j z_j / sum k_j (m): the
         single deflection per rope recorded as truth `z_m` (the element states go to `z_elements_m`)."""

@@ -47,6 +47,8 @@ class Stepper:
         self.scale = None if fr.force_scale is None else [float(a) for a in fr.force_scale]
         if self.nz > 1:
             self.factor, self.solve = self._factor_multi, self._solve_multi
+        # Maxwell-slip: each implicit step's element rows are re-solved exactly (`settle`)
+        self.solve_states = fr.solve_states if isinstance(fr, MaxwellSlip) else None
         self.fl = tuple(float(v) for v in (fr.Fs.intercept, fr.Fs.slope, fr.Fc.intercept, fr.Fc.slope,
                                            fr.vs.intercept, fr.vs.slope, fr.sigma2.intercept, fr.sigma2.slope))
         self.s0 = float(fr.sigma0) if self.lugre else 0.0
@@ -83,6 +85,12 @@ class Stepper:
         self.qp = u.q_pump.tolist()
         self.rho = u.rho.tolist()
         self.mu = u.mu.tolist()
+
+    def settle(self, y, zh, c) -> None:
+        """Maxwell-slip: replace the friction rows of an implicit step's result y (in place) by the
+        exact roots of their own equations z+ = zh + c f_z(v+, z+, p+) at the step's v+ and p+
+        (`MaxwellSlip.solve_states`); zh = the method's history of those rows, rope by rope."""
+        settle_rows(self.solve_states, self.n, self.nz, y, zh, c)
 
     # ------------------------------------------------------------------ right-hand side
 
@@ -413,6 +421,72 @@ def _inv3(a):
             (c02 / det, (a01 * a20 - a00 * a21) / det, (a00 * a11 - a01 * a10) / det))
 
 
+def settle_rows(solve_states, n: int, nz: int, y: list, zh, c: float) -> None:
+    """`Stepper.settle` for any state list y (the dense solver's too): rope i's element rows by
+    `solve_states(v_i, zh_i, pm_i, c, z_i)`, in place."""
+    zo = 2 + 2 * n
+    o = zo + n * nz
+    for i in range(n):
+        p = y[o + i]
+        a = zo + i * nz
+        y[a:a + nz] = solve_states(y[2 + n + i], zh[i * nz:(i + 1) * nz], p * 1e-6 if p > 0.0 else 0.0, c,
+                                   y[a:a + nz])
+
+
+NEWTON_MAX = 12         # Maxwell-slip: Newton iterations per implicit step at most
+NEWTON_V_TOL = 1e-7     # m/s: ... until no piston velocity moves by more than this (+ 1e-6 relative)
+
+
+def _newton_settled(rhs, factor, solve, settle, k1, c, y0, f0, jac, hist, zrows, vrows):
+    """Maxwell-slip's implicit step y+ = hist + c f(t + h, y+) (BDF2; implicit Euler: hist = y):
+    Newton from y0 (f0, jac there), each iterate's element rows re-solved exactly
+    (`Stepper.settle`), until the piston velocities settle.
+
+    One linearised step is not enough for this law: a piston velocity reversal inside the step
+    flips each element from sliding (no stiffness) to sticking (k_j), which the linearisation
+    about the start does not see, and a plain Newton iteration cycles across v = 0. So an
+    iterate never crosses v = 0 in one go: the Newton step is cut where the first piston
+    reaches v = 0 (that piston exactly 0), and the next linearisation there (every element
+    sticking) sees the new side. Where the iteration does not settle within NEWTON_MAX (the
+    Stribeck curve's falling branch can give the step's equations several roots at these step
+    sizes), the iterate with the smallest velocity residual is taken. Generic over sequences:
+    the dense solver calls it with its own rhs / factor / solve. Returns y+ (a list)."""
+    zh = hist[zrows]
+    v0 = vrows.start
+    nv = vrows.stop - v0
+    y = y0
+    best, best_y = math.inf, None
+    for it in range(NEWTON_MAX):
+        if it:
+            f0, jac = rhs(k1, y, True)
+            res = max(abs(c * f0[i] - (y[i] - hist[i])) for i in range(v0, v0 + nv))
+            if res < best:
+                best, best_y = res, y
+        d = solve(factor(jac, c), [c * f - (a - b) for f, a, b in zip(f0, y, hist)])
+        lam, cut = 1.0, -1
+        for i in range(v0, v0 + nv):
+            a = y[i]
+            b = a + d[i]
+            if (a > 0.0 and b < 0.0) or (a < 0.0 and b > 0.0):
+                r = a / (a - b)
+                if r < lam:
+                    lam, cut = r, i
+        if cut < 0:
+            yn = [a + e for a, e in zip(y, d)]
+        else:
+            yn = [a + lam * e for a, e in zip(y, d)]
+            yn[cut] = 0.0
+        settle(yn, zh, c)
+        done = cut < 0 and all(abs(a - b) <= NEWTON_V_TOL + 1e-6 * abs(a) for a, b in zip(yn[vrows], y[vrows]))
+        y = yn
+        if done:
+            return y
+    f0 = rhs(k1, y, False)
+    if max(abs(c * f0[i] - (y[i] - hist[i])) for i in range(v0, v0 + nv)) < best:
+        return y
+    return list(best_y)
+
+
 def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, keep: bool = True,
                    chunk: int = 20000, method: str = "bdf2"):
     """Step over the grid indices `grid_steps` (ascending, starting at 0); states there, shape (len, n).
@@ -440,6 +514,9 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
     Y[0] = y
     every = max(nsteps // 100, 1)
     rhs, factor, solve = st.rhs, st.factor, st.solve
+    settle = st.settle if st.solve_states is not None else None
+    zrows = slice(2 + 2 * st.n, 2 + 2 * st.n + st.n * st.nz)
+    vrows = slice(2 + st.n, 2 + 2 * st.n)
     fac = None
     last_h = 0.0
     age = 0
@@ -453,8 +530,12 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
                 if y_prev is None:
                     # first step: linearly implicit Euler, W = I - h J(t + h, y)
                     f0, jac = rhs(k1, y, True)
-                    d = solve(factor(jac, h), f0)
-                    y_prev, y = y, [a + h * b for a, b in zip(y, d)]
+                    if settle is None:
+                        d = solve(factor(jac, h), f0)
+                        y_prev, y = y, [a + h * b for a, b in zip(y, d)]
+                    else:   # Maxwell-slip: implicit Euler solved by the same Newton as below
+                        y_prev, y = y, _newton_settled(rhs, factor, solve, settle, k1, h, y, f0, jac, y, zrows,
+                                                       vrows)
                 else:
                     # variable-step BDF2, y+ - a y + b y- = be h f(t + h, y+), by one Newton step
                     # from the linear extrapolation yp (so the linearisation error is O(h^4))
@@ -464,9 +545,14 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
                     yp = [a + om * (a - b) for a, b in zip(y, y_prev)]
                     fp, jac = rhs(k1, yp, True)
                     c = be * h
-                    d = solve(factor(jac, c), [c * f - (p - a2 * a + b2 * b)
-                                               for f, p, a, b in zip(fp, yp, y, y_prev)])
-                    y_prev, y = y, [p + e for p, e in zip(yp, d)]
+                    if settle is None:
+                        d = solve(factor(jac, c), [c * f - (p - a2 * a + b2 * b)
+                                                   for f, p, a, b in zip(fp, yp, y, y_prev)])
+                        y_prev, y = y, [p + e for p, e in zip(yp, d)]
+                    else:
+                        hist = [a2 * a - b2 * b for a, b in zip(y, y_prev)]
+                        y_prev, y = y, _newton_settled(rhs, factor, solve, settle, k1, c, yp, fp, jac, hist,
+                                                       zrows, vrows)
                 h_prev = h
                 if keep:
                     Y[j + 1] = y

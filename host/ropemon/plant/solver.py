@@ -87,6 +87,8 @@ def _integrate_bdf2(plant, u, h: float, y0: np.ndarray) -> np.ndarray:
     sc = state_scale(plant)
     jscale = np.outer(1.0 / sc, sc)
     eye = np.eye(n)
+    if getattr(plant.friction, "solve_states", None) is not None:
+        return _integrate_bdf2_settled(plant, u, h, y0, Y, sc, jscale, eye)
     for k in range(K - 1):
         y = Y[k]
         if k == 0:
@@ -98,6 +100,42 @@ def _integrate_bdf2(plant, u, h: float, y0: np.ndarray) -> np.ndarray:
         f, J = plant.rhs(u, k + 1, yp, True)
         res = c * f - (yp - 4.0 / 3.0 * y + 1.0 / 3.0 * Y[k - 1])
         Y[k + 1] = yp + sc * np.linalg.solve(eye - c * (J * jscale), res / sc)
+    if not np.all(np.isfinite(Y[-1])):
+        raise FloatingPointError("the plant state became non-finite: step too large for this scenario?")
+    return Y
+
+
+def _integrate_bdf2_settled(plant, u, h, y0, Y, sc, jscale, eye):
+    """`_integrate_bdf2` for a law whose states each step solves exactly (Maxwell-slip): every
+    step by the kernel's Newton iteration (`kernel._newton_settled`), here with dense solves."""
+    from ropemon.plant.kernel import _newton_settled, settle_rows
+
+    law, n, nz = plant.friction, plant.n, plant.nz
+
+    def rhs(k, y, jac):
+        return plant.rhs(u, k, np.asarray(y, dtype=float), jac)
+
+    def factor(J, c):
+        return eye - c * (J * jscale)
+
+    def solve(W, b):
+        return list(sc * np.linalg.solve(W, np.asarray(b) / sc))
+
+    def settle(y, zh, c):
+        settle_rows(law.solve_states, n, nz, y, zh, c)
+
+    zrows, vrows = plant.iz, plant.iv
+    for k in range(len(u.t) - 1):
+        y = Y[k].tolist()
+        if k == 0:
+            f, J = rhs(1, y, True)
+            Y[1] = _newton_settled(rhs, factor, solve, settle, 1, h, y, f, J, y, zrows, vrows)
+            continue
+        yp = (2.0 * Y[k] - Y[k - 1]).tolist()
+        c = 2.0 / 3.0 * h
+        f, J = rhs(k + 1, yp, True)
+        hist = (4.0 / 3.0 * Y[k] - 1.0 / 3.0 * Y[k - 1]).tolist()
+        Y[k + 1] = _newton_settled(rhs, factor, solve, settle, k + 1, c, yp, f, J, hist, zrows, vrows)
     if not np.all(np.isfinite(Y[-1])):
         raise FloatingPointError("the plant state became non-finite: step too large for this scenario?")
     return Y
