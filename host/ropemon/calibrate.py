@@ -11,6 +11,9 @@ Method (docs/commissioning.md, "Friction calibration"):
 4. sigma0, sigma1 from the slow stretches (pre-sliding reversals): the LuGre
    state is simulated from the last steady run with the fitted lines; sigma0
    minimises the force residual (sigma1 enters linearly and is solved exactly).
+   Besides, the reversals' initial slope dF/dx (`fit_initial_slope`), which needs
+   no long slow stretch and no LuGre: it gives sigma0 (sigma1 default) unless the
+   reversals start as LuGre's do and the simulation identified sigma0.
    Without usable pre-sliding data: documented defaults, with a warning.
 5. The standstill after a run: a LuGre seal keeps its bristle force when the
    piston stops (z does not change at v = 0); a seal without pre-sliding (a
@@ -59,6 +62,12 @@ DEFAULT_PRESLIDING_DISPLACEMENT_M = 1e-4
 DEFAULT_DAMPING_TIME_S = 1e-3
 PRESLIDING_SUBSTEPS = 4
 PRESLIDING_MAX_REL_ERR = 0.25  # sigma0 counts as identified when its standard error is below 25 %
+# The initial slope after a reversal (fit_initial_slope): a line over the first part of each swing
+INITIAL_SLOPE_FORCE_FRACTION = 0.1  # until the force has changed by 10 % of 2 Fs(p)
+SHAPE_FORCE_FRACTION = 0.25        # and its shape (elastic line or LuGre's exponential) until 25 %
+MIN_TURN_SAMPLES = 6
+MIN_TURNS = 4
+MIN_TURN_GAP_S = 0.3       # a reversal, not a stop and a new start
 SIGMA1_MAX_REL_ERR = 0.5       # sigma1 (weakly seen by any bed: it acts only while bristles deflect)
 
 MIN_STANDSTILL_S = 0.3        # a standstill this long right after a run shows what the seal holds
@@ -459,6 +468,123 @@ def fit_presliding(rec: Record, lines: dict[str, Any], runs: list[tuple[int, int
             "rms_N": math.sqrt(sse / n), "samples": n, "stretches": k}
 
 
+def find_turns(rec: Record, lines: dict[str, Any], runs: list[tuple[int, int]]) -> list[int]:
+    """Slow reversals: the sample where the velocity turns (its smallest |v|) between a stretch
+    of one sign and one of the other, both outside the constant-velocity runs, with the piston
+    at rest at most MIN_TURN_GAP_S and slower than vs/4 around the turn, no run within
+    STANDSTILL_AFTER_RUN_S (the ramps between the runs are not the procedure's reversals). Unlike
+    `find_presliding` it needs no long slow stretch: a reversal faster than vs/4 away from its
+    turns still gives its turns."""
+    dt = _sample_period(rec)
+    vm, floor = _velocity_smooth(rec)
+    band = 4 * floor
+    p = _median_filter(rec.p, 5)
+    slow = np.abs(vm) < np.maximum(line_at(lines, "vs", p) / 4, band)
+    sign = np.where(np.abs(vm) > band, np.sign(vm), 0.0)
+    in_run = np.zeros(len(vm), bool)
+    for a, b in runs:
+        in_run[a:b] = True
+    gaps = np.flatnonzero(np.diff(rec.t) > 5 * dt) + 1
+    moving = np.flatnonzero(sign != 0)
+    near = int(round(STANDSTILL_AFTER_RUN_S / dt))
+    turns = []
+    for i, j in zip(moving[:-1], moving[1:]):   # consecutive moving samples i < j
+        if sign[i] == sign[j] or (j - i - 1) * dt > MIN_TURN_GAP_S or np.any((gaps > i) & (gaps <= j)):
+            continue
+        k = i + int(np.argmin(np.abs(vm[i:j + 1])))
+        if not (slow[i] and slow[j]) or in_run[max(k - near, 0):k + near + 1].any():
+            continue   # the ramp between two runs is no pre-sliding reversal of the procedure
+        turns.append(k)
+    return turns
+
+
+def fit_initial_slope(rec: Record, lines: dict[str, Any], runs: list[tuple[int, int]],
+                      force: np.ndarray | None = None) -> dict[str, float] | None:
+    """The initial stiffness dF/dx after the slow reversals (`find_turns`), or None.
+
+    Per turn: the displacement from the turn (trapezoidal integral of the measured velocity),
+    F - sigma2(p) v against it, a Theil-Sen line over the samples from the turn until the force
+    has changed by INITIAL_SLOPE_FORCE_FRACTION of 2 Fs(p) (the whole pre-sliding swing), while
+    the piston keeps its direction and stays slower than vs/4. The stiffness is the median over
+    the turns with MIN_TURN_SAMPLES or more samples; its relative error the median's standard
+    error (1.2533 x the robust sd over sqrt(n)). `force` replaces the measured force.
+
+    The shape of the start, up to SHAPE_FORCE_FRACTION of 2 Fs(p): an elastic line (Maxwell-slip
+    before its first element slips, elasto-plastic up to its break-away) or LuGre's exponential
+    2 Fs (1 - exp(-S x / (2 Fs))) after a reversal from sliding, whose initial slope S is
+    2 sigma0 (dz/dt = v (1 - sigma0 z sgn(v) / g) = 2 v at z = -g/sigma0). `lugre_shape`: the
+    exponential fits the turns better (sum of squares over all turns, each with a free offset);
+    `lugre_sigma0` the median of S/2.
+    """
+    from scipy.optimize import minimize_scalar
+    from scipy.stats import theilslopes
+
+    turns = find_turns(rec, lines, runs)
+    if not turns:
+        return None
+    F = rec.F if force is None else force
+    p = _median_filter(rec.p, 5)
+    vm, floor = _velocity_smooth(rec)
+    y = F - line_at(lines, "sigma2", p) * rec.v
+    ys = _median_filter(y, 3)
+    dts = np.diff(rec.t)
+    limit = np.abs(vm) < np.maximum(line_at(lines, "vs", p) / 4, 4 * floor)
+    slopes, spans, sse_line, sse_exp, lugre_s0 = [], [], 0.0, 0.0, []
+    n = len(F)
+    dt = _sample_period(rec)
+    for k in turns:
+        # direction after the turn: the first clearly moving sample's
+        after = np.flatnonzero(np.abs(vm[k:min(k + 200, n)]) > 4 * floor)
+        if not after.size:
+            continue
+        sg = float(np.sign(vm[k + after[0]]))
+        fs = float(line_at(lines, "Fs", p[k]))
+        y0 = float(np.median(ys[max(k - 1, 0):k + 2]))
+        need, need_shape = (f * 2 * fs for f in (INITIAL_SLOPE_FORCE_FRACTION, SHAPE_FORCE_FRACTION))
+        e = k + 1
+        while e < n and limit[e] and vm[e] * sg > -4 * floor and abs(ys[e] - y0) < need_shape and \
+                rec.t[e] - rec.t[e - 1] <= 5 * dt:
+            e += 1
+        if e >= n or abs(ys[e] - y0) < need_shape:
+            continue   # the swing ran out (slow and one-way) before the force changed enough
+        e1 = k + 1 + int(np.argmax(np.abs(ys[k + 1:e + 1] - y0) >= need))
+        if e1 - k < MIN_TURN_SAMPLES:
+            continue   # too few samples on the initial slope
+        x = sg * np.concatenate([[0.0], np.cumsum(0.5 * (rec.v[k:e - 1] + rec.v[k + 1:e]) * dts[k:e - 1])])
+        yy = sg * y[k:e]
+        if np.ptp(x[:e1 - k]) <= 0:
+            continue
+        s = float(theilslopes(yy[:e1 - k], x[:e1 - k])[0])
+        if s <= 0:
+            continue
+        slopes.append(s)
+        spans.append(float(np.ptp(x[:e1 - k])))
+        # the same start as LuGre's after a reversal from sliding: 2 Fs (1 - exp(-S x / (2 Fs))),
+        # initial slope S = 2 sigma0; against the elastic line (both with a free offset)
+        r_line = yy - np.polyval(np.polyfit(x, yy, 1), x)   # least squares, as the exponential's
+        sse_line += float(r_line @ r_line)
+
+        def sse_of(log_s: float) -> float:
+            c = 2 * fs * (1 - np.exp(-(10 ** log_s) * x / (2 * fs)))
+            r = yy - c
+            r = r - r.mean()
+            return float(r @ r)
+
+        o = minimize_scalar(sse_of, bounds=(math.log10(s) - 1.5, math.log10(s) + 1), method="bounded",
+                            options={"xatol": 1e-4})
+        sse_exp += float(o.fun)
+        lugre_s0.append(10 ** float(o.x) / 2)
+    if len(slopes) < MIN_TURNS:
+        return None
+    a = np.array(slopes)
+    med = float(np.median(a))
+    sd = 1.4826 * float(np.median(np.abs(a - med)))
+    return {"sigma0": med, "sigma0_rel_err": 1.2533 * sd / math.sqrt(len(a)) / med, "turns": len(a),
+            "turn_scatter": sd / med, "span_m": float(np.median(spans)),
+            "lugre_shape": sse_exp < sse_line, "sse_ratio": sse_exp / max(sse_line, 1e-300),
+            "lugre_sigma0": float(np.median(lugre_s0))}
+
+
 # ---------------------------------------------------------------- residual of the fitted model
 
 
@@ -643,7 +769,23 @@ def fit(rec: Record, source: str = "") -> tuple[dict[str, Any], list[Level], lis
     p_mid = 0.5 * (p_lo + p_hi)
     doc: dict[str, Any] = {k: lines[k] for k in PARAMS}
     s0_default = line_at(lines, "Fs", p_mid) / DEFAULT_PRESLIDING_DISPLACEMENT_M
-    if pre is None:
+    # The reversals' initial slope (any pre-sliding law): used unless the reversals start as
+    # LuGre's do and the LuGre simulation above identified sigma0.
+    slope = fit_initial_slope(rec, lines, runs)
+    sim_ok = pre is not None and pre["sigma0_rel_err"] <= PRESLIDING_MAX_REL_ERR
+    slope_ok = slope is not None and slope["sigma0_rel_err"] <= PRESLIDING_MAX_REL_ERR
+    method = "lugre-simulation" if sim_ok else None
+    if slope_ok and not (sim_ok and slope["lugre_shape"]):
+        lugre = slope["lugre_shape"]
+        method = "initial-slope (LuGre start)" if lugre else "initial-slope (elastic start)"
+        s0 = slope["lugre_sigma0"] if lugre else slope["sigma0"]
+        s1, src = s0 * DEFAULT_DAMPING_TIME_S, "fitted sigma0, default sigma1"
+        how = ("half the initial stiffness of LuGre's exponential start" if lugre else
+               "the initial stiffness of the seal's elastic (linear) start")
+        warnings.append(f"sigma0 from the slow reversals' initial slope ({how}: {s0:.3g} N/m over "
+                        f"{slope['turns']} reversals{'' if lugre else ', not a LuGre seal'}); "
+                        f"sigma1 = {DEFAULT_DAMPING_TIME_S:g} s x sigma0")
+    elif pre is None:
         warnings.append("sigma0, sigma1: no pre-sliding data (slow reversals) in the record; using defaults")
         s0, s1, src = s0_default, s0_default * DEFAULT_DAMPING_TIME_S, "default"
     elif pre["sigma0_rel_err"] > PRESLIDING_MAX_REL_ERR:
@@ -663,7 +805,9 @@ def fit(rec: Record, source: str = "") -> tuple[dict[str, Any], list[Level], lis
     doc["sigma0"], doc["sigma1"] = s0, s1
     # what the pre-sliding fit found, also when it was not used
     found = {(k + "_fit" if k in ("sigma0", "sigma1") else k): v for k, v in (pre or {}).items()}
-    doc["presliding"] = {"source": src, **found}
+    doc["presliding"] = {"source": src, "method": method, **found,
+                         "initial_slope": None if slope is None else
+                         {k: (bool(v) if k == "lugre_shape" else v) for k, v in slope.items()}}
     holds = standstill_holds(rec, runs)
     if holds:
         ratio = float(np.median([h["ratio"] for h in holds]))
