@@ -17,7 +17,9 @@ Scoring of one wind (`score_wind`), from the node's frames as the host decodes t
 - alarms: the host's own `AlarmEngine` on the frames. A rope truly beyond the
   deviation limit for `SILENT_MIN_S` or more must raise at least DEVIATION POSSIBLE
   within that episode, or the wind is *silent*. A raise on a rope whose true deviation
-  is within `FALSE_BELOW` is a *false warning*. Both on the wind as it is and with a
+  is within `FALSE_BELOW` is a *false warning*; the *warning share* is the part of the
+  time a deviation alarm or warning stands on ropes truly within `FALSE_BELOW` (a warning
+  raised once that never clears counts once, but stands all the time). Both on the wind as it is and with a
   deviation of `SUPERPOSED` superposed on each rope in turn, both signs (the force
   carried as pressure, as `metrics.alarm_assessment` does).
 """
@@ -235,8 +237,10 @@ def alarm_figures(frames, truth_frames_n: np.ndarray, frame_s: float, engine_fac
             if not present[a:b, r].any():
                 silent.append({"rope": r + 1, "t0_s": round(a * frame_s, 1), "t1_s": round(b * frame_s, 1),
                                "true_max_pct": round(float(d_true[a:b, r].max()) * 100, 2)})
+    within = (d_true < FALSE_BELOW) & ok[:, None]
     false = int((raised & (d_true < FALSE_BELOW)).sum())
     return {"episodes": eps, "silent": silent, "false_warnings": false,
+            "warning_share": round(float((present & within).sum() / within.sum()), 4) if within.any() else None,
             "true_max_dev_pct": round(float(d_true[ok].max()) * 100, 2) if ok.any() else None}
 
 
@@ -413,6 +417,7 @@ def summary(results: list[dict], which: str) -> dict:
         "silent_winds": silent,
         "silent_seeds": silent_seeds,
         "false_warnings_per_wind": round(false / len(scored), 3) if scored else None,
+        "warning_share": quantiles(r["alarms"][which]["natural"].get("warning_share") for r in scored),
         "superposed_false_warnings_per_wind": round(
             sum(r["alarms"][which]["superposed"]["false_warnings"] for r in scored) / max(1, len(scored)), 3),
         "firmware_vs_float_max_pct": round(max(vs), 4) if vs else None,
@@ -453,6 +458,8 @@ def markdown(out: dict) -> str:
               f"{base['silent_winds']} {base['silent_seeds'] or ''} |",
               f"| false warnings per wind (ropes truly within {FALSE_BELOW:.0%}) | {pop['false_warnings_per_wind']} | "
               f"{base['false_warnings_per_wind']} |",
+              f"| share of the time a deviation alarm or warning stands on a rope truly within {FALSE_BELOW:.0%} | "
+              f"{_q(pop['warning_share'])} | {_q(base['warning_share'])} |",
               f"| false warnings per wind, {SUPERPOSED:.0%} superposed on each rope | "
               f"{pop['superposed_false_warnings_per_wind']} | {base['superposed_false_warnings_per_wind']} |",
               f"| firmware vs float reference, max % of rated | {pop['firmware_vs_float_max_pct']} | "

@@ -110,8 +110,10 @@ def test_an_alarm_on_a_rope_truly_within_8_percent_is_a_false_warning():
     shown = wind(np.full(100, 0.11))
     fig = P.alarm_figures(frames_from(shown), truth, FRAME_S, baseline)
     assert fig["false_warnings"] >= 1 and fig["episodes"] == 0
+    # rope 2's alarm stands from 0.5 s on (debounce) through 10 s: ~95 % of one rope in four
+    assert fig["warning_share"] == pytest.approx(0.25 * 0.95, abs=0.01)
     fig = P.alarm_figures(frames_from(truth), truth, FRAME_S, baseline)
-    assert fig["false_warnings"] == 0
+    assert fig["false_warnings"] == 0 and fig["warning_share"] == 0.0
 
 
 def test_superposed_deviation_moves_tension_and_pressure_together():
