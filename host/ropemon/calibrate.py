@@ -778,12 +778,10 @@ def fit(rec: Record, source: str = "") -> tuple[dict[str, Any], list[Level], lis
     if slope_ok and not (sim_ok and slope["lugre_shape"]):
         lugre = slope["lugre_shape"]
         method = "initial-slope (LuGre start)" if lugre else "initial-slope (elastic start)"
-        # The node's LuGre starts a reversal from sliding at 2 sigma0: half the seal's own initial
-        # slope there, whatever the seal's law, so the node's seal turns as stiffly as the real one.
-        s0 = slope["lugre_sigma0"] if lugre else 0.5 * slope["sigma0"]
+        s0 = slope["lugre_sigma0"] if lugre else slope["sigma0"]
         s1, src = s0 * DEFAULT_DAMPING_TIME_S, "fitted sigma0, default sigma1"
         how = ("half the initial stiffness of LuGre's exponential start" if lugre else
-               "half the initial stiffness of the seal's elastic (linear) start, LuGre's 2 sigma0 at a turn")
+               "the initial stiffness of the seal's elastic (linear) start")
         warnings.append(f"sigma0 from the slow reversals' initial slope ({how}: {s0:.3g} N/m over "
                         f"{slope['turns']} reversals{'' if lugre else ', not a LuGre seal'}); "
                         f"sigma1 = {DEFAULT_DAMPING_TIME_S:g} s x sigma0")
