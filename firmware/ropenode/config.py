@@ -57,6 +57,8 @@ friction.alpha_l_q14 1 16384
 friction.alpha_a_q14 1 16384
 friction.noise_ref_q6 0 262144
 friction.noise_shift 0 16
+friction.slide_lo_q8um 0 16777216
+friction.slide_span_q8um 0 1048576
 temperature.fitted 0 1
 temperature.counts_at_0c 0 65535
 temperature.cc_mul -16384 16384
@@ -318,6 +320,9 @@ def parse_node(nd):
     # noise following (level in kPa/16, Q6; 0: the plays are fixed) needs its low-pass
     if (c.noise_ref_q6 == 0) != (c.noise_shift == 0):
         raise ConfigError(FP + ".noise_shift", "0 exactly when noise_ref_q6 is 0")
+    # slide following (lo, span in um/256): a span of 0 is off, and then lo is 0 too
+    if c.slide_span_q8um == 0 and c.slide_lo_q8um != 0:
+        raise ConfigError(FP + ".slide_lo_q8um", "must be 0 when slide_span_q8um is 0 (off)")
     # the pressure tracker's Kalman gains: of c (Q14), v (Q(14 + tracker_v_shift)), b0, b1
     # (Q(14 + tracker_b_shift))
     c.tracker_k_q14 = _ints(fr, "tracker_k_q14", FP, 4, 4, -16384, 16384)

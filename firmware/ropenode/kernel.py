@@ -90,7 +90,9 @@ _TVSH = const(57)    # v is held 2**TVSH finer than c
 _TBSH = const(58)    # b is held 2**TBSH finer than c
 _NREF = const(59)    # noise following: the channels' noise level the plays are sized for, kPa/16 Q6 (0: fixed)
 _NSH = const(60)     # its low-pass gain is 2**-NSH
-_AREA = const(61)    # cylinder area per rope over the ropes' mean, Q8
+_SLO = const(61)     # slide following: |e| from which e's take-over is seal travel, um/256
+_SSPAN = const(62)   # and over which its share rises to all of it, um/256 (0: off)
+_AREA = const(63)    # cylinder area per rope over the ropes' mean, Q8
 _KQ = const(_AREA + ROPES_MAX)  # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
 _PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n healthy pressure channels
 _RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
@@ -202,7 +204,8 @@ def pack(c):
         _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14,
         c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16,
         c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (
-        c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift)
+        c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift, c.slide_lo_q8um,
+        c.slide_span_q8um)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS),
@@ -745,20 +748,33 @@ def step(rec, P, S, n):
         re = 0
         if mode == 0:
             # what e holds beyond a quarter of the threshold (noise: 1.6 sigma) is
-            # real unequal sharing: x_h takes it over at 1/64 per sample, without
-            # seal travel; a stroke's e runs faster than that and still shows
+            # real unequal sharing: x_h takes it over at 1/64 per sample; a stroke's e
+            # runs faster than that and still shows. Slide following: of that take-over
+            # the share f = (|e| - lo) / span (0 .. 1, Q8 rounded) is the piston's proven
+            # travel: it is left out of x_h, and x_h's next step carries it into x_s
+            # (|e| < 2**27: c < 2**21, c f < 2**29; d < span <= 2**20: d << 8 < 2**29)
             lim = th >> 2
+            slo = P[_SLO]
+            sspan = P[_SSPAN]
             for i in range(n):
                 t = S[_E + i]
                 c = t
                 if t < 0:
                     c = -t
                 if c > lim:
+                    d = c - slo
                     c = (c - lim + 32) >> 6
+                    r = 0
+                    if sspan != 0 and d > 0:
+                        if d >= sspan:
+                            r = c
+                        else:
+                            r = (c * (((d << 8) + (sspan >> 1)) // sspan) + 128) >> 8
                     if t < 0:
                         c = -c
+                        r = -r
                     S[_XB_Q8UM + i] += c
-                    S[_XH_Q8UM + i] += c
+                    S[_XH_Q8UM + i] += c - r
                     S[_E + i] = t - c
             c = S[_CL]
             if c < 0:

@@ -55,6 +55,13 @@ DEFAULTS = {
     "stroke_sigmas": 6.5,
     "stroke_min_speed_m_s": 1e-5,
     "stroke_settle_s": 4.0,
+    # slide following (docs/model.md, "Balancing strokes"): outside a stroke, of what x_h
+    # takes over from e the share (|e| - lo) / (hi - lo), 0 .. 1, with lo and hi these
+    # many times e's rms noise, is the piston's proven travel and goes into the seal state
+    # (slide_follow false, or both sigmas 0: off; chosen on tuning seeds)
+    "slide_follow": True,
+    "slide_follow_lo_sigmas": 3.0,
+    "slide_follow_hi_sigmas": 5.0,
     # rest hold (docs/model.md), with a compliance: a rope is quiet while the low-pass of
     # |x_s - x_l| (x_l: a slower low-pass of x_s) stays below rest_sigmas times the
     # position noise; then b stands and the play widens to rest_play_sigmas, so the noise
@@ -348,9 +355,22 @@ def physical_params(ph: dict) -> dict:
     # ropes (stroke_sigmas 0: not tracked)
     stroke_m = 0.0
     sigmas = _num(ph, "stroke_sigmas", 0.0, 100.0)
+    # slide following: lo and the span hi - lo in e's noise, in the node's um/256 (span >= 1)
+    slide_on = _get(ph, "slide_follow")
+    if not isinstance(slide_on, bool):
+        raise ValueError("physical.slide_follow: must be true or false")
+    lo_s = _num(ph, "slide_follow_lo_sigmas", 0.0, 100.0)
+    hi_s = _num(ph, "slide_follow_hi_sigmas", 0.0, 100.0)
+    if (lo_s or hi_s) and hi_s <= lo_s:
+        raise ValueError(f"physical.slide_follow_hi_sigmas: {hi_s:g} must exceed "
+                         f"slide_follow_lo_sigmas {lo_s:g} (both 0: off)")
+    slide_lo_m = slide_span_m = 0.0
     if any(k) and n > 1 and sigmas > 0:
         e_noise = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_e)
         stroke_m = max(1, round(sigmas * e_noise * 256e6)) / 256e6
+        if slide_on and hi_s > lo_s:
+            slide_lo_m = round(lo_s * e_noise * 256e6) / 256e6
+            slide_span_m = max(1, round((hi_s - lo_s) * e_noise * 256e6)) / 256e6
     return {
         "ropes": n,
         "alpha": alpha,
@@ -359,6 +379,8 @@ def physical_params(ph: dict) -> dict:
         "alpha_e": alpha_e,
         "area_w": area_w,
         "stroke_m": stroke_m,
+        "slide_lo_m": slide_lo_m,      # slide following: |e| from which the take-over is travel
+        "slide_span_m": slide_span_m,  # and over which it becomes all travel (0: off)
         # um/65536 per sample, as the node compares it (at most 2**29)
         "stroke_vmin": min(round(_num(ph, "stroke_min_speed_m_s", 0.0, 1.0) / fs * 1e6 * 65536), 1 << 29) / 65536e6,
         "stroke_settle": round(_num(ph, "stroke_settle_s", 0.0, 300.0) * fs),
@@ -517,6 +539,11 @@ def build_node_section(ph: dict) -> dict:
     rest_q16um = [round(w * 65536e6) for w in pp["rest_m"]]  # the activity is held in um/65536
     stroke_q8um = round(pp["stroke_m"] * 256e6)
     _check("physical.stroke_sigmas (stroke threshold, um/256)", stroke_q8um, (1 << 15) + 1)
+    slide_lo_q8um = round(pp["slide_lo_m"] * 256e6)
+    slide_span_q8um = round(pp["slide_span_m"] * 256e6)
+    _check("physical.slide_follow_lo_sigmas (slide following's lo, um/256)", slide_lo_q8um, (1 << 24) + 1)
+    _check("physical.slide_follow_hi_sigmas (slide following's span hi - lo, um/256)",
+           slide_span_q8um, (1 << 20) + 1)
     _check("physical.friction_play_sigmas (play half-width, um/256)", max(play_q8um), 1 << 24)
     _check("physical.rest_play_sigmas (play half-width, um/256)", max(rest_play_q8um), (1 << 20) + 1)
     _check("physical.rest_sigmas (activity threshold, um/65536)", max(rest_q16um), (1 << 21) + 1)
@@ -610,6 +637,7 @@ def build_node_section(ph: dict) -> dict:
                       "stroke_q8um": stroke_q8um,
                       "stroke_vmin_q16": round(pp["stroke_vmin"] * 65536e6),
                       "stroke_settle": min(pp["stroke_settle"], 65535),
+                      "slide_lo_q8um": slide_lo_q8um, "slide_span_q8um": slide_span_q8um,
                       **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
     fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p for p in (0.0, p_kpa_max / 1000))
     f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous

@@ -142,13 +142,11 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
     (m): "dxs" of the LuGre position and "dxp" of its play (tools/observer_losses.py),
     and "noise_ratio"[sample], the noise following's ratio (1: as commissioned).
 
-    Opt-in prototype, not in the node (absent: the node's observer, bit for bit):
-    `ph["slide_follow"] = {"lo": 3, "hi": 5, "start": 0.25, "gain": 1/64, "stroke_travel": bool}`.
-    Outside a stroke, what e holds beyond `start` x the stroke threshold is taken into x_h
-    at `gain` per sample as now, but a share f = clip((|e| - lo sig_e) / ((hi - lo) sig_e), 0, 1)
-    of it (sig_e: e's rms noise, threshold / stroke_sigmas) enters as seal travel (x_s and
-    the play, next sample) instead of re-anchoring x_h; with `stroke_travel` the stroke
-    piston's e at a stroke's end does too."""
+    Slide following (physical `slide_follow`, `slide_follow_lo_sigmas` 3, `_hi_sigmas` 5,
+    as the node): outside a stroke, what e holds beyond a quarter of the stroke threshold
+    is taken into x_h at 1/64 per sample, and a share f = clip((|e| - lo) / (hi - lo), 0, 1)
+    of it (lo, hi in e's rms noise) enters as seal travel (x_s and the play, next sample)
+    instead of re-anchoring x_h."""
     pp = physical_params(ph)
     n = pp["ropes"]
     fs = float(ph["sample_hz"])
@@ -184,8 +182,6 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
         OK[:, i] = p_ok & x_ok
         POK[:, i] = p_ok
-    pp = {**pp, "slide": ph.get("slide_follow"),
-          "stroke_sigmas": float(ph.get("stroke_sigmas", DEFAULTS["stroke_sigmas"]))}  # opt-in prototype (default: none)
     DX, DXS, DXP, NR = _observer(pp, P, X, OK, POK, fs, strokes)
     if increments is not None:
         increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR)
@@ -292,16 +288,10 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
     xf, xs, xp, xh, pl, xb, e, mot, xl, act = ([0.0] * n for _ in range(10))
     w = [0] * n
     cl, mode, sgn, cnt = 0.0, 0, 0, 0
-    # opt-in prototype `slide_follow` (physical; none: the node's observer): what e holds
-    # beyond `lo` .. `hi` times its noise is proven travel of the piston: the share taken
-    # into x_h goes in as seal travel (through x_s and the play), not re-anchored
-    sl = pp.get("slide")
-    sl_on = bool(sl) and th > 0
-    if sl_on:
-        sig_e = th / pp["stroke_sigmas"]  # e's rms noise
-        sl_lo, sl_hi = float(sl.get("lo", 3.0)) * sig_e, float(sl.get("hi", 5.0)) * sig_e
-        sl_g = float(sl.get("gain", 1.0 / 64))
-        sl_start = float(sl.get("start", 0.25)) * th
+    # slide following: what e holds beyond lo .. lo + span (times its noise) is proven
+    # travel of the piston: that share of the take-over goes in as seal travel (through
+    # x_s and the play), not re-anchored (span 0: off)
+    sl_lo, sl_span = pp["slide_lo_m"], pp["slide_span_m"]
     clamp = lambda v, lim: lim if v > lim else (-lim if v < -lim else v)  # noqa: E731
     for j, (xr, pr, okr, pokr) in enumerate(zip(X.tolist(), P.tolist(), OK.tolist(), POK.tolist())):
         healthy = [p for p, ok in zip(pr, pokr) if ok]
@@ -399,25 +389,17 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
         s = 1 if cl > 0 else -1
         moving = abs(cl) > vmin
         re = False
-        was = mode
         if mode == 0:
             # e beyond a quarter of the threshold (noise: 1.6 sigma) is real unequal
-            # sharing: x_h takes it over at 1/64 per sample, without seal travel
+            # sharing: x_h takes it over at 1/64 per sample; with slide following the
+            # share f of it is left out of x_h: x_h's next step carries it into x_s
             for i in range(n):
-                if sl_on:
-                    a = abs(e[i]) - sl_start
-                    if a > 0:
-                        f = min(max((abs(e[i]) - sl_lo) / (sl_hi - sl_lo), 0.0), 1.0)
-                        a = math.copysign(a * sl_g, e[i])
-                        xb[i] += a
-                        xh[i] += a * (1 - f)  # the rest moves x_h (and x_s) at the next step
-                        e[i] -= a
-                    continue
                 a = abs(e[i]) - th / 4
                 if a > 0:
+                    f = min(max((abs(e[i]) - sl_lo) / sl_span, 0.0), 1.0) if sl_span > 0 else 0.0
                     a = math.copysign(a / 64, e[i])
                     xb[i] += a
-                    xh[i] += a
+                    xh[i] += a * (1 - f)
                     e[i] -= a
             if moving and s != sgn:
                 sgn, cnt = s, 0
@@ -450,8 +432,7 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
         if re:  # a stroke starts or ends: x_h re-anchored by e, without seal travel
             for i in range(n):
                 xb[i] += e[i]
-                if not (sl_on and sl.get("stroke_travel") and i == was - 1):
-                    xh[i] += e[i]  # (prototype: the stroke piston's lag goes in as travel)
+                xh[i] += e[i]
                 e[i] = 0.0
     return dx, dxs, dxp, nr
 

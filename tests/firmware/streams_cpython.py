@@ -100,3 +100,33 @@ def run_node(node, recs: np.ndarray, per_sample: bool = True):
             m = node.frame_into(buf)
             frames.append(bytes(buf[:m]))
     return ten, good, frames
+
+
+def slide_stream(ph: dict, k_m: float, seed: int, slide_um_s: float = 20.0, seconds: float = 34.0):
+    """(records, true positions[k, N], pressure) of differential sliding outside a stroke: the
+    pressure rises by 1 MPa at 50 kPa/s from 6 s (every piston moves k dp, 15 um/s at
+    3e-10 m/Pa), and from 6 s to 26 s rope 1's piston slides `slide_um_s` ahead of that
+    while rope 2's slides as far back (the oil they share is kept), so the two part by
+    ~1 mm at 25 um/s; then a 2 Hz bounce that all share. 2 counts of displacement noise,
+    no oil temperature input."""
+    n = int(ph["ropes"])
+    fs = int(ph["sample_hz"])
+    t = np.arange(0, seconds, 1 / fs)
+    p_pa = 5e6 + 50e3 * np.clip(t - 6, 0, 20)
+    after = np.clip(t - 26, 0, None)
+    p_pa = p_pa + np.where(t >= 26, 2e4 * np.sin(2 * np.pi * 2 * after) * np.exp(-after / 2), 0)
+    x = k_m * (p_pa - p_pa[0])[:, None] * np.ones(n)
+    slide = slide_um_s * 1e-6 * np.clip(t - 6, 0, 20)
+    x[:, 0] += slide
+    x[:, 1] -= slide
+    recs = np.zeros((len(t), 2 * n + 4), np.uint16)
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
+        lo, hi = pc["range_Pa"]
+        recs[:, i] = np.round(pc["counts_4mA"] + (p_pa - lo) / (hi - lo) * (pc["counts_20mA"] - pc["counts_4mA"]))
+        ylo, yhi = dc["range_m"]
+        cx = dc["counts_lo"] + (0.5 * (ylo + yhi) + x[:, i] - ylo) / (yhi - ylo) * (dc["counts_hi"] - dc["counts_lo"])
+        recs[:, n + i] = np.round(cx + rng.normal(0, 2.0, len(t)))
+    recs[:, 2 * n + 1] = 0xFFFF
+    return recs, x, p_pa

@@ -36,10 +36,10 @@ def load_node_json():
     raise OSError("firmware/node.json (beside firmware/ropenode) not found on sys.path")
 
 
-def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64):
+def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64, slide_span_q8um=1 << 20):
     """The shipped node.json changed (fewer ropes, an oil temperature input, the largest
-    hydraulic compliance the node accepts with a warm-up and noise following from
-    `noise_ref_q6`), CRC renewed."""
+    hydraulic compliance the node accepts with a warm-up, noise following from
+    `noise_ref_q6` and slide following over `slide_span_q8um`), CRC renewed."""
     from ropenode.config import canonical
     from ropenode.crc16 import crc16
     doc = load_node_json()
@@ -70,6 +70,9 @@ def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64
         # noise following as fast as it goes: the streams' random counts take its ratio over
         # its whole range (half to twice), from a level of 1 kPa/16 (64) or the largest one
         nd["friction"].update(noise_ref_q6=noise_ref_q6, noise_shift=1)
+        # slide following from 1 um of e over the given span (the largest: e's random values
+        # fall both within and beyond it; 1: a share of 0 or all)
+        nd["friction"].update(slide_lo_q8um=256, slide_span_q8um=slide_span_q8um)
         nd["friction"].update(compliance_q=[131071] * nd["ropes"], compliance_shift=9,
                               warmup_samples=400, alpha_e_q14=4096, stroke_q8um=1, stroke_vmin_q16=0,
                               stroke_settle=0, area_q8=[(128, 384)[i % 2] for i in range(nd["ropes"])])

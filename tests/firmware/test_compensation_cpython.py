@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from streams_cpython import random_stream, run_node
+from streams_cpython import random_stream, run_node, slide_stream
 
 from ropemon import protocol, reference
 from ropemon.firmware import node_module
@@ -355,6 +355,55 @@ def test_a_balancing_stroke_is_followed_and_the_bounce_after_it_seen(seed):
     # seed 31: 290 N with tracking, 254 N without the stroke, 2038 N untracked (Fs 6 kN)
     assert rms[None] < 1.5 * floor and rms[None] < 0.06 * ph["friction"]["Fs"]["intercept"], (rms, floor)
     assert rms[0.0] > 4 * rms[None], rms
+
+
+@pytest.mark.parametrize("seed", [61, 62])
+def test_differential_sliding_outside_a_stroke_is_seal_travel_with_slide_following(seed):
+    """Two pistons part by 1 mm over 20 s (25 um/s each way, the oil they share kept) while
+    the pressure rises 1 MPa: rope 2's piston moves back against its compression, so its
+    seal slides the other way. Its e stays below the stroke threshold (no stroke), and
+    what x_h takes over from e is proven travel beyond 3 .. 5 sigma of e's noise: with
+    slide following (the default) the seal state follows (rope 2's friction 1.1 kN rms
+    off the true seal's, against 8.2 kN without: it never sees the reversal). Node and
+    reference agree with it on and off."""
+    k_m = 3e-10
+    ph = example_physical()
+    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5,
+                          **{key: {"intercept": ph["friction"][key]["intercept"] + 4.5 * ph["friction"][key]["slope"],
+                                   "slope": 0.0} for key in ("Fs", "Fc")})
+    ph["piston_speed_max_m_s"] = 0.05
+    ph["hydraulic_compliance_m_per_Pa"] = [k_m] * 4
+    for key in COMPLIANCE_DEFAULTS:  # the observer a site with a compliance gets
+        ph.pop(key, None)
+    doc = make_node_json(ph)
+    ph = doc["physical"]
+    fr = doc["node"]["friction"]
+    # lo and hi - lo: 3 and 2 times e's noise, the stroke threshold 6.5 times it
+    assert abs(fr["slide_lo_q8um"] / fr["stroke_q8um"] - 3 / 6.5) < 0.01
+    assert abs(fr["slide_span_q8um"] / fr["stroke_q8um"] - 2 / 6.5) < 0.01
+    fs = int(ph["sample_hz"])
+    recs, x, p_pa = slide_stream(ph, k_m, seed, slide_um_s=25.0)
+    truth = _true_friction(ph, x, p_pa)
+    fric, rms = {}, {}
+    for on in (True, False):
+        phv = dict(ph, slide_follow=on)
+        docv = make_node_json(phv)
+        assert (docv["node"]["friction"]["slide_span_q8um"] > 0) == on
+        strokes = []
+        ref = reference.compensate(phv, recs, strokes=strokes)
+        assert strokes == []  # differential sliding, not a stroke
+        node = Node(config.parse(docv))
+        ten, good, _ = run_node(node, recs)
+        assert good[fs:].all()
+        err = np.abs(ten - ref.tension_n)[good]
+        assert err.max() <= _tolerance_n(docv), (on, err.max())
+        fric[on] = ref.friction_n
+        after = slice(6 * fs, None)
+        rms[on] = np.sqrt(np.mean((ref.friction_n[after] - truth[after]) ** 2, axis=0))
+    assert np.abs(fric[True] - fric[False]).max() > 5000  # the option visibly changes the output
+    assert rms[True][1] < 0.2 * rms[False][1] and rms[True][1] < 1500, rms
+    assert rms[True][0] < rms[False][0], rms  # rope 1 slides on with its compression: no worse
+    assert np.abs(rms[True][2:] - rms[False][2:]).max() < 1.0, rms  # the ropes that share stay as they were
 
 
 def test_node_and_reference_take_the_same_stroke_at_the_same_sample():

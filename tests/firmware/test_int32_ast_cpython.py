@@ -180,7 +180,8 @@ def run_armed(monitor: RangeMonitor, seeds=(1, 7, 99), count=1600) -> int:
     The shipped config with each seed, then the oil-temperature-fitted 4-rope
     and 1-rope variants (temperature words across the whole u16 range), and the
     largest hydraulic compliance the node accepts, its noise following over its whole
-    range from the smallest and the largest level.
+    range from the smallest and the largest level (and slide following over the largest
+    and the smallest span).
     """
     import array
 
@@ -188,7 +189,7 @@ def run_armed(monitor: RangeMonitor, seeds=(1, 7, 99), count=1600) -> int:
     from ropenode.node import K
     runs = [(None, seed) for seed in seeds] + [
         (test_alloc.variant_doc(temp_fitted=True), 5), (test_alloc.variant_doc(ropes=1, temp_fitted=True), 6),
-        (test_alloc.variant_doc(compliance=True), 8), (test_alloc.variant_doc(compliance=True, noise_ref_q6=1 << 18), 9)]
+        (test_alloc.variant_doc(compliance=True), 8), (test_alloc.variant_doc(compliance=True, noise_ref_q6=1 << 18, slide_span_q8um=1), 9)]
     done = 0
     for doc, seed in runs:
         node, ropes, chans = test_alloc.build_node(doc)

@@ -81,6 +81,10 @@ def test_gexp_table():
     ("rest_play_sigmas", 1.0),          # narrower than the play (2.0) with the rest hold on
     ("rest_cutoff_hz", 0.0),
     ("rest_slow_cutoff_hz", 150.0),     # above sample_hz / 2
+    ("slide_follow", 1),                # true or false
+    ("slide_follow_lo_sigmas", -1.0),
+    ("slide_follow_hi_sigmas", 2.0),    # not above lo (3)
+    ("slide_follow_hi_sigmas", 101.0),
 ])
 def test_lugre_observer_keys_are_range_checked(key, bad):
     ph = example_physical()
@@ -155,6 +159,36 @@ def test_stroke_tracking_needs_a_compliance_and_shares_by_area():
     assert build_node_section(dict(ph, cylinder_area_m2=[a, a, a, 1.2 * a]))["friction"]["area_q8"] == [244] * 3 + [293]
     with pytest.raises(ValueError, match=r"cylinder_area_m2\[3\]: 2.00 times"):
         build_node_section(dict(ph, cylinder_area_m2=[a, a, a, 3 * a]))
+
+
+def test_slide_following_is_built_in_the_noise_of_e_and_refused_when_inconsistent():
+    """On by default with a compliance (where strokes are tracked): lo 3 and hi - lo 2
+    times e's rms noise (the stroke threshold is 6.5), in um/256; off without strokes, with
+    slide_follow false, or both sigmas 0. The node refuses a lo without a span by name."""
+    ph = example_physical()
+    fr = build_node_section(ph)["friction"]
+    assert fr["slide_lo_q8um"] == fr["slide_span_q8um"] == 0  # no compliance: no strokes
+    ph["hydraulic_compliance_m_per_Pa"] = [3e-10] * 4
+    fr = build_node_section(ph)["friction"]
+    sig_e = fr["stroke_q8um"] / 6.5
+    assert abs(fr["slide_lo_q8um"] - 3 * sig_e) < 1 and abs(fr["slide_span_q8um"] - 2 * sig_e) < 1
+    fr = build_node_section(dict(ph, slide_follow_lo_sigmas=1.0, slide_follow_hi_sigmas=1.5))["friction"]
+    assert abs(fr["slide_lo_q8um"] - sig_e) < 1 and abs(fr["slide_span_q8um"] - sig_e / 2) < 1
+    for off in ({"slide_follow": False}, {"slide_follow_lo_sigmas": 0, "slide_follow_hi_sigmas": 0},
+                {"stroke_sigmas": 0}):
+        fr = build_node_section(dict(ph, **off))["friction"]
+        assert fr["slide_lo_q8um"] == fr["slide_span_q8um"] == 0, off
+    nd = build_node_section(ph)
+    nd["friction"]["slide_span_q8um"] = 0
+    with pytest.raises(config.ConfigError) as e:
+        config.parse_node(nd)
+    assert e.value.field == "node.friction.slide_lo_q8um", e.value.field
+    nd["friction"]["slide_span_q8um"] = (1 << 20) + 1
+    with pytest.raises(config.ConfigError) as e:
+        config.parse_node(nd)
+    assert e.value.field == "node.friction.slide_span_q8um", e.value.field
+    with pytest.raises(ValueError, match=r"^physical.slide_follow_hi_sigmas \(slide following's span"):
+        build_node_section(dict(ph, displacement_noise_m=1e-3, stroke_sigmas=0.5, slide_follow_hi_sigmas=100.0))
 
 
 def test_node_refuses_a_rest_play_narrower_than_the_play():
