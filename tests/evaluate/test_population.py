@@ -135,3 +135,27 @@ def test_quantiles_ignore_missing_values():
     q = P.quantiles([1.0, None, float("nan"), 3.0, 2.0])
     assert q == {"median": 2.0, "p95": pytest.approx(2.9), "n": 3}
     assert P.quantiles([None])["median"] is None
+
+
+def test_one_drawn_wind_end_to_end_and_the_json_summary(tmp_path):
+    """A drawn hoist simulated, commissioned (quick bed), run through the firmware under
+    micropython and scored; the summary has the fields `ropemon evaluate --population --json` prints."""
+    from ropemon.evaluate import BED_QUICK, FIRMWARE
+
+    r = P.run_wind(1, tmp_path, firmware=True, bed=BED_QUICK)
+    assert "error" not in r, r.get("error")
+    assert r["law"] == P.draw(1).law
+    fw = r["estimators"][FIRMWARE]
+    assert 0 < fw["rope_rms_pct"] < 50 and fw["pithead_total_pct"] is not None
+    assert r["firmware_vs_float_max_pct"] is not None
+    for which in ("baseline", "node"):
+        al = r["alarms"][which]
+        assert al["superposed"]["cases"] == 8 and al["superposed"]["episodes"] >= 8
+    s = P.summary([r], "node")
+    for key in ("rope_rms_pct", "rope_peak_pct", "pithead_total_abs_pct"):
+        assert set(s[key]) >= {"median", "p95"}
+    assert s["winds"] == 1 and isinstance(s["silent_winds"], int)
+    assert s["false_warnings_per_wind"] is not None and s["firmware_vs_float_max_pct"] is not None
+    assert "| silent winds |" in P.markdown({"population": s, "baseline": P.summary([r], "baseline"),
+                                             "by_law": P.by_law([r]), "seeds": "tuning", "wall_s": 1.0,
+                                             "winds": [r]})
