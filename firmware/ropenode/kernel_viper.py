@@ -649,22 +649,22 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
         re = 0
         if mode == 0:
             lim = th >> 2
-            slo = (P[_SLO] ^ s31) - s31
-            sspan = (P[_SSPAN] ^ s31) - s31
+            lo = (P[_SLO] ^ s31) - s31
+            hi = (P[_SSPAN] ^ s31) - s31
             for i in range(n):
                 t = (S[_E + i] ^ s31) - s31
                 c = t
                 if t < 0:
                     c = -t
                 if c > lim:
-                    d = c - slo
+                    d = c - lo
                     c = c - lim + 32 >> 6
                     r = 0
-                    if sspan != 0 and d > 0:
-                        if d >= sspan:
+                    if hi != 0 and d > 0:
+                        if d >= hi:
                             r = c
                         else:
-                            r = c * (((d << 8) + (sspan >> 1)) // sspan) + 128 >> 8
+                            r = c * (((d << 8) + (hi >> 1)) // hi) + 128 >> 8
                     if t < 0:
                         c = -c
                         r = -r
