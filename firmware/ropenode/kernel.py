@@ -752,7 +752,7 @@ def step(rec, P, S, n):
             # runs faster than that and still shows. Slide following: of that take-over
             # the share f = (|e| - lo) / span (0 .. 1, Q8 rounded) is the piston's proven
             # travel: it is left out of x_h, and x_h's next step carries it into x_s
-            # (|e| < 2**27: c < 2**21, c f < 2**29; d < span <= 2**20: d << 8 < 2**29).
+            # (|e| < 2**27: c < 2**21, c f < 2**29; d < span <= 2**20: d << 8 < 2**28).
             # lo and hi (the median's ranks, done with) hold lo and span: a new local
             # would cost the viper step's every sample (1.45 -> 3.4 us on the unix port)
             lim = th >> 2
