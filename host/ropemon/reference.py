@@ -422,10 +422,20 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             # the stopped pistons' x_h went on with the pressure until the stroke was
             # seen: their offset is the stroke piston's lead shared by area, plus the
             # lag of e (a low-pass) behind that ramp
+            # in the node's steps (kernel.py): the area ratio in Q8 (floored), the common
+            # motion per unit area in um/4096 (floored, |cl| held within 2**25 and the
+            # quotient within 65535 of the node's units) and the lag in um/256 (floored):
+            # a systematic offset of up to ~0.01 um otherwise, which x_h keeps and the
+            # next stroke threshold sees
             others = sum(aw[i] for i in range(n) if i != mode - 1)
             if others > 0:
-                lag = cl / sum(aw) * (1 - alpha_e) / alpha_e
-                lead = e[mode - 1] * aw[mode - 1] / others
+                aq = [round(a * 256) for a in aw]
+                so = sum(aq) - aq[mode - 1]
+                ae = round(alpha_e * 16384)
+                c = clamp(cl * 256e6 * 256, float(1 << 25))
+                t = clamp(float(math.floor(16 * c / sum(aq))), 65535.0)
+                lag = math.floor(t * (16384 - ae) / (ae << 4)) / 256e6
+                lead = e[mode - 1] * ((aq[mode - 1] << 8) // so) / 256
                 for i in range(n):
                     if i != mode - 1:
                         e[i] = -lead - lag

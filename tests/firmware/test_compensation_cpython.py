@@ -467,6 +467,48 @@ def test_at_a_stroke_start_the_stopped_pistons_are_placed_where_they_stopped():
     assert abs(offsets.mean()) < 0.5 and np.sqrt(np.mean(offsets ** 2)) < 0.7, offsets
 
 
+def test_a_drawn_winds_stroke_starts_place_the_stopped_pistons_in_the_nodes_steps():
+    """The first 7.5 s of a drawn hoist's wind whose ropes part through it (population
+    tuning seed 14, groove creep: tests/vectors/drawn-wind-stroke-end.npz, its stream and
+    commissioned config). At a stroke start the stopped ropes' e is the stroke piston's
+    lead shared by area plus the lag of e; the node takes the area ratio in Q8 and the
+    lag in its floored steps, and x_h keeps that offset (up to ~0.01 um): the float
+    reference taking them exactly ended the next stroke one sample before the node did,
+    and the one sample of x_h standing or not put them 0.064 % of rated apart (0.085 %
+    on a frame later in the wind). The reference now takes them in the node's steps:
+    the same strokes at the same samples and 0.005 % apart."""
+    import array
+    import json
+    from pathlib import Path
+
+    vec = np.load(Path(__file__).resolve().parents[1] / "vectors" / "drawn-wind-stroke-end.npz")
+    doc = json.loads(str(vec["node_json"]))
+    recs = vec["records"]
+    ph = doc["physical"]
+    ref = []
+    comp = reference.compensate(ph, recs, strokes=ref)
+    node = Node(config.parse(doc))
+    kernel = node_module("kernel")
+    mode, events = 0, []
+
+    # the node's stroke starts and ends (as tools/stroke_events.py reads them) and tensions
+    ten = np.zeros((len(recs), node.n))
+    good = np.zeros((len(recs), node.n), bool)
+    rec = array.array("H", [0] * recs.shape[1])
+    for j, row in enumerate(recs.tolist()):
+        rec[:] = array.array("H", row)
+        node.sample(rec)
+        ten[j] = node.rope(kernel.TENSION_N)
+        good[j] = [(node.S[kernel.GOOD] >> i) & 1 for i in range(node.n)]
+        if node.S[kernel._SMODE] != mode:
+            mode = node.S[kernel._SMODE]
+            events.append((j, mode - 1))
+    assert len(events) >= 2 and events == [(j, r) for j, r, _ in ref], (events, ref)
+    assert (good == comp.good).all()
+    err = np.abs(ten - comp.tension_n)[good]
+    assert err.max() <= _tolerance_n(doc), err.max() / ph["rated_rope_tension_N"]
+
+
 def _rest_records(ph: dict, seconds: float, seed: int, noise_pa=5200.0) -> tuple[np.ndarray, np.ndarray]:
     """(records, t) of a loading (4 -> 5 MPa over 4 s, from 3 s) and then a long rest: the
     pistons move only as their oil compresses (x = k p), each pressure channel with 5.2 kPa
