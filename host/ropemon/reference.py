@@ -422,7 +422,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             # the stopped pistons' x_h went on with the pressure until the stroke was
             # seen: their offset is the stroke piston's lead shared by area, plus the
             # lag of e (a low-pass) behind that ramp
-            # in the node's steps (kernel.py): the area ratio in Q8 (floored), the common
+            # in the node's steps (kernel.py): the area ratio in Q8 and the lead in um/256
+            # (floored), the common
             # motion per unit area in um/4096 (floored, |cl| held within 2**25 and the
             # quotient within 65535 of the node's units) and the lag in um/256 (floored):
             # a systematic offset of up to ~0.01 um otherwise, which x_h keeps and the
@@ -435,7 +436,7 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                 c = clamp(cl * 256e6 * 256, float(1 << 25))
                 t = clamp(float(math.floor(16 * c / sum(aq))), 65535.0)
                 lag = math.floor(t * (16384 - ae) / (ae << 4)) / 256e6
-                lead = e[mode - 1] * ((aq[mode - 1] << 8) // so) / 256
+                lead = math.floor(e[mode - 1] * 256e6 * ((aq[mode - 1] << 8) // so) / 256) / 256e6
                 for i in range(n):
                     if i != mode - 1:
                         e[i] = -lead - lag

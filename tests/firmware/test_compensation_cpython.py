@@ -471,8 +471,8 @@ def test_a_drawn_winds_stroke_starts_place_the_stopped_pistons_in_the_nodes_step
     """The first 7.5 s of a drawn hoist's wind whose ropes part through it (population
     tuning seed 14, groove creep: tests/vectors/drawn-wind-stroke-end.npz, its stream and
     commissioned config). At a stroke start the stopped ropes' e is the stroke piston's
-    lead shared by area plus the lag of e; the node takes the area ratio in Q8 and the
-    lag in its floored steps, and x_h keeps that offset (up to ~0.01 um): the float
+    lead shared by area plus the lag of e; the node takes the area ratio in Q8, the lead
+    and the lag in its floored steps, and x_h keeps that offset (up to ~0.01 um): the float
     reference taking them exactly ended the next stroke one sample before the node did,
     and the one sample of x_h standing or not put them 0.064 % of rated apart (0.085 %
     on a frame later in the wind). The reference now takes them in the node's steps:
