@@ -52,11 +52,13 @@ from ropemon.protocol import DAN_TO_N, Frame, L
 SEQ_BOOT_SHIFT = 20   # seq = (boot << 20) | count (docs/protocol.md)
 
 #: The band's parameters, host only, in node.json's `physical` (docs/config.md), with defaults.
+# Chosen on the population's tuning seeds (host/ropemon/population.py; docs/accuracy.md): among the
+# settings with no silent wind there, the one whose warnings stand least on ropes truly within 8 %.
 DEFAULTS = {
     "band_margin": 0.10,         # the true static friction may exceed the fit's Fs(p) by this fraction
     "band_gain": 1.0,            # c in u = max(f, c |F^ - F_a|); >= 1 keeps the anchor inside
-    "band_saturation": 0.9,      # |F^| >= this x Fc(p): the node believes the seal slides
-    "band_anchor_travel": 1.0,   # p A moved this many S in the sliding direction while saturated
+    "band_saturation": 0.7,      # |F^| >= this x Fc(p): the node believes the seal slides
+    "band_anchor_travel": 0.25,  # p A moved this many S in the sliding direction while saturated
     "band_blind_s": 2.0,         # gap after which the anchor is dropped; the widening between frames
 }
 RESIDUAL_FRAC_OF_FC = 0.05       # the fit's residual when physical.friction.residual is absent

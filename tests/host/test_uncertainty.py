@@ -55,7 +55,8 @@ def anchored(f_n=4000.0, n=4):
 
 
 def test_params_defaults_validation_and_residual():
-    assert P.margin == 0.10 and P.gain == 1.0 and P.saturation == 0.9 and P.blind_s == 2.0
+    assert P.margin == 0.10 and P.gain == 1.0 and P.saturation == 0.7 and P.blind_s == 2.0
+    assert P.anchor_travel == 0.25
     assert P.residual_n == 100.0
     s, fc, floor = P.limits(5000)
     assert (s, fc, floor) == pytest.approx((1.1 * 5000 + 200, 4000, 200))
