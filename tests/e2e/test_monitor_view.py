@@ -116,7 +116,7 @@ def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
 
     phys = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,
             "friction": {"Fs": {"intercept": 0.0, "slope": 600.0}, "Fc": {"intercept": 0.0, "slope": 400.0},
-                         "residual": 50.0}}
+                         "residual": 50.0}, "band_anchor": True, "band_margin": 0.10}
     site = SiteFigures([0.01] * 4, rated_rope_tension_n=80_000, imbalance_frac=0.10,
                        band=BandParams.from_physical(phys))
     clk = [0.0]

@@ -432,7 +432,28 @@ def test_a_hold_of_whole_frame_periods_does_not_depend_on_float_rounding():
 
 BAND_PHYS = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,   # 1 kPa -> 10 N
              "friction": {"Fs": {"intercept": 0.0, "slope": 600.0}, "Fc": {"intercept": 0.0, "slope": 400.0},
-                          "residual": 50.0}}
+                          "residual": 50.0},
+             "band_anchor": True, "band_margin": 0.10}   # the anchor's path (opt-in)
+
+
+def test_by_default_seals_that_can_hold_the_limit_keep_deviation_possible_standing():
+    """Anchoring off (the default): the band is the seals' physical range. Seals whose static
+    friction can hold more than 10 % of the mean keep DEVIATION POSSIBLE standing on every rope
+    at 0 % shown; seals that cannot (a light seal) raise nothing."""
+    from ropemon.uncertainty import BandParams
+
+    def run(slope):
+        phys = {**BAND_PHYS, "friction": {"Fs": {"intercept": 0.0, "slope": slope},
+                                          "Fc": {"intercept": 0.0, "slope": 0.6 * slope}, "residual": 10.0}}
+        del phys["band_anchor"], phys["band_margin"]
+        eng = AlarmEngine(AlarmSettings(band=BandParams.from_physical(phys)))
+        for k in range(30):
+            eng.update(band_frame([(5200, 0.0)] * 4, k), k * DT)
+        return sorted(a.rope for a in eng.active() if a.kind == "deviation_possible")
+
+    # p = 5.2 MPa: Fs = 3.1 kN of 52 kN (6 %, x1.25 = 7.5 %: with the others' band it reaches 10 %)
+    assert run(600.0) == [0, 1, 2, 3]
+    assert run(100.0) == []     # 0.5 kN: no seal can hold 10 %
 
 
 def band_engine():

@@ -15,7 +15,7 @@ AREA = 0.01   # m^2: 1 kPa -> 10 N
 PHYS = {"ropes": 4, "cylinder_area_m2": [AREA] * 4,
         "friction": {"Fs": {"intercept": 0.0, "slope": 1000.0}, "Fc": {"intercept": 0.0, "slope": 800.0},
                      "residual": 100.0}}
-P = BandParams.from_physical(PHYS)
+P = BandParams.from_physical({**PHYS, "band_anchor": True, "band_margin": 0.10})
 
 
 def frame(ropes, seq, fault_mask=0, dt_ms=100):
@@ -56,7 +56,11 @@ def anchored(f_n=4000.0, n=4):
 
 def test_params_defaults_validation_and_residual():
     assert P.margin == 0.10 and P.gain == 1.0 and P.saturation == 0.7 and P.blind_s == 2.0
-    assert P.anchor_travel == 0.25
+    assert P.anchor_travel == 0.25 and P.anchor is True
+    d = BandParams.from_physical(PHYS)
+    assert d.anchor is False and d.margin == 0.25
+    with pytest.raises(ValueError, match="physical.band_anchor"):
+        BandParams.from_physical({**PHYS, "band_anchor": 1})
     assert P.residual_n == 100.0
     s, fc, floor = P.limits(5000)
     assert (s, fc, floor) == pytest.approx((1.1 * 5000 + 200, 4000, 200))
@@ -212,3 +216,15 @@ def test_first_order_bound_holds_for_small_bands():
     bound = abs(b.dev) + (u[3] + (1 + b.dev) * sum(u) / 4) / mean_t
     assert b.reach <= bound * 1.01 and b.band > 0
     assert math.isfinite(b.reach)
+
+
+def test_by_default_no_rope_is_anchored_and_the_band_is_the_seals_physical_range():
+    """The node's saturated estimate is not taken as the seal's force (anchoring is opt-in): the
+    band stays [p A - S, p A + S] however long the pressure drives the seals."""
+    tr = SealBandTracker(BandParams.from_physical(PHYS))
+    for k in range(50):
+        tr.update(frame([tf(4000.0, 4000 + 100 * k)] * 4, k))
+    for r in tr.last:
+        s = 1.25 * r.pa / AREA / 1000 / 1000 * 1000 + 200   # (1 + 0.25) Fs(p) + 2 r, Fs = 1000 N/MPa
+        assert not r.vouched
+        assert r.lo == pytest.approx(r.pa - s, abs=1e-6) and r.hi == pytest.approx(r.pa + s, abs=1e-6)
