@@ -395,6 +395,8 @@ def summary(results: list[dict], which: str) -> dict:
     from ropemon.evaluate import FIRMWARE
 
     scored = [r for r in results if "error" not in r and FIRMWARE in r.get("estimators", {})]
+    # a hoist whose commissioned config the node refuses runs no firmware: reported, not scored
+    refused = [r for r in results if "error" not in r and FIRMWARE not in r.get("estimators", {})]
     fw = [r["estimators"][FIRMWARE] for r in scored]
     silent = false = 0
     silent_seeds = []
@@ -408,8 +410,9 @@ def summary(results: list[dict], which: str) -> dict:
     vs = [v for v in vs if v is not None and np.isfinite(v)]
     return {
         "winds": len(scored),
-        "errors": len(results) - len(scored),
-        "commissioning_refused": sum(1 for r in scored if not r["commissioning"]["ok"]),
+        "errors": sum(1 for r in results if "error" in r),
+        "node_refused": [{"seed": r["seed"], "why": "; ".join(r["commissioning"]["problems"])} for r in refused],
+        "commissioning_flagged": sum(1 for r in scored if not r["commissioning"]["ok"]),
         "rope_rms_pct": quantiles(f["rope_rms_pct"] for f in fw),
         "rope_peak_pct": quantiles(f["rope_peak_pct"] for f in fw),
         "pithead_total_abs_pct": quantiles(abs(f["pithead_total_pct"]) if f["pithead_total_pct"] is not None
@@ -448,8 +451,11 @@ def markdown(out: dict) -> str:
     """The population's tables: the node against the baseline, estimator x seal family, each wind."""
     pop, base = out["population"], out["baseline"]
     lines = [f"Population: {pop['winds']} winds from the {out['seeds']} seeds"
-             f"{' (quick test bed)' if out.get('quick') else ''}, {pop['errors']} errors, "
-             f"{pop['commissioning_refused']} refused at commissioning; {out['wall_s']} s.", "",
+             f"{' (quick test bed)' if out.get('quick') else ''}, {pop['errors']} errors; "
+             f"{len(pop['node_refused'])} more hoists whose commissioned config the node refuses (not scored), "
+             f"{pop['commissioning_flagged']} scored with a commissioning problem; {out['wall_s']} s.", ""]
+    lines += [f"- refused: seed {r['seed']}: {r['why']}" for r in pop["node_refused"]]
+    lines += ["",
              "| figure (median / 95th percentile) | node | baseline |", "|---|---|---|"]
     for key, label in (("rope_rms_pct", "worst rope RMS, % of rated"), ("rope_peak_pct", "worst rope peak, % of rated"),
                        ("pithead_total_abs_pct", "empty-cage pithead total, abs %")):
