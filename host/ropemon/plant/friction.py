@@ -172,39 +172,58 @@ def _softplus_switch(a):
     return np.logaddexp(0.0, a) / LN2, np.where(a > 0.0, 1.0, e) / ((1.0 + e) * LN2)
 
 
-def _implicit_step(law, v: float, zs, pm: float, h: float) -> list[float]:
-    """Implicit Euler of every state over h at constant v and pressure pm (MPa): z+ = z + h dz/dt(z+).
+def settle_states(law, v: float, zh, pm: float, c: float, guess=None, tol: float = 1e-13,
+                  iters: int = 60) -> list[float]:
+    """The states z+ of an implicit step's own equations z_j+ = zh_j + c v (1 - phi(u_j(z_j+))) at a
+    given velocity v and pressure pm (MPa), for any law whose states obey dz_j/dt = v (1 - phi(u_j)),
+    u_j = sgn(v) z_j / z_max_j, z_max_j = alpha_j s(v, p) / k_j, phi non-decreasing (`law._pairs()`
+    gives (k_j, alpha_j), `law._switch1(u)` phi and dphi/du): Maxwell-slip's elements,
+    elasto-plastic's one deflection (phi = alpha(u) u, k = sigma0, alpha = 1). zh is the method's
+    history (implicit Euler: z; BDF2: a z - b z-), c = beta h.
 
-    Each state obeys dz/dt = v (1 - phi(sgn(v) z / z_max)) with phi increasing, so the root lies
-    between z and its explicit Euler update; Newton, kept inside that bracket by bisection."""
-    if v == 0.0 or h == 0.0:
-        return list(zs)
+    The residual z - zh - c v (1 - phi) increases in z (slope >= 1), so the root lies between zh
+    and its explicit update zh + c v (1 - phi(zh)): Newton from `guess` (a linear step's value;
+    None or outside the bracket: the explicit update), kept inside the bracket by bisection, until
+    a step moves z by at most tol z_max. Unscaled: the states do not depend on force_scale."""
+    if v == 0.0 or c == 0.0:
+        return [float(a) for a in zh]
     g = _g1(v, pm, law._lines())[0]
     sg = 1.0 if v > 0.0 else -1.0
+    cv = c * v
+    switch = law._switch1
     out = []
-    for (K, frac), z0 in zip(law._pairs(), zs):
+    for (K, frac), z0, z in zip(law._pairs(), zh, guess if guess is not None else [None] * len(zh)):
         zmax = frac * g / K
-        c = sg / zmax
-        phi, _ = law._switch1(c * z0)
-        z1 = z0 + h * v * (1.0 - phi)
+        cu = sg / zmax            # u = cu z
+        phi, _ = switch(cu * z0)
+        z1 = z0 + cv * (1.0 - phi)
         lo, hi = (z0, z1) if z1 >= z0 else (z1, z0)
-        z = z1
-        for _ in range(100):
-            phi, d = law._switch1(c * z)
-            G = z - z0 - h * v * (1.0 - phi)
+        if z is None or not lo <= z <= hi:
+            z = z1
+        for _ in range(iters):
+            phi, d = switch(cu * z)
+            G = z - z0 - cv * (1.0 - phi)
             if G < 0.0:
                 lo = z
             else:
                 hi = z
-            zn = z - G / (1.0 + h * v * d * c)
+            zn = z - G / (1.0 + cv * d * cu)
             if not lo <= zn <= hi:
                 zn = 0.5 * (lo + hi)
-            if abs(zn - z) <= 1e-15 * zmax:
+            if abs(zn - z) <= tol * zmax:
                 z = zn
                 break
             z = zn
         out.append(z)
     return out
+
+
+def _implicit_step(law, v: float, zs, pm: float, h: float) -> list[float]:
+    """Implicit Euler of every state over h at constant v and pressure pm (MPa): z+ = z + h dz/dt(z+)
+    (the test bed), by `settle_states`."""
+    if v == 0.0 or h == 0.0:
+        return list(zs)
+    return settle_states(law, v, zs, pm, h, None, 1e-15, 100)
 
 
 @dataclass(frozen=True)
@@ -318,60 +337,16 @@ class MaxwellSlip:
     def solve_states(self, v: float, zh, pm: float, c: float, guess) -> list[float]:
         """The element states z+ of an implicit step's own equations, solved exactly at the step's
         new velocity v and pressure pm (MPa): z_j+ = zh_j + c v (1 - phi(u_j(z_j+, v, pm))), zh the
-        method's history (implicit Euler: z; BDF2: a z - b z-), c = beta h.
+        method's history (implicit Euler: z; BDF2: a z - b z-), c = beta h (`settle_states`).
 
         The plant's BDF2 takes one linearised (Newton) step for the whole state; for an element
         at its break that linearisation is wrong whenever the step reverses v (d(dz/dt)/dv =
         1 - phi < 0 beyond the break, so a reversal would push z further out), which let elements
         run away to hundreds of their break displacements. Each element's equation couples only
-        to v and p, so once the linear step has given them, the element's root is found exactly:
-        Newton from the linear step's value `guess`, kept by bisection inside the bracket between
-        zh and its explicit update (phi increases). Unscaled: the states do not depend on
-        force_scale. Returns a list, one per element."""
-        if v == 0.0 or c == 0.0:
-            return [float(a) for a in zh]
-        fl = self._lines()
-        fs0, fs1, fc0, fc1, vs0, vs1 = fl[:6]
-        fs, fc, vs = fs0 + fs1 * pm, fc0 + fc1 * pm, vs0 + vs1 * pm
-        w = v / vs
-        g = fc + (fs - fc) * math.exp(-w * w)
-        cv = c * v
-        sg = 1.0 if v > 0.0 else -1.0
-        n = self.sharpness
-        log1p, exp = math.log1p, math.exp
-        out = []
-        for a, kj, z0, z in zip(self.alpha, self.k, zh, guess):
-            zmax = a * g / kj
-            cu = sg / zmax            # u = cu z
-            x = n * (cu * z0 - 1.0)
-            phi = (x + log1p(exp(-x))) / LN2 if x > 0.0 else log1p(exp(x)) / LN2
-            z1 = z0 + cv * (1.0 - phi)
-            lo, hi = (z0, z1) if z1 >= z0 else (z1, z0)
-            if not lo <= z <= hi:
-                z = z1
-            tol = 1e-13 * zmax
-            for _ in range(60):
-                x = n * (cu * z - 1.0)
-                if x > 0.0:
-                    e = exp(-x)
-                    phi, d = (x + log1p(e)) / LN2, n / ((1.0 + e) * LN2)
-                else:
-                    e = exp(x)
-                    phi, d = log1p(e) / LN2, n * e / ((1.0 + e) * LN2)
-                G = z - z0 - cv * (1.0 - phi)
-                if G < 0.0:
-                    lo = z
-                else:
-                    hi = z
-                zn = z - G / (1.0 + cv * d * cu)
-                if not lo <= zn <= hi:
-                    zn = 0.5 * (lo + hi)
-                if abs(zn - z) <= tol:
-                    z = zn
-                    break
-                z = zn
-            out.append(z)
-        return out
+        to v and p, so once the linear step has given them, the element's root is found exactly
+        (Newton from the linear step's value `guess`, in its bracket); the kernel's
+        `_newton_settled` iterates the whole step around it. Returns a list, one per element."""
+        return settle_states(self, v, zh, pm, c, guess)
 
     def deflection(self, z):
         """The elements' elastic force over their total stiffness, sum k_j z_j / sum k_j (m): the
@@ -431,6 +406,17 @@ class ElastoPlastic:
     def implicit_step(self, v: float, z: float, pm: float, h: float) -> float:
         """The state after h at constant v and pm (MPa), implicit Euler (the test bed)."""
         return _implicit_step(self, v, (z,), pm, h)[0]
+
+    def solve_states(self, v: float, zh, pm: float, c: float, guess) -> list[float]:
+        """The deflection z+ of an implicit step's own equation z+ = zh + c v (1 - alpha(u+) u+),
+        solved exactly at the step's new velocity v and pressure pm (MPa) (`settle_states`, one
+        state: k = sigma0, alpha = 1); zh, guess and the result are sequences of one.
+
+        As Maxwell-slip's elements: beyond z_ss (u > 1), d(dz/dt)/dv = 1 - u < 0, so one linearised
+        step that reverses v pushed z further out instead of back along the spring (population-148:
+        z to 257 z_ss, the seal friction to 299 Fs, the oil pressure to -20 MPa); the kernel's
+        `_newton_settled` solves the step with this row settled exactly."""
+        return settle_states(self, v, zh, pm, c, guess)
 
     def _switch(self, u):
         """phi = alpha(u) u and dphi/du (numpy)."""

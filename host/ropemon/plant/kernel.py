@@ -47,8 +47,9 @@ class Stepper:
         self.scale = None if fr.force_scale is None else [float(a) for a in fr.force_scale]
         if self.nz > 1:
             self.factor, self.solve = self._factor_multi, self._solve_multi
-        # Maxwell-slip: each implicit step's element rows are re-solved exactly (`settle`)
-        self.solve_states = fr.solve_states if isinstance(fr, MaxwellSlip) else None
+        # a law whose states are each solved exactly inside the implicit step (Maxwell-slip,
+        # elasto-plastic: `solve_states`) has its BDF2 steps solved by `_newton_settled`
+        self.solve_states = getattr(fr, "solve_states", None)
         self.fl = tuple(float(v) for v in (fr.Fs.intercept, fr.Fs.slope, fr.Fc.intercept, fr.Fc.slope,
                                            fr.vs.intercept, fr.vs.slope, fr.sigma2.intercept, fr.sigma2.slope))
         self.s0 = float(fr.sigma0) if self.lugre else 0.0
@@ -87,9 +88,9 @@ class Stepper:
         self.mu = u.mu.tolist()
 
     def settle(self, y, zh, c) -> None:
-        """Maxwell-slip: replace the friction rows of an implicit step's result y (in place) by the
-        exact roots of their own equations z+ = zh + c f_z(v+, z+, p+) at the step's v+ and p+
-        (`MaxwellSlip.solve_states`); zh = the method's history of those rows, rope by rope."""
+        """Replace the friction rows of an implicit step's result y (in place) by the exact roots
+        of their own equations z+ = zh + c f_z(v+, z+, p+) at the step's v+ and p+ (the law's
+        `solve_states`: Maxwell-slip, elasto-plastic); zh = the method's history of those rows."""
         settle_rows(self.solve_states, self.n, self.nz, y, zh, c)
 
     # ------------------------------------------------------------------ right-hand side
@@ -433,17 +434,19 @@ def settle_rows(solve_states, n: int, nz: int, y: list, zh, c: float) -> None:
                                    y[a:a + nz])
 
 
-NEWTON_MAX = 12         # Maxwell-slip: Newton iterations per implicit step at most
+NEWTON_MAX = 12         # settled laws: Newton iterations per implicit step at most
 NEWTON_V_TOL = 1e-7     # m/s: ... until no piston velocity moves by more than this (+ 1e-6 relative)
 
 
 def _newton_settled(rhs, factor, solve, settle, k1, c, y0, f0, jac, hist, zrows, vrows):
-    """Maxwell-slip's implicit step y+ = hist + c f(t + h, y+) (BDF2; implicit Euler: hist = y):
-    Newton from y0 (f0, jac there), each iterate's element rows re-solved exactly
-    (`Stepper.settle`), until the piston velocities settle.
+    """The implicit step y+ = hist + c f(t + h, y+) (BDF2; implicit Euler: hist = y) of a law
+    with `solve_states` (Maxwell-slip, elasto-plastic): Newton from y0 (f0, jac there), each
+    iterate's friction rows re-solved exactly (`Stepper.settle`), until the piston velocities
+    settle.
 
-    One linearised step is not enough for this law: a piston velocity reversal inside the step
-    flips each element from sliding (no stiffness) to sticking (k_j), which the linearisation
+    One linearised step is not enough for these laws: a piston velocity reversal inside the step
+    flips each element (elasto-plastic: the one deflection beyond z_ss) from sliding (no
+    stiffness) to sticking (k_j; sigma0), which the linearisation
     about the start does not see, and a plain Newton iteration cycles across v = 0. So an
     iterate never crosses v = 0 in one go: the Newton step is cut where the first piston
     reaches v = 0 (that piston exactly 0), and the next linearisation there (every element
@@ -533,7 +536,7 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
                     if settle is None:
                         d = solve(factor(jac, h), f0)
                         y_prev, y = y, [a + h * b for a, b in zip(y, d)]
-                    else:   # Maxwell-slip: implicit Euler solved by the same Newton as below
+                    else:   # settled law: implicit Euler solved by the same Newton as below
                         y_prev, y = y, _newton_settled(rhs, factor, solve, settle, k1, h, y, f0, jac, y, zrows,
                                                        vrows)
                 else:

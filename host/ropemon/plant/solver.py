@@ -106,8 +106,9 @@ def _integrate_bdf2(plant, u, h: float, y0: np.ndarray) -> np.ndarray:
 
 
 def _integrate_bdf2_settled(plant, u, h, y0, Y, sc, jscale, eye):
-    """`_integrate_bdf2` for a law whose states each step solves exactly (Maxwell-slip): every
-    step by the kernel's Newton iteration (`kernel._newton_settled`), here with dense solves."""
+    """`_integrate_bdf2` for a law whose states each step solves exactly (`solve_states`:
+    Maxwell-slip, elasto-plastic): every step by the kernel's Newton iteration
+    (`kernel._newton_settled`), here with dense solves."""
     from ropemon.plant.kernel import _newton_settled, settle_rows
 
     law, n, nz = plant.friction, plant.n, plant.nz
