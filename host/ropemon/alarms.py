@@ -416,8 +416,15 @@ class AlarmEngine:
         assert thr is not None
         used = [r.t_hat for r in iv if r.present]
         if not used or sum(used) / len(used) < s.deviation_min_mean_dan * DAN_TO_N:
-            return  # unloaded ropes: no check, as the deviation alarm
-        blind = [k + 1 for k, r in enumerate(iv) if not r.vouched]
+            # unloaded ropes: no check, as the deviation alarm, whose deviation is then 0
+            for i in range(len(iv)):
+                aid = f"deviation_possible:n{node}:r{i}"
+                if aid in self._alarms:
+                    self._step(ev, aid, "deviation_possible", node, i, s.timing, now_s, False, True,
+                               0.0, thr, f"rope {i + 1}: ropes unloaded, no check")
+            return
+        anchoring = s.band is not None and s.band.anchor
+        blind = [k + 1 for k, r in enumerate(iv) if not r.vouched] if anchoring else []
         for i, b in enumerate(deviation_bounds(iv)):
             if b is None:
                 continue
@@ -429,6 +436,8 @@ class AlarmEngine:
                 continue  # the usual case: skip the message
             if quiet_s:
                 why = f" (no frame for {quiet_s:.1f} s)"
+            elif not anchoring:
+                why = " (the seals' static friction could hold it)"
             elif blind:
                 why = f" (rope{'s' if len(blind) > 1 else ''} {','.join(map(str, blind))} not vouched for)"
             else:

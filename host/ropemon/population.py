@@ -185,11 +185,9 @@ def change_site(h: Hoist):
 # ---------------------------------------------------------------- scoring
 
 
-def _alarm_presence(frames, times_s, engine_factory, bands_factory=None):
-    """Per frame and rope: is a deviation alarm (certain or possible) present, and the frame
-    indices where one was raised per rope. `engine_factory()` gives a fresh AlarmEngine."""
-    from ropemon.alarms import AlarmEngine  # noqa: F401  (the engine's type)
-
+def _alarm_presence(frames, times_s, engine_factory):
+    """Per frame and rope: is a deviation alarm (certain or possible) present, and was one
+    raised. `engine_factory()` gives a fresh `ropemon.alarms.AlarmEngine`."""
     eng = engine_factory()
     n = len(frames)
     ropes = len(frames[0].ropes) if frames else 0
@@ -238,7 +236,7 @@ def alarm_figures(frames, truth_frames_n: np.ndarray, frame_s: float, engine_fac
                 silent.append({"rope": r + 1, "t0_s": round(a * frame_s, 1), "t1_s": round(b * frame_s, 1),
                                "true_max_pct": round(float(d_true[a:b, r].max()) * 100, 2)})
     within = (d_true < FALSE_BELOW) & ok[:, None]
-    false = int((raised & (d_true < FALSE_BELOW)).sum())
+    false = int((raised & within).sum())
     return {"episodes": eps, "silent": silent, "false_warnings": false,
             "warning_share": round(float((present & within).sum() / within.sum()), 4) if within.any() else None,
             "true_max_dev_pct": round(float(d_true[ok].max()) * 100, 2) if ok.any() else None}

@@ -53,10 +53,10 @@ from ropemon.protocol import DAN_TO_N, Frame, L
 SEQ_BOOT_SHIFT = 20   # seq = (boot << 20) | count (docs/protocol.md)
 
 #: The band's parameters, host only, in node.json's `physical` (docs/config.md), with defaults.
-# Anchoring is off by default: on the population's scoring hoists (docs/accuracy.md) the anchor
-# setting that left no rope silent on the tuning seeds left 12 of 96 winds silent, because the
-# node's saturated estimate is not the seal's force where the ropes part. Without it the band is
-# the seal's physical range. The margin covers a seal's break force above the test bed's sample
+# Anchoring is off by default: on simulated hoists whose ropes part through the wind the node's
+# saturated estimate can sit on the wrong side of the seal, and anchoring on it left ropes beyond
+# the limit silent (docs/accuracy.md, "The band and DEVIATION POSSIBLE"); without it the band is the
+# seal's physical range. The margin covers a seal's break force above the test bed's sample
 # (the population draws each rope's seal within +-15 % of the type's).
 DEFAULTS = {
     "band_anchor": False,        # take the node's saturated, pressure-driven estimate as the seal's force
@@ -215,7 +215,7 @@ class SealBandTracker:
 
         tracker = SealBandTracker(BandParams.from_physical(physical))
         for frame in frames:            # one node's frames in order
-            u = tracker.update(frame)   # per rope, N (inf: no tension to bound)
+            u = tracker.update(frame)   # per rope, N (nan: a rope with no tension and no pressure to bound it)
     """
 
     def __init__(self, params: BandParams) -> None:

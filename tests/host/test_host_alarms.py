@@ -456,6 +456,22 @@ def test_by_default_seals_that_can_hold_the_limit_keep_deviation_possible_standi
     assert run(100.0) == []     # 0.5 kN: no seal can hold 10 %
 
 
+def test_deviation_possible_clears_when_the_ropes_are_unloaded():
+    """Below the deviation check's minimum mean (unloaded ropes) neither alarm is judged: the
+    warning clears as the certain alarm does, it does not stand for ever."""
+    from ropemon.uncertainty import BandParams
+
+    phys = {k: v for k, v in BAND_PHYS.items() if k not in ("band_anchor", "band_margin")}
+    eng = AlarmEngine(AlarmSettings(band=BandParams.from_physical(phys)))
+    k = 0
+    for k in range(30):
+        eng.update(band_frame([(5200, 0.0)] * 4, k), k * DT)
+    assert {a.kind for a in eng.active() if a.present} == {"deviation_possible"}
+    for k in range(30, 70):
+        eng.update(band_frame([(50, 0.0)] * 4, k), k * DT)
+    assert not [a for a in eng.active() if a.present and a.kind == "deviation_possible"]
+
+
 def band_engine():
     from ropemon.uncertainty import BandParams
     return AlarmEngine(AlarmSettings(band=BandParams.from_physical(BAND_PHYS)))
