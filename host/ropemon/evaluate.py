@@ -722,13 +722,15 @@ def _site_physical(truth_meta: dict, friction: dict, compliance: dict | None = N
     return physical
 
 
-def _firmware_frames(physical: dict, rsens: Path, work: Path) -> list:
+def _firmware_frames(physical: dict, rsens: Path, work: Path, node_json: Path | None = None,
+                     frames_name: str = "frames.bin") -> list:
     """The data frames of the fixed-point firmware under `micropython` (`ropemon replay`)
-    on the commissioned config `build_case` wrote (`node-evaluated.json`), decoded, in order."""
+    on a config (default: the commissioned one `build_case` wrote, `node-evaluated.json`),
+    decoded, in order."""
     from ropemon.decoder import StreamDecoder
 
-    node_json = work / NODE_EVALUATED
-    frames_bin = work / "frames.bin"
+    node_json = node_json or work / NODE_EVALUATED
+    frames_bin = work / frames_name
     _run_step("firmware (ropemon replay)", [sys.executable, "-m", "ropemon.cli", "replay", str(rsens),
                                             "--out", str(frames_bin), "--config", str(node_json)],
               timeout_s=3600)

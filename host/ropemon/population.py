@@ -11,7 +11,11 @@ ordinary wind of the same hoist) and runs the node on a wind.
 Settings are chosen on `TUNING_SEEDS` and figures reported on `SCORING_SEEDS`, which
 no setting was chosen on.
 
-Scoring of one wind (`score_wind`), from the node's frames as the host decodes them:
+The *baseline* is the node before it followed the sliding its displacement channels prove
+(slide following off) with the station before the band (the deviation alarm alone),
+commissioned the same way; the *node* is both as they are now.
+
+Scoring of one wind (`run_wind`), from the node's frames as the host decodes them:
 - accuracy: the firmware's frame means against the true rope tensions averaged over
   the same windows (worst rope RMS and peak, % of rated; the empty-cage pithead total);
 - alarms: the host's own `AlarmEngine` on the frames. A rope truly beyond the
@@ -26,6 +30,7 @@ Scoring of one wind (`score_wind`), from the node's frames as the host decodes t
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import re
 from dataclasses import dataclass
@@ -297,8 +302,8 @@ def quantiles(values) -> dict:
 
 def engine_factories(physical: dict) -> dict:
     """The host alarm configurations scored on every wind: `baseline` is the deviation alarm
-    alone on the frame means (the station before the uncertainty band), `node` the station as it
-    is (the certain alarm and DEVIATION POSSIBLE from the band)."""
+    alone (the station before the uncertainty band; `run_wind` feeds it the baseline node's
+    frames), `node` the station as it is (the certain alarm and DEVIATION POSSIBLE from the band)."""
     from ropemon.alarms import AlarmEngine, AlarmSettings
     from ropemon.uncertainty import BandParams
 
@@ -314,7 +319,7 @@ def engine_factories(physical: dict) -> dict:
 
 
 def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) -> dict:
-    """Draw, commission, run and score one hoist's wind (`score_wind`); errors are reported."""
+    """Draw, commission, run and score one hoist's wind (module doc); errors are reported."""
     import time
     from pathlib import Path
 
@@ -339,19 +344,54 @@ def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) ->
     fw = res["estimators"].get(EV.FIRMWARE)
     if fw is not None:
         out["firmware_vs_float_max_pct"] = fw.get("vs_reference_max_pct")
+        wind_dir = Path(work) / h.name
+        base_case = baseline_case(case, wind_dir)
+        fb = EV.score_frames(base_case)
+        out["estimators"][BASELINE_FIRMWARE] = {k: fb.get(k) for k in ("rope_rms_pct", "rope_peak_pct",
+                                                                        "pithead_total_pct")}
+        out["baseline_firmware_vs_float_max_pct"] = fb.get("vs_reference_max_pct")
         w = case.window
-        n = len(case.frames)
-        truth = M.window_means(case.truth_n, w)[:n]
-        valid = M.window_means(case.excluded.astype(float), w)[:n] == 0.0
         frame_s = w / case.sample_hz
         area = float(np.mean(case.physical["cylinder_area_m2"]))
         out["alarms"] = {}
         for which, factory in engine_factories(case.physical).items():
+            c = base_case if which == "baseline" else case
+            n = len(c.frames)
+            truth = M.window_means(c.truth_n, w)[:n]
+            valid = M.window_means(c.excluded.astype(float), w)[:n] == 0.0
             out["alarms"][which] = {
-                "natural": alarm_figures(case.frames, truth, frame_s, factory, valid),
-                "superposed": superposed_alarm_figures(case.frames, truth, frame_s, factory, area, valid)}
+                "natural": alarm_figures(c.frames, truth, frame_s, factory, valid),
+                "superposed": superposed_alarm_figures(c.frames, truth, frame_s, factory, area, valid)}
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out
+
+
+BASELINE_FIRMWARE = "firmware-baseline"
+BASELINE_NODE = "node-baseline.json"
+
+
+def baseline_physical(physical: dict) -> dict:
+    """The node as it was before it followed proven sliding: the commissioned config with
+    slide following off (docs/model.md, "Balancing strokes")."""
+    return dict(physical, slide_follow=False)
+
+
+def baseline_case(case, wind_dir):
+    """The case with the baseline node's firmware frames and float reference in place of the node's."""
+    from ropemon import estimators as E
+    from ropemon import evaluate as EV
+    from ropemon import reference
+    from ropemon.nodeconfig import make_node_json
+
+    ph = baseline_physical(case.physical)
+    node_json = wind_dir / BASELINE_NODE
+    node_json.write_text(json.dumps(make_node_json(ph), indent=1))
+    rsens = wind_dir / "sim" / "sensors.rsens"
+    frames = EV._firmware_frames(ph, rsens, wind_dir, node_json, "frames-baseline.bin")
+    _ropes, _hz, recs = reference.read_rsens(rsens)
+    ref = reference.compensate(ph, recs[: len(case.truth_n)]).tension_n
+    return dataclasses.replace(case, frames=frames, firmware_n=EV.frame_means_n(frames),
+                               estimates={E.FULL_COMPENSATION: ref}, physical=ph)
 
 
 def run(seeds, work, jobs: int = 2, firmware: bool = True, bed: dict | None = None, log=None) -> list[dict]:
@@ -392,10 +432,12 @@ def summary(results: list[dict], which: str) -> dict:
     shape `ropemon evaluate --population --json` prints."""
     from ropemon.evaluate import FIRMWARE
 
+    fw_key = BASELINE_FIRMWARE if which == "baseline" else FIRMWARE
+    vs_key = "baseline_firmware_vs_float_max_pct" if which == "baseline" else "firmware_vs_float_max_pct"
     scored = [r for r in results if "error" not in r and FIRMWARE in r.get("estimators", {})]
     # a hoist whose commissioned config the node refuses runs no firmware: reported, not scored
     refused = [r for r in results if "error" not in r and FIRMWARE not in r.get("estimators", {})]
-    fw = [r["estimators"][FIRMWARE] for r in scored]
+    fw = [r["estimators"][fw_key] for r in scored]
     silent = false = 0
     silent_seeds = []
     for r in scored:
@@ -404,7 +446,7 @@ def summary(results: list[dict], which: str) -> dict:
             silent += 1
             silent_seeds.append(r["seed"])
         false += al["natural"]["false_warnings"]
-    vs = [r.get("firmware_vs_float_max_pct") for r in scored]
+    vs = [r.get(vs_key) for r in scored]
     vs = [v for v in vs if v is not None and np.isfinite(v)]
     return {
         "winds": len(scored),
@@ -506,7 +548,11 @@ def rescore_wind(run_dir, overrides: dict | None = None) -> dict:
     physical = json.loads((run_dir / EV.NODE_EVALUATED).read_text())["physical"]
     physical.update(overrides or {})
     dec = StreamDecoder({int(physical["node_id"]): bytes.fromhex(physical["key_hex"])})
-    frames = sorted((f for f in dec.feed((run_dir / "frames.bin").read_bytes()) if f.ropes), key=lambda f: f.seq)
+    def frames_of(name):
+        return sorted((f for f in dec.feed((run_dir / name).read_bytes()) if f.ropes), key=lambda f: f.seq)
+    frames = frames_of("frames.bin")
+    base = run_dir / "frames-baseline.bin"
+    frames_b = frames_of(base.name) if base.exists() else frames
     truth = np.load(run_dir / "sim" / "truth.npz")
     hz = int(physical["sample_hz"])
     w = hz // int(physical["frame_hz"])
@@ -516,10 +562,11 @@ def rescore_wind(run_dir, overrides: dict | None = None) -> dict:
                                                           float(physical["hall_marks_m"][-1]))
     t = M.window_means(truth_n, w)[:n]
     valid = M.window_means(excluded.astype(float), w)[:n] == 0.0
-    frames = frames[: len(t)]
     area = float(np.mean(physical["cylinder_area_m2"]))
     out = {}
     for which, factory in engine_factories(physical).items():
-        out[which] = {"natural": alarm_figures(frames, t, w / hz, factory, valid),
-                      "superposed": superposed_alarm_figures(frames, t, w / hz, factory, area, valid)}
+        fr = (frames_b if which == "baseline" else frames)[: len(t)]
+        out[which] = {"natural": alarm_figures(fr, t[: len(fr)], w / hz, factory, valid[: len(fr)]),
+                      "superposed": superposed_alarm_figures(fr, t[: len(fr)], w / hz, factory, area,
+                                                             valid[: len(fr)])}
     return out

@@ -148,6 +148,10 @@ def test_one_drawn_wind_end_to_end_and_the_json_summary(tmp_path):
     fw = r["estimators"][FIRMWARE]
     assert 0 < fw["rope_rms_pct"] < 50 and fw["pithead_total_pct"] is not None
     assert r["firmware_vs_float_max_pct"] is not None
+    # the baseline node (slide following off) ran its own firmware: its own frames and reference
+    assert r["estimators"][P.BASELINE_FIRMWARE]["rope_rms_pct"] > 0
+    assert r["baseline_firmware_vs_float_max_pct"] is not None
+    assert (tmp_path / P.draw(1).name / "frames-baseline.bin").exists()
     for which in ("baseline", "node"):
         al = r["alarms"][which]
         assert al["superposed"]["cases"] == 8 and al["superposed"]["episodes"] >= 8
