@@ -55,7 +55,7 @@ SEQ_BOOT_SHIFT = 20   # seq = (boot << 20) | count (docs/protocol.md)
 #: The band's parameters, host only, in node.json's `physical` (docs/config.md), with defaults.
 # Anchoring is off by default: on simulated hoists whose ropes part through the wind the node's
 # saturated estimate can sit on the wrong side of the seal, and anchoring on it left ropes beyond
-# the limit silent (docs/accuracy.md, "The band and DEVIATION POSSIBLE"); without it the band is the
+# the limit silent (docs/accuracy.md, "The envelope"); without it the band is the
 # seal's physical range. The margin covers a seal's break force above the test bed's sample
 # (the population draws each rope's seal within +-15 % of the type's).
 DEFAULTS = {
