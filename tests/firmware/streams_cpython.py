@@ -119,7 +119,14 @@ def slide_stream(ph: dict, k_m: float, seed: int, slide_um_s: float = 20.0, seco
     slide = slide_um_s * 1e-6 * np.clip(t - 6, 0, 20)
     x[:, 0] += slide
     x[:, 1] -= slide
-    recs = np.zeros((len(t), 2 * n + 4), np.uint16)
+    return wind_records(ph, p_pa, x, seed), x, p_pa
+
+
+def wind_records(ph: dict, p_pa: np.ndarray, x: np.ndarray, seed: int) -> np.ndarray:
+    """Sensor records of one pressure for every rope and each rope's piston position x (m, about
+    mid-channel), with 2 counts of displacement noise; speed counter still, no battery reading."""
+    n = int(ph["ropes"])
+    recs = np.zeros((len(p_pa), 2 * n + 4), np.uint16)
     rng = np.random.default_rng(seed)
     for i in range(n):
         pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
@@ -127,6 +134,6 @@ def slide_stream(ph: dict, k_m: float, seed: int, slide_um_s: float = 20.0, seco
         recs[:, i] = np.round(pc["counts_4mA"] + (p_pa - lo) / (hi - lo) * (pc["counts_20mA"] - pc["counts_4mA"]))
         ylo, yhi = dc["range_m"]
         cx = dc["counts_lo"] + (0.5 * (ylo + yhi) + x[:, i] - ylo) / (yhi - ylo) * (dc["counts_hi"] - dc["counts_lo"])
-        recs[:, n + i] = np.round(cx + rng.normal(0, 2.0, len(t)))
+        recs[:, n + i] = np.round(cx + rng.normal(0, 2.0, len(p_pa)))
     recs[:, 2 * n + 1] = 0xFFFF
-    return recs, x, p_pa
+    return recs

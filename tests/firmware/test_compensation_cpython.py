@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from streams_cpython import random_stream, run_node, slide_stream
+from streams_cpython import random_stream, run_node, slide_stream, wind_records
 
 from ropemon import protocol, reference
 from ropemon.firmware import node_module
@@ -272,17 +272,7 @@ def _stroke_wind(ph: dict, k_m: float, seed: int, stroke: bool = True):
     share[alone] = 0.0
     share[alone, 0] = 1.0
     x = np.cumsum(dmove[:, None] * share, axis=0)
-    recs = np.zeros((len(t), 2 * n + 4), np.uint16)
-    rng = np.random.default_rng(seed)
-    for i in range(n):
-        pc, dc = ph["pressure_channels"][i], ph["displacement_channels"][i]
-        lo, hi = pc["range_Pa"]
-        recs[:, i] = np.round(pc["counts_4mA"] + (p_pa - lo) / (hi - lo) * (pc["counts_20mA"] - pc["counts_4mA"]))
-        ylo, yhi = dc["range_m"]
-        cx = dc["counts_lo"] + (0.5 * (ylo + yhi) + x[:, i] - ylo) / (yhi - ylo) * (dc["counts_hi"] - dc["counts_lo"])
-        recs[:, n + i] = np.round(cx + rng.normal(0, 2.0, len(t)))
-    recs[:, 2 * n + 1] = 0xFFFF
-    return recs, x, p_pa
+    return wind_records(ph, p_pa, x, seed), x, p_pa
 
 
 def _stroke_doc(k_m: float) -> dict:
