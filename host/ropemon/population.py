@@ -362,6 +362,7 @@ def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) ->
             out["alarms"][which] = {
                 "natural": alarm_figures(c.frames, truth, frame_s, factory, valid),
                 "superposed": superposed_alarm_figures(c.frames, truth, frame_s, factory, area, valid)}
+        out["ideal_bound"] = ideal_bound_figures(np.load(wind_dir / "sim" / "truth.npz"), case.physical)
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out
 
@@ -464,6 +465,11 @@ def summary(results: list[dict], which: str) -> dict:
         "superposed_false_warnings_per_wind": round(
             sum(r["alarms"][which]["superposed"]["false_warnings"] for r in scored) / max(1, len(scored)), 3),
         "firmware_vs_float_max_pct": round(max(vs), 4) if vs else None,
+        # the lab's ideal bound (`ideal_bound_figures`), the same on both: what any fail-safe band could do
+        "ideal_bound_warning_share": quantiles(r.get("ideal_bound", {}).get("warning_share") for r in scored),
+        "ideal_bound_hoists_warning": sum(1 for r in scored if (r.get("ideal_bound", {}).get("warning_share") or 0) > 0),
+        "ideal_bound_missed_frames": sum(r.get("ideal_bound", {}).get("missed_frames", 0)
+                                         + r.get("ideal_bound", {}).get("superposed_missed_frames", 0) for r in scored),
     }
 
 
@@ -509,7 +515,12 @@ def markdown(out: dict) -> str:
               f"| false warnings per wind, {SUPERPOSED:.0%} superposed on each rope | "
               f"{pop['superposed_false_warnings_per_wind']} | {base['superposed_false_warnings_per_wind']} |",
               f"| firmware vs float reference, max % of rated | {pop['firmware_vs_float_max_pct']} | "
-              f"{base['firmware_vs_float_max_pct']} |", ""]
+              f"{base['firmware_vs_float_max_pct']} |", "",
+              f"An ideal fail-safe bound (`population.ideal_bound_figures`: noise-free displacement, the fitted "
+              f"stiffness, {IDEAL_MARGIN:.0%} margin on the seal's force) would warn on "
+              f"{pop['ideal_bound_hoists_warning']} of {pop['winds']} hoists, standing for a share "
+              f"{_q(pop['ideal_bound_warning_share'])} (median / 95th percentile) of the time on ropes truly within "
+              f"{FALSE_BELOW:.0%}, and miss {pop['ideal_bound_missed_frames']} frames beyond the limit.", ""]
     laws = sorted({law for cells in out["by_law"].values() for law in cells})
     lines += ["Worst rope RMS, % of rated (median / 95th percentile), by estimator and seal family:", "",
               "| estimator | " + " | ".join(laws) + " |", "|---|" + "---|" * len(laws)]
@@ -547,8 +558,10 @@ def rescore_wind(run_dir, overrides: dict | None = None) -> dict:
     run_dir = Path(run_dir)
     physical = json.loads((run_dir / EV.NODE_EVALUATED).read_text())["physical"]
     physical.update(overrides or {})
-    dec = StreamDecoder({int(physical["node_id"]): bytes.fromhex(physical["key_hex"])})
-    def frames_of(name):
+    keys = {int(physical["node_id"]): bytes.fromhex(physical["key_hex"])}
+
+    def frames_of(name):   # a decoder per file: the two runs share their sequence numbers
+        dec = StreamDecoder(keys)
         return sorted((f for f in dec.feed((run_dir / name).read_bytes()) if f.ropes), key=lambda f: f.seq)
     frames = frames_of("frames.bin")
     base = run_dir / "frames-baseline.bin"
@@ -569,4 +582,95 @@ def rescore_wind(run_dir, overrides: dict | None = None) -> dict:
         out[which] = {"natural": alarm_figures(fr, t[: len(fr)], w / hz, factory, valid[: len(fr)]),
                       "superposed": superposed_alarm_figures(fr, t[: len(fr)], w / hz, factory, area,
                                                              valid[: len(fr)])}
+    out["ideal_bound"] = ideal_bound_figures(truth, physical)
     return out
+
+
+# ---------------------------------------------------------------- the best a bound could do
+
+IDEAL_MARGIN = 0.10
+
+
+def ideal_bound_figures(truth, physical: dict, margin: float = IDEAL_MARGIN, frame_samples: int | None = None) -> dict:
+    """How often even an ideal fail-safe bound would warn: a lab study on the simulator's truth.
+
+    A fail-safe band must hold for any seal the node may meet, so it can use what is proven:
+    the seal's force lies in [-S, S] (S = (1 + margin) Fs(p) + 2 r, as the station's band with
+    a tighter margin), and the piston's displacement moves it. Here the displacement is the
+    truth's, noise-free. Moving by dx > 0 (the sign convention of `friction_N`: T = p A + F)
+    raises the upper bound by at most k dx (k = sigma0, the fitted pre-sliding stiffness) and
+    the lower bound by at least k_min dx up to the sliding floor L = (1 - margin) Fc(p) - 2 r,
+    with k_min = L / (Fs(p_max) / sigma0) (a full reversal within one pre-sliding distance);
+    dx < 0 mirrors it. At rest the bounds stay, cut to [-S, S] as the pressure changes.
+
+    Over frame means, each rope's deviation extremes over the intervals of all ropes
+    (`uncertainty.deviation_bounds`' corners) are compared with the 10 % limit. Returns the
+    share of frames in which such a bound would warn on ropes truly within `FALSE_BELOW`
+    (as the wind is, and with `SUPERPOSED` on each rope in turn), the frames beyond the limit it
+    would miss, and how often the true friction stayed inside (`coverage`, per rope: below 1 the
+    bound is already too tight to be fail-safe)."""
+    from ropemon.metrics import deviation_step_n, window_means
+    from ropemon.uncertainty import BandParams
+
+    params = dataclasses.replace(BandParams.from_physical(physical), margin=margin)
+    fr = physical["friction"]
+    x = np.asarray(truth["piston_x_m"], float)
+    f_true = np.asarray(truth["friction_N"], float)
+    kpa = np.asarray(truth["p_tap_Pa"], float) / 1000.0
+    area = np.asarray(physical["cylinder_area_m2"], float)
+    n, ropes = x.shape
+    s = np.empty_like(x)
+    floor_l = np.empty_like(x)
+    for k in range(n):   # the band's limits at each rope's pressure
+        for i in range(ropes):
+            s_ki, fc, flo = params.limits(kpa[k, i])
+            s[k, i] = s_ki
+            floor_l[k, i] = max(0.0, (1.0 - margin) * fc - flo)
+    k_max = float(fr["sigma0"])
+    d_pre = float(np.max(s)) / (1.0 + margin) / k_max
+    lo, hi = -s[0].copy(), s[0].copy()
+    los, his = np.empty_like(x), np.empty_like(x)
+    dx_all = np.diff(x, axis=0, prepend=x[:1])
+    for k in range(n):
+        dx = dx_all[k]
+        k_min = floor_l[k] / d_pre
+        up, down = dx > 0, dx < 0
+        hi = np.where(up, hi + k_max * dx, np.where(down, np.minimum(hi, np.maximum(hi + k_min * dx, -floor_l[k])), hi))
+        lo = np.where(down, lo + k_max * dx, np.where(up, np.maximum(lo, np.minimum(lo + k_min * dx, floor_l[k])), lo))
+        hi = np.minimum(np.maximum(hi, -floor_l[k]), s[k])
+        lo = np.maximum(np.minimum(lo, floor_l[k]), -s[k])
+        los[k], his[k] = lo, hi
+    coverage = np.mean((f_true >= los - 1.0) & (f_true <= his + 1.0), axis=0)
+    w = frame_samples or int(physical["sample_hz"]) // int(physical["frame_hz"])
+    m = (n // w) * w
+    t = window_means(truth["tension_N"][:m], w)
+    pa = window_means(kpa[:m] * 1000.0 * area, w)
+    flo = los[:m].reshape(-1, w, ropes).min(axis=1)
+    fhi = his[:m].reshape(-1, w, ropes).max(axis=1)
+
+    def shares(t, pa):
+        a, b = np.maximum(0.0, pa + flo), pa + fhi
+        sa, sb = a.sum(axis=1, keepdims=True), b.sum(axis=1, keepdims=True)
+        d_max = ropes * b / (b + sa - a) - 1.0
+        d_min = ropes * a / (a + sb - b) - 1.0
+        warn = np.maximum(np.abs(d_max), np.abs(d_min)) >= DEVIATION_LIMIT
+        d_true = np.abs(t / t.mean(axis=1, keepdims=True) - 1.0)
+        within = d_true < FALSE_BELOW
+        return float(warn[within].mean()) if within.any() else None, int(((d_true > DEVIATION_LIMIT) & ~warn).sum())
+
+    share, missed = shares(t, pa)
+    sup_shares, sup_missed = [], 0
+    for rope in range(ropes):
+        for sign in (1.0, -1.0):
+            step = deviation_step_n(t, rope, sign * SUPERPOSED)
+            t2, pa2 = t.copy(), pa.copy()
+            t2[:, rope] += step
+            pa2[:, rope] += step
+            sh, mi = shares(t2, pa2)
+            if sh is not None:
+                sup_shares.append(sh)
+            sup_missed += mi
+    return {"warning_share": None if share is None else round(share, 4), "missed_frames": missed,
+            "superposed_warning_share": round(float(np.mean(sup_shares)), 4) if sup_shares else None,
+            "superposed_missed_frames": sup_missed,
+            "coverage_min": round(float(coverage.min()), 4), "margin": margin}

@@ -160,6 +160,47 @@ def test_one_drawn_wind_end_to_end_and_the_json_summary(tmp_path):
         assert set(s[key]) >= {"median", "p95"}
     assert s["winds"] == 1 and isinstance(s["silent_winds"], int)
     assert s["false_warnings_per_wind"] is not None and s["firmware_vs_float_max_pct"] is not None
+    assert 0.0 <= r["ideal_bound"]["warning_share"] <= 1.0
+    # re-scoring the run directory decodes both runs' frames (they share their sequence numbers)
+    again = P.rescore_wind(tmp_path / P.draw(1).name)
+    assert again["node"]["natural"] == r["alarms"]["node"]["natural"]
+    assert again["baseline"]["natural"] == r["alarms"]["baseline"]["natural"]
     assert "| silent winds |" in P.markdown({"population": s, "baseline": P.summary([r], "baseline"),
                                              "by_law": P.by_law([r]), "seeds": "tuning", "wall_s": 1.0,
                                              "winds": [r]})
+
+
+def ideal_case(load_n: float):
+    """Four ropes at 5 MPa on equal areas, seals Fs = 2 kN, Fc = 1.5 kN (flat), sigma0 = 1e8 N/m
+    (pre-sliding 20 um); 40 samples at 10 Hz, a frame each; every piston slides up 0.1 mm at
+    sample 20 and the seals then hold 1.8 kN."""
+    n, ropes = 40, 4
+    area = load_n / 5e6
+    x = np.zeros((n, ropes))
+    x[20:, :] = 1e-4
+    f = np.zeros((n, ropes))
+    f[20:, :] = 1800.0
+    physical = {"cylinder_area_m2": [area] * ropes, "ropes": ropes, "sample_hz": 10, "frame_hz": 10,
+                "friction": {"Fs": {"intercept": 2000.0, "slope": 0.0}, "Fc": {"intercept": 1500.0, "slope": 0.0},
+                             "sigma0": 1e8, "residual": 0.0}}
+    truth = {"piston_x_m": x, "p_tap_Pa": np.full((n, ropes), 5e6), "friction_N": f,
+             "tension_N": np.full((n, ropes), load_n)}
+    return truth, physical
+
+
+def test_the_ideal_bound_keeps_the_seals_range_until_the_pistons_slide_and_then_narrows():
+    """Hand-checked, S = 1.1 x 2 kN = 2.2 kN, L = 0.9 x 1.5 kN = 1.35 kN. At rest the intervals are
+    [-S, S]; once the pistons slid (0.1 mm, beyond (S + L) / k_min = 53 um) [L, S]. On 40 kN ropes:
+    d_max = 4 x 42.2 / (42.2 + 3 x 37.8) - 1 = 8.5 % at rest, 4 x 42.2 / (42.2 + 3 x 41.35) - 1 =
+    1.5 % slid: never a warning. On 20 kN ropes 17.5 % at rest (a warning), 3.0 % slid: half the time."""
+    truth, physical = ideal_case(40e3)
+    fig = P.ideal_bound_figures(truth, physical, margin=0.10)
+    assert fig["warning_share"] == 0.0 and fig["missed_frames"] == 0
+    assert 0.0 < fig["superposed_warning_share"] <= 1.0 and fig["superposed_missed_frames"] == 0
+    assert fig["coverage_min"] == 1.0
+    truth, physical = ideal_case(20e3)
+    fig = P.ideal_bound_figures(truth, physical, margin=0.10)
+    assert fig["warning_share"] == 0.5 and fig["missed_frames"] == 0
+    # a seal holding no force after it slid is outside [L, S]: the bound would not be fail-safe
+    truth["friction_N"][20:, :] = 0.0
+    assert P.ideal_bound_figures(truth, physical, margin=0.10)["coverage_min"] == 0.5
