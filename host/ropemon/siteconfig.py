@@ -47,10 +47,41 @@ def site_warnings(site: Site, doc: dict[str, Any], friction_doc: dict[str, Any] 
         out.append(f"friction: the fitted sigma0 {fitted_s0:.3g} N/m is stiffer than the node represents at "
                    f"this sample rate and piston speed limit; using {used_s0:.3g} N/m (pre-sliding below "
                    "the displacement channel's resolution either way)")
+    cover = deviation_cover(doc["physical"], site.hoist.empty_load_N / site.hoist.ropes,
+                            site.hoist.rated_rope_tension_N)
+    if cover is not None and cover["empty_reach"] >= cover["limit"]:
+        out.append(
+            f"deviation alarm: the seals may hold up to +-{cover['empty_s_N'] / 1e3:.1f} kN per rope with the cage "
+            f"empty at the pithead ({cover['empty_rope_N'] / 1e3:.1f} kN a rope), so with no rope's seal seen "
+            f"sliding the station's band reaches +-{cover['empty_reach']:.1%} of deviation there "
+            f"({cover['rated_reach']:.1%} at the rated rope tension), beyond the {cover['limit']:.0%} limit: "
+            "DEVIATION POSSIBLE will stand whenever the node has not seen the seals slide; check the ropes' "
+            "balance by other means (docs/accuracy.md, \"What to distrust and what to do\")")
     if site.sensors.temperature is None:
         temps = site.oil.table_temps_C
         out.append(f"oil: no temperature input: losses are compensated at {site.oil.temp_assumed_C:g} C; "
                    f"the table covers {temps[0]:g}..{temps[-1]:g} C for a node with an input")
+    return out
+
+
+def deviation_cover(physical: dict[str, Any], empty_rope_n: float, rated_rope_n: float) -> dict[str, float] | None:
+    """How far the station's band reaches when no rope's seal has been seen sliding, with the ropes
+    equal at the empty cage's and at the rated rope tension (`ropemon.uncertainty`); None without
+    friction lines."""
+    from ropemon.uncertainty import BandParams, RopeInterval, deviation_bounds
+
+    band = BandParams.from_physical(physical)
+    if band is None:
+        return None
+    out: dict[str, float] = {"limit": float(physical.get("imbalance_frac", 0.1))}
+    for name, t in (("empty", empty_rope_n), ("rated", rated_rope_n)):
+        ivs = []
+        for area in band.areas_m2:
+            s, _fc, _floor = band.limits(t / area / 1000.0)
+            ivs.append(RopeInterval(t, max(0.0, t - s), t + s, t, s, False))
+        out[f"{name}_rope_N"] = t
+        out[f"{name}_s_N"] = ivs[0].s
+        out[f"{name}_reach"] = max(b.reach for b in deviation_bounds(ivs) if b is not None)
     return out
 
 

@@ -182,3 +182,29 @@ def test_empty_load_is_a_host_only_key_the_node_ignores(site_dir):
     without = make_node_json({k: v for k, v in ph.items() if k not in ("conveyance_weight_N", "slack_frac")})
     assert with_keys["node"] == without["node"] and with_keys["crc"] == without["crc"]
     assert node_module("config").parse(with_keys) is not None
+
+
+def test_config_says_when_the_seals_are_too_strong_for_the_band_to_vouch_for_the_limit(site_dir, capsys):
+    """The paper's worn seal can hold more than a tenth of a rope's load: `ropemon config` says
+    DEVIATION POSSIBLE will stand until the seals are seen to slide."""
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(site_dir / "node.json")]) == 0
+    err = capsys.readouterr().err
+    assert "deviation alarm: the seals may hold up to" in err and "DEVIATION POSSIBLE will stand" in err
+
+
+def test_deviation_cover_hand_checked():
+    """Four equal ropes of 40 kN, Fs flat, no residual: S = 1.25 Fs. Fs = 2 kN: S = 2.5 kN,
+    d_max = 4 x 42.5 / (42.5 + 3 x 37.5) - 1 = 9.68 %; Fs = 2.2 kN: 4 x 42.75 / (42.75 + 3 x 37.25) - 1
+    = 10.68 %."""
+    from ropemon.siteconfig import deviation_cover
+
+    def physical(fs):
+        return {"ropes": 4, "cylinder_area_m2": [0.008] * 4, "imbalance_frac": 0.1,
+                "friction": {"Fs": {"intercept": fs, "slope": 0.0}, "Fc": {"intercept": fs, "slope": 0.0},
+                             "residual": 0.0}}
+    c = deviation_cover(physical(2000.0), 40e3, 40e3)
+    assert c["empty_s_N"] == pytest.approx(2500.0)
+    assert c["empty_reach"] == pytest.approx(170 / 155 - 1) and c["empty_reach"] < c["limit"]
+    c = deviation_cover(physical(2200.0), 40e3, 40e3)
+    assert c["rated_reach"] == pytest.approx(171 / 154.5 - 1) and c["rated_reach"] > c["limit"]
+    assert deviation_cover({"ropes": 4, "cylinder_area_m2": 0.008}, 40e3, 40e3) is None
