@@ -4,7 +4,7 @@ Reruns the float reference on a scenario's run directory as `ropemon evaluate`
 left it (`RUN/sim/sensors.rsens`, `RUN/sim/truth.npz`, `RUN/node-evaluated.json`)
 and lists the frames (10 Hz windows) where, with a real 8 % deviation of some
 rope superposed, another level of the alarm is raised falsely, or a real 12 %
-deviation is not seen (the assessment of `ropemon.metrics.alarm_assessment`,
+deviation is not seen (the assessment of `ropemon.lab.metrics.alarm_assessment`,
 counted once per frame whatever the rope and sign): by phase of the wind, by
 the ropes' mean tension, and as episodes (frames less than 0.5 s apart); then
 the operator alarms those frames make through the host's debounce
@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ropemon import evaluate as EV
-from ropemon import metrics as M
-from ropemon import reference
+from ropemon.lab import evaluate as EV
+from ropemon.lab import metrics as M
+from ropemon.commission import reference
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling, however this was loaded
 import pithead_spread as PS  # noqa: E402

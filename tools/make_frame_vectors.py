@@ -16,7 +16,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "host"))
 
-from ropemon.protocol import L, encode_frame  # noqa: E402
+from ropemon.station.protocol import L, encode_frame  # noqa: E402
 
 OUT = ROOT / "tests" / "vectors" / "frames.json"
 KEY_1 = bytes(range(1, 17))                       # 16-byte key of node 1
@@ -73,7 +73,7 @@ def bad_vectors(good: list[dict]) -> list[dict]:
     from cobs import cobs
     bad_mac = bytearray(raw)
     bad_mac[-3] ^= 0x01  # inside the MAC; CRC recomputed so only the MAC is wrong
-    from ropemon.protocol import crc16
+    from ropemon.station.protocol import crc16
     bad_mac[-2:] = crc16(bytes(bad_mac[:-2])).to_bytes(2, "little")
     v2 = bytearray(raw)
     v2[0] = 2

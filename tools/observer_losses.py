@@ -1,7 +1,7 @@
 """Where the friction error comes from, stage by stage, on `ropemon evaluate` runs.
 
 For each run directory (`out/evaluate/runs/NAME`, as `ropemon evaluate` left it)
-the node's LuGre (`ropemon.reference.lugre_friction`, with the commissioned
+the node's LuGre (`ropemon.commission.reference.lugre_friction`, with the commissioned
 friction fit) is driven by:
 
 1. the plant's true piston position, no noise and no filter: the model and its
@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ropemon import evaluate as EV
-from ropemon import metrics as M
-from ropemon import reference
-from ropemon.nodeconfig import physical_params
+from ropemon.lab import evaluate as EV
+from ropemon.lab import metrics as M
+from ropemon.commission import reference
+from ropemon.commission.nodeconfig import physical_params
 
 STAGES = ("LuGre on the true piston position",
           "+ the pressure tracker",

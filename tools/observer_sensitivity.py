@@ -19,10 +19,10 @@ import sys
 import time
 from pathlib import Path
 
-from ropemon import evaluate as EV
-from ropemon import metrics as M
-from ropemon import reference
-from ropemon.nodeconfig import DEFAULTS
+from ropemon.lab import evaluate as EV
+from ropemon.lab import metrics as M
+from ropemon.commission import reference
+from ropemon.commission.nodeconfig import DEFAULTS
 
 
 def variants(ph: dict) -> list[tuple[str, dict]]:
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"## {a.scenario}: `lugre-p+loss` with one observer setting changed\n")
     print("| setting | play (um) | rope RMS % | rope peak % | pithead empty % | pithead as arrived % |")
     print("|---|---:|---:|---:|---:|---:|")
-    from ropemon.nodeconfig import physical_params
+    from ropemon.commission.nodeconfig import physical_params
     for label, ph in variants(case.physical):
         est = reference.compensate(ph, recs).tension_n
         f = M.evaluate_estimate(est, case.truth_n, case.rated_n, case.phase, case.excluded, case.steady,

@@ -19,7 +19,7 @@ Per episode, from a run directory as `ropemon evaluate` left it:
   the pressure channels' mean (they read one joined cavity pressure at rest); the
   displacement channels add well under 1 % to it;
 - the scored pithead total's change when the episode's bounce is scaled by 1 + sd and
-  1 - sd (half the difference): the plant's own seal law (`ropemon.plant.friction`)
+  1 - sd (half the difference): the plant's own seal law (`ropemon.lab.plant.friction`)
   re-run over the pistons' true path from before the stop, exact per sample for the
   velocity held over it. `check` is how far that re-run of the true path is from the
   truth's friction (it must be small against the changes).
@@ -45,10 +45,10 @@ import numpy as np
 from scipy.signal import butter, sosfiltfilt
 from scipy.stats import norm
 
-from ropemon import evaluate as EV
-from ropemon import metrics as M
-from ropemon import reference
-from ropemon.plant.friction import LuGre, from_table
+from ropemon.lab import evaluate as EV
+from ropemon.lab import metrics as M
+from ropemon.commission import reference
+from ropemon.lab.plant.friction import LuGre, from_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling, however this was loaded
 from pithead_spread import count_step_pa, true_pressure_counts  # noqa: E402

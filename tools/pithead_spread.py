@@ -60,10 +60,10 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
-from ropemon import evaluate as EV
-from ropemon import metrics as M
-from ropemon import reference
-from ropemon.nodeconfig import (COMPLIANCE_DEFAULTS, DEFAULTS, MEDIAN_NOISE, namur_limits, pressure_noise_pa,
+from ropemon.lab import evaluate as EV
+from ropemon.lab import metrics as M
+from ropemon.commission import reference
+from ropemon.commission.nodeconfig import (COMPLIANCE_DEFAULTS, DEFAULTS, MEDIAN_NOISE, namur_limits, pressure_noise_pa,
                                 pressure_tracker)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling, however this was loaded

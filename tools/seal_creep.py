@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ropemon import reference
+from ropemon.commission import reference
 
 
 def _change(a: np.ndarray, i0: int, i1: int, w: int) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 Runs a scenario's sensor stream (as `ropemon evaluate` left it in RUN) through
 the node's plain kernel under CPython (`ropenode.kernel`, bit-identical to the
-viper one the node runs) and through `ropemon.reference`, with the commissioned
+viper one the node runs) and through `ropemon.commission.reference`, with the commissioned
 `RUN/node-evaluated.json`, and prints every start and end of a stroke of each:
 time, rope, and each rope's e (the low-pass of x_f - x_h, um) as the deciding
 sample began, marking those the other does not take at the same sample. Slow:
@@ -18,7 +18,7 @@ import json
 import sys
 from pathlib import Path
 
-from ropemon import reference
+from ropemon.commission import reference
 from ropemon.firmware import node_module
 
 

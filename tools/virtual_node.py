@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "host"))
 
-from ropemon.virtualnode import VirtualNode  # noqa: E402
+from ropemon.lab.virtualnode import VirtualNode  # noqa: E402
 
 
 def main() -> int:

@@ -1,7 +1,7 @@
 """The radio frame layout: the one definition shared by the node and the host.
 
 docs/protocol.md is the prose spec of what this module defines. Both the node
-(`ropenode.frame`) and the host (`ropemon.protocol`) build their packers from
+(`ropenode.frame`) and the host (`ropemon.station.protocol`) build their packers from
 these constants, so the two cannot drift. Little-endian throughout.
 
     header  <BBBBIIH   version, kind, node, fault_mask, seq, time_ms, status

@@ -12,20 +12,20 @@ import sys
 
 # command -> (module, one-line help)
 COMMANDS = {
-    "simulate": ("ropemon.plant.cli", "run a scenario on the hoist simulator; write truth and sensor streams"),
-    "replay": ("ropemon.replay", "run the node firmware on a sensor stream; write the radio bytes"),
-    "decode": ("ropemon.decode_cli", "decode frames from a capture file or stdin to JSON lines"),
-    "monitor": ("ropemon.monitor", "live dashboard from one or more receiver serial ports"),
-    "report": ("ropemon.report", "per-trip summary and plots from a ropemon database"),
-    "export": ("ropemon.store_cli", "export a ropemon database to CSV"),
-    "fit-friction": ("ropemon.calibrate", "fit LuGre friction parameters from test-bed data"),
-    "fit-compliance": ("ropemon.compliance", "fit each cylinder's hydraulic compliance from a recorded wind"),
-    "config": ("ropemon.siteconfig", "generate a node config from a site description"),
-    "deploy": ("ropemon.deploy", "cross-compile and copy firmware and config to a node with mpremote"),
-    "record": ("ropemon.record", "arm a node to record a commissioning wind; fetch the recording"),
-    "demo": ("ropemon.demo", "the whole chain on the simulated hoist"),
-    "evaluate": ("ropemon.evaluate", "accuracy of every estimator against simulator truth"),
-    "bench": ("ropemon.bench", "benchmarks: firmware, plant, host"),
+    "simulate": ("ropemon.lab.plant.cli", "run a scenario on the hoist simulator; write truth and sensor streams"),
+    "replay": ("ropemon.commission.replay", "run the node firmware on a sensor stream; write the radio bytes"),
+    "decode": ("ropemon.station.decode_cli", "decode frames from a capture file or stdin to JSON lines"),
+    "monitor": ("ropemon.station.monitor", "live dashboard from one or more receiver serial ports"),
+    "report": ("ropemon.station.report", "per-trip summary and plots from a ropemon database"),
+    "export": ("ropemon.station.store_cli", "export a ropemon database to CSV"),
+    "fit-friction": ("ropemon.commission.calibrate", "fit LuGre friction parameters from test-bed data"),
+    "fit-compliance": ("ropemon.commission.compliance", "fit each cylinder's hydraulic compliance from a recorded wind"),
+    "config": ("ropemon.commission.siteconfig", "generate a node config from a site description"),
+    "deploy": ("ropemon.commission.deploy", "cross-compile and copy firmware and config to a node with mpremote"),
+    "record": ("ropemon.commission.record", "arm a node to record a commissioning wind; fetch the recording"),
+    "demo": ("ropemon.lab.demo", "the whole chain on the simulated hoist"),
+    "evaluate": ("ropemon.lab.evaluate", "accuracy of every estimator against simulator truth"),
+    "bench": ("ropemon.lab.bench", "benchmarks: firmware, plant, host"),
 }
 
 

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ropemon import compliance
+from ropemon.commission import compliance
 from ropemon.cli import main as ropemon
 from ropemon.firmware import node_module
-from ropemon.nodeconfig import example_physical, make_node_json
-from ropemon.plant.output import write_rsens
-from ropemon.site import SiteError, load_site, physical_from_site
+from ropemon.commission.nodeconfig import example_physical, make_node_json
+from ropemon.lab.plant.output import write_rsens
+from ropemon.commission.site import SiteError, load_site, physical_from_site
 
 ROOT = Path(__file__).resolve().parents[2]
 SCEN = ROOT / "scenarios"

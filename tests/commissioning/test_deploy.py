@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from ropemon import deploy as D
+from ropemon.commission import deploy as D
 from ropemon.firmware import FIRMWARE_DIR
-from ropemon.virtualnode import VirtualNode, micropython_command
+from ropemon.lab.virtualnode import VirtualNode, micropython_command
 
 
 # --- arch detection and compatibility
@@ -545,7 +545,7 @@ def _rsens(path: Path, phys: dict, pressures_pa: list[float], seconds: float) ->
 
 
 def test_the_deployed_firmware_frames_a_simulated_stream(tmp_path, node_json):
-    from ropemon.replay import replay
+    from ropemon.commission.replay import replay
 
     doc = json.loads(node_json.read_text())
     phys = doc["physical"]
@@ -569,7 +569,7 @@ def test_the_deployed_firmware_frames_a_simulated_stream(tmp_path, node_json):
 
 def _run_sim_on_node(root: Path, tmp_path: Path, doc: dict, pressures_pa: list[float]) -> list:
     """Boot the node's deployed firmware with the sim HAL on 2 s at rest; decode and check its frames."""
-    from ropemon.decoder import StreamDecoder
+    from ropemon.station.decoder import StreamDecoder
 
     phys = doc["physical"]
     samples = _rsens(tmp_path / "rest.rsens", phys, pressures_pa, seconds=2.0)

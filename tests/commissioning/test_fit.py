@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ropemon import calibrate, testbed
+from ropemon.commission import calibrate
+from ropemon.lab import testbed
 from ropemon.cli import main as ropemon
 
 TRUTH = testbed.PAPER_SEAL
@@ -193,7 +194,7 @@ SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "paper-field-trip
 def test_bed_runs_the_scenarios_own_seal_and_the_fit_recovers_it(tmp_path):
     """`--scenario`: the bed plays the plant's hidden seal; fit-friction recovers its lines
     (the example seal PAPER_SEAL is half as strong: a fit of it would be far off)."""
-    from ropemon.plant.friction import from_table
+    from ropemon.lab.plant.friction import from_table
 
     doc = tomllib.loads(SCENARIO.read_text())
     plant = from_table(doc["plant"]["friction"], "plant.friction")

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from ropemon import calibrate, testbed
-from ropemon.plant.friction import example_table
+from ropemon.commission import calibrate
+from ropemon.lab import testbed
+from ropemon.lab.plant.friction import example_table
 
 from test_fit_residual import seal_file
 

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from ropemon import calibrate, testbed
+from ropemon.commission import calibrate
+from ropemon.lab import testbed
 from ropemon.cli import main as ropemon
-from ropemon.plant.friction import example_table
+from ropemon.lab.plant.friction import example_table
 
 ROOT = Path(__file__).resolve().parents[2]
 PRESSURES = (2.0, 5.0, 8.0, 11.0)

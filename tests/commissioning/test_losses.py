@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from ropemon import losses
-from ropemon.site import Fitting, PipePath, PipeSegment, load_site
+from ropemon.commission import losses
+from ropemon.commission.site import Fitting, PipePath, PipeSegment, load_site
 
 ROOT = Path(__file__).resolve().parents[2]
 RHO, NU = 870.0, 100e-6  # a VG46-like oil near 20 C

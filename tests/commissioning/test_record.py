@@ -8,8 +8,8 @@ import numpy as np
 
 from ropemon.cli import main
 from ropemon.firmware import node_module
-from ropemon.reference import read_rsens
-from ropemon.virtualnode import VirtualNode
+from ropemon.commission.reference import read_rsens
+from ropemon.lab.virtualnode import VirtualNode
 
 
 def test_arm_then_fetch_a_recording(tmp_path, capsys):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from ropemon.site import SiteError, check_friction, load_site, parse_site
+from ropemon.commission.site import SiteError, check_friction, load_site, parse_site
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER_SITE = ROOT / "scenarios" / "paper-site.toml"
@@ -161,7 +161,7 @@ def test_friction_must_stay_physical_over_the_sensor_range():
 
 
 def test_physical_needs_a_friction_fit(doc):
-    from ropemon.site import physical_from_site
+    from ropemon.commission.site import physical_from_site
     site = parse_site(edited(doc, "friction", delete=True), PAPER_SITE)
     with pytest.raises(SiteError, match=r"^friction.file: missing \(run `ropemon fit-friction`"):
         physical_from_site(site)

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from ropemon.virtualnode import VirtualNode
+from ropemon.lab.virtualnode import VirtualNode
 
 
 def mpremote(port: str, *args: str, timeout: float = 20) -> subprocess.CompletedProcess:

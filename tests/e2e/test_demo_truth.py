@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from ropemon.demo import accuracy, window_truth
-from ropemon.protocol import Rope, decode_raw, encode_frame
+from ropemon.lab.demo import accuracy, window_truth
+from ropemon.station.protocol import Rope, decode_raw, encode_frame
 
 HZ, WIN = 200, 20
 AREA = [0.03] * 4

@@ -3,8 +3,8 @@ import io
 
 from rich.console import Console
 
-from ropemon.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
-from ropemon.protocol import Rope, encode_frame
+from ropemon.station.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
+from ropemon.station.protocol import Rope, encode_frame
 
 KEY = bytes(range(16))
 SITE = SiteFigures([0.0314] * 4, 80_000, 320_000, 0.10, 3.4)
@@ -98,7 +98,7 @@ def test_a_receiver_whose_port_is_missing_is_shown_down():
 
 
 def test_live_loop_rings_the_bell_on_a_new_alarm_and_draws_the_screen():
-    from ropemon.monitor import live_loop
+    from ropemon.station.monitor import live_loop
     s, clk = session()
     for seq in range(30):
         clk.t = seq * 0.1

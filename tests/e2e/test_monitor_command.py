@@ -8,8 +8,8 @@ import sys
 import time
 from pathlib import Path
 
-from ropemon.protocol import Rope, encode_frame
-from ropemon.vserial import VirtualPort
+from ropemon.station.protocol import Rope, encode_frame
+from ropemon.lab.vserial import VirtualPort
 
 KEY = bytes(range(16))
 ROOT = Path(__file__).resolve().parents[2]

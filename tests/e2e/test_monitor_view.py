@@ -4,8 +4,8 @@ import math
 
 from rich.console import Console
 
-from ropemon.monitor import MonitorView, SiteFigures, sparkline
-from ropemon.protocol import Rope, decode_raw, encode_frame
+from ropemon.station.monitor import MonitorView, SiteFigures, sparkline
+from ropemon.station.protocol import Rope, decode_raw, encode_frame
 
 AREA = 0.0314
 SITE = SiteFigures([AREA] * 4, rated_rope_tension_n=80_000, rated_load_n=320_000,
@@ -111,8 +111,8 @@ def test_two_cage_nodes_one_shown_the_other_summarised_and_switchable():
 def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
     """With the seal's friction lines each rope shows its deviation's band; a rope whose estimate
     flipped while its pressure barely moved reads +6 % but may reach 10 %: DEVIATION POSSIBLE, yellow."""
-    from ropemon.monitor import HostSession, alarm_settings
-    from ropemon.uncertainty import BandParams
+    from ropemon.station.monitor import HostSession, alarm_settings
+    from ropemon.station.uncertainty import BandParams
 
     phys = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,
             "friction": {"Fs": {"intercept": 0.0, "slope": 600.0}, "Fc": {"intercept": 0.0, "slope": 400.0},

@@ -2,10 +2,10 @@
 sent arrives at most once, nothing corrupted is accepted, losses are counted."""
 import numpy as np
 
-from ropemon import radio
-from ropemon.demo import DemoClock, Sent, play_to_host, summarize
-from ropemon.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
-from ropemon.protocol import Rope, decode_raw, encode_frame
+from ropemon.lab import radio
+from ropemon.lab.demo import DemoClock, Sent, play_to_host, summarize
+from ropemon.station.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
+from ropemon.station.protocol import Rope, decode_raw, encode_frame
 
 KEY = bytes(range(32))
 SITE = SiteFigures([0.0314] * 4, 80_000, 320_000, 0.10, 3.4)

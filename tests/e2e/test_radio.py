@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ropemon.radio import (RadioParams, Receiver, bit_error_rate, flip_bits, loss_probability,
+from ropemon.lab.radio import (RadioParams, Receiver, bit_error_rate, flip_bits, loss_probability,
                            paper_receivers, transmit)
 
 SHAFT = 810.0

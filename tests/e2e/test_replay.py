@@ -5,9 +5,9 @@ import struct
 import pytest
 
 from ropemon.cli import main
-from ropemon.demo import read_frames_bin
+from ropemon.lab.demo import read_frames_bin
 from ropemon.firmware import FIRMWARE_DIR
-from ropemon.protocol import L
+from ropemon.station.protocol import L
 
 CONFIG = FIRMWARE_DIR / "node.json"
 
@@ -113,8 +113,8 @@ def test_replay_into_a_log_that_report_and_export_read(wind, tmp_path, capsys):
 def test_an_imbalanced_rope_raises_the_deviation_alarm_on_node_time(wind, tmp_path, capsys):
     """Rope 2's cylinder area 30 % too large in the config: the node reads it ~+21 % from the
     mean from the first frame, so DEVIATION rope 2 raises after its 0.5 s hold of node time."""
-    from ropemon.nodeconfig import make_node_json
-    from ropemon.store import Store
+    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.station.store import Store
 
     doc = json.loads((wind / "node.json").read_text())
     doc["physical"]["cylinder_area_m2"][1] *= 1.3

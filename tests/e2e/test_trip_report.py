@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from ropemon.cli import main
-from ropemon.protocol import Rope, decode_raw, encode_frame
-from ropemon.report import HoistLoad, trip_table, trips_from_store
-from ropemon.store import Store
+from ropemon.station.protocol import Rope, decode_raw, encode_frame
+from ropemon.station.report import HoistLoad, trip_table, trips_from_store
+from ropemon.station.store import Store
 
 AREA = 0.0314
 LOAD = HoistLoad(cage_kg=8180, tail_ropes=2, tail_kg_per_m=6.62, shaft_m=810)

@@ -3,7 +3,7 @@ import time
 
 import serial
 
-from ropemon.vserial import Player, VirtualPort
+from ropemon.lab.vserial import Player, VirtualPort
 
 
 def test_every_byte_value_arrives_unchanged_through_pyserial():

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ropemon import evaluate as EV
-from ropemon import reference
+from ropemon.lab import evaluate as EV
+from ropemon.commission import reference
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("alarm_frames", ROOT / "tools" / "alarm_frames.py")

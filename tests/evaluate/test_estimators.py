@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ropemon import estimators as est
+from ropemon.lab import estimators as est
 
 FRICTION = {
     "Fs": {"slope": 100.0, "intercept": 1000.0},

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from ropemon import cli
-from ropemon import estimators as E
-from ropemon import evaluate as ev
+from ropemon.lab import estimators as E
+from ropemon.lab import evaluate as ev
 
 
 @pytest.fixture(scope="module")

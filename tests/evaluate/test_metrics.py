@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from ropemon import metrics as m
+from ropemon.lab import metrics as m
 
 RATED = 1000.0  # N: 1 N of error is 0.1 % of rated
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ropemon import evaluate as EV
-from ropemon.nodeconfig import make_node_json
+from ropemon.lab import evaluate as EV
+from ropemon.commission.nodeconfig import make_node_json
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("observer_losses", ROOT / "tools" / "observer_losses.py")

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from ropemon import evaluate as EV
-from ropemon.plant.friction import from_table
+from ropemon.lab import evaluate as EV
+from ropemon.lab.plant.friction import from_table
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("pithead_bound", ROOT / "tools" / "pithead_bound.py")

@@ -160,7 +160,7 @@ def test_the_smoother_row_replays_its_estimate_into_the_reference(two_seeds, cap
     # the tracker itself put in the smoother's place must give back the evaluation's
     # figures: the medians, the replay and the play scaling are right (said to be half
     # as noisy as the tracker, its plays x2 are the tracker's own)
-    from ropemon import nodeconfig, reference
+    from ropemon.commission import nodeconfig, reference
 
     class TrackerAsSmoother:
         def __init__(self, physical):

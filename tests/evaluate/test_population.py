@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ropemon import population as P
-from ropemon.alarms import AlarmEngine, AlarmSettings
-from ropemon.protocol import decode_raw, encode_frame
+from ropemon.lab import population as P
+from ropemon.station.alarms import AlarmEngine, AlarmSettings
+from ropemon.station.protocol import decode_raw, encode_frame
 
 FRAME_S = 0.1
 AREA = 7.854e-3
@@ -60,7 +60,7 @@ def test_population_names_round_trip():
 
 
 def test_site_change_sets_bore_and_scales_each_ropes_hoses():
-    from ropemon.evaluate import SCENARIO_DIR
+    from ropemon.lab.evaluate import SCENARIO_DIR
 
     h = P.draw(103)
     text = (SCENARIO_DIR / "paper-site.toml").read_text()
@@ -140,7 +140,7 @@ def test_quantiles_ignore_missing_values():
 def test_one_drawn_wind_end_to_end_and_the_json_summary(tmp_path):
     """A drawn hoist simulated, commissioned (quick bed), run through the firmware under
     micropython and scored; the summary has the fields `ropemon evaluate --population --json` prints."""
-    from ropemon.evaluate import BED_QUICK, FIRMWARE
+    from ropemon.lab.evaluate import BED_QUICK, FIRMWARE
 
     r = P.run_wind(1, tmp_path, firmware=True, bed=BED_QUICK)
     assert "error" not in r, r.get("error")

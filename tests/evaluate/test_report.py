@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from ropemon import evaluate as ev
-from ropemon import metrics as m
+from ropemon.lab import evaluate as ev
+from ropemon.lab import metrics as m
 
 RATED = 10000.0
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ropemon import evaluate as ev
+from ropemon.lab import evaluate as ev
 
 
 def base(tmp_path):
@@ -25,7 +25,7 @@ def test_oil_variants_change_only_the_oil_temperature(tmp_path):
 
 
 def test_temperature_input_variant_fits_the_input_in_a_site_copy(tmp_path):
-    from ropemon.site import load_site
+    from ropemon.commission.site import load_site
 
     doc = ev.scenario_doc("oil-40C-temp-input", tmp_path)[0]
     site = load_site(doc["site"])
@@ -34,7 +34,7 @@ def test_temperature_input_variant_fits_the_input_in_a_site_copy(tmp_path):
 
 
 def test_quiet_sensors_variant_quarters_the_pressure_noise_and_sets_the_sites_play(tmp_path):
-    from ropemon.site import load_site, physical_from_site
+    from ropemon.commission.site import load_site, physical_from_site
 
     doc = ev.scenario_doc("quiet-sensors", tmp_path)[0]
     ref = base(tmp_path)
@@ -92,7 +92,7 @@ def test_long_rest_and_open_loop_variants(tmp_path):
 def test_an_absent_rope_in_a_firmware_frame_is_not_scored():
     """A frame marks a rope with no healthy sample in its window absent (TENSION_ABSENT):
     its mean is NaN for the scoring, not -32768 daN."""
-    from ropemon import protocol as P
+    from ropemon.station import protocol as P
 
     rope = P.Rope(4000, 3990, 4010, 5000)
     gone = P.Rope(P.L.TENSION_ABSENT, P.L.TENSION_ABSENT, P.L.TENSION_ABSENT, P.L.RAW_KPA_ABSENT)
@@ -107,15 +107,15 @@ def test_an_absent_rope_in_a_firmware_frame_is_not_scored():
 
 
 def test_other_friction_variant_builds_a_plant_law(tmp_path):
-    from ropemon.plant.friction import CoulombStribeck, from_table
+    from ropemon.lab.plant.friction import CoulombStribeck, from_table
 
     fr = ev.scenario_doc("plant-other-friction", tmp_path)[0]["plant"]["friction"]
     assert isinstance(from_table(fr, "plant.friction"), CoulombStribeck)
 
 
 def test_the_hidden_seal_reaches_the_bed_as_a_scenario_file(tmp_path):
-    """The seal the bed runs is the scenario's own, read by ropemon.testbed.scenario_seal."""
-    from ropemon import testbed
+    """The seal the bed runs is the scenario's own, read by ropemon.lab.testbed.scenario_seal."""
+    from ropemon.lab import testbed
 
     for name in (ev.FIELD_TRIP, "plant-other-friction"):
         fr = ev.scenario_doc(name, tmp_path)[0]["plant"]["friction"]

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ropemon import evaluate as EV
+from ropemon.lab import evaluate as EV
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("seal_creep", ROOT / "tools" / "seal_creep.py")

@@ -1,4 +1,4 @@
-"""Fixed-point node vs the float64 reference (ropemon.reference) on long random streams.
+"""Fixed-point node vs the float64 reference (ropemon.commission.reference) on long random streams.
 
 Streams cover the full pressure and displacement ranges: rest, slow creep,
 oscillation with reversals, random walks, shock steps, v_max saturation, and
@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from streams_cpython import random_stream, run_node, slide_stream, wind_records
 
-from ropemon import protocol, reference
+from ropemon.station import protocol
+from ropemon.commission import reference
 from ropemon.firmware import node_module
-from ropemon.nodeconfig import COMPLIANCE_DEFAULTS, example_physical, make_node_json
+from ropemon.commission.nodeconfig import COMPLIANCE_DEFAULTS, example_physical, make_node_json
 
 config = node_module("config")
 Node = node_module("node").Node
@@ -289,7 +290,7 @@ def _stroke_doc(k_m: float) -> dict:
 
 def _true_friction(ph: dict, x: np.ndarray, p_pa: np.ndarray) -> np.ndarray:
     """The seal's LuGre friction along the true positions (testbed.LuGre, 8 sub-steps)."""
-    from ropemon.testbed import LuGre
+    from ropemon.lab.testbed import LuGre
 
     fs = int(ph["sample_hz"])
     out = np.empty(x.shape)
@@ -559,7 +560,7 @@ def test_a_faulted_pressure_loop_sizes_the_play_for_the_median_of_the_others(mon
     to match (nodeconfig MEDIAN_NOISE), so without the rest hold the noise relaxes their
     seals over 18 s of rest by a quarter less than with the play of four channels; the
     node does as the reference."""
-    from ropemon import nodeconfig
+    from ropemon.commission import nodeconfig
 
     doc = make_node_json(_rest_physical(rest_sigmas=0.0))
     ph = doc["physical"]
@@ -621,7 +622,7 @@ def test_frames_flag_a_noise_beyond_what_the_node_follows_unchecked():
     (layout.NOISE_TOL_Q10, fit-compliance's re-check tolerance with following): with the
     transmitters 50 % noisier, from 10-20 s after the start to the end; never at the
     noise as commissioned, nor 20 % noisier, nor with the following off."""
-    from ropemon.decoder import StreamDecoder
+    from ropemon.station.decoder import StreamDecoder
 
     def flagged(follow: float, noise: float) -> np.ndarray:
         doc = make_node_json(_rest_physical(noise_follow_s=follow))
@@ -645,8 +646,8 @@ def test_one_noisier_transmitter_at_commissioning_is_no_noise_change():
     the level the node follows. (Sized by the noisiest channel instead, the ratio would
     head for 0.72, with its 20 s time constant from 1, and frames would be flagged from
     about 40 s on.)"""
-    from ropemon import compliance
-    from ropemon.decoder import StreamDecoder
+    from ropemon.commission import compliance
+    from ropemon.station.decoder import StreamDecoder
 
     noise = [5200.0, 5200.0, 7280.0, 5200.0]
     base = _rest_physical()

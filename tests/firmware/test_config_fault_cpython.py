@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from ropemon import protocol
+from ropemon.station import protocol
 from ropemon.firmware import FIRMWARE_DIR, node_module
 
 L = node_module("layout")

@@ -9,7 +9,7 @@ import json
 import subprocess
 import sys
 
-from ropemon.bench import firmware
+from ropemon.lab.bench import firmware
 
 
 def test_cli_json_reports_every_figure():

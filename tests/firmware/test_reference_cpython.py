@@ -6,8 +6,8 @@ import struct
 import numpy as np
 import pytest
 
-from ropemon import reference
-from ropemon.nodeconfig import example_physical
+from ropemon.commission import reference
+from ropemon.commission.nodeconfig import example_physical
 
 C4, C20 = 9600, 48000
 
@@ -83,7 +83,7 @@ def test_read_rsens(tmp_path):
 
 def _lugre_truth(ph, x, p_pa):
     """The seal's friction along the true (noiseless) position x: exact LuGre, 8 sub-steps."""
-    from ropemon.testbed import LuGre
+    from ropemon.lab.testbed import LuGre
 
     fs = ph["sample_hz"]
     law = LuGre(ph["friction"])

@@ -9,9 +9,9 @@ from pathlib import Path
 
 from streams_cpython import random_stream
 
-from ropemon import protocol
+from ropemon.station import protocol
 from ropemon.firmware import FIRMWARE_DIR, node_module
-from ropemon.nodeconfig import example_physical
+from ropemon.commission.nodeconfig import example_physical
 
 MICROPYTHON = Path(sys.executable).parent / "micropython"
 L = node_module("layout")

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import random
 
-from ropemon.protocol import L, decode_raw, encode_frame
+from ropemon.station.protocol import L, decode_raw, encode_frame
 
 KEYS = {1: bytes(range(16)), 2: bytes(range(100, 132))}
 

@@ -7,10 +7,10 @@ import io
 from rich.console import Console
 
 from host_framegen import KEYS
-from ropemon.decoder import SEQ_COUNT_BITS
-from ropemon.monitor import HostSession, MonitorView, handle_keys, operator_name
-from ropemon.protocol import encode_frame
-from ropemon.store import Store
+from ropemon.station.decoder import SEQ_COUNT_BITS
+from ropemon.station.monitor import HostSession, MonitorView, handle_keys, operator_name
+from ropemon.station.protocol import encode_frame
+from ropemon.station.store import Store
 
 
 def w(boot: int, k: int) -> bytes:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from ropemon.alarms import AlarmEngine, AlarmSettings, Timing
-from ropemon.decoder import StreamDecoder
-from ropemon.protocol import L, encode_frame
+from ropemon.station.alarms import AlarmEngine, AlarmSettings, Timing
+from ropemon.station.decoder import StreamDecoder
+from ropemon.station.protocol import L, encode_frame
 
 DT = 0.1  # frame period, s
 
@@ -351,8 +351,8 @@ def test_stuck_on_the_evaluation_streams_through_the_firmware(tmp_path, capsys, 
     import json
 
     from ropemon.cli import main
-    from ropemon.demo import read_frames_bin
-    from ropemon.evaluate import simulate
+    from ropemon.lab.demo import read_frames_bin
+    from ropemon.lab.evaluate import simulate
 
     simulate(scenario, tmp_path, seed=1)
     out = tmp_path / "frames.bin"
@@ -374,8 +374,8 @@ def test_debounced_series_is_the_engines_debounce():
     the engine does, skipped frames included."""
     import numpy as np
 
-    from ropemon.alarms import Debounce
-    from ropemon.metrics import debounced
+    from ropemon.station.alarms import Debounce
+    from ropemon.lab.metrics import debounced
 
     rng = np.random.default_rng(7)
     timing = AlarmSettings().timing
@@ -400,7 +400,7 @@ def test_debounced_series_is_the_engines_debounce():
 def test_debounced_raises_after_the_engines_hold():
     import numpy as np
 
-    from ropemon.metrics import debounced
+    from ropemon.lab.metrics import debounced
 
     times = np.arange(10) * DT
     cond = np.array([False, True, True, True, True, True, True, False, False, False])
@@ -414,7 +414,7 @@ def test_debounced_raises_after_the_engines_hold():
 def test_a_hold_of_whole_frame_periods_does_not_depend_on_float_rounding():
     import numpy as np
 
-    from ropemon.metrics import debounced
+    from ropemon.lab.metrics import debounced
 
     times = np.arange(100) * DT  # 43 * 0.1 - 38 * 0.1 < 0.5 in floats
     assert times[43] - times[38] < 0.5
@@ -440,7 +440,7 @@ def test_by_default_seals_that_can_hold_the_limit_keep_deviation_possible_standi
     """Anchoring off (the default): the band is the seals' physical range. Seals whose static
     friction can hold more than 10 % of the mean keep DEVIATION POSSIBLE standing on every rope
     at 0 % shown; seals that cannot (a light seal) raise nothing."""
-    from ropemon.uncertainty import BandParams
+    from ropemon.station.uncertainty import BandParams
 
     def run(slope):
         phys = {**BAND_PHYS, "friction": {"Fs": {"intercept": 0.0, "slope": slope},
@@ -459,7 +459,7 @@ def test_by_default_seals_that_can_hold_the_limit_keep_deviation_possible_standi
 def test_deviation_possible_clears_when_the_ropes_are_unloaded():
     """Below the deviation check's minimum mean (unloaded ropes) neither alarm is judged: the
     warning clears as the certain alarm does, it does not stand for ever."""
-    from ropemon.uncertainty import BandParams
+    from ropemon.station.uncertainty import BandParams
 
     phys = {k: v for k, v in BAND_PHYS.items() if k not in ("band_anchor", "band_margin")}
     eng = AlarmEngine(AlarmSettings(band=BandParams.from_physical(phys)))
@@ -473,13 +473,13 @@ def test_deviation_possible_clears_when_the_ropes_are_unloaded():
 
 
 def band_engine():
-    from ropemon.uncertainty import BandParams
+    from ropemon.station.uncertainty import BandParams
     return AlarmEngine(AlarmSettings(band=BandParams.from_physical(BAND_PHYS)))
 
 
 def band_frame(ropes, seq, fault_mask=0):
     """ropes: per rope (tension daN, friction estimate N): its raw pressure is (T - F) / A."""
-    from ropemon.protocol import Frame, Rope
+    from ropemon.station.protocol import Frame, Rope
     recs = tuple(Rope(t, t, t, round((t * 10 - f) / 10)) for t, f in ropes)
     return Frame(1, 0, 1, fault_mask, seq, seq * 100, 0, recs, 0, 0, 7400, L.OIL_TEMP_ABSENT)
 

@@ -8,8 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from host_framegen import KEYS, frame_set
-from ropemon.batch import decode_bytes, decode_file
-from ropemon.decoder import StreamDecoder
+from ropemon.station.batch import decode_bytes, decode_file
+from ropemon.station.decoder import StreamDecoder
 
 # ROPEMON_EXAMPLES=5000 for a deep run; the default keeps `make test` fast.
 FAST = settings(max_examples=int(os.environ.get("ROPEMON_EXAMPLES", 100)), deadline=None,
@@ -68,8 +68,8 @@ def test_columns_and_file(tmp_path):
 
 
 def test_rewound_duplicate_and_replayed_counts_match_the_streaming_decoder():
-    from ropemon.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS
-    from ropemon.protocol import encode_frame
+    from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS
+    from ropemon.station.protocol import encode_frame
 
     def w(seq, tension=1, node=1):
         return encode_frame(node=node, seq=seq, ropes=[(tension,) * 4], key=KEYS[node])[1]

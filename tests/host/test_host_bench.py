@@ -1,8 +1,8 @@
 """The host benchmark's decoders agree (what it times is real work); speed itself is in `make bench`."""
 from __future__ import annotations
 
-from ropemon.batch import decode_bytes
-from ropemon.bench import host
+from ropemon.station.batch import decode_bytes
+from ropemon.lab.bench import host
 
 
 def test_benchmark_decoders_agree_on_its_capture():

@@ -7,9 +7,9 @@ import sys
 from pathlib import Path
 
 from host_framegen import KEYS, frame_set
-from ropemon.decoder import StreamDecoder
-from ropemon.protocol import L
-from ropemon.store import Store
+from ropemon.station.decoder import StreamDecoder
+from ropemon.station.protocol import L
+from ropemon.station.store import Store
 
 
 def ropemon(*args, stdin: bytes | None = None) -> subprocess.CompletedProcess:
@@ -94,8 +94,8 @@ def test_decode_with_keys_from_node_json(tmp_path):
 
 
 def test_decode_accept_rewound(tmp_path):
-    from ropemon.decoder import SEQ_COUNT_BITS
-    from ropemon.protocol import encode_frame
+    from ropemon.station.decoder import SEQ_COUNT_BITS
+    from ropemon.station.protocol import encode_frame
 
     def w(boot, k):
         return encode_frame(node=1, seq=(boot << SEQ_COUNT_BITS) | k, ropes=[(1, 1, 1, 1)], key=KEYS[1])[1]

@@ -8,9 +8,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from host_framegen import KEYS, expected, frame_set
-from ropemon.decoder import StreamDecoder
-from ropemon.merge import Merger
-from ropemon.protocol import L, MAX_BODY_LEN
+from ropemon.station.decoder import StreamDecoder
+from ropemon.station.merge import Merger
+from ropemon.station.protocol import L, MAX_BODY_LEN
 
 # ROPEMON_EXAMPLES=5000 for a deep run; the default keeps `make test` fast.
 FAST = settings(max_examples=int(os.environ.get("ROPEMON_EXAMPLES", 400)), deadline=None,

@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 
 from host_framegen import KEYS
-from ropemon.alarms import AlarmEngine, AlarmSettings, Timing
-from ropemon.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder
+from ropemon.station.alarms import AlarmEngine, AlarmSettings, Timing
+from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder
 from ropemon.firmware import FIRMWARE_DIR
-from ropemon.protocol import encode_frame
-from ropemon.virtualnode import micropython_command
+from ropemon.station.protocol import encode_frame
+from ropemon.lab.virtualnode import micropython_command
 
 
 def wires(node: int, seqs, key: bytes | None = None, tension: int = 1) -> list[bytes]:

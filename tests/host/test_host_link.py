@@ -8,7 +8,7 @@ import time
 import tty
 
 from host_framegen import frame_set
-from ropemon.link import FrameHub, SerialReceiver
+from ropemon.station.link import FrameHub, SerialReceiver
 
 
 def wait_for(cond, timeout=5.0):
@@ -173,8 +173,8 @@ def test_a_failing_consumer_does_not_end_the_link():
 
 def test_hub_passes_the_operator_acceptance_to_every_receiver():
     from host_framegen import KEYS
-    from ropemon.decoder import SEQ_COUNT_BITS
-    from ropemon.protocol import encode_frame
+    from ropemon.station.decoder import SEQ_COUNT_BITS
+    from ropemon.station.protocol import encode_frame
 
     def w(boot, k):
         return encode_frame(node=1, seq=(boot << SEQ_COUNT_BITS) | k, ropes=[(1, 1, 1, 1)], key=KEYS[1])[1]
@@ -202,8 +202,8 @@ def test_hub_passes_the_operator_acceptance_to_every_receiver():
 def test_a_decoder_error_is_shown_on_the_link_line_and_logged_once(tmp_path):
     """SerialReceiver survives an exception of its consumer; the monitor must not hide it:
     the link line shows the count and the last error, the log gets one event per new error."""
-    from ropemon.monitor import HostSession, MonitorView, SiteFigures
-    from ropemon.store import Store
+    from ropemon.station.monitor import HostSession, MonitorView, SiteFigures
+    from ropemon.station.store import Store
 
     def decoder_bug(data: bytes) -> None:
         raise RuntimeError("decoder bug")

@@ -1,9 +1,9 @@
 """Two-receiver merge on crafted streams: duplicates, gaps, late frames, link quality by depth."""
 from __future__ import annotations
 
-from ropemon.decoder import StreamDecoder
-from ropemon.merge import RESTART_BACK, Merger
-from ropemon.protocol import encode_frame
+from ropemon.station.decoder import StreamDecoder
+from ropemon.station.merge import RESTART_BACK, Merger
+from ropemon.station.protocol import encode_frame
 
 
 def frame(seq: int, node: int = 1, depth_m: float = 0.0):

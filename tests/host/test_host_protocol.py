@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from host_framegen import KEYS, frame_set
-from ropemon.decoder import ReplayGuard, StreamDecoder
+from ropemon.station.decoder import ReplayGuard, StreamDecoder
 from ropemon.firmware import node_module
-from ropemon.protocol import (L, CrcError, MacError, MalformedError, Rope, crc16, decode_raw,
+from ropemon.station.protocol import (L, CrcError, MacError, MalformedError, Rope, crc16, decode_raw,
                               decode_wire, encode_frame)
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -157,7 +157,7 @@ def test_a_seq_restarting_at_0_is_refused_as_a_replay():
 
 
 def test_keys_from_options_merges_key_and_config_options(tmp_path):
-    from ropemon.protocol import keys_from_options
+    from ropemon.station.protocol import keys_from_options
 
     cfg = tmp_path / "node2.json"
     cfg.write_text(json.dumps({"physical": {"node_id": 2, "key_hex": KEYS[2].hex()}}))

@@ -15,11 +15,11 @@ from pathlib import Path
 import pytest
 
 from host_framegen import KEYS
-from ropemon.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder, frame_bytes
-from ropemon.monitor import HostSession, MonitorView
-from ropemon.protocol import decode_raw, encode_frame
-from ropemon.store import Store
-from ropemon.vserial import VirtualPort
+from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder, frame_bytes
+from ropemon.station.monitor import HostSession, MonitorView
+from ropemon.station.protocol import decode_raw, encode_frame
+from ropemon.station.store import Store
+from ropemon.lab.vserial import VirtualPort
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 
 from host_framegen import frame_set
-from ropemon.alarms import AlarmEngine
-from ropemon.decoder import StreamDecoder
-from ropemon.protocol import encode_frame
-from ropemon.store import SCHEMA_VERSION, Store, StoreError
+from ropemon.station.alarms import AlarmEngine
+from ropemon.station.decoder import StreamDecoder
+from ropemon.station.protocol import encode_frame
+from ropemon.station.store import SCHEMA_VERSION, Store, StoreError
 
 HOST = Path(__file__).resolve().parents[2] / "host"
 
@@ -116,7 +116,7 @@ def test_events_link_stats_and_csv_export(tmp_path):
 
 
 def test_link_stats_keep_rewound_and_duplicate_counts(tmp_path):
-    from ropemon.decoder import DecodeCounts
+    from ropemon.station.decoder import DecodeCounts
     counts = DecodeCounts(frames_ok=9, replayed=4, rewound=3, duplicate=2)
     with Store(tmp_path / "a.db") as s:
         s.add_link_stats(1.0, "pithead", counts.as_dict())
@@ -141,9 +141,9 @@ WRITER = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {host!r})
     from ropemon.firmware import install_shim; install_shim()
-    from ropemon.decoder import StreamDecoder
-    from ropemon.protocol import encode_frame
-    from ropemon.store import Store
+    from ropemon.station.decoder import StreamDecoder
+    from ropemon.station.protocol import encode_frame
+    from ropemon.station.store import Store
     s = Store(sys.argv[1], batch_frames=7, max_latency_s=10)
     start = int(sys.argv[2])
     queued = []

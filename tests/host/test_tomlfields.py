@@ -1,9 +1,9 @@
-"""A site file and a scenario refuse the same fault in the same words (ropemon.tomlfields)."""
+"""A site file and a scenario refuse the same fault in the same words (ropemon.commission.tomlfields)."""
 import pytest
 
-from ropemon import tomlfields
-from ropemon.plant import scenario
-from ropemon.site import SiteError, _Table
+from ropemon.commission import tomlfields
+from ropemon.lab.plant import scenario
+from ropemon.commission.site import SiteError, _Table
 
 
 class _Err(ValueError):

@@ -1,4 +1,4 @@
-"""The band of each rope's tension (ropemon.uncertainty): physical range, anchor, flips,
+"""The band of each rope's tension (ropemon.station.uncertainty): physical range, anchor, flips,
 relaxation, faults, gaps, and the deviation's exact extremes."""
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import random
 
 import pytest
 
-from ropemon.protocol import Frame, L, Rope
-from ropemon.uncertainty import BandParams, SealBandTracker, deviation_bounds
+from ropemon.station.protocol import Frame, L, Rope
+from ropemon.station.uncertainty import BandParams, SealBandTracker, deviation_bounds
 
 AREA = 0.01   # m^2: 1 kPa -> 10 N
 PHYS = {"ropes": 4, "cylinder_area_m2": [AREA] * 4,

@@ -96,7 +96,7 @@ def test_installed_command_runs_outside_the_repo(installed):
     assert r.returncode == 0, r.stderr
     assert "decode" in r.stdout
 
-    # decode imports ropemon.protocol, which loads the frame layout from the firmware
+    # decode imports ropemon.station.protocol, which loads the frame layout from the firmware
     vec = json.loads(VECTORS.read_text())["good"][0]
     cap = installed["cwd"] / "capture.bin"
     cap.write_bytes(bytes.fromhex(vec["wire_hex"]))

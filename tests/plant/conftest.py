@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from ropemon.plant.run import simulate
-from ropemon.plant.scenario import load_scenario
+from ropemon.lab.plant.run import simulate
+from ropemon.lab.plant.scenario import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 

@@ -3,9 +3,9 @@ printed by `ropemon bench plant` and kept in docs/simulator.md and docs/benchmar
 import numpy as np
 import pytest
 
-from ropemon.plant.convergence import halving_difference, x_minus_integral_of_v
-from ropemon.plant.run import simulate
-from ropemon.plant.scenario import load_scenario
+from ropemon.lab.plant.convergence import halving_difference, x_minus_integral_of_v
+from ropemon.lab.plant.run import simulate
+from ropemon.lab.plant.scenario import load_scenario
 
 
 @pytest.fixture(scope="module")

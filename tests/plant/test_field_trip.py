@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ropemon.plant.model import G
+from ropemon.lab.plant.model import G
 
 
 def _end_of(res, label):

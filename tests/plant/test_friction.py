@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ropemon.plant.friction import CoulombStribeck, Line, LuGre
+from ropemon.lab.plant.friction import CoulombStribeck, Line, LuGre
 
 LUGRE = LuGre(Fs=Line(2500.0, 2000.0), Fc=Line(1700.0, 1200.0), vs=Line(0.004, -0.0002),
               sigma2=Line(20000.0, 2000.0), sigma0=1e8, sigma1=5e4)

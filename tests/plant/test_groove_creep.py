@@ -3,8 +3,8 @@ import tomllib
 
 import numpy as np
 
-from ropemon.plant.run import simulate
-from ropemon.plant.scenario import build
+from ropemon.lab.plant.run import simulate
+from ropemon.lab.plant.scenario import build
 
 
 def _field_trip(scenarios_dir, creep):

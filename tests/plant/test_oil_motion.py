@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from ropemon.plant.motion import Timeline, scurve_pieces
-from ropemon.plant.oil import Oil
+from ropemon.lab.plant.motion import Timeline, scurve_pieces
+from ropemon.commission.oil import Oil
 
 
 def test_vg46_viscosity_through_its_grade_points_and_falls_with_temperature():

@@ -3,11 +3,11 @@ import tomllib
 
 import numpy as np
 
-from ropemon.plant.friction import CoulombStribeck
-from ropemon.plant.kernel import Stepper
-from ropemon.plant.run import simulate
-from ropemon.plant.scenario import build
-from ropemon.plant.solver import GAMMA
+from ropemon.lab.plant.friction import CoulombStribeck
+from ropemon.lab.plant.kernel import Stepper
+from ropemon.lab.plant.run import simulate
+from ropemon.lab.plant.scenario import build
+from ropemon.lab.plant.solver import GAMMA
 
 
 def _short_cs(scenarios_dir):

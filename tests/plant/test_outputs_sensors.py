@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from ropemon.cli import main
-from ropemon.reference import read_rsens
-from ropemon.plant.sensors import Fault, SensorSpec, sensor_records
+from ropemon.commission.reference import read_rsens
+from ropemon.lab.plant.sensors import Fault, SensorSpec, sensor_records
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +65,7 @@ def test_speed_counter_and_hall_marks(short_out):
 
 
 def test_node_json_is_a_complete_node_config(short_out):
-    from ropemon.nodeconfig import make_node_json
+    from ropemon.commission.nodeconfig import make_node_json
 
     doc = json.loads((short_out / "node.json").read_text())
     assert doc["schema"] == 1 and isinstance(doc["crc"], int) and doc["node"]
@@ -80,8 +80,8 @@ def test_node_json_is_a_complete_node_config(short_out):
 def test_node_boots_at_the_sites_start_depth_and_tracks_the_cage_from_there(short_out):
     """The node config starts at the site's start depth (SITE.toml), never at the simulated
     cage's; the node's depth then follows the cage's travel from there."""
-    from ropemon import reference
-    from ropemon.site import load_site
+    from ropemon.commission import reference
+    from ropemon.commission.site import load_site
 
     doc = json.loads((short_out / "node.json").read_text())
     truth = np.load(short_out / "truth.npz")

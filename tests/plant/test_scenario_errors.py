@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from ropemon.plant.scenario import ScenarioError, load_scenario
+from ropemon.lab.plant.scenario import ScenarioError, load_scenario
 
 
 def _write(tmp_path, scenarios_dir, text):

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from ropemon import testbed
-from ropemon.plant.friction import (LAWS, CoulombStribeck, ElastoPlastic, Line, LuGre, MaxwellSlip,
+from ropemon.lab import testbed
+from ropemon.lab.plant.friction import (LAWS, CoulombStribeck, ElastoPlastic, Line, LuGre, MaxwellSlip,
                                     example_table, from_table)
-from ropemon.plant.kernel import Stepper, integrate_fast
-from ropemon.plant.run import simulate
-from ropemon.plant.scenario import ScenarioError, build
-from ropemon.plant.solver import GAMMA, integrate, state_scale
+from ropemon.lab.plant.kernel import Stepper, integrate_fast
+from ropemon.lab.plant.run import simulate
+from ropemon.lab.plant.scenario import ScenarioError, build
+from ropemon.lab.plant.solver import GAMMA, integrate, state_scale
 
 NEW = ("maxwell-slip", "elasto-plastic")
 P_PA = 4e6          # bed pressure of the law-alone tests
@@ -302,7 +302,7 @@ def test_fast_and_dense_integrators_agree_on_a_hoist_run(scenarios_dir, name):
 
 @pytest.mark.parametrize("name", NEW)
 def test_scenario_run_with_each_new_law(scenarios_dir, name):
-    """short-test through ropemon.plant.run.simulate: T = p_cav A + F at the final rest, the seals
+    """short-test through ropemon.lab.plant.run.simulate: T = p_cav A + F at the final rest, the seals
     hold a share of the load, and z_m is the law's one deflection per rope."""
     sc = _short(scenarios_dir, example_table(name))
     assert sc.hidden["friction_law"] == name
@@ -456,7 +456,7 @@ def _population_17(tmp_path, until_s):
     """The population's hoist of seed 17 (a Maxwell-slip seal whose elements ran away to ~400 um,
     hundreds of break displacements, and the seal friction to 25-70 kN while the cage was loaded,
     when the BDF2 step was one linearised Newton step), its grid up to until_s."""
-    from ropemon import evaluate, population
+    from ropemon.lab import evaluate, population
 
     doc, path = evaluate.scenario_doc("population-17", tmp_path)
     sc = build(doc, path, 17)
@@ -515,7 +515,7 @@ EP_RUNAWAYS = {148: 9.0, 135: 14.5}
 
 
 def _population(tmp_path, seed, until_s):
-    from ropemon import evaluate, population
+    from ropemon.lab import evaluate, population
 
     doc, path = evaluate.scenario_doc(f"population-{seed}", tmp_path)
     sc = build(doc, path, seed)
@@ -531,7 +531,7 @@ def test_elasto_plastic_seal_stays_within_its_break_on_drawn_hoists(tmp_path, se
     where the pistons pass the Stribeck drop z_ss shrinks faster than z relaxes, as in LuGre), the
     friction within force_scale (Fs(p) + sigma2(p) |v|) at every step point and at the truth's
     samples (`run.check_truth`), and the oil pressure positive."""
-    from ropemon.plant.run import check_truth
+    from ropemon.lab.plant.run import check_truth
 
     sc, steps = _population(tmp_path, seed, EP_RUNAWAYS[seed])
     p, u = sc.plant, sc.inputs

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ropemon.plant.friction import example_table, from_table
-from ropemon.plant.run import FRICTION_TOL, TruthError, check_truth
+from ropemon.lab.plant.friction import example_table, from_table
+from ropemon.lab.plant.run import FRICTION_TOL, TruthError, check_truth
 
 
 def _truth(law, n=200, ropes=4):
@@ -88,8 +88,8 @@ def test_a_truth_error_is_what_evaluate_and_the_cli_report():
 
 def test_evaluate_refuses_a_runaway_truth(tmp_path, monkeypatch):
     """A run whose truth breaks the bounds never reaches truth.npz: evaluate.simulate raises."""
-    from ropemon import evaluate
-    from ropemon.plant import run
+    from ropemon.lab import evaluate
+    from ropemon.lab.plant import run
 
     real = run.check_truth
 

@@ -1,6 +1,0 @@
-"""`ropemon bench plant`: the plant simulator's figures (ropemon.plant.bench measures them)."""
-from __future__ import annotations
-
-from ropemon.plant.bench import describe, measure
-
-__all__ = ["measure", "describe"]

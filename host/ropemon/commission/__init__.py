@@ -1,0 +1,1 @@
+"""Commissioning: the site description, the seal and compliance fits, node configs, deploy."""

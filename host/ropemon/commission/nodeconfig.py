@@ -1,0 +1,837 @@
+"""Build the integer `node` section of node.json from the SI `physical` section.
+
+`build_node_section(physical)` computes every fixed-point constant and table
+the firmware uses (scales in docs/model.md, "Fixed-point scales") and proves
+that no integer the node computes leaves +-2**30 over the declared ranges; a
+physical value that would break that raises ValueError naming the field.
+`make_node_json(physical)` adds schema and CRC; `example_physical()` is the
+documented default for the paper's field hoist, shipped as firmware/node.json
+(regenerate: `python -m ropemon.commission.nodeconfig > firmware/node.json`).
+"""
+from __future__ import annotations
+
+import functools
+import json
+import math
+import sys
+from typing import Any
+
+from ropemon.firmware import node_module
+
+I30 = 1 << 30
+SCHEMA = 1
+GEXP_STEP = 1 / 32          # u step of the exp(-u^2) table
+GEXP_POINTS = 129
+
+# Defaults for physical keys that docs/config.md does not list (see docs/model.md).
+DEFAULTS = {
+    "piston_speed_max_m_s": 0.2,   # velocity estimate saturates here
+    "hoist_speed_max_m_s": 20.0,   # larger counter jumps are glitches
+    "hall_snap_m": 2.0,            # a Hall mark snaps depth only within this distance
+    "start_depth_m": 0.0,          # depth assumed at boot (pithead landing)
+    # LuGre observer (docs/model.md, "LuGre"): the seal state follows a slower
+    # low-pass of position, through a play of a few noise sigmas for the dissipation.
+    # With a hydraulic compliance k (m/Pa per rope), that position is x_h = k p_l + b:
+    # the oil's compression from the tracked pressure p_l, plus b, a slow low-pass of
+    # x_f - k p_l (docs/model.md, "LuGre (noise-robust observer)").
+    "friction_cutoff_hz": 1.0,     # low-pass b: 1 Hz without compliance, 0.03 Hz with
+    "displacement_noise_m": 2e-5,  # rms noise of the displacement channel (transmitter + ADC)
+    "friction_play_sigmas": 2.0,   # play half-width in rms noise of that position
+    # the pressure tracker that gives p_l (docs/model.md): a steady-state Kalman filter of
+    # the median pressure with a creep at a constant rate and the rope bounce, a damped
+    # oscillator at bounce_hz (measured by fit-compliance); the process noises are the
+    # spectral densities of the creep's and the bounce's random forcing
+    "bounce_hz": 2.8,              # the cage's bounce at the pithead landing
+    "bounce_filter_damping": 0.2,  # the tracker's oscillator (broader than the rope's own)
+    "creep_q_Pa2_s3": 3e9,
+    "bounce_q_Pa2_s3": 3e9,
+    "pressure_noise_Pa": 5e3,      # rms noise of the pressure channel (transmitter + ADC)
+    "friction_warmup_s": 0.0,      # b a running mean this long after the start: 0 s without, 2 s with
+    # balancing strokes (docs/model.md), tracked with a compliance and 2 or more ropes: the
+    # low-pass of each rope's x_f - x_h and of the common motion, the threshold on the
+    # former in its rms noise, the common speed below which it has no direction, and how
+    # long a direction must hold before a stroke is looked for
+    "stroke_cutoff_hz": 1.0,
+    "stroke_sigmas": 6.5,
+    "stroke_min_speed_m_s": 1e-5,
+    "stroke_settle_s": 4.0,
+    # slide following (docs/model.md, "Balancing strokes"): outside a stroke, of what x_h
+    # takes over from e the share (|e| - lo) / (hi - lo), 0 .. 1, with lo and hi these
+    # many times e's rms noise, is the piston's proven travel and goes into the seal state
+    # (slide_follow false, or both sigmas 0: off; chosen on tuning seeds)
+    "slide_follow": True,
+    "slide_follow_lo_sigmas": 3.0,
+    "slide_follow_hi_sigmas": 5.0,
+    # rest hold (docs/model.md), with a compliance: a rope is quiet while the low-pass of
+    # |x_s - x_l| (x_l: a slower low-pass of x_s) stays below rest_sigmas times the
+    # position noise; then b stands and the play widens to rest_play_sigmas, so the noise
+    # of a long rest does not wear the seal state down (rest_sigmas 0: no rest hold)
+    "rest_sigmas": 0.0,
+    "rest_play_sigmas": 4.0,
+    "rest_slow_cutoff_hz": 0.2,
+    "rest_cutoff_hz": 0.5,
+    # noise following (docs/model.md), with a compliance: the node measures each pressure
+    # channel's noise (the low-pass, this slow, of |second difference|) and scales the plays
+    # and the rest threshold by the median channel's over pressure_noise_Pa's (0: fixed)
+    "noise_follow_s": 0.0,
+}
+# the defaults that change when a compliance is given
+COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
+                       "friction_play_sigmas": 1.45, "rest_sigmas": 1.12, "rest_play_sigmas": 4.5,
+                       "noise_follow_s": 20.0}
+# rms of the median of N independent channels of unit rms noise (Gaussian; of two: their
+# mean): the LuGre position's pressure with a compliance (docs/model.md)
+MEDIAN_NOISE = (1.0, 0.7071, 0.6696, 0.5458)
+
+PLAY_STEP_M = 0.01e-6        # resolution of the LuGre play half-width
+NOISE_CLIP = 4               # noise following: |second difference| clipped at this many times the level
+NOISE_RANGE = 2              # and the level held within 1/this .. this times the commissioned one
+PRESSURE_Q_MAX = 1 << 14    # |count difference| <= 65535: a mul below 2**14 keeps d * mul < 2**30
+
+
+def namur_limits(c4: int, c20: int) -> tuple[int, int]:
+    """(lowest good count, highest good count) of a 4-20 mA loop per NAMUR NE43.
+
+    Below 3.6 mA or above 21 mA is a failed signal; counts are linear in current.
+    """
+    span = c20 - c4
+    lo = math.ceil(c4 - span * 0.4 / 16 - 1e-9)
+    hi = math.floor(c4 + span * 17 / 16 + 1e-9)
+    return max(lo, 0), min(hi, 65535)
+
+
+def fit_mul_shift(value: float, max_in: float, field: str, mul_max: int = PRESSURE_Q_MAX,
+                  shift_max: int = 24) -> tuple[int, int]:
+    """(mul, shift) with mul / 2**shift ~ value, |mul| < mul_max and |mul| * max_in < 2**30.
+
+    The largest shift that fits is taken (best precision).
+    """
+    if not math.isfinite(value):
+        raise ValueError(f"{field}: not a finite number")
+    best = None
+    for sh in range(0, shift_max + 1):
+        m = round(value * (1 << sh))
+        if abs(m) >= mul_max or abs(m) * max_in >= I30:
+            break
+        best = (m, sh)
+    if best is None:
+        raise ValueError(f"{field}: {value!r} too large for a fixed-point multiplier")
+    m, sh = best
+    if value != 0 and abs(m / (1 << sh) / value - 1) > 1e-3:
+        raise ValueError(f"{field}: {value!r} cannot be represented to 0.1 % "
+                         f"(best {m}/2**{sh})")
+    return best
+
+
+def _get(ph: dict, key: str) -> Any:
+    if key in ph:
+        return ph[key]
+    if key in DEFAULTS:
+        return DEFAULTS[key]
+    raise ValueError(f"physical.{key}: missing")
+
+
+def _num(ph: dict, key: str, lo: float, hi: float) -> float:
+    v = _get(ph, key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"physical.{key}: must be a number")
+    if not lo <= v <= hi:
+        raise ValueError(f"physical.{key}: {v} out of range {lo}..{hi}")
+    return float(v)
+
+
+def _per_rope(ph: dict, key: str, n: int) -> list:
+    v = _get(ph, key)
+    if not isinstance(v, list) or len(v) != n:
+        raise ValueError(f"physical.{key}: must be a list of {n} entries (one per rope)")
+    return v
+
+
+def _check(field: str, value: float, limit: float = I30) -> None:
+    if not -limit < value < limit:
+        raise ValueError(f"{field}: the node would compute {value:.0f}, beyond +-{limit:.0f}")
+
+
+def pressure_max_pa(chan: dict) -> float:
+    """Sensor pressure at the highest good count (21 mA)."""
+    lo, hi = chan["range_Pa"]
+    return lo + (hi - lo) * 17 / 16
+
+
+def filtered_noise_m(noise_m: float, alpha: float, alpha_z: float) -> float:
+    """rms of white position noise `noise_m` after the two low-passes x_f (alpha), x_s (alpha_z)."""
+    # sum of the squared impulse response of the cascade, summed to its 1e-6 tail
+    xf = xs = 0.0
+    acc = 0.0
+    for k in range(int(40 / alpha_z) + 10):
+        xf += alpha * ((1.0 if k == 0 else 0.0) - xf)
+        xs += alpha_z * (xf - xs)
+        acc += xs * xs
+    return noise_m * math.sqrt(acc)
+
+
+def noise_level_per_rms() -> float:
+    """The noise following's level per rms of white Gaussian channel noise: the mean of
+    |second difference| (rms sqrt(6)) clipped at NOISE_CLIP times that mean, its fixed point."""
+    s = math.sqrt(6)
+    level = s * math.sqrt(2 / math.pi)
+    for _ in range(50):
+        c = NOISE_CLIP * level / s  # the clip in rms of the second difference
+        level = s * (math.sqrt(2 / math.pi) * (1 - math.exp(-c * c / 2)) + c * math.erfc(c / math.sqrt(2)))
+    return level
+
+
+def compliance(ph: dict, n: int) -> list[float]:
+    """Per-rope hydraulic compliance k (m/Pa) of `physical`, zeros when it is not given."""
+    k = ph.get("hydraulic_compliance_m_per_Pa")
+    if k is None:
+        return [0.0] * n
+    if (not isinstance(k, list) or len(k) != n
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                       and 0 <= x <= 1e-6 for x in k)):
+        raise ValueError(f"physical.hydraulic_compliance_m_per_Pa: must be a list of {n} numbers "
+                         "in 0 .. 1e-6 m/Pa (one per rope)")
+    return [float(x) for x in k]
+
+
+TRACKER_ITERATIONS = 100000  # Riccati steps at most (it converges in a few thousand)
+
+
+@functools.lru_cache(maxsize=64)
+def tracker_gains(fs: float, bounce_hz: float, damping: float, q_creep: float, q_bounce: float,
+                  r: float) -> dict:
+    """The pressure tracker as the node holds it (docs/model.md, "Pressure tracker").
+
+    States (c0, c1, b0, b1): the creep c_{k+1} = 2 c_k - c_{k-1} + w1 and the bounce
+    b_{k+1} = a1 b_k - a2 b_{k-1} + w2 (a damped oscillator), measured as y = c0 + b0 + n;
+    w1, w2 of variance q h**3 (q a spectral density, Pa**2/s**3), n of variance r (Pa**2).
+    The node holds the creep as c and its rate v = c(k) - c(k-1): returns a1 and a2 in
+    Q14, the steady-state Kalman gains of (c, v, b0, b1) as the node holds them (`k_q14`:
+    of c in Q14, of v in Q(14 + v_shift), of b in Q(14 + b_shift); v and b held 2**shift
+    finer than c), and `noise_gain`, the rms of the output per rms of white noise at its
+    input (of the quantised filter). Refuses a filter the node cannot hold or that does
+    not settle."""
+    h = 1.0 / fs
+    w = 2 * math.pi * bounce_hz
+    rho = math.exp(-damping * w * h)
+    a1q = round(2 * rho * math.cos(w * h * math.sqrt(max(0.0, 1 - damping * damping))) * 16384)
+    a2q = round(rho * rho * 16384)
+    if not (0 < a2q < 16384 and 0 < a1q < 32768):
+        raise ValueError(f"physical.bounce_hz: {bounce_hz} Hz with damping {damping} at {fs} Hz "
+                         "is outside what the node's tracker holds")
+    a1, a2 = a1q / 16384, a2q / 16384
+    F = ((2.0, -1.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, a1, -a2), (0.0, 0.0, 1.0, 0.0))
+    q = (q_creep * h ** 3, 0.0, q_bounce * h ** 3, 0.0)
+    P = [[r if i == j else 0.0 for j in range(4)] for i in range(4)]
+    K = [0.0] * 4
+    for _ in range(TRACKER_ITERATIONS):
+        FP = [[sum(F[i][m] * P[m][j] for m in range(4)) for j in range(4)] for i in range(4)]
+        Pp = [[sum(FP[i][m] * F[j][m] for m in range(4)) + (q[i] if i == j else 0.0)
+               for j in range(4)] for i in range(4)]
+        ph = [Pp[i][0] + Pp[i][2] for i in range(4)]  # Pp H^T
+        s = ph[0] + ph[2] + r
+        Kn = [x / s for x in ph]
+        P = [[Pp[i][j] - Kn[i] * ph[j] for j in range(4)] for i in range(4)]
+        done = max(abs(x - y) for x, y in zip(Kn, K)) < 1e-13
+        K = Kn
+        if done:
+            break
+    else:
+        raise ValueError("physical.bounce_hz: the pressure tracker's gains do not converge")
+    # the node holds the creep as (c, v), v = c(k) - c(k-1) 2**vsh finer than c, and the
+    # bounce 2**bsh finer than c (c itself in kPa/2048): each gain within 2**14 in its scale
+    kv_f = K[0] - K[1]
+    vsh = 0
+    while vsh < 12 and abs(kv_f) * (1 << (15 + vsh)) < 16383.5:
+        vsh += 1
+    bsh = 5
+    while bsh > 0 and max(abs(K[2]), abs(K[3])) * (1 << (14 + bsh)) >= 16383.5:
+        bsh -= 1
+    kq = [round(K[0] * 16384), round(kv_f * (1 << (14 + vsh))),
+          round(K[2] * (1 << (14 + bsh))), round(K[3] * (1 << (14 + bsh)))]
+    if max(abs(x) for x in kq) > 16384:
+        raise ValueError("physical.creep_q_Pa2_s3: the pressure tracker's gains exceed 1")
+    # the quantised filter's response to a unit impulse: its noise gain, and that it settles
+    g = (kq[0] / 16384, kq[1] / (1 << (14 + vsh)), kq[2] / (1 << (14 + bsh)), kq[3] / (1 << (14 + bsh)))
+    c = v = b0 = b1 = 0.0
+    acc = tail = 0.0
+    n = int(40 * fs)
+    for j in range(n):
+        c += v
+        b0, b1 = a1 * b0 - a2 * b1, b0
+        e = (1.0 if j == 0 else 0.0) - c - b0
+        c += g[0] * e
+        v += g[1] * e
+        b0 += g[2] * e
+        b1 += g[3] * e
+        o = (c + b0) ** 2
+        acc += o
+        if j >= n - int(fs):
+            tail += o
+    if not math.isfinite(acc) or tail > 1e-12 * acc:
+        raise ValueError("physical.bounce_hz: the pressure tracker does not settle with these settings")
+    return {"a1_q14": a1q, "a2_q14": a2q, "k_q14": kq, "v_shift": vsh, "b_shift": bsh,
+            "noise_gain": math.sqrt(acc)}
+
+
+def pressure_tracker(ph: dict, fs: float, n: int) -> dict:
+    """tracker_gains for `physical` (with the compliance defaults applied): the median of
+    all n channels' noise, with the node's kPa/16 rounding, is the measurement noise."""
+    return tracker_gains(fs, _num(ph, "bounce_hz", 0.5, fs / 8), _num(ph, "bounce_filter_damping", 0.05, 1.0),
+                         _num(ph, "creep_q_Pa2_s3", 1e3, 1e15), _num(ph, "bounce_q_Pa2_s3", 1e3, 1e15),
+                         (MEDIAN_NOISE[n - 1] * pressure_noise_pa(ph)) ** 2)
+
+
+def pressure_noise_pa(ph: dict) -> float:
+    """rms noise of one pressure channel as the node reads it (in kPa/16 steps)."""
+    return math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6), 1e3 / 16 / math.sqrt(12))
+
+
+def physical_params(ph: dict) -> dict:
+    """The SI quantities both the builder and the float reference derive from `physical`."""
+    n = int(_num(ph, "ropes", 1, 4))
+    fs = _num(ph, "sample_hz", 1, 1000)
+    k = compliance(ph, n)
+    if any(k):
+        ph = {**COMPLIANCE_DEFAULTS, **ph}
+    fc_hz = _num(ph, "velocity_cutoff_hz", 0.01, fs / 2)
+    fz_hz = _num(ph, "friction_cutoff_hz", 0.001, fc_hz)
+    # low-pass gains as the node holds them (Q14): a 0.03 Hz gain is 15.4/16384, and the
+    # reference must follow the node's 15, not the exact value, to agree within 0.05 %
+    alpha, alpha_z = (max(1, round((1 - math.exp(-2 * math.pi * f / fs)) * 16384)) / 16384
+                      for f in (fc_hz, fz_hz))
+    if "pressure_cutoff_hz" in ph:
+        raise ValueError("physical.pressure_cutoff_hz: no longer used: the pressure tracker "
+                         "(bounce_hz, docs/config.md) replaced the pressure low-pass")
+    xch = _per_rope(ph, "displacement_channels", n)
+    try:
+        q_m = max((float(c["range_m"][1]) - float(c["range_m"][0]))
+                  / (int(c["counts_hi"]) - int(c["counts_lo"])) for c in xch)
+    except (KeyError, TypeError, ValueError, IndexError, ZeroDivisionError):
+        raise ValueError("physical.displacement_channels: need counts_lo < counts_hi, "
+                         "range_m [lo, hi]") from None
+    noise_m = _num(ph, "displacement_noise_m", 0.0, 1e-3)
+    # rms noise of the LuGre position that makes false travel: without compliance, the
+    # displacement's through both low-passes; with it, k times the noise of the median of
+    # the ropes' pressure channels, each with the node's kPa/16 steps) through the pressure
+    # tracker (b's noise then wanders too slowly to count). Per count m = 1..n of healthy
+    # pressure channels: the median of fewer is noisier, so a faulted loop widens the play
+    tracker = None
+    if any(k):
+        tracker = pressure_tracker(ph, fs, n)
+        p_noise = pressure_noise_pa(ph) * tracker["noise_gain"]
+        sigmas = [max(k) * MEDIAN_NOISE[m - 1] * p_noise for m in range(1, n + 1)]
+    else:
+        sigmas = [filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)] * n
+    # in steps of PLAY_STEP_M: channels that differ by a few counts per metre share a play
+    def in_steps(key: str, hi: float) -> list[float]:
+        m = _num(ph, key, 0.0, hi)
+        return [PLAY_STEP_M * round(m * s / PLAY_STEP_M) for s in sigmas]
+    plays = in_steps("friction_play_sigmas", 10.0)
+    # the rest hold: only with a compliance (without one b is the position low-pass itself)
+    rest = in_steps("rest_sigmas", 10.0) if any(k) else [0.0] * n
+    rest_plays = in_steps("rest_play_sigmas", 20.0)
+    if any(rest) and min(rest_plays) < max(plays):
+        raise ValueError("physical.rest_play_sigmas: must be at least friction_play_sigmas")
+    # noise following: the level the plays are sized for (Pa) and the low-pass's shift
+    follow_s = _num(ph, "noise_follow_s", 0.0, 3600.0)
+    noise_ref, noise_shift = 0.0, 0
+    if any(k) and follow_s > 0:
+        noise_ref = pressure_noise_pa(ph) * noise_level_per_rms()
+        noise_shift = min(16, max(1, round(math.log2(follow_s * fs))))
+    alpha_l, alpha_a = (max(1, round((1 - math.exp(-2 * math.pi * _num(ph, key, 0.001, fs / 2) / fs)) * 16384))
+                        / 16384 for key in ("rest_slow_cutoff_hz", "rest_cutoff_hz"))
+    fe_hz = _num(ph, "stroke_cutoff_hz", 0.01, fs / 2)
+    alpha_e = min(4096, max(1, round((1 - math.exp(-2 * math.pi * fe_hz / fs)) * 16384))) / 16384
+    # each cylinder's area over the mean (Q8, as the node holds it); build_node_section
+    # checks the areas themselves and refuses weights beyond 0.5 .. 1.5
+    areas = ph.get("cylinder_area_m2")
+    area_w = [1.0] * n
+    if isinstance(areas, list) and len(areas) == n and all(
+            isinstance(a, (int, float)) and not isinstance(a, bool) and a > 0 for a in areas):
+        area_w = [round(256 * a * n / sum(areas)) / 256 for a in areas]
+    # a stroke shows in the low-pass of x_f - x_h beyond stroke_sigmas times its noise:
+    # the displacement's through x_f and that low-pass; only with a compliance and 2+
+    # ropes (stroke_sigmas 0: not tracked)
+    stroke_m = 0.0
+    sigmas = _num(ph, "stroke_sigmas", 0.0, 100.0)
+    # slide following: lo and the span hi - lo in e's noise, in the node's um/256 (span >= 1)
+    slide_on = _get(ph, "slide_follow")
+    if not isinstance(slide_on, bool):
+        raise ValueError("physical.slide_follow: must be true or false")
+    lo_s = _num(ph, "slide_follow_lo_sigmas", 0.0, 100.0)
+    hi_s = _num(ph, "slide_follow_hi_sigmas", 0.0, 100.0)
+    if (lo_s or hi_s) and hi_s <= lo_s:
+        raise ValueError(f"physical.slide_follow_hi_sigmas: {hi_s:g} must exceed "
+                         f"slide_follow_lo_sigmas {lo_s:g} (both 0: off)")
+    slide_lo_m = slide_span_m = 0.0
+    if any(k) and n > 1 and sigmas > 0:
+        e_noise = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_e)
+        stroke_m = max(1, round(sigmas * e_noise * 256e6)) / 256e6
+        if slide_on and hi_s > lo_s:
+            slide_lo_m = round(lo_s * e_noise * 256e6) / 256e6
+            slide_span_m = max(1, round((hi_s - lo_s) * e_noise * 256e6)) / 256e6
+    return {
+        "ropes": n,
+        "alpha": alpha,
+        "alpha_z": alpha_z,
+        "tracker": tracker,          # the pressure tracker (None without a compliance)
+        "alpha_e": alpha_e,
+        "area_w": area_w,
+        "stroke_m": stroke_m,
+        "slide_lo_m": slide_lo_m,      # slide following: |e| from which the take-over is travel
+        "slide_span_m": slide_span_m,  # and over which it becomes all travel (0: off)
+        # um/65536 per sample, as the node compares it (at most 2**29)
+        "stroke_vmin": min(round(_num(ph, "stroke_min_speed_m_s", 0.0, 1.0) / fs * 1e6 * 65536), 1 << 29) / 65536e6,
+        "stroke_settle": round(_num(ph, "stroke_settle_s", 0.0, 300.0) * fs),
+        "compliance": k,
+        "warmup": round(_num(ph, "friction_warmup_s", 0.0, 60.0) * fs),
+        # the play half-width with every pressure channel healthy, and per count of them
+        "play_m": plays[-1],
+        "plays_m": plays,
+        "rest_m": rest,              # activity threshold per count (all 0: no rest hold)
+        "rest_plays_m": rest_plays,  # the play while quiet
+        "noise_ref_pa": noise_ref,   # noise following: the level the plays are sized for (0: fixed)
+        "noise_shift": noise_shift,  # its low-pass gain is 2**-noise_shift
+        "alpha_l": alpha_l,
+        "alpha_a": alpha_a,
+        "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
+        "p_max_pa": friction_p_max_pa(ph, n),
+    }
+
+
+def _tracker_fields(tr: dict | None) -> dict:
+    """The node's `friction.tracker_*` keys (all 0 without a compliance: no tracker runs)."""
+    if tr is None:
+        return {"tracker_a1_q14": 0, "tracker_a2_q14": 0, "tracker_k_q14": [0, 0, 0, 0],
+                "tracker_v_shift": 0, "tracker_b_shift": 0}
+    return {"tracker_a1_q14": tr["a1_q14"], "tracker_a2_q14": tr["a2_q14"], "tracker_k_q14": tr["k_q14"],
+            "tracker_v_shift": tr["v_shift"], "tracker_b_shift": tr["b_shift"]}
+
+
+def sigma0_max(ph: dict) -> float:
+    """The stiffest pre-sliding sigma0 (N/m) the node represents for this config.
+
+    The bristle increment sigma0 * dx of the largest believable per-sample step
+    (piston_speed_max_m_s / sample_hz) must stay below 2**19 * 16 N (a 1 % margin
+    covers the rounding of the multiplier). A stiffer seal is, at the displacement
+    channel's resolution, a seal with no measurable pre-sliding at all.
+    """
+    dx_max_q8um = round(physical_params(ph)["v_max"] / _num(ph, "sample_hz", 1, 1000) * 256e6)
+    return 0.99 * (1 << 19) * 16e6 / dx_max_q8um
+
+
+def friction_p_max_pa(ph: dict, n: int) -> float:
+    """Sensor pressure above which the friction lines are held, not extrapolated (Pa).
+
+    The top of the sensor range, or lower with `friction_p_max_MPa` (the highest
+    pressure the friction test bed reached: a fit is not trusted beyond its data).
+    """
+    top = max(pressure_max_pa(c) for c in _per_rope(ph, "pressure_channels", n))
+    if ph.get("friction_p_max_MPa") is None:
+        return top
+    return _num(ph, "friction_p_max_MPa", 0.1, top / 1e6) * 1e6
+
+
+def build_node_section(ph: dict) -> dict:
+    """The integer node section for physical section `ph` (raises ValueError naming the field)."""
+    if not isinstance(ph, dict):
+        raise ValueError("physical: must be an object")
+    pp = physical_params(ph)
+    n = pp["ropes"]
+    fs = int(_num(ph, "sample_hz", 1, 1000))
+    frame_hz = int(_num(ph, "frame_hz", 1, fs))
+    if fs != _get(ph, "sample_hz") or frame_hz != _get(ph, "frame_hz") or fs % frame_hz:
+        raise ValueError("physical.frame_hz: sample_hz and frame_hz must be integers, "
+                         "sample_hz a multiple of frame_hz")
+    key_hex = _get(ph, "key_hex")
+    try:
+        key = bytes.fromhex(key_hex)
+    except (TypeError, ValueError):
+        raise ValueError("physical.key_hex: not a hex string") from None
+    if not 16 <= len(key) <= 32:
+        raise ValueError(f"physical.key_hex: {len(key)} bytes, need 16..32")
+    areas = _per_rope(ph, "cylinder_area_m2", n)
+    for i, a in enumerate(areas):
+        if not isinstance(a, (int, float)) or not 1e-4 <= a <= 0.1:
+            raise ValueError(f"physical.cylinder_area_m2[{i}]: {a!r} out of range 1e-4..0.1 m^2")
+    for i, w in enumerate(pp["area_w"]):
+        if not 0.5 <= w <= 1.5:
+            raise ValueError(f"physical.cylinder_area_m2[{i}]: {w:.2f} times the ropes' mean area; the node "
+                             "shares the oil's motion among cylinders within 0.5 .. 1.5 of it")
+    rated = _num(ph, "rated_rope_tension_N", 1e3, 3e5)
+    p_max_pa = pp["p_max_pa"]
+    p_kpa_max = math.ceil(p_max_pa / 1000)
+    _check("physical.pressure_channels", p_kpa_max, 100000)
+    tension_limit = 1 << 19  # N: config.py TENSION_MAX_N
+
+    nd: dict[str, Any] = {
+        "node_id": int(_num(ph, "node_id", 0, 255)),
+        "key": list(key),
+        "ropes": n,
+        "sample_hz": fs,
+        "frame_hz": frame_hz,
+        "rated_rope_tension_n": round(rated),
+        "imbalance_permille": round(_num(ph, "imbalance_frac", 0, 1) * 1000),
+        "battery_low_mv": round(_num(ph, "battery_low_V", 0, 65) * 1000),
+        "p_kpa_max": p_kpa_max,
+    }
+    bm, bs = fit_mul_shift(_num(ph, "battery_V_per_count", 1e-6, 1e-2) * 1000, 65535,
+                           "physical.battery_V_per_count")
+    nd["battery_mv_mul"], nd["battery_mv_shift"] = bm, bs
+
+    pressure = []
+    raw_t_max = 0.0
+    for i, ch in enumerate(_per_rope(ph, "pressure_channels", n)):
+        f = f"physical.pressure_channels[{i}]"
+        try:
+            c4, c20 = int(ch["counts_4mA"]), int(ch["counts_20mA"])
+            lo, hi = (float(x) for x in ch["range_Pa"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{f}: needs counts_4mA, counts_20mA, range_Pa [lo, hi]") from None
+        if not 0 <= c4 < c20 <= 65535 or not hi > lo:
+            raise ValueError(f"{f}: need 0 <= counts_4mA < counts_20mA <= 65535 and hi > lo")
+        flo, fhi = namur_limits(c4, c20)
+        pa_per_count = (hi - lo) / (c20 - c4)
+        km, ks = fit_mul_shift(pa_per_count / 1000, 65535, f + ".range_Pa")
+        if ks < 4:  # the node also reads kPa/16 with this mul
+            raise ValueError(f"{f}.range_Pa: {pa_per_count / 1000:g} kPa per count, the node "
+                             "reads at most 1024")
+        tm, ts = fit_mul_shift(pa_per_count * areas[i], 65535, f + ".range_Pa*cylinder_area_m2")
+        for c in (flo, fhi):
+            t = lo * areas[i] + (c - c4) * pa_per_count * areas[i]
+            _check(f"physical.cylinder_area_m2[{i}] x {f[9:]}.range_Pa (tension at the NAMUR "
+                   "limits)", t, tension_limit)
+            raw_t_max = max(raw_t_max, abs(t))
+        pressure.append({"counts_4ma": c4, "fault_lo_counts": flo, "fault_hi_counts": fhi,
+                         "kpa_at_4ma": round(lo / 1000), "kpa_mul": km, "kpa_shift": ks,
+                         "tension_n_at_4ma": round(lo * areas[i]), "tension_n_mul": tm,
+                         "tension_n_shift": ts})
+    nd["pressure"] = pressure
+
+    displacement = []
+    for i, ch in enumerate(_per_rope(ph, "displacement_channels", n)):
+        f = f"physical.displacement_channels[{i}]"
+        try:
+            clo, chi = int(ch["counts_lo"]), int(ch["counts_hi"])
+            lo, hi = (float(x) for x in ch["range_m"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{f}: needs counts_lo, counts_hi, range_m [lo, hi]") from None
+        if not 0 <= clo < chi <= 65535 or not hi > lo:
+            raise ValueError(f"{f}: need 0 <= counts_lo < counts_hi <= 65535 and hi > lo")
+        flo, fhi = namur_limits(clo, chi)
+        q8_per_count = (hi - lo) / (chi - clo) * 256e6
+        dm, ds = fit_mul_shift(q8_per_count, 65535, f + ".range_m")
+        for c in (flo, fhi):
+            _check(f + " (position at the fault limits, um/256)",
+                   lo * 256e6 + (c - clo) * q8_per_count, 1 << 25)
+        displacement.append({"counts_lo": clo, "fault_lo_counts": flo, "fault_hi_counts": fhi,
+                             "q8um_at_lo": round(lo * 256e6), "q8um_mul": dm, "q8um_shift": ds})
+    nd["displacement"] = displacement
+
+    v_max = pp["v_max"]
+    dx_max = round(v_max / fs * 256e6)
+    _check("physical.piston_speed_max_m_s (dx_max * sample_hz)", dx_max * fs, 1 << 28)
+    v_max_um_s = (dx_max * fs + 128) >> 8
+    nd["velocity"] = {"alpha_q14": max(1, round(pp["alpha"] * 16384)), "dx_max_q8um": dx_max}
+    play_q8um = [round(w * 256e6) for w in pp["plays_m"]]
+    rest_play_q8um = [round(w * 256e6) for w in pp["rest_plays_m"]]
+    rest_q16um = [round(w * 65536e6) for w in pp["rest_m"]]  # the activity is held in um/65536
+    stroke_q8um = round(pp["stroke_m"] * 256e6)
+    _check("physical.stroke_sigmas (stroke threshold, um/256)", stroke_q8um, (1 << 15) + 1)
+    slide_lo_q8um = round(pp["slide_lo_m"] * 256e6)
+    slide_span_q8um = round(pp["slide_span_m"] * 256e6)
+    _check("physical.slide_follow_lo_sigmas (slide following's lo, um/256)", slide_lo_q8um, (1 << 24) + 1)
+    _check("physical.slide_follow_hi_sigmas (slide following's span hi - lo, um/256)",
+           slide_span_q8um, (1 << 20) + 1)
+    _check("physical.friction_play_sigmas (play half-width, um/256)", max(play_q8um), 1 << 24)
+    _check("physical.rest_play_sigmas (play half-width, um/256)", max(rest_play_q8um), (1 << 20) + 1)
+    _check("physical.rest_sigmas (activity threshold, um/65536)", max(rest_q16um), (1 << 21) + 1)
+    # noise following: the level in kPa/16, Q6; it scales the plays and the threshold up to
+    # NOISE_RANGE times, which the node's products and the rest hold's quiet stay within
+    noise_ref_q6 = round(pp["noise_ref_pa"] / 62.5 * 64)  # 0 without following
+    if pp["noise_shift"]:
+        _check("physical.pressure_noise_Pa (noise following's level, kPa/16 Q6)", noise_ref_q6, (1 << 18) + 1)
+        _check("physical.rest_sigmas (activity threshold with noise following, um/65536)",
+               max(rest_q16um), 1 << 20)
+
+    fr = _get(ph, "friction")
+    if not isinstance(fr, dict):
+        raise ValueError("physical.friction: must be an object")
+
+    def fnum(key: str) -> float:
+        v = fr.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"physical.friction.{key}: must be a number")
+        return float(v)
+
+    def flin(key: str) -> tuple[float, float]:
+        v = fr.get(key)
+        if not isinstance(v, dict) or "slope" not in v or "intercept" not in v:
+            raise ValueError(f"physical.friction.{key}: must be {{slope, intercept}}")
+        return float(v["intercept"]), float(v["slope"])
+
+    sigma0 = fnum("sigma0")
+    sigma1 = fnum("sigma1")
+    if sigma0 <= 0 or sigma1 < 0:
+        raise ValueError("physical.friction.sigma0: must be > 0 (and sigma1 >= 0)")
+    s0m, s0s = fit_mul_shift(sigma0 / 16e6, dx_max, "physical.friction.sigma0", mul_max=1 << 11)
+    _check("physical.friction.sigma0 (sigma0 * dx_max, N/16)", (dx_max * s0m) >> s0s, 1 << 19)
+    c1 = sigma1 / (sigma0 / fs)
+    c1m, c1s = fit_mul_shift(c1, 1 << 10, "physical.friction.sigma1 (sigma1 fs / sigma0)",
+                             mul_max=1 << 19)
+    if c1s < 10:
+        raise ValueError(f"physical.friction.sigma1: sigma1 fs / sigma0 = {c1:g} too large (max 512)")
+    lin = {}
+    for key, node_key, scale, lo_lim, hi_lim in (("Fs", "fs_n", 1.0, 64, 32767),
+                                                 ("Fc", "fc_n", 1.0, 64, 32767),
+                                                 ("vs", "vs_um_s", 1e6, 10, 1 << 20)):
+        a, b = flin(key)
+        for p_mpa in (0.0, p_kpa_max / 1000):
+            val = (a + b * p_mpa) * scale
+            if not lo_lim <= val <= hi_lim:
+                raise ValueError(f"physical.friction.{key}: {val / scale:g} at {p_mpa:g} MPa "
+                                 f"out of range {lo_lim / scale:g}..{hi_lim / scale:g}")
+        m, s = fit_mul_shift(b * scale / 1000, p_kpa_max, f"physical.friction.{key}.slope",
+                             mul_max=1 << 15) if b else (0, 0)
+        lin[node_key] = {"at_0": round(a * scale), "slope_mul": m, "slope_shift": s}
+        if node_key == "fc_n":
+            fs0, fs1 = flin("Fs")
+            for p_mpa in (0.0, p_kpa_max / 1000):
+                if a + b * p_mpa > fs0 + fs1 * p_mpa:
+                    raise ValueError(f"physical.friction.Fc: above Fs at {p_mpa:g} MPa")
+    a2, b2 = flin("sigma2")
+    s2max = max(a2 + b2 * p for p in (0.0, p_kpa_max / 1000)) * 16e-6  # N/16 per um/s
+    if min(a2 + b2 * p for p in (0.0, p_kpa_max / 1000)) < 0:
+        raise ValueError("physical.friction.sigma2: negative within the pressure range")
+    s2sh = 0
+    while s2sh < 24 and s2max * (1 << (s2sh + 1)) < (1 << 18) - 1:
+        s2sh += 1
+    if s2sh < 9:
+        raise ValueError("physical.friction.sigma2: too large for the node's sigma2 scale")
+    q = 16e-6 * (1 << s2sh)
+    m2, sh2 = fit_mul_shift(b2 * q / 1000, p_kpa_max, "physical.friction.sigma2.slope",
+                            mul_max=1 << 15) if b2 else (0, 0)
+    lin["sigma2_q"] = {"at_0": round(a2 * q), "slope_mul": m2, "slope_shift": sh2}
+    _check("physical.friction.sigma2 (sigma2 * v_max, N/16)", s2max * v_max_um_s, 1 << 19)
+    gexp = [round(math.exp(-(k * GEXP_STEP) ** 2) * 16384) for k in range(GEXP_POINTS)]
+    gexp[-1] = 0
+    # hydraulic compliance in (um/256 per kPa) * 2**shift, the largest below 2**17
+    k_u = [k * 1e3 * 256e6 for k in pp["compliance"]]
+    ksh = 30
+    while ksh > 5 and max(k_u) * (1 << ksh) >= (1 << 17) - 1:
+        ksh -= 1
+    kq = [round(k * (1 << ksh)) for k in k_u]
+    for i, q in enumerate(kq):
+        if q >= 1 << 17 or (q * 3125) >> (ksh - 5) >= 1 << 25:
+            raise ValueError(f"physical.hydraulic_compliance_m_per_Pa[{i}]: too large for the node "
+                             "(k times 100 MPa must stay within 0.13 m)")
+    nd["friction"] = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s,
+                      "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
+                      "rest_play_q8um": rest_play_q8um, "rest_q16um": rest_q16um,
+                      "noise_ref_q6": noise_ref_q6, "noise_shift": pp["noise_shift"],
+                      "alpha_l_q14": round(pp["alpha_l"] * 16384), "alpha_a_q14": round(pp["alpha_a"] * 16384),
+                      **_tracker_fields(pp["tracker"]), "compliance_q": kq,
+                      "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),
+                      "alpha_e_q14": round(pp["alpha_e"] * 16384), "area_q8": [round(a * 256) for a in pp["area_w"]],
+                      "stroke_q8um": stroke_q8um,
+                      "stroke_vmin_q16": round(pp["stroke_vmin"] * 65536e6),
+                      "stroke_settle": min(pp["stroke_settle"], 65535),
+                      "slide_lo_q8um": slide_lo_q8um, "slide_span_q8um": slide_span_q8um,
+                      **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
+    fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p for p in (0.0, p_kpa_max / 1000))
+    f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous
+
+    loss = _get(ph, "loss")
+    try:
+        temps = [float(t) for t in loss["temps_C"]]
+        flows = [float(q) for q in loss["flow_m3_s"]]
+        dps = loss["dp_Pa"]
+    except (KeyError, TypeError, ValueError):
+        raise ValueError("physical.loss: needs temps_C, flow_m3_s, dp_Pa") from None
+    if flows[0] != 0 or any(b <= a for a, b in zip(flows, flows[1:])) or len(flows) > 32:
+        raise ValueError("physical.loss.flow_m3_s: must start at 0, ascend, at most 32 points")
+    if any(b <= a for a, b in zip(temps, temps[1:])) or not 1 <= len(temps) <= 8:
+        raise ValueError("physical.loss.temps_C: must ascend, 1..8 points")
+    if not isinstance(dps, list) or len(dps) != n:
+        raise ValueError(f"physical.loss.dp_Pa: must have {n} rope entries")
+    v_rows, f_rows = [], []
+    loss_max = 0.0
+    for i in range(n):
+        v_row = [round(q / areas[i] * 1e6) for q in flows]
+        if any(b <= a for a, b in zip(v_row, v_row[1:])) or v_row[-1] >= 1 << 19:
+            raise ValueError(f"physical.loss.flow_m3_s: piston speeds of rope {i} not "
+                             "distinct in um/s or beyond 0.5 m/s")
+        v_rows.append(v_row)
+        if not isinstance(dps[i], list) or len(dps[i]) != len(temps):
+            raise ValueError(f"physical.loss.dp_Pa[{i}]: needs {len(temps)} temperature rows")
+        rows = []
+        for t, row in enumerate(dps[i]):
+            if not isinstance(row, list) or len(row) != len(flows):
+                raise ValueError(f"physical.loss.dp_Pa[{i}][{t}]: needs {len(flows)} values")
+            fr_row = [round(float(dp) * areas[i]) for dp in row]
+            if fr_row[0] != 0:
+                raise ValueError(f"physical.loss.dp_Pa[{i}][{t}][0]: loss at zero flow must be 0")
+            for x in fr_row:
+                _check(f"physical.loss.dp_Pa[{i}][{t}] (force)", x, 1 << 16)
+                loss_max = max(loss_max, abs(x))
+            rows.append(fr_row)
+        f_rows.append(rows)
+    nd["loss"] = {"temps_cc": [round(t * 100) for t in temps], "v_um_s": v_rows,
+                  "force_n": f_rows}
+
+    t_max = raw_t_max + loss_max + f_max
+    _check("physical (largest tension: raw + loss + friction)", t_max, tension_limit)
+    _check("physical.frame_hz (tension sums over a window)", t_max * (fs // frame_hz), I30)
+
+    temp = _get(ph, "temperature")
+    assumed = round(_num(ph, "oil_temp_assumed_C", -50, 150) * 100)
+    if temp is None:
+        nd["temperature"] = {"fitted": 0, "counts_at_0c": 0, "cc_mul": 0, "cc_shift": 0,
+                             "fault_lo_counts": 0, "fault_hi_counts": 0, "assumed_cc": assumed}
+    else:
+        try:
+            c0 = float(temp["counts_at_0C"])
+            cpc = float(temp["counts_per_C"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError("physical.temperature: needs counts_at_0C, counts_per_C") from None
+        if cpc == 0:
+            raise ValueError("physical.temperature.counts_per_C: must not be 0")
+        tm_, ts_ = fit_mul_shift(100 / cpc, 65535, "physical.temperature.counts_per_C")
+        ends = sorted((c0 - 40 * cpc, c0 + 125 * cpc))  # a reading outside -40..125 C is a fault
+        nd["temperature"] = {"fitted": 1, "counts_at_0c": round(c0), "cc_mul": tm_,
+                             "cc_shift": ts_,
+                             "fault_lo_counts": max(0, math.ceil(ends[0])),
+                             "fault_hi_counts": min(65534, math.floor(ends[1])),
+                             "assumed_cc": assumed}
+
+    mpp = _num(ph, "speed_m_per_pulse", 1e-5, 10)
+    mmpp_q16 = round(mpp * 1000 * 65536)
+    max_pulses = math.ceil(_num(ph, "hoist_speed_max_m_s", 0.1, 50) / mpp / fs) + 1
+    _check("physical.speed_m_per_pulse (pulses per sample * mm per pulse, Q16)",
+           max_pulses * mmpp_q16, 1 << 28)
+    _check("physical.speed_m_per_pulse (travel per frame window, Q16)",
+           max_pulses * mmpp_q16 * (fs // frame_hz), 1 << 29)
+    marks = _get(ph, "hall_marks_m")
+    if not isinstance(marks, list) or len(marks) > 64:
+        raise ValueError("physical.hall_marks_m: must be a list of at most 64 depths")
+    marks_mm = [round(float(m) * 1000) for m in marks]
+    if any(b <= a for a, b in zip(marks_mm, marks_mm[1:])):
+        raise ValueError("physical.hall_marks_m: must ascend")
+    nd["shaft"] = {"mm_per_pulse_q16": mmpp_q16, "max_pulses_per_sample": max_pulses,
+                   "marks_mm": marks_mm, "snap_mm": round(_num(ph, "hall_snap_m", 0, 100) * 1000),
+                   "start_depth_mm":
+                       round(_num(ph, "start_depth_m", -100, 5000) * 1000)}
+
+    # Last line of defence: the node's own validator must accept what we built.
+    cfg_mod = node_module("config")
+    try:
+        cfg = cfg_mod.parse_node(nd)
+    except cfg_mod.ConfigError as e:
+        raise ValueError(f"built {e.field}: {e.reason}") from None
+    return nd
+
+
+def make_node_json(physical: dict) -> dict:
+    """A complete node.json document: schema, physical, node, crc."""
+    nd = build_node_section(physical)
+    cfg_mod = node_module("config")
+    crc16 = node_module("crc16").crc16
+    return {"schema": SCHEMA, "physical": physical, "node": nd,
+            "crc": crc16(cfg_mod.canonical(nd))}
+
+
+def node_part(doc: dict) -> dict:
+    """What of a node.json the node reads (schema, node, crc): `ropemon deploy` copies only
+    this. The `physical` section is the host's (the reference, the tools); on the node
+    it would only be parsed at boot, taking as much heap again as the node section."""
+    return {key: doc[key] for key in ("schema", "node", "crc") if key in doc}
+
+
+def _walther_cst(temp_c: float) -> float:
+    """ISO VG46 kinematic viscosity (cSt) by the Walther/ASTM D341 fit of the domain brief."""
+    return 10 ** (10 ** (9.32 - 3.65 * math.log10(temp_c + 273.15))) - 0.7
+
+
+def example_loss_pa(flow_m3_s: float, temp_c: float) -> float:
+    """The example tap line's loss: 3 m of 12 mm bore (laminar Hagen-Poiseuille or
+    Blasius) plus fittings zeta = 3, VG46 at temp_c, density 870 kg/m^3."""
+    d, length, zeta, rho = 0.012, 3.0, 3.0, 870.0
+    nu = _walther_cst(temp_c) * 1e-6
+    area = math.pi * d * d / 4
+    u = flow_m3_s / area
+    if u <= 0:
+        return 0.0
+    re = u * d / nu
+    lam = 64 / re if re < 2300 else 0.3164 * re ** -0.25
+    return (lam * length / d + zeta) * rho * u * u / 2
+
+
+def example_physical() -> dict:
+    """The default physical section: the paper's field hoist (4 ropes, 8.18 t cage, 810 m).
+
+    Choices, documented in docs/model.md ("Shipped default"):
+    - bore 100 mm (A = 7.854e-3 m^2); empty cage at the pithead 185.4 kN, 46.4 kN
+      per rope = 5.9 MPa; rated rope tension 100 kN (12.7 MPa).
+    - 4-20 mA transmitters, 0-25 MPa and +-50 mm, read by ADS1115 across 150 ohm
+      shunts: 4 mA = 9600 counts, 20 mA = 48000 counts (docs/model.md, ADC front end).
+    - LuGre seal: Fs = 1.5 kN + 1.0 kN/MPa (7.4 kN at 5.9 MPa, which holds the
+      pithead reading ~16 % low), Fc = 1.0 kN + 0.6 kN/MPa, vs = 2 mm/s falling
+      0.04 mm/s per MPa, sigma2 = 20 + 2 kN s/m per MPa, sigma0 = 2e7 N/m
+      (pre-sliding ~0.4 mm), sigma1 = 3e4 N s/m.
+    - tap line 3 m x 12 mm with fittings; VG46 at 0/20/40 C (laminar: tenfold in
+      viscosity); temperature input not fitted, 20 C assumed.
+    """
+    area = math.pi * 0.1 ** 2 / 4
+    temps = [0.0, 20.0, 40.0]
+    flows = [0.0, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4, 1.2e-3, 1.6e-3]
+    dp = [[round(example_loss_pa(q, t)) for q in flows] for t in temps]
+    chan_p = {"counts_4mA": 9600, "counts_20mA": 48000, "range_Pa": [0.0, 25e6]}
+    chan_x = {"counts_lo": 9600, "counts_hi": 48000, "range_m": [-0.05, 0.05]}
+    return {
+        "node_id": 1,
+        "key_hex": "6f1d3c0a9b2e47c58a61f0d2e3b4c5a6",
+        "ropes": 4,
+        "sample_hz": 200,
+        "frame_hz": 10,
+        "rated_rope_tension_N": 100000.0,
+        "imbalance_frac": 0.10,
+        "battery_low_V": 10.5,
+        "cylinder_area_m2": [area] * 4,
+        "adc_bits": 16,
+        "pressure_channels": [dict(chan_p) for _ in range(4)],
+        "displacement_channels": [dict(chan_x) for _ in range(4)],
+        "speed_m_per_pulse": 0.01,
+        "hall_marks_m": [5.0, 200.0, 400.0, 600.0, 805.0],
+        "battery_V_per_count": 2e-4,
+        "temperature": None,
+        "oil_temp_assumed_C": 20.0,
+        "velocity_cutoff_hz": 5.0,
+        "piston_speed_max_m_s": 0.2,
+        "hoist_speed_max_m_s": 20.0,
+        "hall_snap_m": 2.0,
+        "start_depth_m": 0.0,
+        "friction_cutoff_hz": 1.0,
+        "displacement_noise_m": 2e-5,
+        "friction_play_sigmas": 2.0,
+        "friction": {
+            "Fs": {"intercept": 1500.0, "slope": 1000.0},
+            "Fc": {"intercept": 1000.0, "slope": 600.0},
+            "vs": {"intercept": 0.002, "slope": -0.00004},
+            "sigma2": {"intercept": 20000.0, "slope": 2000.0},
+            "sigma0": 2.0e7,
+            "sigma1": 3.0e4,
+        },
+        "loss": {"temps_C": temps, "flow_m3_s": flows, "dp_Pa": [dp for _ in range(4)]},
+    }
+
+
+def main() -> int:
+    """Print the default node.json (the shipped firmware/node.json)."""
+    json.dump(make_node_json(example_physical()), sys.stdout, indent=1)
+    sys.stdout.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

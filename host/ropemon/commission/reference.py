@@ -1,0 +1,476 @@
+"""The float64 oracle of the node's compensation (docs/model.md), from the `physical` section.
+
+Same equations as firmware/ropenode, in floating point and SI units, with the
+same discrete-time choices that are part of the model (filtered-position
+velocity with the +-v_max/fs increment clamp, the noise-robust LuGre observer, table
+interpolation of the loss, NAMUR limits, last-good hold on a failed channel):
+
+    T_i = p_tap,i A_i + dp_i(A_i v_i) A_i + F_i
+
+`compensate(physical, records)` returns per-sample arrays; `decimate` the frame
+window values; `run_stream(node_json, rsens_path)` both from files.
+"""
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ropemon.firmware import node_module
+from ropemon.commission.nodeconfig import DEFAULTS, NOISE_CLIP, NOISE_RANGE, namur_limits, physical_params
+
+RS = node_module("rsens")  # the .rsens format is firmware/ropenode/rsens.py's, never restated
+RSENS_HEADER = struct.Struct(RS.HEADER)
+
+
+@dataclass
+class Compensated:
+    """Per-sample results (rows = samples, columns = ropes); NaN where no tension."""
+
+    tension_n: np.ndarray        # compensated T (N), NaN where the rope is not good
+    raw_tension_n: np.ndarray    # p_tap * A (N), last good value held
+    friction_n: np.ndarray       # LuGre F (N)
+    loss_n: np.ndarray           # dp * A (N)
+    p_pa: np.ndarray             # sensor pressure (Pa), last good value held
+    v_m_s: np.ndarray            # filtered piston velocity
+    good: np.ndarray             # bool: both loops healthy (and read once)
+    fault_mask: np.ndarray       # int: bit i pressure, bit 4+i displacement
+
+
+@dataclass
+class Frames:
+    """Per frame window and rope: tension mean/min/max (N) and raw pressure mean (Pa); NaN if absent."""
+
+    mean_n: np.ndarray
+    min_n: np.ndarray
+    max_n: np.ndarray
+    raw_pa: np.ndarray
+
+
+def read_rsens(path: str | Path) -> tuple[int, int, np.ndarray]:
+    """(ropes, sample_hz, records[k, 2N+4] uint16) of a .rsens file (docs/data-formats.md)."""
+    data = Path(path).read_bytes()
+    magic, version, ropes, hz, _ = RSENS_HEADER.unpack_from(data)
+    if magic != RS.MAGIC or version != 1:
+        raise ValueError(f"{path}: not a version-1 .rsens stream")
+    w = 2 * ropes + 4
+    k = (len(data) - RSENS_HEADER.size) // (2 * w)  # a partial last record is ignored
+    body = np.frombuffer(data, dtype="<u2", count=k * w, offset=RSENS_HEADER.size)
+    return ropes, hz, body.reshape(k, w)
+
+
+def _hold(values: np.ndarray, ok: np.ndarray, before: float = 0.0) -> np.ndarray:
+    """Replace values where ~ok by the last ok value (before the first: `before`)."""
+    idx = np.where(ok, np.arange(len(values)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    out = np.where(idx >= 0, values[np.maximum(idx, 0)], before)
+    return out
+
+
+def _temperature_c(ph: dict, counts: np.ndarray) -> np.ndarray:
+    """Oil temperature per sample (C): the input where fitted and plausible, else the assumed."""
+    assumed = float(ph["oil_temp_assumed_C"])
+    t = ph.get("temperature")
+    if t is None:
+        return np.full(counts.shape, assumed)
+    c0, cpc = float(t["counts_at_0C"]), float(t["counts_per_C"])
+    lo, hi = sorted((c0 - 40 * cpc, c0 + 125 * cpc))
+    lo_c, hi_c = max(0, math.ceil(lo)), min(65534, math.floor(hi))
+    c = counts.astype(float)
+    ok = (counts != 0xFFFF) & (c >= lo_c) & (c <= hi_c)
+    return np.where(ok, (c - c0) / cpc, assumed)
+
+
+def _loss_force(ph: dict, i: int, area: float, v: np.ndarray, temp_c: np.ndarray) -> np.ndarray:
+    """dp_i(Q) * A_i: interpolated in flow (held beyond the table), then in temperature."""
+    lo = ph["loss"]
+    temps = np.asarray(lo["temps_C"], float)
+    flows = np.asarray(lo["flow_m3_s"], float)
+    dp = np.asarray(lo["dp_Pa"][i], float)
+    q = np.abs(v) * area
+    rows = np.stack([np.interp(q, flows, dp[t]) for t in range(len(temps))])  # (T, k)
+    if len(temps) == 1:
+        out = rows[0]
+    else:
+        tc = np.clip(temp_c, temps[0], temps[-1])
+        j = np.clip(np.searchsorted(temps, tc, side="right") - 1, 0, len(temps) - 2)
+        w = (tc - temps[j]) / (temps[j + 1] - temps[j])
+        k = np.arange(len(q))
+        out = rows[j, k] * (1 - w) + rows[j + 1, k] * w
+    return np.sign(v) * out * area
+
+
+def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray, vq: np.ndarray,
+                   fs: float) -> np.ndarray:
+    """LuGre friction F (N) of one rope over samples, from the `friction` section `fr`.
+
+    `p_pa` the pressure the parameter lines take (already held at the fit's top), `dxs`
+    the per-sample increment of the LuGre position (elastic step), `dxp` that of its
+    play (dissipation), `vq` the velocity of the viscous term; the seal starts unloaded.
+    In zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g;
+    F = zf + sigma1 dz/dt + sigma2 v (docs/model.md)."""
+    sigma0, sigma1 = float(fr["sigma0"]), float(fr["sigma1"])
+    h = 1.0 / fs
+    c1 = sigma1 / (sigma0 * h)
+    pm = np.asarray(p_pa, float) / 1e6
+    lin = {key: float(fr[key]["intercept"]) + float(fr[key]["slope"]) * pm
+           for key in ("Fs", "Fc", "vs", "sigma2")}
+    # g at the velocity of x_s: g at the noisy v would dip with every noise peak and
+    # the bound |zf| <= g would ratchet zf down
+    g = lin["Fc"] + (lin["Fs"] - lin["Fc"]) * np.exp(-(dxs * fs / lin["vs"]) ** 2)
+    zn = np.empty(len(g))
+    z = 0.0
+    for j, (gj, wj, wd) in enumerate(zip(g.tolist(), (sigma0 * dxs).tolist(),
+                                         (sigma0 * np.abs(dxp)).tolist())):
+        z = (z + wj) * gj / (gj + wd)
+        z = gj if z > gj else (-gj if z < -gj else z)
+        zn[j] = z
+    zprev = np.concatenate(([0.0], zn[:-1]))
+    return zn + c1 * (zn - zprev) + lin["sigma2"] * vq
+
+
+def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
+               increments: dict | None = None) -> Compensated:
+    """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`.
+
+    `strokes`, a list, receives (sample, rope or -1, e per rope in m) for every start
+    (rope 0-based) and end (-1) of a balancing stroke (tools/stroke_events.py).
+    `increments`, a dict, receives the observer's per-sample increments [sample, rope]
+    (m): "dxs" of the LuGre position and "dxp" of its play (tools/observer_losses.py),
+    and "noise_ratio"[sample], the noise following's ratio (1: as commissioned).
+
+    Slide following (physical `slide_follow`, `slide_follow_lo_sigmas` 3, `_hi_sigmas` 5,
+    as the node): outside a stroke, what e holds beyond a quarter of the stroke threshold
+    is taken into x_h at 1/64 per sample, and a share f = clip((|e| - lo) / (hi - lo), 0, 1)
+    of it (lo, hi in e's rms noise) enters as seal travel (x_s and the play, next sample)
+    instead of re-anchoring x_h."""
+    pp = physical_params(ph)
+    n = pp["ropes"]
+    fs = float(ph["sample_hz"])
+    p_max = pp["p_max_pa"]
+    areas = [float(a) for a in ph["cylinder_area_m2"]]
+    fr = ph["friction"]
+    k = records.shape[0]
+    temp_c = _temperature_c(ph, records[:, 2 * n + 1])
+    shape = (k, n)
+    out = {name: np.zeros(shape) for name in ("tension", "raw", "fric", "loss", "p", "v")}
+    good = np.zeros(shape, bool)
+    fault = np.zeros(k, int)
+    P = np.zeros(shape)
+    X = np.zeros(shape)
+    OK = np.zeros(shape, bool)
+    POK = np.zeros(shape, bool)
+    for i in range(n):
+        pc = ph["pressure_channels"][i]
+        c4, c20 = pc["counts_4mA"], pc["counts_20mA"]
+        plo, phi = pc["range_Pa"]
+        flo, fhi = namur_limits(c4, c20)
+        cp = records[:, i].astype(float)
+        p_ok = (cp >= flo) & (cp <= fhi)
+        P[:, i] = _hold(plo + (cp - c4) * (phi - plo) / (c20 - c4), p_ok)
+        dc = ph["displacement_channels"][i]
+        clo, chi = dc["counts_lo"], dc["counts_hi"]
+        xlo, xhi = dc["range_m"]
+        dlo, dhi = namur_limits(clo, chi)
+        cx = records[:, n + i].astype(float)
+        x_ok = (cx >= dlo) & (cx <= dhi)
+        X[:, i] = xlo + (cx - clo) * (xhi - xlo) / (chi - clo)
+        fault |= np.where(p_ok, 0, 1 << i) | np.where(x_ok, 0, 16 << i)
+        good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
+        OK[:, i] = p_ok & x_ok
+        POK[:, i] = p_ok
+    DX, DXS, DXP, NR = _observer(pp, P, X, OK, POK, fs, strokes)
+    if increments is not None:
+        increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR)
+    for i in range(n):
+        p = P[:, i]
+        dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]
+        v = dx * fs
+        # the velocity of the pipe loss and the viscous term: with a compliance that of
+        # the LuGre position, from the pressure (the displacement's noise would pass)
+        vq = dxs * fs if pp["compliance"][i] else v
+        fric = lugre_friction(fr, np.clip(p, 0.0, p_max), dxs, dxp, vq, fs)
+        loss = _loss_force(ph, i, areas[i], vq, temp_c)
+        raw = p * areas[i]
+        ok = good[:, i]
+        out["tension"][:, i] = np.where(ok, raw + loss + fric, np.nan)
+        out["raw"][:, i] = raw
+        out["fric"][:, i] = fric
+        out["loss"][:, i] = loss
+        out["p"][:, i] = p
+        out["v"][:, i] = v
+    return Compensated(out["tension"], out["raw"], out["fric"], out["loss"], out["p"],
+                       out["v"], good, fault)
+
+
+
+class PressureTracker:
+    """The node's pressure tracker in floats (docs/model.md, "Pressure tracker"), with its
+    quantised gains `tr` (nodeconfig.tracker_gains; None: no compliance, p_l stays 0):
+    a steady-state Kalman filter of the median pressure as a creep at a constant rate plus
+    the rope bounce, a damped oscillator. It starts afresh at the first median after none."""
+
+    def __init__(self, tr: dict | None):
+        self.on = False
+        self.c = self.v = self.b0 = self.b1 = 0.0
+        self.tr = tr
+        if tr is not None:
+            k = tr["k_q14"]
+            self.a1, self.a2 = tr["a1_q14"] / 16384, tr["a2_q14"] / 16384
+            self.k = (k[0] / 16384, k[1] / (1 << (14 + tr["v_shift"])),
+                      k[2] / (1 << (14 + tr["b_shift"])), k[3] / (1 << (14 + tr["b_shift"])))
+
+    def step(self, y: float | None) -> float:
+        """The estimate p_l after the median `y` (Pa; None: no healthy channel)."""
+        if self.tr is None:
+            return 0.0
+        if y is None:
+            self.on = False
+        elif not self.on:
+            self.on = True
+            self.c = y
+            self.v = self.b0 = self.b1 = 0.0
+        else:
+            c = self.c + self.v
+            b0, self.b1 = self.a1 * self.b0 - self.a2 * self.b1, self.b0
+            e = y - c - b0
+            k0, kv, k2, k3 = self.k
+            self.c = c + k0 * e
+            self.v += kv * e
+            self.b0 = b0 + k2 * e
+            self.b1 += k3 * e
+        return min(max(self.c + self.b0, -P_L_MAX_PA), P_L_MAX_PA)
+
+
+P_L_MAX_PA = 1e8  # p_l is held within +-100 MPa, as the node holds it (kernel.py)
+
+
+def _median(values: list) -> float:
+    """The median (of an even count: the mean of the middle two); 0 for none."""
+    v = sorted(values)
+    m = len(v)
+    if m == 0:
+        return 0.0
+    return v[m // 2] if m % 2 else 0.5 * (v[m // 2 - 1] + v[m // 2])
+
+
+REST_D_MAX = 64e-6  # |x_s - x_l| is clamped here for the activity (as the node: 2**14 um/256)
+
+
+def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.ndarray, fs: float,
+              strokes: list | None = None):
+    """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
+    position x_h = k p_l + b (p_l the pressure tracker's estimate of the median of the
+    healthy pressure channels) and its play, with the balancing-stroke tracking and the
+    rest hold (docs/model.md).
+
+    Runs while both loops of a rope are healthy and starts again (with its warm-up)
+    after a fault of either; strokes are tracked only while every rope runs warmed up."""
+    k, n = P.shape
+    nref, nsh = pp["noise_ref_pa"], pp["noise_shift"]
+    a_n = 2.0 ** -nsh
+    lv, p1, p2, run = [nref] * n, [0.0] * n, [0.0] * n, [0] * n
+    ratio = 1.0
+    nr = np.ones(k)
+    alpha, dx_max, plays = pp["alpha"], pp["v_max"] / fs, pp["plays_m"]
+    rest, rest_plays, alpha_l, alpha_a = pp["rest_m"], pp["rest_plays_m"], pp["alpha_l"], pp["alpha_a"]
+    alpha_z, alpha_e, warm = pp["alpha_z"], pp["alpha_e"], pp["warmup"]
+    tracker = PressureTracker(pp["tracker"])
+    kh, aw = pp["compliance"], pp["area_w"]
+    th, vmin, settle = pp["stroke_m"], pp["stroke_vmin"], pp["stroke_settle"]
+    dx = np.zeros((k, n))
+    dxs = np.zeros((k, n))
+    dxp = np.zeros((k, n))
+    started = [False] * n
+    xf, xs, xp, xh, pl, xb, e, mot, xl, act = ([0.0] * n for _ in range(10))
+    w = [0] * n
+    cl, mode, sgn, cnt = 0.0, 0, 0, 0
+    # slide following: what e holds beyond lo .. lo + span (times its noise) is proven
+    # travel of the piston: that share of the take-over goes in as seal travel (through
+    # x_s and the play), not re-anchored (span 0: off)
+    sl_lo, sl_span = pp["slide_lo_m"], pp["slide_span_m"]
+    clamp = lambda v, lim: lim if v > lim else (-lim if v < -lim else v)  # noqa: E731
+    for j, (xr, pr, okr, pokr) in enumerate(zip(X.tolist(), P.tolist(), OK.tolist(), POK.tolist())):
+        healthy = [p for p, ok in zip(pr, pokr) if ok]
+        pm = _median(healthy)
+        c = len(healthy) - 1 if healthy else n - 1  # the median of fewer is noisier
+        if nsh:
+            # noise following: each healthy channel's level, a low-pass of its clipped
+            # |second difference|, within 1/NOISE_RANGE .. NOISE_RANGE of nref; the plays
+            # and the threshold scale by the healthy channels' median level over nref
+            for i in range(n):
+                if not pokr[i]:
+                    run[i] = 0
+                    continue
+                if run[i] == 2:
+                    d = min(abs(pr[i] - 2 * p1[i] + p2[i]), NOISE_CLIP * lv[i])
+                    lv[i] = min(max(lv[i] + a_n * (d - lv[i]), nref / NOISE_RANGE), NOISE_RANGE * nref)
+                else:
+                    run[i] += 1
+                p2[i], p1[i] = p1[i], pr[i]
+            if healthy:
+                ratio = math.floor(_median([lv[i] for i in range(n) if pokr[i]]) / nref * 1024) / 1024
+            nr[j] = ratio
+        play, rest_play, hold = plays[c] * ratio, rest_plays[c] * ratio, rest[c] * ratio
+        pk = tracker.step(pm if healthy else None)
+        cv = 0.0
+        allw = th > 0
+        for i in range(n):
+            if not okr[i]:
+                started[i] = False  # after a loop fault the filters start again, the seal state is kept
+                allw = False
+                continue
+            if not started[i]:
+                started[i] = True
+                xf[i] = xs[i] = xp[i] = xh[i] = xl[i] = xr[i]
+                act[i] = REST_D_MAX  # not quiet until the activity has settled
+                pl[i] = pk
+                xb[i] = xr[i] - kh[i] * pl[i]
+                w[i] = 0
+                e[i] = 0.0
+                allw = False
+            m = kh[i] * pl[i]
+            pl[i] = pk
+            mot[i] = clamp(kh[i] * pl[i] - m, dx_max)
+            cv += mot[i] * aw[i]
+            if w[i] < warm:
+                allw = False
+        if not allw:
+            mode = 0
+        for i in range(n):
+            if not okr[i]:
+                continue
+            step = clamp(alpha * (xr[i] - xf[i]), dx_max)
+            xf[i] += step
+            dx[j, i] = step
+            kp = kh[i] * pl[i]
+            a = alpha_z
+            # how quiet (0 .. 256): the whole hold below `hold`, none from twice it, by the
+            # activity of the last sample, in the node's steps
+            q = 0
+            if hold > 0:
+                q = 256 if act[i] <= hold else max(0, math.floor(256 * (2 * hold - act[i]) / hold))
+            if mode > 0:  # a stroke: the stopped ropes stand, the sliding one's b stands
+                if i != mode - 1:
+                    xb[i] -= mot[i]
+                else:
+                    a = 0.0
+            if w[i] < warm:
+                a = max(alpha_z, 1.0 / (w[i] + 1))
+            elif q:  # at rest b stands: its wander would be seal travel
+                a = (round(a * 16384) * (256 - q) // 256) / 16384
+            inc = a * (xf[i] - kp - xb[i])
+            xb[i] += inc
+            step = kp + xb[i] - xh[i]
+            xh[i] += step
+            if w[i] < warm:
+                step -= inc
+                w[i] += 1
+            e[i] += alpha_e * (xf[i] - xh[i] - e[i])
+            step = clamp(step, dx_max)
+            xs[i] += step
+            dxs[j, i] = step
+            # the rest hold's activity: low-pass of |x_s - x_l|, x_l a slower low-pass of x_s
+            xl[i] += alpha_l * (xs[i] - xl[i])
+            act[i] += alpha_a * (min(abs(xs[i] - xl[i]), REST_D_MAX) - act[i])
+            wp = play + (rest_play - play) * q / 256
+            if xs[i] > xp[i] + wp:
+                dxp[j, i] = xs[i] - wp - xp[i]
+            elif xs[i] < xp[i] - wp:
+                dxp[j, i] = xs[i] + wp - xp[i]
+            xp[i] += dxp[j, i]
+        if not allw:
+            mode, sgn, cnt, cl = 0, 0, 0, 0.0
+            continue
+        cl += alpha_e * (cv - cl)
+        s = 1 if cl > 0 else -1
+        moving = abs(cl) > vmin
+        re = False
+        if mode == 0:
+            # e beyond a quarter of the threshold (noise: 1.6 sigma) is real unequal
+            # sharing: x_h takes it over at 1/64 per sample; with slide following the
+            # share f of it is left out of x_h: x_h's next step carries it into x_s
+            for i in range(n):
+                a = abs(e[i]) - th / 4
+                if a > 0:
+                    f = min(max((abs(e[i]) - sl_lo) / sl_span, 0.0), 1.0) if sl_span > 0 else 0.0
+                    a = math.copysign(a / 64, e[i])
+                    xb[i] += a
+                    xh[i] += a * (1 - f)
+                    e[i] -= a
+            if moving and s != sgn:
+                sgn, cnt = s, 0
+            elif cnt < settle:
+                cnt += 1
+            if moving and cnt >= settle:
+                best = max(range(n), key=lambda i: e[i] * s)
+                if e[best] * s > th:
+                    mode, re = best + 1, True
+        else:
+            if s != sgn:
+                re, cnt = True, 0
+            if any(e[i] * sgn > th for i in range(n) if i != mode - 1):  # another piston moves
+                re = True
+            if re:
+                mode, sgn = 0, s
+        if re and strokes is not None:
+            strokes.append((j, mode - 1, list(e)))
+        if re and mode > 0:
+            # the stopped pistons' x_h went on with the pressure until the stroke was
+            # seen: their offset is the stroke piston's lead shared by area, plus the
+            # lag of e (a low-pass) behind that ramp
+            # in the node's steps (kernel.py): the area ratio in Q8 and the lead in um/256
+            # (floored), the common
+            # motion per unit area in um/4096 (floored, |cl| held within 2**25 and the
+            # quotient within 65535 of the node's units) and the lag in um/256 (floored):
+            # a systematic offset of up to ~0.01 um otherwise, which x_h keeps and the
+            # next stroke threshold sees
+            others = sum(aw[i] for i in range(n) if i != mode - 1)
+            if others > 0:
+                aq = [round(a * 256) for a in aw]
+                so = sum(aq) - aq[mode - 1]
+                ae = round(alpha_e * 16384)
+                c = clamp(cl * 256e6 * 256, float(1 << 25))
+                t = clamp(float(math.floor(16 * c / sum(aq))), 65535.0)
+                lag = math.floor(t * (16384 - ae) / (ae << 4)) / 256e6
+                lead = math.floor(e[mode - 1] * 256e6 * ((aq[mode - 1] << 8) // so) / 256) / 256e6
+                for i in range(n):
+                    if i != mode - 1:
+                        e[i] = -lead - lag
+        if re:  # a stroke starts or ends: x_h re-anchored by e, without seal travel
+            for i in range(n):
+                xb[i] += e[i]
+                xh[i] += e[i]
+                e[i] = 0.0
+    return dx, dxs, dxp, nr
+
+def decimate(ph: dict, comp: Compensated) -> Frames:
+    """Frame-window mean/min/max of the good samples (NaN for a window with none)."""
+    win = int(ph["sample_hz"]) // int(ph["frame_hz"])
+    k = comp.tension_n.shape[0] // win * win
+    t = comp.tension_n[:k].reshape(k // win, win, -1)
+    p = np.where(comp.good, comp.p_pa, np.nan)[:k].reshape(k // win, win, -1)
+    with np.errstate(all="ignore"):
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return Frames(np.nanmean(t, axis=1), np.nanmin(t, axis=1), np.nanmax(t, axis=1),
+                          np.nanmean(p, axis=1))
+
+
+def run_stream(node_json: dict, rsens_path: str | Path) -> tuple[Compensated, Frames]:
+    """Compensate and decimate a whole .rsens stream with a node.json's physical section."""
+    ph = node_json["physical"]
+    ropes, hz, recs = read_rsens(rsens_path)
+    if ropes != ph["ropes"] or hz != ph["sample_hz"]:
+        raise ValueError(f"{rsens_path}: {ropes} ropes at {hz} Hz, config says "
+                         f"{ph['ropes']} at {ph['sample_hz']}")
+    comp = compensate(ph, recs)
+    return comp, decimate(ph, comp)
+
+
+__all__ = ["Compensated", "Frames", "compensate", "decimate", "read_rsens", "run_stream",
+           "DEFAULTS"]

@@ -1,0 +1,676 @@
+"""A population of simulated hoists for `ropemon evaluate --population`: drawn, commissioned, scored.
+
+Each seed draws one hoist from documented ranges (`RANGES`, docs/simulator.md
+"Population"), built on the paper's field trip (scenarios/paper-field-trip.toml and
+its site): the seals' law and parameters (one seal type per hoist, each rope's seal
+scattered about it), rope length offsets, cylinder bore, hose lengths, oil
+temperature and payload. The evaluation then commissions it as a site would (its
+seal type on the test bed, `ropemon fit-friction`; `ropemon fit-compliance` on an
+ordinary wind of the same hoist) and runs the node on a wind.
+
+Settings are chosen on `TUNING_SEEDS` and figures reported on `SCORING_SEEDS`, which
+no setting was chosen on.
+
+The *baseline* is the node before it followed the sliding its displacement channels prove
+(slide following off) with the station before the band (the deviation alarm alone),
+commissioned the same way; the *node* is both as they are now.
+
+Scoring of one wind (`run_wind`), from the node's frames as the host decodes them:
+- accuracy: the firmware's frame means against the true rope tensions averaged over
+  the same windows (worst rope RMS and peak, % of rated; the empty-cage pithead total);
+- alarms: the host's own `AlarmEngine` on the frames. A rope truly beyond the
+  deviation limit for `SILENT_MIN_S` or more must raise at least DEVIATION POSSIBLE
+  within that episode, or the wind is *silent*. A raise on a rope whose true deviation
+  is within `FALSE_BELOW` is a *false warning*; the *warning share* is the part of the
+  time a deviation alarm or warning stands on ropes truly within `FALSE_BELOW` (a warning
+  raised once that never clears counts once, but stands all the time). Both on the wind as it is and with a
+  deviation of `SUPERPOSED` superposed on each rope in turn, both signs (the force
+  carried as pressure, as `metrics.alarm_assessment` does).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+TUNING_SEEDS = tuple(range(1, 21))
+SCORING_SEEDS = tuple(range(101, 201))
+PREFIX = "population-"
+
+LAWS = ("lugre", "maxwell-slip", "elasto-plastic")
+# The ranges each hoist is drawn from (uniform unless `log`: uniform in the logarithm).
+RANGES = {
+    "force_level": (0.25, 1.0, "log"),     # seal forces x this, relative to the field trip's (worn) seal
+    "slope_ratio": (0.5, 1.5, "lin"),      # pressure slopes of the force lines x this, besides the level
+    "vs_scale": (0.5, 2.0, "log"),         # Stribeck velocity
+    "stiffness_scale": (0.5, 2.0, "log"),  # pre-sliding stiffness (sigma0, element stiffnesses)
+    "element_spread": (0.5, 2.0, "log"),   # Maxwell-slip: each element's break displacement x this
+    "z_ba_fraction": (0.2, 0.8, "lin"),    # elasto-plastic: the purely elastic share of pre-sliding
+    "rope_force_scale": (0.85, 1.15, "lin"),   # each rope's seal about the type's
+    "offset_m": (-0.010, 0.010, "lin"),    # each rope's effective length offset at the start
+    "groove_creep": (-1.25e-5, 1.25e-5, "lin"),  # each rope's extra pay-out per metre wound: +-10 mm per wind
+    "bore_m": (0.090, 0.125, "lin"),       # cylinder bore, the same on every rope
+    "hose_scale": (0.6, 1.6, "lin"),       # each rope's pipe lengths to its tap
+    "oil_temp_C": (0.0, 40.0, "lin"),      # the node assumes the site's 20 C
+    "payload_kg": (0.0, 12000.0, "lin"),   # taken on at the bottom, unloaded at the pithead
+}
+ROPES = 4
+
+SILENT_MIN_S = 2.0
+DEVIATION_LIMIT = 0.10
+FALSE_BELOW = 0.08
+SUPERPOSED = 0.12
+
+
+@dataclass(frozen=True)
+class Hoist:
+    """One drawn hoist: what the plant is, and nothing the node may know."""
+
+    seed: int
+    law: str
+    friction: dict            # the plant's [plant.friction] table (with each rope's force_scale)
+    offsets_m: tuple
+    groove_creep: tuple
+    bore_m: float
+    hose_scale: tuple
+    oil_temp_C: float
+    payload_kg: float
+    draws: dict               # the raw factors, for the report
+
+    @property
+    def name(self) -> str:
+        return f"{PREFIX}{self.seed}"
+
+    def describe(self) -> str:
+        d = self.draws
+        return (f"{self.law} seal x{d['force_level']:.2f} (ropes " + ", ".join(f"{s:.2f}" for s in
+                                                                             self.friction["force_scale"])
+                + f"), ropes part " + ", ".join(f"{c * 806e3:+.1f}" for c in self.groove_creep)
+                + f" mm per wind, bore {self.bore_m * 1e3:.0f} mm, oil {self.oil_temp_C:.0f} C, "
+                f"payload {self.payload_kg / 1e3:.1f} t")
+
+
+def seed_of(name: str) -> int | None:
+    """The seed of a population scenario name (`population-N`), else None."""
+    m = re.fullmatch(re.escape(PREFIX) + r"(\d+)", name)
+    return int(m.group(1)) if m else None
+
+
+def _uniform(rng: np.random.Generator, key: str, size=None):
+    lo, hi, kind = RANGES[key]
+    if kind == "log":
+        return np.exp(rng.uniform(math.log(lo), math.log(hi), size))
+    return rng.uniform(lo, hi, size)
+
+
+def _scale_line(line: dict, level: float, slope_ratio: float = 1.0) -> dict:
+    return {"intercept": line["intercept"] * level, "slope": line.get("slope", 0.0) * level * slope_ratio}
+
+
+def seal_table(law: str, draws: dict, rope_scale) -> dict:
+    """The plant's friction table for a law from its example (`plant.friction.example_table`),
+    scaled by the draws."""
+    from ropemon.lab.plant.friction import example_table
+
+    t = example_table(law)
+    level, ratio = draws["force_level"], draws["slope_ratio"]
+    out = dict(t)
+    for k in ("Fs", "Fc", "sigma2"):
+        out[k] = _scale_line(t[k], level, ratio)
+    out["vs"] = {"intercept": t["vs"]["intercept"] * draws["vs_scale"],
+                 "slope": t["vs"].get("slope", 0.0) * draws["vs_scale"]}
+    stiff = level * draws["stiffness_scale"]  # the pre-sliding distance moves with stiffness_scale only
+    if "sigma0" in t:
+        out["sigma0"] = t["sigma0"] * stiff
+    if "sigma1" in t:
+        out["sigma1"] = t["sigma1"] * math.sqrt(stiff)
+    if law == "maxwell-slip":  # each element's break displacement scattered about the example's
+        out["k"] = [k * stiff / d for k, d in zip(t["k"], draws["element_spread"])]
+    if law == "elasto-plastic":
+        out["z_ba_fraction"] = round(draws["z_ba_fraction"], 3)
+    out["force_scale"] = [round(float(s), 4) for s in rope_scale]
+    return out
+
+
+def draw(seed: int) -> Hoist:
+    """The hoist of one seed (reproducible: the same seed gives the same hoist)."""
+    rng = np.random.default_rng([seed, 0x0E5A1])
+    law = LAWS[int(rng.integers(len(LAWS)))]
+    draws = {k: float(_uniform(rng, k)) for k in ("force_level", "slope_ratio", "vs_scale", "stiffness_scale",
+                                                   "bore_m", "oil_temp_C", "payload_kg", "z_ba_fraction")}
+    draws["element_spread"] = [float(x) for x in _uniform(rng, "element_spread", 4)]
+    rope_scale = _uniform(rng, "rope_force_scale", ROPES)
+    offsets = _uniform(rng, "offset_m", ROPES)
+    hoses = _uniform(rng, "hose_scale", ROPES)
+    creep = _uniform(rng, "groove_creep", ROPES)
+    return Hoist(seed=seed, law=law, friction=seal_table(law, draws, rope_scale),
+                 offsets_m=tuple(round(float(o), 5) for o in offsets),
+                 groove_creep=tuple(float(f"{c:.3e}") for c in creep), bore_m=round(draws["bore_m"], 4),
+                 hose_scale=tuple(round(float(h), 3) for h in hoses), oil_temp_C=round(draws["oil_temp_C"], 1),
+                 payload_kg=round(draws["payload_kg"], -1), draws=draws)
+
+
+def change_doc(h: Hoist):
+    """The change to the field trip's scenario document that makes it this hoist."""
+    def change(doc: dict) -> None:
+        plant = doc["plant"]
+        plant["friction"] = dict(h.friction)
+        plant["ropes"]["offsets_m"] = list(h.offsets_m)
+        plant["ropes"]["groove_creep"] = list(h.groove_creep)
+        plant["oil_temp_C"] = h.oil_temp_C
+        loads = [ph for ph in doc["trip"]["phase"] if ph["kind"] == "load" and ph["payload_kg"] > 0]
+        for ph in loads:
+            ph["payload_kg"] = h.payload_kg
+    return change
+
+
+def change_site(h: Hoist):
+    """The change to the site description (SITE.toml text) that makes it this hoist: what a
+    site would write of its own hoist (bore, hoses); the seal and offsets are not in it."""
+    def change(text: str) -> str:
+        text, n = re.subn(r"(?m)^(bore_m\s*=\s*)[0-9.eE+-]+", lambda m: f"{m.group(1)}{h.bore_m}", text)
+        if n != 1:
+            raise ValueError("the site has no single [cylinders] bore_m to set")
+        blocks = text.split("[[pipes]]")
+        if len(blocks) != ROPES + 1:
+            raise ValueError(f"the site has {len(blocks) - 1} [[pipes]] tables, not {ROPES}")
+        for i in range(ROPES):
+            head, sep, rest = blocks[i + 1].partition("fittings")
+            head = re.sub(r"length_m\s*=\s*([0-9.eE+-]+)",
+                          lambda m: f"length_m = {float(m.group(1)) * h.hose_scale[i]:.3f}", head)
+            blocks[i + 1] = head + sep + rest
+        return "[[pipes]]".join(blocks)
+    return change
+
+
+# ---------------------------------------------------------------- scoring
+
+
+def _alarm_presence(frames, times_s, engine_factory):
+    """Per frame and rope: is a deviation alarm (certain or possible) present, and was one
+    raised. `engine_factory()` gives a fresh `ropemon.station.alarms.AlarmEngine`."""
+    eng = engine_factory()
+    n = len(frames)
+    ropes = len(frames[0].ropes) if frames else 0
+    present = np.zeros((n, ropes), bool)
+    raised = np.zeros((n, ropes), bool)
+    for k, (f, t) in enumerate(zip(frames, times_s)):
+        for ev in eng.update(f, float(t)):
+            if ev.kind in DEVIATION_KINDS and ev.action == "raise" and ev.rope is not None:
+                raised[k, ev.rope] = True
+        for a in eng.active():
+            if a.kind in DEVIATION_KINDS and a.present and a.rope is not None:
+                present[k, a.rope] = True
+    return present, raised
+
+
+DEVIATION_KINDS = ("deviation", "deviation_possible")
+
+
+def episodes(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) index pairs of the runs of True in a 1-D mask."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.flatnonzero(np.diff(m.astype(int)))
+    return list(zip(d[::2].tolist(), d[1::2].tolist()))
+
+
+def alarm_figures(frames, truth_frames_n: np.ndarray, frame_s: float, engine_factory,
+                  valid: np.ndarray | None = None) -> dict:
+    """Silent episodes and false warnings of the host's alarms on one wind's frames.
+
+    truth_frames_n: (frames, ropes) true tensions averaged over each frame's window.
+    valid: frames that count (e.g. not in a shock window); others neither need nor excuse an alarm.
+    """
+    times = np.arange(len(frames)) * frame_s
+    present, raised = _alarm_presence(frames, times, engine_factory)
+    d_true = np.abs((truth_frames_n - truth_frames_n.mean(axis=1, keepdims=True))
+                    / truth_frames_n.mean(axis=1, keepdims=True))
+    ok = np.ones(len(frames), bool) if valid is None else np.asarray(valid, bool)
+    need = int(math.ceil(SILENT_MIN_S / frame_s - 1e-9))
+    silent, eps = [], 0
+    for r in range(d_true.shape[1]):
+        for a, b in episodes((d_true[:, r] > DEVIATION_LIMIT) & ok):
+            if b - a < need:
+                continue
+            eps += 1
+            if not present[a:b, r].any():
+                silent.append({"rope": r + 1, "t0_s": round(a * frame_s, 1), "t1_s": round(b * frame_s, 1),
+                               "true_max_pct": round(float(d_true[a:b, r].max()) * 100, 2)})
+    within = (d_true < FALSE_BELOW) & ok[:, None]
+    false = int((raised & within).sum())
+    return {"episodes": eps, "silent": silent, "false_warnings": false,
+            "warning_share": round(float((present & within).sum() / within.sum()), 4) if within.any() else None,
+            "true_max_dev_pct": round(float(d_true[ok].max()) * 100, 2) if ok.any() else None}
+
+
+def superposed_frames(frames, rope: int, step_n: np.ndarray, area_m2: float):
+    """The frames with `step_n` (per frame) added to one rope, carried as pressure: the mean,
+    min and max tensions and the raw pressure move together, the friction estimate does not."""
+    from ropemon.station.protocol import L
+
+    out = []
+    for f, dn in zip(frames, step_n):
+        ropes = list(f.ropes)
+        r = ropes[rope]
+        if r.mean_dan != L.TENSION_ABSENT and np.isfinite(dn):
+            dd = int(round(dn / 10.0))
+            dk = int(round(dn / area_m2 / 1000.0))
+
+            def clamp(v):
+                return max(-32767, min(32767, v))
+            raw = r.raw_kpa if r.raw_kpa == L.RAW_KPA_ABSENT else max(0, min(0xFFFE, r.raw_kpa + dk))
+            ropes[rope] = r._replace(mean_dan=clamp(r.mean_dan + dd), min_dan=clamp(r.min_dan + dd),
+                                     max_dan=clamp(r.max_dan + dd), raw_kpa=raw)
+        out.append(dataclasses.replace(f, ropes=tuple(ropes)))
+    return out
+
+
+def superposed_alarm_figures(frames, truth_frames_n, frame_s, engine_factory, area_m2, valid=None,
+                             level: float = SUPERPOSED) -> dict:
+    """`alarm_figures` with a true deviation of +-level superposed on each rope in turn."""
+    from ropemon.lab.metrics import deviation_step_n
+
+    out = {"episodes": 0, "silent": [], "false_warnings": 0, "cases": 0}
+    for rope in range(truth_frames_n.shape[1]):
+        for sign in (1.0, -1.0):
+            step = deviation_step_n(truth_frames_n, rope, sign * level)
+            t = truth_frames_n.copy()
+            t[:, rope] += step
+            fig = alarm_figures(superposed_frames(frames, rope, step, area_m2), t, frame_s, engine_factory,
+                                valid)
+            out["cases"] += 1
+            out["episodes"] += fig["episodes"]
+            out["false_warnings"] += fig["false_warnings"]
+            out["silent"] += [{**s, "superposed": f"{sign * level:+.0%} rope {rope + 1}"} for s in fig["silent"]]
+    return out
+
+
+def quantiles(values) -> dict:
+    """Median and 95th percentile of the finite values (None when there are none)."""
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    if not v.size:
+        return {"median": None, "p95": None, "n": 0}
+    return {"median": round(float(np.median(v)), 4), "p95": round(float(np.percentile(v, 95)), 4), "n": int(v.size)}
+
+
+# ---------------------------------------------------------------- running
+
+
+def engine_factories(physical: dict) -> dict:
+    """The host alarm configurations scored on every wind: `baseline` is the deviation alarm
+    alone (the station before the uncertainty band; `run_wind` feeds it the baseline node's
+    frames), `node` the station as it is (the certain alarm and DEVIATION POSSIBLE from the band)."""
+    from ropemon.station.alarms import AlarmEngine, AlarmSettings
+    from ropemon.station.uncertainty import BandParams
+
+    band = BandParams.from_physical(physical)
+
+    def baseline():
+        return AlarmEngine(AlarmSettings(stuck_s=None))
+
+    def node():
+        return AlarmEngine(AlarmSettings(stuck_s=None, band=band))
+
+    return {"baseline": baseline, "node": node}
+
+
+def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) -> dict:
+    """Draw, commission, run and score one hoist's wind (module doc); errors are reported."""
+    import time
+    from pathlib import Path
+
+    from ropemon.lab import evaluate as EV
+    from ropemon.lab import metrics as M
+
+    h = draw(seed)
+    t0 = time.monotonic()
+    out: dict = {"seed": seed, "law": h.law, "hoist": h.describe()}
+    try:
+        case = EV.build_case(h.name, Path(work) / h.name, seed, firmware, bed, diagnostics=False)
+        res = EV.score(case)
+    except (EV.EvaluationError, OSError, ValueError, KeyError) as e:
+        out["error"] = f"{type(e).__name__}: {e}"
+        out["wall_s"] = round(time.monotonic() - t0, 1)
+        return out
+    com = res["commissioning"]
+    out["commissioning"] = {"ok": com["ok"] and not com["seal_refused"], "problems": com["problems"],
+                            "seal_refused": com["seal_refused"]}
+    out["estimators"] = {name: {k: fig.get(k) for k in ("rope_rms_pct", "rope_peak_pct", "pithead_total_pct")}
+                         for name, fig in res["estimators"].items()}
+    fw = res["estimators"].get(EV.FIRMWARE)
+    if fw is not None:
+        out["firmware_vs_float_max_pct"] = fw.get("vs_reference_max_pct")
+        wind_dir = Path(work) / h.name
+        base_case = baseline_case(case, wind_dir)
+        fb = EV.score_frames(base_case)
+        out["estimators"][BASELINE_FIRMWARE] = {k: fb.get(k) for k in ("rope_rms_pct", "rope_peak_pct",
+                                                                        "pithead_total_pct")}
+        out["baseline_firmware_vs_float_max_pct"] = fb.get("vs_reference_max_pct")
+        w = case.window
+        frame_s = w / case.sample_hz
+        area = float(np.mean(case.physical["cylinder_area_m2"]))
+        out["alarms"] = {}
+        for which, factory in engine_factories(case.physical).items():
+            c = base_case if which == "baseline" else case
+            n = len(c.frames)
+            truth = M.window_means(c.truth_n, w)[:n]
+            valid = M.window_means(c.excluded.astype(float), w)[:n] == 0.0
+            out["alarms"][which] = {
+                "natural": alarm_figures(c.frames, truth, frame_s, factory, valid),
+                "superposed": superposed_alarm_figures(c.frames, truth, frame_s, factory, area, valid)}
+        out["ideal_bound"] = ideal_bound_figures(np.load(wind_dir / "sim" / "truth.npz"), case.physical)
+    out["wall_s"] = round(time.monotonic() - t0, 1)
+    return out
+
+
+BASELINE_FIRMWARE = "firmware-baseline"
+BASELINE_NODE = "node-baseline.json"
+
+
+def baseline_physical(physical: dict) -> dict:
+    """The node as it was before it followed proven sliding: the commissioned config with
+    slide following off (docs/model.md, "Balancing strokes")."""
+    return dict(physical, slide_follow=False)
+
+
+def baseline_case(case, wind_dir):
+    """The case with the baseline node's firmware frames and float reference in place of the node's."""
+    from ropemon.lab import estimators as E
+    from ropemon.lab import evaluate as EV
+    from ropemon.commission import reference
+    from ropemon.commission.nodeconfig import make_node_json
+
+    ph = baseline_physical(case.physical)
+    node_json = wind_dir / BASELINE_NODE
+    node_json.write_text(json.dumps(make_node_json(ph), indent=1))
+    rsens = wind_dir / "sim" / "sensors.rsens"
+    frames = EV._firmware_frames(ph, rsens, wind_dir, node_json, "frames-baseline.bin")
+    _ropes, _hz, recs = reference.read_rsens(rsens)
+    ref = reference.compensate(ph, recs[: len(case.truth_n)]).tension_n
+    return dataclasses.replace(case, frames=frames, firmware_n=EV.frame_means_n(frames),
+                               estimates={E.FULL_COMPENSATION: ref}, physical=ph)
+
+
+def run(seeds, work, jobs: int = 2, firmware: bool = True, bed: dict | None = None, log=None) -> list[dict]:
+    """`run_wind` over the seeds, `jobs` at a time (processes), in seed order."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    seeds = list(seeds)
+    if jobs <= 1:
+        results = []
+        for s in seeds:
+            results.append(run_wind(s, work, firmware, bed))
+            if log:
+                log(_line(results[-1]))
+        return results
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(run_wind, s, work, firmware, bed) for s in seeds]
+        results = []
+        for f in futures:
+            results.append(f.result())
+            if log:
+                log(_line(results[-1]))
+    return results
+
+
+def _line(r: dict) -> str:
+    if "error" in r:
+        return f"{PREFIX}{r['seed']}: ERROR {r['error']} ({r['wall_s']} s)"
+    fw = r.get("estimators", {}).get("firmware", {})
+    al = r.get("alarms", {}).get("node", {})
+    silent = len(al.get("natural", {}).get("silent", [])) + len(al.get("superposed", {}).get("silent", []))
+    return (f"{PREFIX}{r['seed']}: {r['hoist']}: rope RMS {fw.get('rope_rms_pct', float('nan')):.2f} %, "
+            f"pithead {fw.get('pithead_total_pct', float('nan')):+.2f} %, silent {silent}, "
+            f"false {al.get('natural', {}).get('false_warnings', '-')} ({r['wall_s']} s)")
+
+
+def summary(results: list[dict], which: str) -> dict:
+    """The figures of one alarm configuration over the winds (`baseline` or `node`), in the
+    shape `ropemon evaluate --population --json` prints."""
+    from ropemon.lab.evaluate import FIRMWARE
+
+    fw_key = BASELINE_FIRMWARE if which == "baseline" else FIRMWARE
+    vs_key = "baseline_firmware_vs_float_max_pct" if which == "baseline" else "firmware_vs_float_max_pct"
+    scored = [r for r in results if "error" not in r and FIRMWARE in r.get("estimators", {})]
+    # a hoist whose commissioned config the node refuses runs no firmware: reported, not scored
+    refused = [r for r in results if "error" not in r and FIRMWARE not in r.get("estimators", {})]
+    fw = [r["estimators"][fw_key] for r in scored]
+    silent = false = 0
+    silent_seeds = []
+    for r in scored:
+        al = r["alarms"][which]
+        if al["natural"]["silent"] or al["superposed"]["silent"]:
+            silent += 1
+            silent_seeds.append(r["seed"])
+        false += al["natural"]["false_warnings"]
+    vs = [r.get(vs_key) for r in scored]
+    vs = [v for v in vs if v is not None and np.isfinite(v)]
+    return {
+        "winds": len(scored),
+        "errors": sum(1 for r in results if "error" in r),
+        "node_refused": [{"seed": r["seed"], "why": "; ".join(r["commissioning"]["problems"])} for r in refused],
+        "commissioning_flagged": sum(1 for r in scored if not r["commissioning"]["ok"]),
+        "rope_rms_pct": quantiles(f["rope_rms_pct"] for f in fw),
+        "rope_peak_pct": quantiles(f["rope_peak_pct"] for f in fw),
+        "pithead_total_abs_pct": quantiles(abs(f["pithead_total_pct"]) if f["pithead_total_pct"] is not None
+                                           else None for f in fw),
+        "silent_winds": silent,
+        "silent_seeds": silent_seeds,
+        "false_warnings_per_wind": round(false / len(scored), 3) if scored else None,
+        "warning_share": quantiles(r["alarms"][which]["natural"].get("warning_share") for r in scored),
+        "superposed_false_warnings_per_wind": round(
+            sum(r["alarms"][which]["superposed"]["false_warnings"] for r in scored) / max(1, len(scored)), 3),
+        "firmware_vs_float_max_pct": round(max(vs), 4) if vs else None,
+        # the lab's ideal bound (`ideal_bound_figures`), the same on both: what any fail-safe band could do
+        "ideal_bound_warning_share": quantiles(r.get("ideal_bound", {}).get("warning_share") for r in scored),
+        "ideal_bound_hoists_warning": sum(1 for r in scored if (r.get("ideal_bound", {}).get("warning_share") or 0) > 0),
+        "ideal_bound_missed_frames": sum(r.get("ideal_bound", {}).get("missed_frames", 0)
+                                         + r.get("ideal_bound", {}).get("superposed_missed_frames", 0) for r in scored),
+    }
+
+
+def by_law(results: list[dict]) -> dict:
+    """Estimator x seal family: median and 95th percentile of the worst rope's RMS (% of rated)
+    and of |pithead total| (%)."""
+    table: dict = {}
+    for r in results:
+        for est, fig in r.get("estimators", {}).items():
+            cell = table.setdefault(est, {}).setdefault(r["law"], {"rms": [], "pithead": []})
+            cell["rms"].append(fig.get("rope_rms_pct"))
+            p = fig.get("pithead_total_pct")
+            cell["pithead"].append(abs(p) if p is not None else None)
+    return {est: {law: {"rope_rms_pct": quantiles(c["rms"]), "pithead_total_abs_pct": quantiles(c["pithead"])}
+                  for law, c in laws.items()} for est, laws in table.items()}
+
+
+def _q(cell: dict | None, digits: int = 2) -> str:
+    if not cell or cell.get("median") is None:
+        return "-"
+    return f"{cell['median']:.{digits}f} / {cell['p95']:.{digits}f}"
+
+
+def markdown(out: dict) -> str:
+    """The population's tables: the node against the baseline, estimator x seal family, each wind."""
+    pop, base = out["population"], out["baseline"]
+    lines = [f"Population: {pop['winds']} winds from the {out['seeds']} seeds"
+             f"{' (quick test bed)' if out.get('quick') else ''}, {pop['errors']} errors; "
+             f"{len(pop['node_refused'])} more hoists whose commissioned config the node refuses (not scored), "
+             f"{pop['commissioning_flagged']} scored with a commissioning problem; {out['wall_s']} s.", ""]
+    lines += [f"- refused: seed {r['seed']}: {r['why']}" for r in pop["node_refused"]]
+    lines += ["",
+             "| figure (median / 95th percentile) | node | baseline |", "|---|---|---|"]
+    for key, label in (("rope_rms_pct", "worst rope RMS, % of rated"), ("rope_peak_pct", "worst rope peak, % of rated"),
+                       ("pithead_total_abs_pct", "empty-cage pithead total, abs %")):
+        lines.append(f"| {label} | {_q(pop[key])} | {_q(base[key])} |")
+    lines += [f"| silent winds | {pop['silent_winds']} {pop['silent_seeds'] or ''} | "
+              f"{base['silent_winds']} {base['silent_seeds'] or ''} |",
+              f"| false warnings per wind (ropes truly within {FALSE_BELOW:.0%}) | {pop['false_warnings_per_wind']} | "
+              f"{base['false_warnings_per_wind']} |",
+              f"| share of the time a deviation alarm or warning stands on a rope truly within {FALSE_BELOW:.0%} | "
+              f"{_q(pop['warning_share'])} | {_q(base['warning_share'])} |",
+              f"| false warnings per wind, {SUPERPOSED:.0%} superposed on each rope | "
+              f"{pop['superposed_false_warnings_per_wind']} | {base['superposed_false_warnings_per_wind']} |",
+              f"| firmware vs float reference, max % of rated | {pop['firmware_vs_float_max_pct']} | "
+              f"{base['firmware_vs_float_max_pct']} |", "",
+              f"An ideal fail-safe bound (`population.ideal_bound_figures`: noise-free displacement, the fitted "
+              f"stiffness, {IDEAL_MARGIN:.0%} margin on the seal's force) would warn on "
+              f"{pop['ideal_bound_hoists_warning']} of {pop['winds']} hoists, standing for a share "
+              f"{_q(pop['ideal_bound_warning_share'])} (median / 95th percentile) of the time on ropes truly within "
+              f"{FALSE_BELOW:.0%}, and miss {pop['ideal_bound_missed_frames']} frames beyond the limit.", ""]
+    laws = sorted({law for cells in out["by_law"].values() for law in cells})
+    lines += ["Worst rope RMS, % of rated (median / 95th percentile), by estimator and seal family:", "",
+              "| estimator | " + " | ".join(laws) + " |", "|---|" + "---|" * len(laws)]
+    for est, cells in out["by_law"].items():
+        lines.append(f"| {est} | " + " | ".join(_q(cells.get(law, {}).get("rope_rms_pct")) for law in laws) + " |")
+    lines += ["", "| seed | hoist | firmware RMS % | peak % | pithead % | true max dev % | silent | false |",
+              "|---|---|---|---|---|---|---|---|"]
+    for r in out["winds"]:
+        if "error" in r:
+            lines.append(f"| {r['seed']} | {r['hoist']} | ERROR: {r['error']} | | | | | |")
+            continue
+        fw = r["estimators"].get("firmware", {})
+        al = r.get("alarms", {}).get("node", {})
+        nat, sup = al.get("natural", {}), al.get("superposed", {})
+
+        def f(x, fmt="{:.2f}"):
+            return "-" if x is None else fmt.format(x)
+        lines.append(f"| {r['seed']} | {r['hoist']} | {f(fw.get('rope_rms_pct'))} | {f(fw.get('rope_peak_pct'))} | "
+                     f"{f(fw.get('pithead_total_pct'), '{:+.2f}')} | {f(nat.get('true_max_dev_pct'))} | "
+                     f"{len(nat.get('silent', []))} + {len(sup.get('silent', []))} | {nat.get('false_warnings', '-')} |")
+    return "\n".join(lines) + "\n"
+
+
+def rescore_wind(run_dir, overrides: dict | None = None) -> dict:
+    """The alarm figures of a wind already run (`run_wind` with an `--out` directory), from its
+    frames and truth, with `overrides` set in the commissioned config's `physical` (e.g. the
+    band's keys): for choosing settings on the tuning seeds without re-simulating."""
+    import json
+    from pathlib import Path
+
+    from ropemon.lab import evaluate as EV
+    from ropemon.lab import metrics as M
+    from ropemon.station.decoder import StreamDecoder
+
+    run_dir = Path(run_dir)
+    physical = json.loads((run_dir / EV.NODE_EVALUATED).read_text())["physical"]
+    physical.update(overrides or {})
+    keys = {int(physical["node_id"]): bytes.fromhex(physical["key_hex"])}
+
+    def frames_of(name):   # a decoder per file: the two runs share their sequence numbers
+        dec = StreamDecoder(keys)
+        return sorted((f for f in dec.feed((run_dir / name).read_bytes()) if f.ropes), key=lambda f: f.seq)
+    frames = frames_of("frames.bin")
+    base = run_dir / "frames-baseline.bin"
+    frames_b = frames_of(base.name) if base.exists() else frames
+    truth = np.load(run_dir / "sim" / "truth.npz")
+    hz = int(physical["sample_hz"])
+    w = hz // int(physical["frame_hz"])
+    n = len(frames)
+    truth_n = np.asarray(truth["tension_N"], float)[: n * w]
+    _phase, excluded, _steady, _payload = EV.scoring_masks(truth, truth_n, hz, float(physical["rated_rope_tension_N"]),
+                                                          float(physical["hall_marks_m"][-1]))
+    t = M.window_means(truth_n, w)[:n]
+    valid = M.window_means(excluded.astype(float), w)[:n] == 0.0
+    area = float(np.mean(physical["cylinder_area_m2"]))
+    out = {}
+    for which, factory in engine_factories(physical).items():
+        fr = (frames_b if which == "baseline" else frames)[: len(t)]
+        out[which] = {"natural": alarm_figures(fr, t[: len(fr)], w / hz, factory, valid[: len(fr)]),
+                      "superposed": superposed_alarm_figures(fr, t[: len(fr)], w / hz, factory, area,
+                                                             valid[: len(fr)])}
+    out["ideal_bound"] = ideal_bound_figures(truth, physical)
+    return out
+
+
+# ---------------------------------------------------------------- the best a bound could do
+
+IDEAL_MARGIN = 0.10
+
+
+def ideal_bound_figures(truth, physical: dict, margin: float = IDEAL_MARGIN, frame_samples: int | None = None) -> dict:
+    """How often even an ideal fail-safe bound would warn: a lab study on the simulator's truth.
+
+    A fail-safe band must hold for any seal the node may meet, so it can use what is proven:
+    the seal's force lies in [-S, S] (S = (1 + margin) Fs(p) + 2 r, as the station's band with
+    a tighter margin), and the piston's displacement moves it. Here the displacement is the
+    truth's, noise-free. Moving by dx > 0 (the sign convention of `friction_N`: T = p A + F)
+    raises the upper bound by at most k dx (k = sigma0, the fitted pre-sliding stiffness) and
+    the lower bound by at least k_min dx up to the sliding floor L = (1 - margin) Fc(p) - 2 r,
+    with k_min = L / (Fs(p_max) / sigma0) (a full reversal within one pre-sliding distance);
+    dx < 0 mirrors it. At rest the bounds stay, cut to [-S, S] as the pressure changes.
+
+    Over frame means, each rope's deviation extremes over the intervals of all ropes
+    (`uncertainty.deviation_bounds`' corners) are compared with the 10 % limit. Returns the
+    share of frames in which such a bound would warn on ropes truly within `FALSE_BELOW`
+    (as the wind is, and with `SUPERPOSED` on each rope in turn), the frames beyond the limit it
+    would miss, and how often the true friction stayed inside (`coverage`, per rope: below 1 the
+    bound is already too tight to be fail-safe)."""
+    from ropemon.lab.metrics import deviation_step_n, window_means
+    from ropemon.station.uncertainty import BandParams
+
+    params = dataclasses.replace(BandParams.from_physical(physical), margin=margin)
+    fr = physical["friction"]
+    x = np.asarray(truth["piston_x_m"], float)
+    f_true = np.asarray(truth["friction_N"], float)
+    kpa = np.asarray(truth["p_tap_Pa"], float) / 1000.0
+    area = np.asarray(physical["cylinder_area_m2"], float)
+    n, ropes = x.shape
+    s = np.empty_like(x)
+    floor_l = np.empty_like(x)
+    for k in range(n):   # the band's limits at each rope's pressure
+        for i in range(ropes):
+            s_ki, fc, flo = params.limits(kpa[k, i])
+            s[k, i] = s_ki
+            floor_l[k, i] = max(0.0, (1.0 - margin) * fc - flo)
+    k_max = float(fr["sigma0"])
+    d_pre = float(np.max(s)) / (1.0 + margin) / k_max
+    lo, hi = -s[0].copy(), s[0].copy()
+    los, his = np.empty_like(x), np.empty_like(x)
+    dx_all = np.diff(x, axis=0, prepend=x[:1])
+    for k in range(n):
+        dx = dx_all[k]
+        k_min = floor_l[k] / d_pre
+        up, down = dx > 0, dx < 0
+        hi = np.where(up, hi + k_max * dx, np.where(down, np.minimum(hi, np.maximum(hi + k_min * dx, -floor_l[k])), hi))
+        lo = np.where(down, lo + k_max * dx, np.where(up, np.maximum(lo, np.minimum(lo + k_min * dx, floor_l[k])), lo))
+        hi = np.minimum(np.maximum(hi, -floor_l[k]), s[k])
+        lo = np.maximum(np.minimum(lo, floor_l[k]), -s[k])
+        los[k], his[k] = lo, hi
+    coverage = np.mean((f_true >= los - 1.0) & (f_true <= his + 1.0), axis=0)
+    w = frame_samples or int(physical["sample_hz"]) // int(physical["frame_hz"])
+    m = (n // w) * w
+    t = window_means(truth["tension_N"][:m], w)
+    pa = window_means(kpa[:m] * 1000.0 * area, w)
+    flo = los[:m].reshape(-1, w, ropes).min(axis=1)
+    fhi = his[:m].reshape(-1, w, ropes).max(axis=1)
+
+    def shares(t, pa):
+        a, b = np.maximum(0.0, pa + flo), pa + fhi
+        sa, sb = a.sum(axis=1, keepdims=True), b.sum(axis=1, keepdims=True)
+        d_max = ropes * b / (b + sa - a) - 1.0
+        d_min = ropes * a / (a + sb - b) - 1.0
+        warn = np.maximum(np.abs(d_max), np.abs(d_min)) >= DEVIATION_LIMIT
+        d_true = np.abs(t / t.mean(axis=1, keepdims=True) - 1.0)
+        within = d_true < FALSE_BELOW
+        return float(warn[within].mean()) if within.any() else None, int(((d_true > DEVIATION_LIMIT) & ~warn).sum())
+
+    share, missed = shares(t, pa)
+    sup_shares, sup_missed = [], 0
+    for rope in range(ropes):
+        for sign in (1.0, -1.0):
+            step = deviation_step_n(t, rope, sign * SUPERPOSED)
+            t2, pa2 = t.copy(), pa.copy()
+            t2[:, rope] += step
+            pa2[:, rope] += step
+            sh, mi = shares(t2, pa2)
+            if sh is not None:
+                sup_shares.append(sh)
+            sup_missed += mi
+    return {"warning_share": None if share is None else round(share, 4), "missed_frames": missed,
+            "superposed_warning_share": round(float(np.mean(sup_shares)), 4) if sup_shares else None,
+            "superposed_missed_frames": sup_missed,
+            "coverage_min": round(float(coverage.min()), 4), "margin": margin}

@@ -1,0 +1,1 @@
+"""The hoist-room station: receivers, decode and merge, alarms, store and the views."""

@@ -1,0 +1,479 @@
+"""Operator alarms from decoded frames: thresholds, minimum durations, hysteresis, latching.
+
+Every alarm is one `_Alarm` identified by an id such as "deviation:n1:r2" (kind,
+node, rope). Its condition is debounced: it raises only after the raise
+condition has held for `raise_after_s` over at least `min_frames` consecutive
+evaluations, and clears only after the clear condition (threshold minus
+hysteresis) has held for `clear_after_s` likewise; so one noisy frame neither
+raises nor clears. A raised alarm latches until acknowledged. Every raise, clear
+and acknowledgement is returned as an `AlarmEvent` with time and values (the
+caller logs them, e.g. `Store.add_event`).
+
+Kinds: deviation (a rope vs the mean of the ropes), deviation_possible (a warning: the
+band of the deviation reaches the limit while the node's deviation does not; from
+`ropemon.station.uncertainty`, only with `AlarmSettings.band`), overload (total vs rated),
+slack (a rope below a floor), sensor_fault (fault bits), sensor_stuck (a rope's
+pressure frozen while the others move, see `_StuckTracker`), config_fault, silent
+(no frame from a node), battery_low, pressure_noise (the node's noise_changed bit:
+its transmitters' noise moved beyond what it follows without a re-check),
+link_integrity (MAC failures or replays).
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+from ropemon.station.protocol import DAN_TO_N, L, Frame
+from ropemon.station.uncertainty import BandParams, DeviationBand, RopeInterval, SealBandTracker, deviation_bounds
+
+SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
+# A condition "held for 0.5 s" over frames 0.1 s apart holds at the sixth frame, whatever the
+# float rounding of the two times (38 * 0.1 and 43 * 0.1 are 0.49999999999999 apart).
+HOLD_TOLERANCE_S = 1e-6
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Debounce of one alarm kind."""
+
+    raise_after_s: float = 0.5
+    clear_after_s: float = 2.0
+    min_frames: int = 2
+
+
+@dataclass(frozen=True)
+class AlarmSettings:
+    """Thresholds; a threshold of None disables that alarm."""
+
+    deviation_frac: float = 0.10            # the regulation: +-10 % of the mean tension
+    deviation_hysteresis_frac: float = 0.02
+    deviation_min_mean_dan: int = 100       # below this mean the ropes are unloaded: no check
+    rated_load_dan: int | None = None       # rated total static load (sum of rope tensions)
+    overload_frac: float = 1.0              # raise above rated_load_dan * overload_frac
+    overload_hysteresis_frac: float = 0.05
+    slack_dan: int | None = None            # a rope below this is slack
+    slack_hysteresis_dan: int = 50
+    battery_low_mv: int | None = None       # besides the node's own battery_low status bit
+    battery_hysteresis_mv: int = 100
+    silent_s: float = 5.0                   # no frame from a node for longer than this
+    # sensor_stuck: a rope's raw_kpa stays within +-stuck_deadband_kpa for stuck_s while the mean
+    # of the other ropes' raw_kpa moves by more than stuck_others_kpa (see _StuckTracker).
+    stuck_s: float | None = 5.0
+    stuck_deadband_kpa: int = 5
+    stuck_others_kpa: int = 50
+    stuck_moving_s: float = 1.0             # clear: the rope moved within this, held clear_after_s
+    timing: Timing = Timing()
+    fault_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=2.0, min_frames=2)
+    silent_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=1.0, min_frames=1)
+    link_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=10.0, min_frames=1)
+    # the seal's friction lines and the band's parameters (ropemon.station.uncertainty): with them the
+    # engine keeps a band per rope and raises deviation_possible; None: no band, no such warning
+    band: BandParams | None = None
+
+    @classmethod
+    def from_loads(cls, rated_load_dan: int, empty_load_dan: int, n_ropes: int,
+                   slack_frac_of_empty: float = 0.6, **kw) -> "AlarmSettings":
+        """Overload at the rated total load; a rope is slack below `slack_frac_of_empty` of its
+        share of the empty conveyance load (the Quebec S-2.1 r.14 s.253.2 rule: 60 %)."""
+        if n_ropes < 1 or empty_load_dan <= 0 or rated_load_dan <= 0:
+            raise ValueError("rated_load_dan, empty_load_dan and n_ropes must be positive")
+        slack = round(slack_frac_of_empty * empty_load_dan / n_ropes)
+        return cls(rated_load_dan=rated_load_dan, slack_dan=slack, **kw)
+
+
+@dataclass(frozen=True)
+class AlarmEvent:
+    time_s: float
+    action: str          # "raise", "clear" or "ack"
+    alarm: str           # id, e.g. "deviation:n1:r2"
+    kind: str
+    node: int | None
+    rope: int | None
+    value: float | None
+    threshold: float | None
+    message: str
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class Debounce:
+    """The debounce of one alarm condition (module doc): `step` takes one evaluation and says
+    when the debounced condition raises or clears. The engine holds one per alarm;
+    `ropemon.lab.metrics.debounced` runs the same over an evaluation's frames."""
+
+    timing: Timing
+    present: bool = False        # debounced condition
+    since_s: float | None = None  # start of the pending change
+    since_n: int = 0
+
+    def step(self, now_s: float, raise_cond: bool, clear_cond: bool) -> str | None:
+        """'raise' or 'clear' when the debounced condition changes at this evaluation, else None."""
+        want = clear_cond if self.present else raise_cond
+        if not want:
+            self.since_s, self.since_n = None, 0
+            return None
+        if self.since_s is None:
+            self.since_s, self.since_n = now_s, 0
+        self.since_n += 1
+        t = self.timing
+        hold = t.clear_after_s if self.present else t.raise_after_s
+        if now_s - self.since_s < hold - HOLD_TOLERANCE_S or self.since_n < t.min_frames:
+            return None
+        self.since_s, self.since_n = None, 0
+        self.present = not self.present
+        return "raise" if self.present else "clear"
+
+
+@dataclass
+class _Alarm:
+    id: str
+    kind: str
+    node: int | None
+    rope: int | None
+    debounce: Debounce
+    latched: bool = False        # raised and not acknowledged
+    value: float | None = None
+    threshold: float | None = None
+    message: str = ""
+    raised_s: float | None = None
+    band: float | None = None    # deviation_possible: the deviation's band (fraction)
+
+    @property
+    def present(self) -> bool:
+        return self.debounce.present
+
+    @property
+    def active(self) -> bool:
+        return self.present or self.latched
+
+
+@dataclass(frozen=True)
+class ActiveAlarm:
+    """What a display shows: present = condition now, latched = awaiting acknowledgement."""
+
+    id: str
+    kind: str
+    node: int | None
+    rope: int | None
+    present: bool
+    latched: bool
+    value: float | None
+    threshold: float | None
+    message: str
+    raised_s: float | None
+    band: float | None = None    # deviation_possible: how far beyond |value| the deviation may reach
+
+    @property
+    def warning(self) -> bool:
+        """A warning (lower priority than the alarms): deviation_possible."""
+        return self.kind in WARNING_KINDS
+
+
+WARNING_KINDS = frozenset({"deviation_possible"})
+
+
+class _StuckTracker:
+    """One node's evidence for sensor_stuck: O(ropes) state, constant work per frame.
+
+    A 4-20 mA transmitter frozen inside the band (electronics hung, diaphragm blocked, a
+    valve closed at the tap) gives a plausible constant: NAMUR NE43 cannot see it. The
+    connected cylinders share the load, so a live rope's tap pressure moves with the
+    others; and a live transmitter's noise moves its window mean. Per rope this keeps an
+    anchor (the raw_kpa it has stayed within +-deadband of, and since when) and the range
+    of the mean of the other present ropes' raw_kpa since that anchor. Stuck = still for
+    stuck_s while the others moved by more than stuck_others_kpa: never at rest (nobody
+    moved), and a live rope moving with the others resets its own anchor.
+
+    The deadband (5 kPa) is wider than the 1 kPa resolution because a frozen loop current
+    still passes the ADC noise: 1 count = 1.3 kPa on a 0-25 MPa, 16-bit channel, and with 3
+    counts of noise (the `sensor-noise` evaluation) the window mean of a frozen reading spans
+    +-3 kPa, which a 1 or 2 kPa deadband takes for movement (missed or flickering alarm).
+    It stays far below the others' 50 kPa: on the evaluation's streams through the firmware
+    (all variants, duty-cycle-50's 50 winds included) no live rope held within +-5 kPa for
+    5 s while the others moved more than 10 kPa.
+    The others' mean, not each other rope, keeps the state O(ropes); when the set of present
+    ropes changes that mean jumps, so every anchor restarts.
+    """
+
+    __slots__ = ("present", "anchor_kpa", "anchor_s", "lo_kpa", "hi_kpa")
+
+    def __init__(self) -> None:
+        self.present: tuple[bool, ...] = ()
+        self.anchor_kpa: list[int] = []
+        self.anchor_s: list[float] = []
+        self.lo_kpa: list[float] = []
+        self.hi_kpa: list[float] = []
+
+    def update(self, raw_kpa: list[int], present: tuple[bool, ...], now_s: float, deadband_kpa: int) -> None:
+        """Take one frame's raw_kpa per rope (present: not RAW_KPA_ABSENT)."""
+        total = 0
+        for p, kpa in zip(present, raw_kpa):
+            if p:
+                total += kpa
+        count = sum(present)
+        if present != self.present:
+            n = len(raw_kpa)
+            self.present = present
+            self.anchor_kpa = list(raw_kpa)
+            self.anchor_s = [now_s] * n
+            self.lo_kpa = [0.0] * n
+            self.hi_kpa = [0.0] * n
+            for i in range(n):
+                if present[i] and count > 1:
+                    self.lo_kpa[i] = self.hi_kpa[i] = (total - raw_kpa[i]) / (count - 1)
+            return
+        if count < 2:
+            return
+        for i, kpa in enumerate(raw_kpa):
+            if not present[i]:
+                continue
+            others = (total - kpa) / (count - 1)
+            if abs(kpa - self.anchor_kpa[i]) > deadband_kpa:
+                self.anchor_kpa[i], self.anchor_s[i] = kpa, now_s
+                self.lo_kpa[i] = self.hi_kpa[i] = others
+            elif others < self.lo_kpa[i]:
+                self.lo_kpa[i] = others
+            elif others > self.hi_kpa[i]:
+                self.hi_kpa[i] = others
+
+
+class AlarmEngine:
+    def __init__(self, settings: AlarmSettings | None = None):
+        self.settings = settings or AlarmSettings()
+        self._alarms: dict[str, _Alarm] = {}
+        self._stuck: dict[int, _StuckTracker] = {}
+        self._bands: dict[int, SealBandTracker] = {}
+        self._last_frame_s: dict[int, float] = {}
+        self._link_bad: dict[str, int] = {}
+        self.events: deque[AlarmEvent] = deque(maxlen=10000)  # recent history; the store keeps all
+
+    # -- inputs ---------------------------------------------------------------
+
+    def update(self, frame: Frame, now_s: float) -> list[AlarmEvent]:
+        """Evaluate every frame-based alarm of frame.node at host time now_s."""
+        s = self.settings
+        ev: list[AlarmEvent] = []
+        node = frame.node
+        self._last_frame_s[node] = now_s
+        self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
+                   False, True, 0.0, s.silent_s, "frames arriving")
+        ropes = frame.ropes
+        # Ropes whose sensor gave no healthy sample carry TENSION_ABSENT: they are not judged
+        # (their alarms hold their state; sensor_fault reports them) and not averaged in.
+        present = [(i, r.mean_dan) for i, r in enumerate(ropes) if r.mean_dan != L.TENSION_ABSENT]
+        if s.band is not None and s.deviation_frac is not None and ropes:
+            tr = self._bands.get(node)
+            if tr is None:
+                tr = self._bands[node] = SealBandTracker(s.band)
+            tr.update(frame)
+        if present:
+            tensions = [t for _, t in present]
+            mean = sum(tensions) / len(tensions)
+            # Connected cylinders equalise the ropes, so an absent rope is taken at the mean.
+            total = round(mean * len(ropes))
+            estimated = len(present) < len(ropes)
+            if s.deviation_frac is not None and len(present) >= 2:
+                thr = s.deviation_frac
+                for i, t in present:
+                    dev = (t - mean) / mean if mean >= s.deviation_min_mean_dan else 0.0
+                    a = abs(dev)
+                    self._step(ev, f"deviation:n{node}:r{i}", "deviation", node, i, s.timing, now_s,
+                               a > thr, a < thr - s.deviation_hysteresis_frac, round(dev, 4), thr,
+                               f"rope {i + 1} {t} daN is {dev:+.1%} from the mean {mean:.0f} daN")
+            if s.band is not None and s.deviation_frac is not None:
+                # after the deviation alarms: the warning yields to a raised certain alarm
+                self._check_possible(ev, node, self._bands[node].last, now_s, None)
+            if s.rated_load_dan is not None:
+                limit = s.rated_load_dan * s.overload_frac
+                low = s.rated_load_dan * (s.overload_frac - s.overload_hysteresis_frac)
+                self._step(ev, f"overload:n{node}", "overload", node, None, s.timing, now_s,
+                           total > limit, total < low, total, limit,
+                           f"total load {total} daN{' (estimated: a rope absent)' if estimated else ''} "
+                           f"vs limit {limit:.0f} daN")
+            if s.slack_dan is not None:
+                for i, t in present:
+                    self._step(ev, f"slack:n{node}:r{i}", "slack", node, i, s.timing, now_s,
+                               t < s.slack_dan, t > s.slack_dan + s.slack_hysteresis_dan, t, s.slack_dan,
+                               f"rope {i + 1} {t} daN below slack floor {s.slack_dan} daN")
+        if s.stuck_s is not None:
+            self._check_stuck(ev, node, ropes, now_s, s.stuck_s)
+        fault = bool(frame.status & SENSOR_FAULT_BITS) or frame.fault_mask != 0
+        flags = ",".join(f for f in frame.status_flags if f.endswith("_fault") and f != "config_fault")
+        self._step(ev, f"sensor_fault:n{node}", "sensor_fault", node, None, s.fault_timing, now_s,
+                   fault, not fault, frame.fault_mask, None,
+                   f"sensor fault {flags or '-'} fault_mask=0x{frame.fault_mask:02x}")
+        cfg = bool(frame.status & L.ST_CONFIG_FAULT) or frame.kind == L.KIND_STATUS
+        self._step(ev, f"config_fault:n{node}", "config_fault", node, None, s.fault_timing, now_s,
+                   cfg, not cfg, None, None, "node reports a config fault: no compensated tension")
+        bit = bool(frame.status & L.ST_BATTERY_LOW)
+        mv = frame.battery_mv
+        if s.battery_low_mv is not None:
+            lo = bit or mv < s.battery_low_mv
+            hi = not bit and mv > s.battery_low_mv + s.battery_hysteresis_mv
+        else:
+            lo, hi = bit, not bit
+        self._step(ev, f"battery_low:n{node}", "battery_low", node, None, s.timing, now_s,
+                   lo, hi, mv, s.battery_low_mv, f"battery {mv} mV low")
+        noisy = bool(frame.status & L.ST_NOISE_CHANGED)
+        self._step(ev, f"pressure_noise:n{node}", "pressure_noise", node, None, s.fault_timing, now_s,
+                   noisy, not noisy, None, None,
+                   f"pressure transmitters' noise more than {L.NOISE_TOL_Q10 * 100 // 1024} % off the "
+                   "commissioned: re-check the config (ropemon fit-compliance --check)")
+        return self._log(ev)
+
+    def tick(self, now_s: float) -> list[AlarmEvent]:
+        """Time passes without frames: the node-silent alarm."""
+        s = self.settings
+        ev: list[AlarmEvent] = []
+        for node, last in self._last_frame_s.items():
+            quiet = now_s - last
+            self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
+                       quiet > s.silent_s, quiet <= s.silent_s, round(quiet, 3), s.silent_s,
+                       f"no frame from node {node} for {quiet:.1f} s")
+            if node in self._bands and quiet > 0:
+                self._check_possible(ev, node, self._bands[node].intervals(quiet), now_s, quiet)
+        return self._log(ev)
+
+    def update_link(self, source: str, mac_fail: int, replayed: int, now_s: float,
+                    restarts: int = 0) -> list[AlarmEvent]:
+        """Decoder counts of one receiver (cumulative): any increase raises link_integrity.
+
+        `restarts` (seq restarts accepted after a node reset) count too: the anti-replay
+        window cannot tell a reset from a replayed boot, so the operator is told.
+        """
+        bad = mac_fail + replayed + restarts
+        new = bad - self._link_bad.get(source, 0)
+        self._link_bad[source] = bad
+        ev: list[AlarmEvent] = []
+        self._step(ev, f"link_integrity:{source}", "link_integrity", None, None, self.settings.link_timing,
+                   now_s, new > 0, new <= 0, new, 0,
+                   f"receiver {source}: {mac_fail} MAC failures, {replayed} replays, "
+                   f"{restarts} node seq restarts in total")
+        return self._log(ev)
+
+    def ack(self, name_or_id: str, now_s: float) -> list[AlarmEvent]:
+        """Acknowledge latched alarms by id, by kind, or all with "*"."""
+        ev = []
+        for a in self._alarms.values():
+            if a.latched and name_or_id in ("*", a.id, a.kind):
+                a.latched = False
+                ev.append(self._event(a, now_s, "ack"))
+        return self._log(ev)
+
+    # -- outputs --------------------------------------------------------------
+
+    def active(self) -> list[ActiveAlarm]:
+        """Alarms present or latched, oldest raise first; warnings after the alarms."""
+        out = [ActiveAlarm(a.id, a.kind, a.node, a.rope, a.present, a.latched, a.value, a.threshold,
+                           a.message, a.raised_s, a.band) for a in self._alarms.values() if a.active]
+        return sorted(out, key=lambda x: (x.warning, x.raised_s or 0.0, x.id))
+
+    def deviation_bands(self, node: int, now_s: float | None = None) -> list[DeviationBand | None]:
+        """Per rope of `node`'s last frame: its deviation and band (`ropemon.station.uncertainty`), widened
+        for the time since that frame when `now_s` is given; [] without a band."""
+        tr = self._bands.get(node)
+        if tr is None:
+            return []
+        age = 0.0 if now_s is None else max(0.0, now_s - self._last_frame_s.get(node, now_s))
+        return deviation_bounds(tr.intervals(age))
+
+    # -- internals ------------------------------------------------------------
+
+    def _check_stuck(self, ev, node: int, ropes, now_s: float, stuck_s: float) -> None:
+        s = self.settings
+        tr = self._stuck.get(node)
+        if tr is None:
+            tr = self._stuck[node] = _StuckTracker()
+        raw = [r.raw_kpa for r in ropes]
+        present = tuple(k != L.RAW_KPA_ABSENT for k in raw)
+        tr.update(raw, present, now_s, s.stuck_deadband_kpa)
+        if sum(present) < 2:
+            return
+        for i, kpa in enumerate(raw):
+            if not present[i]:
+                continue  # an absent rope holds its alarm state; sensor_fault reports it
+            still_s = now_s - tr.anchor_s[i]
+            moved = tr.hi_kpa[i] - tr.lo_kpa[i]
+            stuck = still_s >= stuck_s and moved > s.stuck_others_kpa
+            aid = f"sensor_stuck:n{node}:r{i}"
+            if not stuck and aid not in self._alarms:
+                continue  # the usual case, as _step would: skip formatting a message per rope and frame
+            self._step(ev, aid, "sensor_stuck", node, i, s.timing, now_s, stuck, still_s < s.stuck_moving_s,
+                       round(still_s, 1), stuck_s,
+                       f"rope {i + 1} pressure {kpa} kPa unchanged (+-{s.stuck_deadband_kpa} kPa) for "
+                       f"{still_s:.1f} s while the other ropes moved {moved:.0f} kPa: transmitter stuck")
+
+    def _check_possible(self, ev, node: int, iv: list[RopeInterval], now_s: float,
+                        quiet_s: float | None) -> None:
+        """deviation_possible per rope: the deviation's band reaches the limit (its largest
+        |d| over the ropes' intervals, `ropemon.station.uncertainty.deviation_bounds`) while the certain
+        deviation alarm is not raised; it clears below the limit minus the hysteresis, or once
+        the certain alarm is raised. A rope without a tension is not judged (sensor_fault)."""
+        s = self.settings
+        thr = s.deviation_frac
+        assert thr is not None
+        used = [r.t_hat for r in iv if r.present]
+        if not used or sum(used) / len(used) < s.deviation_min_mean_dan * DAN_TO_N:
+            # unloaded ropes: no check, as the deviation alarm, whose deviation is then 0
+            for i in range(len(iv)):
+                aid = f"deviation_possible:n{node}:r{i}"
+                if aid in self._alarms:
+                    self._step(ev, aid, "deviation_possible", node, i, s.timing, now_s, False, True,
+                               0.0, thr, f"rope {i + 1}: ropes unloaded, no check")
+            return
+        anchoring = s.band is not None and s.band.anchor
+        blind = [k + 1 for k, r in enumerate(iv) if not r.vouched] if anchoring else []
+        for i, b in enumerate(deviation_bounds(iv)):
+            if b is None:
+                continue
+            certain = self._alarms.get(f"deviation:n{node}:r{i}")
+            certain_on = certain is not None and certain.present
+            reach = b.reach
+            aid = f"deviation_possible:n{node}:r{i}"
+            if aid not in self._alarms and (certain_on or reach < thr):
+                continue  # the usual case: skip the message
+            if quiet_s:
+                why = f" (no frame for {quiet_s:.1f} s)"
+            elif not anchoring:
+                why = " (the seals' static friction could hold it)"
+            elif blind:
+                why = f" (rope{'s' if len(blind) > 1 else ''} {','.join(map(str, blind))} not vouched for)"
+            else:
+                why = ""
+            self._step(ev, aid, "deviation_possible", node, i, s.timing, now_s,
+                       reach >= thr and not certain_on, reach < thr - s.deviation_hysteresis_frac or certain_on,
+                       round(b.dev, 4), thr,
+                       f"rope {i + 1} {b.dev:+.1%} +-{b.band:.1%} from the mean, may reach {reach:.1%} "
+                       f"(limit {thr:.0%}){why}: check the rope tensions at the next landing", band=round(b.band, 4))
+
+    def _step(self, ev, aid, kind, node, rope, timing: Timing, now_s, raise_cond, clear_cond,
+              value, threshold, message, band: float | None = None) -> None:
+        a = self._alarms.get(aid)
+        if a is None:
+            if not raise_cond:
+                return  # nothing to track until the condition first appears
+            a = self._alarms[aid] = _Alarm(aid, kind, node, rope, Debounce(timing))
+        a.value, a.threshold, a.band = value, threshold, band
+        change = a.debounce.step(now_s, raise_cond, clear_cond)
+        if change is None:
+            if a.present and not clear_cond:
+                a.message = message
+            return
+        if change == "clear":
+            ev.append(self._event(a, now_s, "clear", f"cleared: {message}"))
+        else:
+            a.latched = True
+            a.raised_s = now_s
+            a.message = message
+            ev.append(self._event(a, now_s, "raise"))
+
+    @staticmethod
+    def _event(a: _Alarm, now_s: float, action: str, message: str | None = None) -> AlarmEvent:
+        return AlarmEvent(now_s, action, a.id, a.kind, a.node, a.rope, a.value, a.threshold,
+                          message if message is not None else a.message)
+
+    def _log(self, ev: list[AlarmEvent]) -> list[AlarmEvent]:
+        self.events.extend(ev)
+        return ev

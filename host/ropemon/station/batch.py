@@ -1,0 +1,210 @@
+"""Batch decoder for capture and log files: numpy over all frames at once, columns out.
+
+Same rules and same counts as `StreamDecoder` fed the whole file then `finish()`
+(tests/host/test_host_batch.py checks it): bodies between 0x00 delimiters are
+grouped by length; for each valid frame length the COBS code chain, the CRC and
+the field parse run as array operations over every body of that length. Bodies
+of any other length cannot be frames and go through the scalar decoder for
+classification only. MAC (hmac per frame) and the anti-replay check (order
+dependent: replayed, rewound, duplicate) run per frame, only when keys are given.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ropemon.station import protocol as P
+from ropemon.station.decoder import DecodeCounts, ReplayGuard, StreamDecoder
+
+L = P.L
+
+_NP = {"B": "u1", "b": "i1", "H": "u2", "h": "i2", "I": "u4", "i": "i4"}
+
+
+def _fields(fmt: str, names: tuple[str, ...], prefix: str = "") -> list[tuple[str, str]]:
+    """numpy (name, type) pairs from a layout struct format: the layout stays the one definition."""
+    codes = fmt[1:]
+    assert fmt[0] == "<" and len(codes) == len(names)
+    return [(prefix + n, "<" + _NP[c]) for n, c in zip(names, codes)]
+
+
+def frame_dtype(n_ropes: int) -> np.dtype:
+    f = _fields(L.HEADER_FMT, L.HEADER_FIELDS)
+    for i in range(n_ropes):
+        f += _fields(L.ROPE_FMT, L.ROPE_FIELDS, f"r{i}_")
+    f += _fields(L.TAIL_FMT, L.TAIL_FIELDS)
+    f += [("mac", f"V{L.MAC_LEN}"), ("crc", "<u2")]
+    dt = np.dtype(f)
+    assert dt.itemsize == L.frame_len(n_ropes)
+    return dt
+
+
+def _crc_table() -> np.ndarray:
+    t = np.zeros(256, np.uint16)
+    for i in range(256):
+        c = i << 8
+        for _ in range(8):
+            c = ((c << 1) ^ 0x1021) if c & 0x8000 else (c << 1)
+        t[i] = c & 0xFFFF
+    return t
+
+
+_CRC_TABLE = _crc_table()
+COLUMNS = L.HEADER_FIELDS + L.TAIL_FIELDS
+
+
+@dataclass
+class BatchResult:
+    """Good frames as columns (stream order) plus the counts.
+
+    `columns[name]`: one array per header/tail field; `n_ropes` per frame;
+    `ropes[field]`: (frames, MAX_ROPES) arrays, zero beyond a frame's n_ropes;
+    `mac`: (frames, MAC_LEN) uint8; `authenticated`: None when no keys were given.
+    """
+
+    columns: dict[str, np.ndarray]
+    n_ropes: np.ndarray
+    ropes: dict[str, np.ndarray]
+    mac: np.ndarray
+    authenticated: bool | None
+    counts: DecodeCounts
+
+    def __len__(self) -> int:
+        return len(self.n_ropes)
+
+    def frames(self) -> list[P.Frame]:
+        """The same Frame objects the streaming decoder would give (slow: for tests and small files)."""
+        out = []
+        cols = [self.columns[k].tolist() for k in COLUMNS]
+        ropes = [self.ropes[k].tolist() for k in L.ROPE_FIELDS]
+        nr = self.n_ropes.tolist()
+        for i in range(len(nr)):
+            rs = tuple(P.Rope(*(r[i][j] for r in ropes)) for j in range(nr[i]))
+            out.append(P.Frame(**{k: c[i] for k, c in zip(COLUMNS, cols)}, ropes=rs,
+                               authenticated=self.authenticated, mac=bytes(self.mac[i])))
+        return out
+
+
+def _cobs_decode_rows(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """COBS-decode equal-length bodies (rows, each < 254 bytes): (raw rows, valid mask)."""
+    n, width = m.shape
+    rows = np.arange(n)
+    pos = np.zeros(n, np.int64)
+    is_code = np.zeros((n, width + 1), bool)
+    active = rows
+    while active.size:
+        p = pos[active]
+        is_code[active, p] = True
+        code = m[active, p].astype(np.int64)
+        # A code of 0xFF means "254 data bytes, no zero": impossible in a body this short.
+        pos[active] = p + np.where(code == 0xFF, width + 1, code)
+        active = active[pos[active] < width]
+    valid = pos == width
+    raw = np.where(is_code[:, 1:width], 0, m[:, 1:])
+    return raw.astype(np.uint8), valid
+
+
+def _crc_rows(raw: np.ndarray) -> np.ndarray:
+    crc = np.full(raw.shape[0], 0xFFFF, np.uint16)
+    t = _CRC_TABLE
+    for j in range(raw.shape[1]):
+        crc = ((crc << 8) & 0xFF00) ^ t[((crc >> 8) ^ raw[:, j]) & 0xFF]
+    return crc
+
+
+def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResult:
+    """Decode a whole capture. An unterminated tail counts as one malformed frame."""
+    buf = np.frombuffer(data, np.uint8)
+    counts = DecodeCounts()
+    zeros = np.flatnonzero(buf == 0)
+    starts = np.concatenate(([0], zeros[:-1] + 1)) if zeros.size else np.zeros(0, np.int64)
+    lengths = zeros - starts
+    tail = len(data) - (int(zeros[-1]) + 1 if zeros.size else 0)
+    if tail:
+        counts.malformed += 1
+        counts.bytes_discarded += tail
+
+    keys = dict(keys) if keys else None
+    parts: list[tuple] = []  # (body indices, n_ropes, structured records, raw rows) per length
+    valid_lens = {L.frame_len(n) + 1: n for n in range(L.MAX_ROPES + 1)}
+    odd = ~np.isin(lengths, list(valid_lens)) & (lengths > 0)
+    if odd.any():
+        # Cannot be frames; classify them exactly as the streaming decoder does.
+        sd = StreamDecoder(keys)
+        sd._decode_bodies([data[s:s + n] for s, n in zip(starts[odd].tolist(), lengths[odd].tolist())], [])
+        counts.add(sd.counts)
+    for body_len, n_ropes in valid_lens.items():
+        idx = np.flatnonzero(lengths == body_len)
+        if not idx.size:
+            continue
+        m = buf[starts[idx, None] + np.arange(body_len)]
+        raw, ok = _cobs_decode_rows(m)
+        bad = ~ok
+        counts.malformed += int(bad.sum())
+        crc_ok = _crc_rows(raw[:, :-2]) == (raw[:, -2].astype(np.uint16) | (raw[:, -1].astype(np.uint16) << 8))
+        crc_bad = ok & ~crc_ok
+        counts.crc_fail += int(crc_bad.sum())
+        good = ok & crc_ok
+        rec = np.ascontiguousarray(raw[good]).view(frame_dtype(n_ropes)).reshape(-1)
+        want_kind = L.KIND_DATA if n_ropes else L.KIND_STATUS
+        sem = (rec["version"] == L.VERSION) & (rec["kind"] == want_kind)
+        counts.malformed += int((~sem).sum())
+        counts.bytes_discarded += (int(bad.sum()) + int(crc_bad.sum()) + int((~sem).sum())) * (body_len + 1)
+        parts.append((idx[good][sem], n_ropes, rec[sem], raw[good][sem]))
+
+    # Stream order across the length groups.
+    order = np.argsort(np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64), kind="stable")
+    total = len(order)
+
+    def gather(get, empty):
+        return np.concatenate([get(p) for p in parts])[order] if parts else empty
+
+    columns = {k: gather(lambda p: p[2][k], np.zeros(0, np.int64)) for k in COLUMNS}
+    n_ropes = gather(lambda p: np.full(len(p[0]), p[1], np.uint8), np.zeros(0, np.uint8))
+    rope_types = dict(_fields(L.ROPE_FMT, L.ROPE_FIELDS))
+    ropes = {}
+    for k, dt in rope_types.items():
+        def block(p, k=k, dt=dt):
+            b = np.zeros((len(p[0]), L.MAX_ROPES), dt)
+            for i in range(p[1]):
+                b[:, i] = p[2][f"r{i}_{k}"]
+            return b
+        ropes[k] = gather(block, np.zeros((0, L.MAX_ROPES), dt))
+    mac = gather(lambda p: p[3][:, L.frame_len(p[1]) - L.MAC_LEN - L.CRC_LEN:][:, :L.MAC_LEN],
+                 np.zeros((0, L.MAC_LEN), np.uint8))
+    keep = np.ones(total, bool)
+    if keys is not None:
+        # Per frame: hmac cannot be vectorised, and the replay check depends on order.
+        raw_rows = [row.tobytes() for p in parts for row in p[3]]
+        guard = ReplayGuard()
+        nodes = columns["node"].tolist()
+        seqs = columns["seq"].tolist()
+        for j, src in enumerate(order.tolist()):
+            rawb = raw_rows[src]
+            key = keys.get(nodes[j])
+            ma = len(rawb) - L.MAC_LEN - L.CRC_LEN
+            if key is None or P.mac_of(key, rawb[:ma]) != rawb[ma:ma + L.MAC_LEN]:
+                counts.mac_fail += 1
+            else:
+                verdict = guard.check(nodes[j], seqs[j], rawb)
+                if verdict is ReplayGuard.ACCEPTED:
+                    continue
+                if verdict is ReplayGuard.DUPLICATE:
+                    counts.duplicate += 1
+                else:
+                    counts.replayed += 1
+                    counts.rewound += int(verdict is ReplayGuard.REWOUND)
+            counts.bytes_discarded += len(rawb) + 2
+            keep[j] = False
+        columns = {k: v[keep] for k, v in columns.items()}
+        n_ropes = n_ropes[keep]
+        ropes = {k: v[keep] for k, v in ropes.items()}
+        mac = mac[keep]
+    counts.frames_ok += int(keep.sum())
+    return BatchResult(columns, n_ropes, ropes, mac, True if keys is not None else None, counts)
+
+
+def decode_file(path, keys: dict[int, bytes] | None = None) -> BatchResult:
+    with open(path, "rb") as fh:
+        return decode_bytes(fh.read(), keys)

@@ -1,0 +1,230 @@
+"""Receiver serial links: a reader thread per port, reconnecting, and a hub that decodes and merges.
+
+`SerialReceiver` reads one pyserial `serial_for_url` port (device path, loop://,
+spy://, socket://, rfc2217://) in a thread and hands every chunk of bytes to
+`on_bytes`. When the port fails (USB adapter unplugged, socket closed) it closes
+it and retries with exponential backoff until the port is back. It does not use
+serial.threaded.ReaderThread because that thread ends on the first error;
+reconnection is the point here. Note that pyserial's socket:// open() flushes
+bytes that arrived during the connect; the decoder resynchronises after them.
+
+`FrameHub` wires receivers to one StreamDecoder each and one shared Merger, and
+puts (receiver, frame, rx_time, is_new) on a queue for a single consumer thread
+(alarms, store and views belong to that thread: sqlite connections are not shared).
+`FrameHub.seed` gives every decoder, also of receivers added later, the replay
+state a restarted host resumes from (the log).
+"""
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterable, Mapping
+
+import serial
+import serial.rs485
+
+from ropemon.station.decoder import StreamDecoder
+from ropemon.station.merge import Merger
+from ropemon.station.protocol import Frame
+
+DEFAULT_BAUDRATE = 115200
+
+
+class SerialReceiver:
+    """One receiver port read in a daemon thread; `on_bytes(data)` runs in that thread."""
+
+    def __init__(self, url: str, name: str, on_bytes: Callable[[bytes], None], *, rs485: bool = False,
+                 baudrate: int = DEFAULT_BAUDRATE, backoff_s: float = 0.1, backoff_max_s: float = 5.0,
+                 read_timeout_s: float = 0.05):
+        self.url = url
+        self.name = name
+        self.on_bytes = on_bytes
+        self.rs485 = rs485
+        self.baudrate = baudrate
+        self.backoff_s = backoff_s
+        self.backoff_max_s = backoff_max_s
+        self.read_timeout_s = read_timeout_s
+        self.connected = False
+        self.reconnects = 0      # successful opens after the first
+        self.opens = 0
+        self.bytes_read = 0
+        self.callback_errors = 0                     # exceptions of on_bytes (decoder or consumer)
+        self.last_callback_error: str | None = None  # the latest of them, kept past port errors
+        self.last_error: str | None = None
+        self.serial: serial.SerialBase | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> "SerialReceiver":
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"rx-{self.name}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        self._close()
+
+    def write(self, data: bytes) -> None:
+        """Send bytes out of the port (loop:// tests, receiver commands)."""
+        if self.serial is None:
+            raise serial.SerialException(f"{self.name}: not connected")
+        self.serial.write(data)
+
+    def _open(self) -> serial.SerialBase:
+        ser = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=self.read_timeout_s,
+                                    do_not_open=True)
+        if self.rs485:
+            # Half duplex: the adapter's driver switches RTS around each transmission.
+            ser.rs485_mode = serial.rs485.RS485Settings()
+        ser.open()
+        return ser
+
+    def _close(self) -> None:
+        ser, self.serial = self.serial, None
+        self.connected = False
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception:  # closing a vanished device can fail in many ways; it is gone anyway
+                pass
+
+    def _run(self) -> None:
+        delay = self.backoff_s
+        while not self._stop.is_set():
+            try:
+                self.serial = self._open()
+            except (serial.SerialException, OSError, ValueError) as e:
+                self.last_error = f"open {self.url}: {e}"
+                self._stop.wait(delay)
+                delay = min(delay * 2, self.backoff_max_s)
+                continue
+            self.opens += 1
+            if self.opens > 1:
+                self.reconnects += 1
+            self.connected = True
+            delay = self.backoff_s
+            try:
+                ser = self.serial
+                while not self._stop.is_set():
+                    data = ser.read(max(1, ser.in_waiting))
+                    if data:
+                        self.bytes_read += len(data)
+                        try:
+                            self.on_bytes(data)
+                        except Exception as e:  # a consumer bug must not silently end the link
+                            self.callback_errors += 1
+                            self.last_error = self.last_callback_error = f"on_bytes: {type(e).__name__}: {e}"
+            except (serial.SerialException, OSError) as e:
+                self.last_error = f"read {self.url}: {e}"
+            finally:
+                self._close()
+
+
+@dataclass(frozen=True)
+class Received:
+    receiver: str
+    frame: Frame
+    rx_time: float
+    is_new: bool  # False: a duplicate of a frame another receiver (or this one) already delivered
+    rebased_from: int | None = None  # the frame is this receiver's new baseline for its node (an
+    #                                  operator-accepted rewind): the node's newest seq before it
+
+
+class FrameHub:
+    """Several receivers -> decoders -> one Merger -> a queue of `Received`."""
+
+    def __init__(self, keys: dict[int, bytes] | None = None, merger: Merger | None = None,
+                 clock: Callable[[], float] = time.time, maxsize: int = 100000,
+                 accept_rewound: Iterable[int] = ()):
+        self.keys = keys
+        self._accept_rewound = set(accept_rewound)  # operator decisions, given to every receiver's decoder
+        self.merger = merger or Merger()
+        self.clock = clock
+        self.queue: "queue.Queue[Received]" = queue.Queue(maxsize)
+        self.decoders: dict[str, StreamDecoder] = {}
+        self.receivers: dict[str, SerialReceiver] = {}
+        self.dropped = 0  # queue full: the consumer is not keeping up
+        self._lock = threading.Lock()
+        self._seed: tuple[dict[int, int], dict[int, list[Frame]]] = ({}, {})
+
+    def seed(self, last: Mapping[int, int], recent: Mapping[int, Iterable[Frame]] | None = None) -> None:
+        """Replay state to resume from (`ReplayGuard.seed`): given to every receiver's
+        decoder, also to those added later. Call before any bytes are fed."""
+        self._seed = (dict(last), {n: list(fs) for n, fs in (recent or {}).items()})
+        for dec in list(self.decoders.values()):
+            dec.replay.seed(*self._seed)
+
+    def feeder(self, name: str) -> Callable[[bytes], None]:
+        """A callback that decodes bytes of receiver `name` (also usable without a serial port)."""
+        dec = self.decoders.get(name)
+        if dec is None:
+            dec = self.decoders[name] = StreamDecoder(self.keys, accept_rewound=self._accept_rewound)
+            dec.replay.seed(*self._seed)
+        rebased = dec.replay.rebased  # appended to by dec.feed, in this receiver's thread only
+
+        def on_bytes(data: bytes) -> None:
+            now = self.clock()
+            frames = dec.feed(data)
+            if not frames:
+                return
+            base: dict[tuple[int, int], int] = {}
+            if rebased:
+                base = {(node, seq): prev for node, seq, prev in rebased}
+                rebased.clear()
+            with self._lock:
+                for f in frames:
+                    item = Received(name, f, now, self.merger.add(name, f),
+                                    base.get((f.node, f.seq)) if base else None)
+                    try:
+                        self.queue.put_nowait(item)
+                    except queue.Full:
+                        self.dropped += 1
+        return on_bytes
+
+    def add_port(self, url: str, name: str | None = None, **kw) -> SerialReceiver:
+        name = name or f"rx{len(self.receivers) + 1}"
+        if name in self.receivers:
+            raise ValueError(f"receiver name {name!r} used twice")
+        r = SerialReceiver(url, name, self.feeder(name), **kw)
+        self.receivers[name] = r
+        return r
+
+    def start(self) -> None:
+        for r in self.receivers.values():
+            r.start()
+
+    def stop(self) -> None:
+        for r in self.receivers.values():
+            r.stop()
+
+    def rewound(self) -> dict[int, tuple[int, int]]:
+        """Nodes refused because their boot counter went back: {node: (newest boot, its frame's boot)},
+        over all receivers."""
+        out: dict[int, tuple[int, int]] = {}
+        for dec in list(self.decoders.values()):
+            out.update(dec.replay.rewound)
+        return out
+
+    def accept_rewound(self, node: int) -> None:
+        """Operator decision: every receiver takes `node`'s next authenticated frame as its new baseline.
+
+        Receivers added later get it too. Called from the consumer thread while
+        readers decode: ReplayGuard only adds to a set, which the GIL makes atomic."""
+        self._accept_rewound.add(node)
+        for dec in list(self.decoders.values()):
+            dec.replay.accept_rewound(node)
+
+    def merge_stats(self) -> dict:
+        with self._lock:
+            return self.merger.stats()
+
+    def get(self, timeout: float | None = None) -> Received | None:
+        try:
+            return self.queue.get(timeout=timeout)
+        except queue.Empty:
+            return None

@@ -1,0 +1,333 @@
+"""`ropemon report DB`: per-trip summary of rope tensions and PNG plots of each trip.
+
+Like the paper's field-test table: for every wind, each rope's tension raw
+(p_tap x A) and compensated at the pithead rest and at the shaft-bottom rest,
+and their sum against the theoretical static load
+(cage + payload + tail ropes hanging below the cage) x g.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ropemon.station.protocol import DAN_TO_N, L
+from ropemon.commission.site import G_M_S2
+
+REST_SPEED_M_S = 0.05   # slower than this: the cage is standing
+SETTLE_S = 1.0          # skip the bounce right after the cage stops
+MIN_REST_S = 2.0        # shorter standstills are not a rest at a landing
+MIN_TRAVEL_M = 5.0      # a "trip" that moved the cage less is creep at a landing (loading), not a wind
+REST_AVG_S = 5.0        # a rest's figure: the mean over this long after arrival / before departure
+
+
+@dataclass
+class FrameTable:
+    """Merged frames of one node as arrays (one row per frame, time-ordered)."""
+
+    t_s: np.ndarray          # node time
+    depth_m: np.ndarray
+    speed_m_s: np.ndarray
+    comp_n: np.ndarray       # (frames, ropes) compensated window-mean tension
+    raw_kpa: np.ndarray      # (frames, ropes) tap pressure window mean
+    status: np.ndarray
+
+    @classmethod
+    def from_frames(cls, frames, ordered: bool = False) -> "FrameTable":
+        """From `ropemon.station.protocol.Frame`s; status-only frames (no ropes) are skipped,
+        a rope whose sensor failed for the window is NaN. Sorted by node time
+        unless `ordered` (keep the caller's order)."""
+        fs = [f for f in frames if f.ropes]
+        if not ordered:
+            fs.sort(key=lambda f: f.time_ms)
+        n = max((len(f.ropes) for f in fs), default=0)
+        fs = [f for f in fs if len(f.ropes) == n]
+        return cls(
+            t_s=np.array([f.time_ms / 1000 for f in fs], float),
+            depth_m=np.array([f.depth_mm / 1000 for f in fs], float),
+            speed_m_s=np.array([f.speed_mm_s / 1000 for f in fs], float),
+            comp_n=np.array([[r.mean_dan * DAN_TO_N if r.mean_dan != L.TENSION_ABSENT else np.nan
+                              for r in f.ropes] for f in fs], float).reshape(len(fs), n),
+            raw_kpa=np.array([[r.raw_kpa if r.raw_kpa != L.RAW_KPA_ABSENT else np.nan
+                               for r in f.ropes] for f in fs], float).reshape(len(fs), n),
+            status=np.array([f.status for f in fs], int),
+        )
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def raw_n(self, area_m2: list[float]) -> np.ndarray:
+        return self.raw_kpa * 1000.0 * np.asarray(area_m2, float)[None, : self.raw_kpa.shape[1]]
+
+    def take(self, sel) -> "FrameTable":
+        return FrameTable(self.t_s[sel], self.depth_m[sel], self.speed_m_s[sel], self.comp_n[sel],
+                          self.raw_kpa[sel], self.status[sel])
+
+
+@dataclass
+class HoistLoad:
+    """What the theoretical static load at the cage's rope ends depends on."""
+
+    cage_kg: float
+    tail_ropes: int
+    tail_kg_per_m: float
+    shaft_m: float
+
+    def load_n(self, depth_m: float, payload_kg: float = 0.0) -> float:
+        """Static sum of head-rope tensions at the cage: the tail ropes hang from
+        the cage down to their loop at the shaft bottom."""
+        tail_m = max(self.shaft_m - depth_m, 0.0)
+        return (self.cage_kg + payload_kg + self.tail_ropes * self.tail_kg_per_m * tail_m) * G_M_S2
+
+    @classmethod
+    def from_site(cls, path: str | Path) -> "HoistLoad":
+        from ropemon.commission.site import load_site
+        h = load_site(path).hoist
+        return cls(h.cage_mass_kg, h.tail_ropes, h.tail_rope_kg_per_m, h.shaft_depth_m)
+
+
+@dataclass
+class Rest:
+    """The cage standing at a landing next to a trip (REST_AVG_S after arriving,
+    or before leaving)."""
+
+    where: str               # "pithead" or "bottom"
+    depth_m: float
+    frames: int              # settled frames averaged
+    raw_n: np.ndarray        # per rope, mean over the settled rest
+    comp_n: np.ndarray
+    t_s: float = 0.0         # node time in the middle of the averaged frames
+
+
+@dataclass
+class Trip:
+    """One wind (the store's trip) with the rests before and after it."""
+
+    number: int
+    node: int
+    frames: FrameTable       # from the rest before to the rest after
+    start: Rest | None
+    end: Rest | None
+
+    @property
+    def direction(self) -> str:
+        a = self.start.where if self.start else "?"
+        b = self.end.where if self.end else "?"
+        return f"{a} -> {b}"
+
+    def rest_at(self, where: str) -> Rest | None:
+        for r in (self.start, self.end):
+            if r is not None and r.where == where:
+                return r
+        return None
+
+
+def rest_of(ft: FrameTable, area_m2: list[float], shaft_m: float, side: str) -> Rest | None:
+    """The cage standing next to a trip, averaged over REST_AVG_S: just after it
+    arrived and settled (`side="after"`), or just before it left (`"before"`), so
+    that loading or unloading later in the rest does not blur the figure."""
+    standing = np.flatnonzero(np.abs(ft.speed_m_s) < REST_SPEED_M_S)
+    if standing.size == 0:
+        return None
+    t = ft.t_s[standing]
+    if t[-1] - t[0] < MIN_REST_S:
+        return None
+    if side == "after":
+        first = t[0] + SETTLE_S
+        sel = standing[(t >= first) & (t < first + REST_AVG_S)]
+    else:
+        sel = standing[t > t[-1] - REST_AVG_S]
+    if sel.size == 0:
+        return None
+    depth = float(np.median(ft.depth_m[sel]))
+    with warnings.catch_warnings():   # a rope failed for the whole rest stays NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return Rest("pithead" if depth < 0.5 * shaft_m else "bottom", depth, len(sel),
+                    np.nanmean(ft.raw_n(area_m2)[sel], axis=0), np.nanmean(ft.comp_n[sel], axis=0),
+                    float(np.median(ft.t_s[sel])))
+
+
+def _travel_m(ft: FrameTable, ids: np.ndarray, tr) -> float:
+    """How far the cage moved during a stored trip."""
+    end = tr.last_frame_id if tr.last_frame_id is not None else np.inf
+    d = ft.depth_m[(ids >= tr.first_frame_id) & (ids <= end)]
+    return float(d.max() - d.min()) if d.size else 0.0
+
+
+def trips_from_store(store, area_m2: list[float], shaft_m: float | None = None) -> list[Trip]:
+    """Every trip the store detected, with the rest before it (frames since the
+    previous trip ended) and after it (frames until the next trip started)."""
+    out: list[Trip] = []
+    for node in sorted({t.node for t in store.trips()}):
+        stored = [sf for sf in store.frames(node=node) if sf.frame.ropes]
+        if not stored:
+            continue
+        n_ropes = len(stored[-1].frame.ropes)
+        stored = [sf for sf in stored if len(sf.frame.ropes) == n_ropes]
+        ids = np.array([sf.id for sf in stored])
+        ft_all = FrameTable.from_frames([sf.frame for sf in stored], ordered=True)
+        shaft = shaft_m or float(ft_all.depth_m.max()) or 1.0
+        trips = [tr for tr in store.trips(node) if _travel_m(ft_all, ids, tr) >= MIN_TRAVEL_M]
+        for k, tr in enumerate(trips):
+            prev_end = trips[k - 1].last_frame_id if k > 0 else None
+            lo = prev_end if prev_end is not None else -1
+            hi = trips[k + 1].first_frame_id if k + 1 < len(trips) else np.inf
+            end_id = tr.last_frame_id if tr.last_frame_id is not None else np.inf
+            before = (ids >= lo) & (ids < tr.first_frame_id)
+            after = (ids >= end_id) & (ids < hi)
+            ft = ft_all.take((ids >= lo) & (ids < hi))
+            if len(ft) == 0:
+                continue
+            out.append(Trip(len(out) + 1, node, ft,
+                            rest_of(ft_all.take(before), area_m2, shaft, "before") if before.any() else None,
+                            rest_of(ft_all.take(after), area_m2, shaft, "after") if after.any() else None))
+    return out
+
+
+def trip_table(trip: Trip, load: HoistLoad | None,
+               payload_kg: dict[str, float] | Callable[[float], float] | None = None) -> str:
+    """The paper's table for one trip, as text.
+
+    `payload_kg` is the payload in the cage at each rest: by landing ("pithead",
+    "bottom"), or a function of the rest's node time (when the log of loading is known).
+    """
+    payload_kg = payload_kg or {}
+
+    def payload_in(r: Rest) -> float:
+        return payload_kg(r.t_s) if callable(payload_kg) else payload_kg.get(r.where, 0.0)
+
+    # Columns: the rest before and the rest after the wind, named by their landing.
+    rests = [(f"{r.where} ({when})", r)
+             for when, r in (("left", trip.start), ("arrived", trip.end)) if r is not None]
+    cols = [c for c, _ in rests]
+    t = trip.frames.t_s
+    head = (f"trip {trip.number} (node {trip.node}): {trip.direction}, "
+            f"node time {t[0]:.1f} .. {t[-1]:.1f} s, {len(t)} frames")
+    lines = [head, f"{'':>12}" + "".join(f"{w:>22}" for w in cols),
+             f"{'kN':>12}" + "".join(f"{'raw':>11}{'comp':>11}" for _ in cols)]
+    if not cols:
+        return head + "\n  no rest at a landing before or after this trip (log started or ended mid-wind)"
+    ropes = trip.frames.comp_n.shape[1]
+    for i in range(ropes):
+        row = f"{'rope ' + str(i + 1):>12}"
+        for w, r in rests:
+            row += f"{r.raw_n[i] / 1000:11.1f}{r.comp_n[i] / 1000:11.1f}"
+        lines.append(row)
+    row = f"{'sum':>12}"
+    for w, r in rests:
+        row += f"{r.raw_n.sum() / 1000:11.1f}{r.comp_n.sum() / 1000:11.1f}"
+    lines.append(row)
+    if load is not None:
+        row, err = f"{'theoretical':>12}", f"{'error %':>12}"
+        for w, r in rests:
+            th = load.load_n(r.depth_m, payload_in(r))
+            row += f"{th / 1000:22.1f}"
+            err += f"{(r.raw_n.sum() - th) / th * 100:+11.1f}{(r.comp_n.sum() - th) / th * 100:+11.1f}"
+        lines += [row, err]
+        if not payload_kg:
+            lines.append(f"{'':>12}  (empty cage assumed: give --payload-kg when it was loaded)")
+    return "\n".join(lines)
+
+
+def plot_trip(trip: Trip, area_m2: list[float], out: Path) -> Path:
+    """PNG of each rope's raw and compensated tension over the trip, and the depth."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ft = trip.frames
+    t = ft.t_s - ft.t_s[0]
+    raw = ft.raw_n(area_m2)
+    fig, (ax, axd) = plt.subplots(2, 1, figsize=(9, 6), sharex=True, height_ratios=(3, 1))
+    for i in range(ft.comp_n.shape[1]):
+        line, = ax.plot(t, ft.comp_n[:, i] / 1000, lw=1.0, label=f"rope {i + 1} compensated")
+        ax.plot(t, raw[:, i] / 1000, lw=0.8, ls="--", color=line.get_color(), label=f"rope {i + 1} raw")
+    ax.set_ylabel("tension, kN")
+    ax.set_title(f"trip {trip.number}: {trip.direction}")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, ncol=4, loc="lower center")
+    axd.plot(t, ft.depth_m, color="k", lw=1.0)
+    axd.invert_yaxis()
+    axd.set_ylabel("depth, m")
+    axd.set_xlabel(f"time from node t = {ft.t_s[0]:.1f} s, s")
+    axd.grid(True, alpha=0.3)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+# -- the command -------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("db", help="ropemon SQLite log (ropemon monitor --db, ropemon demo)")
+    p.add_argument("--out", default=None, help="directory for the PNG plots and report.txt (default: beside DB)")
+    p.add_argument("--config", help="node.json: cylinder areas for the raw tension p x A")
+    p.add_argument("--area-m2", type=float, help="rod-less piston area of every cylinder, instead of --config")
+    p.add_argument("--site", help="SITE.toml: cage mass, tail ropes and shaft depth for the theoretical load")
+    p.add_argument("--payload-kg", type=float, nargs=2, metavar=("AT_PITHEAD", "AT_BOTTOM"),
+                   help="payload in the cage at the pithead and at the bottom rest (default empty)")
+
+
+def areas_from(args: argparse.Namespace) -> list[float]:
+    if args.config:
+        from ropemon.station.monitor import SiteFigures
+        return SiteFigures.from_node_json(args.config).cylinder_area_m2
+    if args.area_m2:
+        return [args.area_m2] * 4
+    raise ValueError("the raw tension needs the piston area: give --config node.json or --area-m2")
+
+
+def write_report(store, out_dir: Path, area_m2: list[float], load: HoistLoad | None,
+                 payload_kg: dict[str, float] | Callable[[float], float] | None = None,
+                 shaft_m: float | None = None) -> tuple[str, list[Path]]:
+    """The text report and one PNG per trip; returns (text, files written)."""
+    trips = trips_from_store(store, area_m2, shaft_m if shaft_m else (load.shaft_m if load else None))
+    if not trips:
+        return "no trips in this log (the cage never moved, or the log is empty)", []
+    out_dir.mkdir(parents=True, exist_ok=True)
+    parts, files = [], []
+    for trip in trips:
+        parts.append(trip_table(trip, load, payload_kg))
+        png = plot_trip(trip, area_m2, out_dir / f"trip{trip.number:03d}-node{trip.node}.png")
+        parts.append(f"  plot: {png}")
+        files.append(png)
+    text = "\n\n".join(parts)
+    (out_dir / "report.txt").write_text(text + "\n")
+    files.append(out_dir / "report.txt")
+    return text, files
+
+
+def run(args: argparse.Namespace) -> int:
+    from ropemon.station.store import Store, StoreError
+
+    db = Path(args.db)
+    if not db.is_file():
+        print(f"ropemon report: {db}: no such file", file=sys.stderr)
+        return 2
+    try:
+        area = areas_from(args)
+        load = HoistLoad.from_site(args.site) if args.site else None
+    except (ValueError, OSError) as e:
+        print(f"ropemon report: {e}", file=sys.stderr)
+        return 2
+    payload = dict(zip(("pithead", "bottom"), args.payload_kg)) if args.payload_kg else None
+    try:
+        store = Store(db)
+    except StoreError as e:
+        print(f"ropemon report: {e}", file=sys.stderr)
+        return 2
+    try:
+        out = Path(args.out) if args.out else db.with_suffix("").parent / (db.stem + "-report")
+        text, _files = write_report(store, out, area, load, payload)
+    finally:
+        store.close()
+    print(text)
+    return 0

