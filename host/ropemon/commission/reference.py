@@ -133,14 +133,16 @@ def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray,
 
 
 def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
-               increments: dict | None = None) -> Compensated:
+               increments: dict | None = None, tracker_class: type | None = None) -> Compensated:
     """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`.
 
     `strokes`, a list, receives (sample, rope or -1, e per rope in m) for every start
-    (rope 0-based) and end (-1) of a balancing stroke (tools/stroke_events.py).
+    (rope 0-based) and end (-1) of a balancing stroke (`ropemon study stroke-events`).
     `increments`, a dict, receives the observer's per-sample increments [sample, rope]
-    (m): "dxs" of the LuGre position and "dxp" of its play (tools/observer_losses.py),
+    (m): "dxs" of the LuGre position and "dxp" of its play (`ropemon study observer-losses`),
     and "noise_ratio"[sample], the noise following's ratio (1: as commissioned).
+    `tracker_class` takes the place of `PressureTracker` (the same constructor and `step`):
+    a lab study's stand-in for the node's pressure tracker.
 
     Slide following (physical `slide_follow`, `slide_follow_lo_sigmas` 3, `_hi_sigmas` 5,
     as the node): outside a stroke, what e holds beyond a quarter of the stroke threshold
@@ -182,7 +184,7 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
         OK[:, i] = p_ok & x_ok
         POK[:, i] = p_ok
-    DX, DXS, DXP, NR = _observer(pp, P, X, OK, POK, fs, strokes)
+    DX, DXS, DXP, NR = _observer(pp, P, X, OK, POK, fs, strokes, tracker_class or PressureTracker)
     if increments is not None:
         increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR)
     for i in range(n):
@@ -261,7 +263,7 @@ REST_D_MAX = 64e-6  # |x_s - x_l| is clamped here for the activity (as the node:
 
 
 def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.ndarray, fs: float,
-              strokes: list | None = None):
+              strokes: list | None = None, tracker_class: type | None = None):
     """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
     position x_h = k p_l + b (p_l the pressure tracker's estimate of the median of the
     healthy pressure channels) and its play, with the balancing-stroke tracking and the
@@ -278,7 +280,7 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
     alpha, dx_max, plays = pp["alpha"], pp["v_max"] / fs, pp["plays_m"]
     rest, rest_plays, alpha_l, alpha_a = pp["rest_m"], pp["rest_plays_m"], pp["alpha_l"], pp["alpha_a"]
     alpha_z, alpha_e, warm = pp["alpha_z"], pp["alpha_e"], pp["warmup"]
-    tracker = PressureTracker(pp["tracker"])
+    tracker = (tracker_class or PressureTracker)(pp["tracker"])
     kh, aw = pp["compliance"], pp["area_w"]
     th, vmin, settle = pp["stroke_m"], pp["stroke_vmin"], pp["stroke_settle"]
     dx = np.zeros((k, n))
