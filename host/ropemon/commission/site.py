@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -189,7 +189,6 @@ class Site:
     # [compliance] noise_follow_s: how long the node averages its transmitters' noise to
     # follow it (None: the node's default, 20 s; 0: the plays stay as commissioned)
     noise_follow_s: float | None = None
-    extra: dict[str, Any] = field(default_factory=dict, compare=False)
 
     @property
     def rated_pressure_MPa(self) -> float:
@@ -205,55 +204,11 @@ class Site:
 # ---------------------------------------------------------------- field readers
 
 
-class _Table:
-    """A TOML table with its dotted name, so every error names the field."""
+class _Table(tomlfields.Table):
+    """A SITE.toml table with its dotted name (tomlfields.Table raising SiteError)."""
 
-    def __init__(self, data: Any, name: str):
-        if not isinstance(data, dict):
-            raise SiteError(f"{name}: must be a table, got {type(data).__name__}")
-        self.data = data
-        self.name = name
-        self.used: set[str] = set()
-
-    def field(self, key: str) -> str:
-        return f"{self.name}.{key}" if self.name else key
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = ...) -> Any:
-        self.used.add(key)
-        if key not in self.data:
-            if default is ...:
-                raise SiteError(f"{self.field(key)}: missing")
-            return default
-        return self.data[key]
-
-    def table(self, key: str) -> "_Table":
-        return _Table(self.raw(key), self.field(key))
-
-    def number(self, key: str, default: Any = ..., *, gt: float | None = None, ge: float | None = None,
-               le: float | None = None, lt: float | None = None) -> float:
-        v = self.raw(key, default)
-        return _check_number(v, self.field(key), gt=gt, ge=ge, le=le, lt=lt)
-
-    def integer(self, key: str, default: Any = ..., *, lo: int | None = None, hi: int | None = None) -> int:
-        v = self.raw(key, default)
-        return _check_int(v, self.field(key), lo=lo, hi=hi)
-
-    def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] | None = None) -> str:
-        v = self.raw(key, default)
-        if not isinstance(v, str):
-            raise SiteError(f"{self.field(key)}: must be a string, got {v!r}")
-        if choices is not None and v not in choices:
-            raise SiteError(f"{self.field(key)}: must be one of {', '.join(choices)}, got {v!r}")
-        return v
-
-    def finish(self) -> None:
-        """Refuse unknown keys: a misspelt field must not silently fall back to a default."""
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            raise SiteError(f"{self.field(unknown[0])}: unknown field")
+    def __init__(self, data: Any, name: str, error: type[Exception] = SiteError):
+        super().__init__(data, name, error)
 
 
 def _check_number(v: Any, name: str, **bounds) -> float:
@@ -277,15 +232,8 @@ def _per_rope(t: _Table, key: str, ropes: int) -> list[_Table]:
     raise SiteError(f"{name}: must be a table or an array of {ropes} tables, got {type(v).__name__}")
 
 
-def _pair(t: _Table, key: str, *, ascending: bool = True) -> tuple[float, float]:
-    v = t.raw(key)
-    name = t.field(key)
-    if not isinstance(v, list) or len(v) != 2:
-        raise SiteError(f"{name}: must be [low, high], got {v!r}")
-    lo, hi = (_check_number(x, name) for x in v)
-    if ascending and not hi > lo:
-        raise SiteError(f"{name}: high must be > low, got {v!r}")
-    return lo, hi
+def _pair(t: _Table, key: str) -> tuple[float, float]:
+    return t.pair(key)
 
 
 # ---------------------------------------------------------------- sections
@@ -569,12 +517,11 @@ def parse_site(doc: dict[str, Any], path: Path | str = "SITE.toml") -> Site:
                                 f"{NOISE_FOLLOW_MIN_S:g} s (a shorter average measures the noise too "
                                 f"roughly), got {noise_follow_s:g}")
         ct.finish()
-    # Extra top-level tables (e.g. a simulator's [plant]) are kept for their owners, not checked here.
-    extra = {k: v for k, v in doc.items() if k not in top.used}
+    top.finish()  # an unknown top-level table (a misspelt [compliances]) is refused, not ignored
     site = Site(path=path, name=name, node_id=node_id, key_hex=key_hex, hoist=hoist, alarms=alarms,
                 cylinders=cylinders, pipes=pipes, oil=oil, sensors=sensors, rates=rates,
                 friction_path=friction_path, compliance_path=compliance_path, play_sigmas=play_sigmas,
-                noise_follow_s=noise_follow_s, extra=extra)
+                noise_follow_s=noise_follow_s)
     # The transmitters must read 130 % of rated tension (the emergency-stop level of staged alarms).
     for i, ch in enumerate(sensors.pressure):
         if ch.range_MPa[1] < 1.3 * site.rated_pressure_MPa:

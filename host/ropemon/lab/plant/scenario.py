@@ -30,43 +30,28 @@ class ScenarioError(ValueError):
     """A scenario that cannot be run; the message names the field and the reason."""
 
 
-_MISSING = object()
+_MISSING = tomlfields.MISSING
 
 
+# The scenario's field readers: tomlfields' (the site description's), raising ScenarioError.
 def number(t: dict, key: str, where: str, default: Any = _MISSING, *, gt=None, ge=None, le=None, lt=None) -> float:
-    name = f"{where}.{key}" if where else key
-    if key not in t:
-        if default is _MISSING:
-            raise ScenarioError(f"{name}: missing")
-        return default
-    return tomlfields.check_number(t[key], name, ScenarioError, gt=gt, ge=ge, le=le, lt=lt)
+    return tomlfields.number(t, key, where, ScenarioError, default, gt=gt, ge=ge, le=le, lt=lt)
 
 
 def integer(t: dict, key: str, where: str, default: Any = _MISSING, *, lo=None, hi=None) -> int:
-    name = f"{where}.{key}" if where else key
-    if key not in t:
-        if default is _MISSING:
-            raise ScenarioError(f"{name}: missing")
-        return default
-    return tomlfields.check_int(t[key], name, ScenarioError, lo=lo, hi=hi)
+    return tomlfields.integer(t, key, where, ScenarioError, default, lo=lo, hi=hi)
+
+
+def string(t: dict, key: str, where: str, default: Any = _MISSING, *, choices=None) -> str:
+    return tomlfields.string(t, key, where, ScenarioError, default, choices=choices)
 
 
 def table(t: dict, key: str, where: str, default: Any = _MISSING) -> dict:
-    name = f"{where}.{key}" if where else key
-    if key not in t:
-        if default is _MISSING:
-            raise ScenarioError(f"{name}: missing")
-        return default
-    v = t[key]
-    if not isinstance(v, dict):
-        raise ScenarioError(f"{name}: must be a table, got {type(v).__name__}")
-    return v
+    return tomlfields.table(t, key, where, ScenarioError, default)
 
 
 def known(t: dict, where: str, keys: set[str]) -> None:
-    unknown = sorted(set(t) - keys)
-    if unknown:
-        raise ScenarioError(f"{where + '.' if where else ''}{unknown[0]}: unknown field")
+    tomlfields.known(t, where, keys, ScenarioError)
 
 
 def per_rope(t: dict, key: str, where: str, n: int, default: Any = _MISSING) -> np.ndarray:
@@ -190,23 +175,20 @@ def build(doc: dict, path: Path, seed: int | None = None, eager: bool = True) ->
     `make_inputs(t)` gives any window and `plan_steps` its steps)."""
     known(doc, "", {"name", "description", "rig", "site", "step_s", "max_step_s", "bounce_rad_per_step", "seed", "method",
                     "plant", "trip", "duty", "bench", "sensors"})
-    rig = doc.get("rig", "hoist")
-    if rig not in ("hoist", "bench"):
-        raise ScenarioError(f"rig: must be 'hoist' or 'bench', got {rig!r}")
+    rig = string(doc, "rig", "", "hoist", choices=("hoist", "bench"))
     site = None
     if "site" in doc:
         from ropemon.commission.site import SiteError, load_site
 
-        if not isinstance(doc["site"], str):
-            raise ScenarioError(f"site: must be a file name, got {doc['site']!r}")
+        site_file = string(doc, "site", "")
         try:
-            site = load_site(path.parent / doc["site"])
+            site = load_site(path.parent / site_file)
         except SiteError as e:
-            raise ScenarioError(f"site ({doc['site']}): {e}") from None
+            raise ScenarioError(f"site ({site_file}): {e}") from None
     elif rig == "hoist":
         raise ScenarioError("site: missing (a hoist scenario needs the site description)")
     seed_v = integer(doc, "seed", "", 1, lo=0) if seed is None else seed
-    name = doc.get("name", path.stem)
+    name = string(doc, "name", "", path.stem)
     if rig == "hoist":
         sc = _build_hoist(doc, path, site, eager)
     else:
@@ -221,10 +203,7 @@ def build(doc: dict, path: Path, seed: int | None = None, eager: bool = True) ->
     sc.steps = sc.plan_steps(sc.inputs) if sc.inputs is not None else np.zeros(0, dtype=int)
     # Integration method (docs/simulator.md): BDF2; ROS2 only for comparison (it leaves the
     # under-resolved piston/oil/bristle states inconsistent).
-    method = doc.get("method", "bdf2")
-    if method not in METHODS:
-        raise ScenarioError(f"method: must be one of {', '.join(METHODS)}, got {method!r}")
-    sc.method = method
+    sc.method = string(doc, "method", "", "bdf2", choices=tuple(METHODS))
     sc.sensors = _sensor_spec(table(doc, "sensors", "", {}), site, sc.plant.n, rig)
     return sc
 
@@ -234,13 +213,11 @@ def build(doc: dict, path: Path, seed: int | None = None, eager: bool = True) ->
 
 def _oil(pt: dict) -> tuple[Oil, dict]:
     grade = integer(pt, "oil_iso_vg", "plant", 46)
+    cst_100C = number(pt, "oil_cst_100C", "plant", gt=0, lt=grade) if "oil_cst_100C" in pt else None
     try:
-        oil = Oil.grade(grade, pt.get("oil_cst_100C"), number(pt, "oil_density_15C_kg_m3", "plant", 870.0,
-                                                             gt=700, lt=1100))
+        oil = Oil.grade(grade, cst_100C, number(pt, "oil_density_15C_kg_m3", "plant", 870.0, gt=700, lt=1100))
     except ValueError as e:
         raise ScenarioError(f"plant.{e}") from None
-    if "oil_cst_100C" in pt:
-        number(pt, "oil_cst_100C", "plant", gt=0, lt=grade)
     return oil, {"oil_iso_vg": grade, "oil_cst_100C": oil.cst_100C, "oil_density_15C_kg_m3": oil.density_15C_kg_m3}
 
 
@@ -407,11 +384,7 @@ def _trip(doc: dict, site):
     rng = np.random.default_rng(integer(dt, "seed", "duty", 7, lo=0))
 
     def rng_pair(key, default):
-        v = dt.get(key, default)
-        if (not isinstance(v, list) or len(v) != 2 or any(isinstance(a, bool) or not isinstance(a, (int, float))
-                                                           for a in v) or v[1] < v[0]):
-            raise ScenarioError(f"duty.{key}: must be [low, high], got {v!r}")
-        return float(v[0]), float(v[1])
+        return tomlfields.pair(dt, key, "duty", ScenarioError, default, equal_ok=True)
 
     pay, temp_r, rest_r, load_r = (rng_pair("payload_kg", [0, 0]), rng_pair("oil_temp_C", [20, 20]),
                                    rng_pair("rest_s", [5, 5]), rng_pair("load_s", [5, 5]))
@@ -455,10 +428,9 @@ def _phases(plist, where, depth, payload, motion, site):
         w = f"{where}[{i}]"
         if not isinstance(ph, dict):
             raise ScenarioError(f"{w}: must be a table")
-        kind = ph.get("kind")
-        label = ph.get("label", "")
-        if not isinstance(label, str):
-            raise ScenarioError(f"{w}.label: must be a string")
+        # "mark" (a trip boundary) only in the phases [duty] generates
+        kind = string(ph, "kind", w, choices=("rest", "load", "wind") + (("mark",) if where == "duty" else ()))
+        label = string(ph, "label", w, "")
         t0 = t
         if kind == "rest":
             known(ph, w, {"kind", "duration_s", "label"})
@@ -480,10 +452,7 @@ def _phases(plist, where, depth, payload, motion, site):
             tl.move(to - depth, *motion)
             depth = to
             t += tl.duration_s - before
-        elif kind == "mark":
-            pass
-        else:
-            raise ScenarioError(f"{w}.kind: must be 'rest', 'load' or 'wind', got {kind!r}")
+        # else "mark": no time passes
         phases.append(Phase(str(kind), label, t0, t))
     pay_pts.append((t + 1.0, payload))
     return tl, pay_pts, phases
@@ -555,20 +524,14 @@ def _sensor_spec(st: dict, site, n: int, rig: str) -> SensorSpec | None:
     if site is None:
         return None
     faults = []
-    fl = st.get("fault", [])
-    if not isinstance(fl, list):
-        raise ScenarioError("sensors.fault: must be an array of [[sensors.fault]] tables")
+    fl = tomlfields.array(st, "fault", "sensors", ScenarioError, [], what="[[sensors.fault]] tables")
     for i, ft in enumerate(fl):
         w = f"sensors.fault[{i}]"
         if not isinstance(ft, dict):
             raise ScenarioError(f"{w}: must be a table")
         known(ft, w, {"kind", "channel", "rope", "start_s", "end_s", "drift_per_s", "spike_size", "spike_rate_hz"})
-        kind = ft.get("kind")
-        if kind not in Fault.KINDS:
-            raise ScenarioError(f"{w}.kind: must be one of {', '.join(Fault.KINDS)}, got {kind!r}")
-        channel = ft.get("channel", "pressure")
-        if channel not in Fault.CHANNELS:
-            raise ScenarioError(f"{w}.channel: must be one of {', '.join(Fault.CHANNELS)}, got {channel!r}")
+        kind = string(ft, "kind", w, choices=tuple(Fault.KINDS))
+        channel = string(ft, "channel", w, "pressure", choices=tuple(Fault.CHANNELS))
         faults.append(Fault(kind=kind, channel=channel, rope=integer(ft, "rope", w, 0, lo=0, hi=n - 1),
                             start_s=number(ft, "start_s", w, 0.0, ge=0), end_s=number(ft, "end_s", w, 1e18, gt=0),
                             drift_per_s=number(ft, "drift_per_s", w, 0.0),
