@@ -77,8 +77,8 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
     the cage, with heavy bit errors: every intact frame is recovered exactly once,
     equal to what the node sent, and nothing corrupted gets through."""
     from ropemon.lab import radio
-    from ropemon.lab.demo import DemoClock, play_to_host, read_frames_bin, summarize
-    from ropemon.station.monitor import HostSession, SiteFigures, alarm_settings
+    from ropemon.lab.demo import DemoClock, demo_host, play_to_host, read_frames_bin, summarize
+    from ropemon.station.monitor import SiteFigures, alarm_settings
     from ropemon.station.protocol import load_node_keys
 
     out, _, _ = demo_run
@@ -99,12 +99,10 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
             prev = d
     assert len(recoverable) < len(sent.frames)       # the radio really lost some
     clock = DemoClock(speed=40.0)
-    session = HostSession(keys, alarm_settings(SiteFigures.from_node_json(out / "sim" / "node.json")),
-                          None, None, clock)
-    session.keep_frames = True
+    session = demo_host(keys, alarm_settings(SiteFigures.from_node_json(out / "sim" / "node.json")), clock)
     written = play_to_host(result.deliveries, session, 40.0, clock)
     s = summarize(sent, result, session, {"frames": 0}, written)
-    got = [f.seq for f in session.frames]
+    got = [f.seq for f in session.kept.frames]
     assert s["host"]["foreign_frames"] == 0
     assert len(got) == len(set(got))
     assert set(got) == recoverable

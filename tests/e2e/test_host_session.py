@@ -3,7 +3,8 @@ import io
 
 from rich.console import Console
 
-from ropemon.station.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
+from ropemon.station.monitor import SiteFigures, alarm_settings
+from station_rig import Rig
 from ropemon.station.protocol import Rope, encode_frame
 
 KEY = bytes(range(16))
@@ -24,9 +25,7 @@ def wire(seq, dan=(4600, 4600, 4600, 4600), key=KEY):
 
 def session(keys={1: KEY}):
     clk = Clock()
-    s = HostSession(keys, alarm_settings(SITE), view=MonitorView(SITE), clock=clk)
-    s.keep_frames = True
-    return s, clk
+    return Rig(keys, alarm_settings(SITE), SITE, clk), clk
 
 
 def screen(s):
@@ -67,11 +66,13 @@ def test_deviation_alarm_raises_rings_and_is_acknowledged():
     s.ack_all()
     assert "ack DEVIATION rope 3" in screen(s)
     assert [e.action for e in s.alarms.events] == ["raise", "ack"]
+    assert "acknowledged by tester (test)" in s.alarms.events[-1].message
 
 
 def test_wrong_key_frames_are_refused_and_raise_link_integrity():
     s, clk = session()
     s.feed("pithead", wire(1, key=b"x" * 16))
+    s.tick()                                        # the alarm engine sees link counts each tick
     assert s.frames == [] and s.decoders["pithead"].counts.mac_fail == 1
     assert any(a.kind == "link_integrity" for a in s.alarms.active())
 
@@ -106,7 +107,7 @@ def test_live_loop_rings_the_bell_on_a_new_alarm_and_draws_the_screen():
     out = io.StringIO()
     con = Console(width=80, height=24, file=out, force_terminal=True, color_system=None)
     calls = []
-    live_loop(s, con, refresh_hz=50.0, done=lambda: calls.append(1) or len(calls) > 3)
+    live_loop(s, s.view, con, refresh_hz=50.0, done=lambda: calls.append(1) or len(calls) > 3)
     text = out.getvalue()
     assert text.count("\a") == 1                   # once for the raise, not per refresh
     assert "DEVIATION rope 3" in text
@@ -134,7 +135,7 @@ def test_slack_rope_raises_through_the_settings_built_from_a_node_json(tmp_path)
     floor = round(0.6 * 18_540 / 4)                       # daN
     assert settings.slack_dan == floor and settings.rated_load_dan == 32_000
     clk = Clock()
-    s = HostSession({1: KEY}, settings, view=MonitorView(site), clock=clk)
+    s = Rig({1: KEY}, settings, site, clk)
     for seq in range(10):                                 # every rope above the floor: quiet
         clk.t = seq * 0.1
         s.feed("pithead", wire(seq, dan=(4600, 4600, 4600, floor + 100)))
@@ -177,7 +178,7 @@ def test_overload_threshold_is_the_sites_rated_load_times_its_overload_factor(tm
     settings = alarm_settings(SiteFigures.from_node_json(path))
     assert settings.rated_load_dan == 26_388 and settings.overload_frac == 1.10
     clk = Clock()
-    s = HostSession({1: KEY}, settings, view=MonitorView(SiteFigures.from_node_json(path)), clock=clk)
+    s = Rig({1: KEY}, settings, SiteFigures.from_node_json(path), clk)
     for seq in range(10):                                 # 28,400 daN: above rated, below 110 %
         clk.t = seq * 0.1
         s.feed("pithead", wire(seq, dan=(7100, 7100, 7100, 7100)))

@@ -39,7 +39,7 @@ def test_waiting_screen_fits():
 
 def test_each_rope_compensated_raw_deviation_and_total():
     v = MonitorView(SITE)
-    v.on_frame(frame(1, dan=(4600, 4400, 5200, 4600), raw_kpa=1300), 9.9)
+    v.show_frame(frame(1, dan=(4600, 4400, 5200, 4600), raw_kpa=1300), 9.9)
     r = rows(draw(v))
     mean = (46 + 44 + 52 + 46) / 4
     assert r["3"][1] == "52.0"                                   # compensated kN
@@ -52,7 +52,7 @@ def test_each_rope_compensated_raw_deviation_and_total():
 def test_worst_case_screen_still_fits_80x24():
     v = MonitorView(SITE)
     for k in range(40):
-        v.on_frame(frame(k, dan=(32000, -32000, 32767, 0), raw_kpa=65535, battery_mv=0, status=0x1FF), 9.0)
+        v.show_frame(frame(k, dan=(32000, -32000, 32767, 0), raw_kpa=65535, battery_mv=0, status=0x1FF), 9.0)
     v.link_rows = [("pithead", "97.1 % crc 3 bad 1"), ("mid-shaft", "45.0 % crc 12 bad 0")]
     v.merge_text = "frames 123456  lost 12  dup 600"
     v.alarm_rows = [(f"alarm {i} " + "x" * 90, i % 2 == 0) for i in range(9)]
@@ -63,7 +63,7 @@ def test_worst_case_screen_still_fits_80x24():
 def test_trend_and_alarms_and_stale_link_are_shown():
     v = MonitorView(SITE)
     for k in range(30):
-        v.on_frame(frame(k, dan=(4600 + int(200 * math.sin(k / 3)), 4600, 4600, 4600)), 1.0 + k * 0.1)
+        v.show_frame(frame(k, dan=(4600 + int(200 * math.sin(k / 3)), 4600, 4600, 4600)), 1.0 + k * 0.1)
     v.alarm_rows = [("deviation rope 3 +12.1 %", False), ("battery low 3.30 V", True)]
     text = draw(v, now_s=10.0)
     line1 = rows(text)["1"]
@@ -75,7 +75,7 @@ def test_trend_and_alarms_and_stale_link_are_shown():
 
 def test_status_frame_says_not_compensating():
     v = MonitorView(SITE)
-    v.on_frame(frame(1, ropes=False, status=0x0004), 1.0)
+    v.show_frame(frame(1, ropes=False, status=0x0004), 1.0)
     text = draw(v)
     assert "not compensating" in text and "config_fault" in text
 
@@ -87,7 +87,7 @@ def test_sparkline_scales():
 
 def test_failed_sensor_rope_is_shown_as_fault_and_left_out_of_the_sum():
     v = MonitorView(SITE)
-    v.on_frame(frame(1, dan=(4600, -32768, 4600, 4600)), 1.0)
+    v.show_frame(frame(1, dan=(4600, -32768, 4600, 4600)), 1.0)
     r = rows(draw(v))
     assert r["2"][1] == "FAULT"
     assert r["sum"][1] == "138.0" and "missing" in " ".join(r["sum"])
@@ -96,10 +96,10 @@ def test_failed_sensor_rope_is_shown_as_fault_and_left_out_of_the_sum():
 
 def test_two_cage_nodes_one_shown_the_other_summarised_and_switchable():
     v = MonitorView(SITE)
-    v.on_frame(frame(1, dan=(4600,) * 4), 1.0)
+    v.show_frame(frame(1, dan=(4600,) * 4), 1.0)
     raw, _ = encode_frame(node=2, seq=1, time_ms=100, ropes=[Rope(3000, 3000, 3000, 900)] * 4,
                           depth_mm=800_000, battery_mv=3800)
-    v.on_frame(decode_raw(raw), 1.5)
+    v.show_frame(decode_raw(raw), 1.5)
     text = draw(v, now_s=2.0)
     assert "node 1 seq 1" in text and "node 2: 120.0 kN, 800 m, 0.5 s ago" in text and "n: next node" in text
     v.next_node()
@@ -111,7 +111,8 @@ def test_two_cage_nodes_one_shown_the_other_summarised_and_switchable():
 def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
     """With the seal's friction lines each rope shows its deviation's band; a rope whose estimate
     flipped while its pressure barely moved reads +6 % but may reach 10 %: DEVIATION POSSIBLE, yellow."""
-    from ropemon.station.monitor import HostSession, alarm_settings
+    from ropemon.station.monitor import alarm_settings
+    from station_rig import Rig
     from ropemon.station.uncertainty import BandParams
 
     phys = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,
@@ -120,7 +121,7 @@ def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
     site = SiteFigures([0.01] * 4, rated_rope_tension_n=80_000, imbalance_frac=0.10,
                        band=BandParams.from_physical(phys))
     clk = [0.0]
-    s = HostSession(None, alarm_settings(site), view=MonitorView(site), clock=lambda: clk[0])
+    s = Rig(None, alarm_settings(site), site, lambda: clk[0])
 
     def send(seq, ropes):          # (tension daN, friction estimate N) per rope
         rs = [Rope(t, t, t, round((t * 10 - f) / 10)) for t, f in ropes]

@@ -3,8 +3,8 @@ sent arrives at most once, nothing corrupted is accepted, losses are counted."""
 import numpy as np
 
 from ropemon.lab import radio
-from ropemon.lab.demo import DemoClock, Sent, play_to_host, summarize
-from ropemon.station.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
+from ropemon.lab.demo import DemoClock, Sent, demo_host, play_to_host, summarize
+from ropemon.station.monitor import MonitorView, SiteFigures, alarm_settings
 from ropemon.station.protocol import Rope, decode_raw, encode_frame
 
 KEY = bytes(range(32))
@@ -31,14 +31,12 @@ def test_frames_cross_the_ptys_once_uncorrupted_and_losses_are_counted():
     result = radio.transmit(zip(t, depth, sent.wires), radio.paper_receivers(810.0), params, seed=5)
     assert sum(d.bit_errors for v in result.deliveries.values() for d in v) > 20
     clock = DemoClock(speed=40.0)
-    session = HostSession({7: KEY}, alarm_settings(SITE), None, MonitorView(SITE), clock)
-    session.hub.clock = clock
-    session.keep_frames = True
+    session = demo_host({7: KEY}, alarm_settings(SITE), clock, None, MonitorView(SITE))
     written = play_to_host(result.deliveries, session, 40.0, clock)
     s = summarize(sent, result, session, {"frames": 0}, written)
     h = s["host"]
     assert h["foreign_frames"] == 0
-    seqs = [f.seq for f in session.frames]
+    seqs = [f.seq for f in session.kept.frames]
     assert len(seqs) == len(set(seqs))                               # each frame at most once
     assert h["frames_received"] + h["frames_lost"] == len(sent.frames)
     assert h["frames_received"] >= len(sent.frames) - result.lost - 10  # the host got what the radio delivered

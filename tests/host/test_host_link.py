@@ -202,28 +202,29 @@ def test_hub_passes_the_operator_acceptance_to_every_receiver():
 def test_a_decoder_error_is_shown_on_the_link_line_and_logged_once(tmp_path):
     """SerialReceiver survives an exception of its consumer; the monitor must not hide it:
     the link line shows the count and the last error, the log gets one event per new error."""
-    from ropemon.station.monitor import HostSession, MonitorView, SiteFigures
+    from ropemon.station.monitor import MonitorView, SiteFigures
+    from ropemon.station.pipeline import Station, station_listeners
     from ropemon.station.store import Store
 
     def decoder_bug(data: bytes) -> None:
         raise RuntimeError("decoder bug")
 
     with Store(tmp_path / "log.db") as store:
-        session = HostSession(None, None, store, MonitorView(SiteFigures()))
+        view = MonitorView(SiteFigures())
+        session = Station(None, station_listeners(None, store, view))
         rx = session.add_port("loop://", "pithead")
         session.tick()
-        assert "ERRORS" not in "".join(fig for _, fig in session.view.link_rows)  # none: nothing shown
+        assert "ERRORS" not in "".join(fig for _, fig in view.link_rows)  # none: nothing shown
         rx.on_bytes = decoder_bug
         rx.start()
         try:
             assert wait_for(lambda: rx.connected)
             rx.write(b"x")                 # one byte: one read, one error
             assert wait_for(lambda: rx.callback_errors == 1)
-            session._link_logged_s = None  # log now, not after LINK_LOG_S
             session.tick()
-            row = dict(session.view.link_rows)["pithead"]
+            row = dict(view.link_rows)["pithead"]
             assert "ERRORS 1: on_bytes: RuntimeError: decoder bug" in row
-            session.log_link_stats()       # no new error since: no second event
+            session.tick()                 # no new error since: no second event
             ev = [e for e in store.events() if e["kind"] == "link_error"]
             assert len(ev) == 1 and ev[0]["alarm"] == "link_error:pithead" and ev[0]["value"] == 1
             assert "decoder bug" in ev[0]["message"]

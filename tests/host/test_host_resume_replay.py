@@ -16,7 +16,8 @@ import pytest
 
 from host_framegen import KEYS
 from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder, frame_bytes
-from ropemon.station.monitor import HostSession, MonitorView
+from ropemon.station.monitor import MonitorView
+from ropemon.station.pipeline import AcceptRewound, Station, station_listeners
 from ropemon.station.protocol import decode_raw, encode_frame
 from ropemon.station.store import Store
 from ropemon.lab.vserial import VirtualPort
@@ -37,9 +38,19 @@ def stream(node: int, b: int, counts) -> bytes:
     return b"".join(w(node, boot(b, k)) for k in counts)
 
 
-def counts(s: HostSession) -> dict[str, tuple[int, int, int, int]]:
+def counts(s: Station) -> dict[str, tuple[int, int, int, int]]:
     return {n: (d.counts.frames_ok, d.counts.duplicate, d.counts.replayed, d.counts.rewound)
             for n, d in s.decoders.items()}
+
+
+def station(keys, store):
+    view = MonitorView()
+    return Station(keys, station_listeners(None, store, view), resume_from=store), view
+
+
+def accept(s: Station, node: int, operator: str) -> None:
+    s.submit(AcceptRewound(operator, "test", node=node))
+    s.pump()
 
 
 def logged(db: Path) -> list[tuple[int, int]]:
@@ -85,7 +96,7 @@ def test_restarted_session_counts_logged_frames_as_before_and_stores_only_new_on
     other = stream(2, 0, range(10))
 
     with Store(db) as store:
-        s1 = HostSession(KEYS, store=store, view=MonitorView())
+        s1, s1_view = station(KEYS, store)
         assert s1.resumed == {} and s1.resumed_text() is None
         s1.feed("pithead", first + other)
         s1.feed("mid-shaft", first)
@@ -93,7 +104,7 @@ def test_restarted_session_counts_logged_frames_as_before_and_stores_only_new_on
     assert len(logged(db)) == 110
 
     with Store(db) as store:
-        s2 = HostSession(KEYS, store=store, view=MonitorView())
+        s2, s2_view = station(KEYS, store)
         assert s2.resumed == {1: boot(3, 99), 2: boot(0, 9)}
         assert s2.resumed_text() == ("resumed replay protection from the log: node 1 at boot 3 count 99, "
                                      "node 2 at boot 0 count 9")
@@ -102,8 +113,8 @@ def test_restarted_session_counts_logged_frames_as_before_and_stores_only_new_on
         s2.feed("pithead", other + w(1, boot(2, 5)))   # and a recording of an older boot
         s2.tick()
         s2.close()
-        assert s2.view.refused == {1: (3, 2)}
-        assert s2.view.frames == 30
+        assert s2_view.refused == {1: (3, 2)}
+        assert s2_view.frames == 30
         # the last DUPLICATE_MEMORY logged frames are radio copies, the older ones replays
         dup = DUPLICATE_MEMORY
         assert counts(s2) == {"pithead": (30, dup + 10, 100 - dup + 1, 1), "mid-shaft": (30, dup, 100 - dup, 0)}
@@ -115,7 +126,7 @@ def test_restarted_session_counts_logged_frames_as_before_and_stores_only_new_on
 
     # The same input to one session that never stopped.
     with Store(tmp_path / "never-stopped.db") as store:
-        s = HostSession(KEYS, store=store, view=MonitorView())
+        s, s_view = station(KEYS, store)
         s.feed("pithead", first + other)
         s.feed("mid-shaft", first)
         before = counts(s)
@@ -130,40 +141,40 @@ def test_restarted_session_counts_logged_frames_as_before_and_stores_only_new_on
 
 def test_fresh_log_and_logs_without_keys_resume_nothing(tmp_path):
     with Store(tmp_path / "fresh.db") as store:
-        s = HostSession(KEYS, store=store, view=MonitorView())
+        s, s_view = station(KEYS, store)
         assert s.resumed == {}
         s.feed("pithead", stream(1, 3, range(5, 10)))
-        assert s.view.frames == 5
+        assert s_view.frames == 5
         s.close()
     # Frames logged without keys (authenticated NULL) prove nothing: a keyed session starts empty.
     with Store(tmp_path / "nokey.db") as store:
-        s = HostSession(None, store=store, view=MonitorView())
+        s, s_view = station(None, store)
         s.feed("pithead", stream(1, 3, range(100)))
         s.close()
         assert s.resumed == {}
     with Store(tmp_path / "nokey.db") as store:
         assert store.last_seqs() == {}
-        s = HostSession(KEYS, store=store, view=MonitorView())
+        s, s_view = station(KEYS, store)
         assert s.resumed == {}
         s.feed("pithead", stream(1, 3, range(10)))
-        assert s.view.frames == 10
+        assert s_view.frames == 10
     # Without keys nothing is checked, so nothing is resumed either.
     with Store(tmp_path / "fresh.db") as store:
-        s = HostSession(None, store=store, view=MonitorView())
+        s, s_view = station(None, store)
         assert s.resumed == {}
         s.feed("pithead", stream(1, 3, range(10)))
-        assert s.view.frames == 10
+        assert s_view.frames == 10
 
 
 def test_an_accepted_rewind_survives_the_restart_and_a_new_one_still_needs_the_operator(tmp_path):
     db = tmp_path / "hoist.db"
     with Store(db) as store:
-        s = HostSession(KEYS, store=store, view=MonitorView())
+        s, s_view = station(KEYS, store)
         for rx in ("pithead", "mid-shaft"):
             s.feed(rx, stream(1, 7, range(50)))
             s.feed(rx, stream(1, 0, range(3)))              # the node's flash was wiped: refused
         assert s.hub.rewound() == {1: (7, 0)}
-        s.accept_rewound(1, "alice")
+        accept(s, 1, "alice")
         s.feed("pithead", stream(1, 0, range(3, 20)))       # boot 0 count 3 is the new baseline
         s.feed("mid-shaft", stream(1, 0, range(3, 20)))     # of both receivers: logged once
         s.close()
@@ -174,10 +185,10 @@ def test_an_accepted_rewind_survives_the_restart_and_a_new_one_still_needs_the_o
         assert store.last_seqs() == {1: boot(0, 19)}
 
     with Store(db) as store:
-        s = HostSession(KEYS, store=store, view=MonitorView())
+        s, s_view = station(KEYS, store)
         assert s.resumed == {1: boot(0, 19)}                # not boot 7: the accepted baseline holds
         s.feed("pithead", stream(1, 0, range(10, 30)))
-        assert s.view.frames == 10 and s.hub.rewound() == {}
+        assert s_view.frames == 10 and s.hub.rewound() == {}
         assert counts(s)["pithead"] == (10, 10, 0, 0)
         s.feed("pithead", w(1, boot(0, 5), tension=9))     # a replay within the baseline's boot
         assert counts(s)["pithead"][2:] == (1, 0)
@@ -186,13 +197,13 @@ def test_an_accepted_rewind_survives_the_restart_and_a_new_one_still_needs_the_o
 
     # A recording of boot 0 played in after the next restart: refused, until an operator accepts.
     with Store(db) as store:
-        s = HostSession(KEYS, store=store, view=MonitorView())
+        s, s_view = station(KEYS, store)
         assert s.resumed == {1: boot(1, 4)}
         s.feed("pithead", stream(1, 0, range(2)))
-        assert s.hub.rewound() == {1: (1, 0)} and s.view.frames == 0
-        s.accept_rewound(1, "bob")
+        assert s.hub.rewound() == {1: (1, 0)} and s_view.frames == 0
+        accept(s, 1, "bob")
         s.feed("pithead", stream(1, 0, range(2, 4)))
-        assert s.view.frames == 2 and s.hub.rewound() == {}
+        assert s_view.frames == 2 and s.hub.rewound() == {}
         s.close()
         reb = [e for e in store.events() if e["action"] == "rebase"]
         assert [(e["value"], e["threshold"]) for e in reb] == [(boot(0, 3), boot(7, 49)), (boot(0, 2), boot(1, 4))]
@@ -204,9 +215,9 @@ def test_rebase_whose_frame_was_not_stored_resumes_from_the_whole_history(tmp_pa
     the whole history counts, so the node is refused again until re-accepted."""
     db = tmp_path / "hoist.db"
     with Store(db) as store:
-        s = HostSession(KEYS, store=store, view=MonitorView())
+        s, s_view = station(KEYS, store)
         s.feed("pithead", stream(1, 7, range(5)) + stream(1, 0, range(1)))
-        s.accept_rewound(1, "alice")
+        accept(s, 1, "alice")
         s.feed("pithead", stream(1, 0, range(1, 4)))
         s.close()
     con = sqlite3.connect(db)
@@ -216,7 +227,7 @@ def test_rebase_whose_frame_was_not_stored_resumes_from_the_whole_history(tmp_pa
     con.close()
     with Store(db) as store:
         assert store.last_seqs() == {1: boot(7, 4)}
-        s = HostSession(KEYS, store=store, view=MonitorView())
+        s, s_view = station(KEYS, store)
         s.feed("pithead", stream(1, 0, range(4, 6)))
         assert s.hub.rewound() == {1: (7, 0)}
 

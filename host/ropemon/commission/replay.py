@@ -9,7 +9,7 @@ regression-tests the algorithms against field recordings, and it is the first
 link of `ropemon demo`.
 
 With `--db` the frames then go through the hoist-room station's own data path
-(`ropemon.station.monitor.HostSession`: decode with the node's key, merge, alarm
+(`ropemon.station.pipeline.Station`: decode with the node's key, merge, alarm
 engine, SQLite store), on a clock that is the node's frame time, so alarm
 debounces and trips are those of the recording; `ropemon report` and
 `ropemon export` read the database as they read a live log.
@@ -149,7 +149,7 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
     Returns figures: frames, trips, decode counts and `alarms` {kind: {"raise": n, "clear": n}}.
     Raises ReplayError (config unreadable, database exists or unusable).
     """
-    from ropemon.station.monitor import HostSession
+    from ropemon.station.pipeline import AlarmListener, Station, StoreListener
     from ropemon.station.store import Store, StoreError
 
     frames_bin, db = Path(frames_bin), Path(db)
@@ -162,7 +162,8 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
     except StoreError as e:
         raise ReplayError(str(e)) from None
     clock = NodeClock()
-    session = HostSession(keys, settings, store, None, clock)
+    alarm_listener = AlarmListener(settings)
+    session = Station(keys, [alarm_listener, StoreListener(store)], clock)
     session.hub.clock = clock          # frames.rx_time and the trips: node time too
     offset = 0.0                       # added after a restart of the node's clock
     last = next_tick = None
@@ -189,7 +190,7 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
                 alarms.setdefault(ev["kind"], Counter())[ev["action"]] += 1
         fig = {"frames": store.committed_frames, "trips": len(store.trips()), "decode": counts,
                "alarms": {k: {"raise": c["raise"], "clear": c["clear"]} for k, c in sorted(alarms.items())},
-               "still_raised": sorted(a.id for a in session.alarms.active() if a.present)}
+               "still_raised": sorted(a.id for a in alarm_listener.engine.active() if a.present)}
     finally:
         session.hub.stop()
         store.close()

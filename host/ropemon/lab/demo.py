@@ -19,11 +19,15 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 
 from ropemon.lab import radio
 from ropemon.firmware import FIRMWARE_DIR
+from ropemon.station.alarms import AlarmSettings
+from ropemon.station.link import Received
+from ropemon.station.pipeline import AlarmListener, Listener, Station, StoreListener
 from ropemon.station.protocol import DAN_TO_N, Frame, FrameError, L, decode_raw, decode_wire, load_node_keys
 from ropemon.station.report import REST_AVG_S, SETTLE_S
 
@@ -168,6 +172,40 @@ def plot_demo(acc: dict, out: Path) -> Path:
 # -- the chain ---------------------------------------------------------------------------
 
 
+class FrameKeeper(Listener):
+    """Keeps every new frame, to compare with the truth."""
+
+    name = "demo frames"
+
+    def __init__(self) -> None:
+        self.frames: list[Frame] = []
+
+    def on_frame(self, item: Received, now_s: float) -> None:
+        self.frames.append(item.frame)
+
+
+@dataclass
+class DemoHost:
+    """The station as the demo runs it, and the listeners it reads back."""
+
+    station: Station
+    alarms: AlarmListener
+    kept: FrameKeeper
+    store: Any = None
+    view: Any = None   # MonitorView: the live screen
+
+
+def demo_host(keys: dict[int, bytes] | None, settings: AlarmSettings | None, clock: Callable[[], float],
+              store: Any = None, view: Any = None) -> DemoHost:
+    """The hoist room's station (alarms, the log, the view) and a frame keeper, on the demo's
+    clock (rx times too)."""
+    alarms, kept = AlarmListener(settings), FrameKeeper()
+    listeners: list[Listener] = [alarms] + ([StoreListener(store)] if store is not None else []) + [kept]
+    station = Station(keys, listeners + ([view] if view is not None else []), clock)
+    station.hub.clock = clock
+    return DemoHost(station, alarms, kept, store, view)
+
+
 def simulate(scenario: str, sim_dir: Path, seed: int) -> None:
     """`ropemon simulate` in a child process (the plant owns its CLI and progress output)."""
     cmd = [sys.executable, "-m", "ropemon.cli", "simulate", scenario, "--out", str(sim_dir), "--seed", str(seed)]
@@ -176,7 +214,7 @@ def simulate(scenario: str, sim_dir: Path, seed: int) -> None:
         raise RuntimeError(f"simulate {scenario} failed (exit {r.returncode}):\n{r.stdout[-2000:]}")
 
 
-def play_to_host(deliveries: dict[str, list[radio.Delivery]], session, speed: float, clock: DemoClock,
+def play_to_host(deliveries: dict[str, list[radio.Delivery]], host: DemoHost, speed: float, clock: DemoClock,
                  view_console=None, refresh_hz: float = 4.0, drain_s: float = 1.0) -> dict[str, int]:
     """Write each receiver's deliveries into its own pty, paced; the host reads the ptys
     with pyserial. Returns bytes written per receiver."""
@@ -186,6 +224,7 @@ def play_to_host(deliveries: dict[str, list[radio.Delivery]], session, speed: fl
     players = []
     try:
         first = min((d[0].t_s for d in deliveries.values() if d), default=0.0)
+        session = host.station
         readers = [session.add_port(vp.port, name).start() for name, vp in ports.items()]
         # pyserial flushes the input when it opens a port: start writing only once
         # every reader has its port open, or the first frames would be thrown away.
@@ -217,12 +256,12 @@ def play_to_host(deliveries: dict[str, list[radio.Delivery]], session, speed: fl
 
         if view_console is not None:
             from ropemon.station.monitor import live_loop
-            live_loop(session, view_console, refresh_hz, done)
+            live_loop(session, host.view, view_console, refresh_hz, done)
             if not done():          # the operator pressed q: skip to the summary
                 for p in players:
                     p.stop()
             session.tick()
-            view_console.print(session.view.render(session.clock()))  # the last screen stays visible
+            view_console.print(host.view.render(session.clock()))  # the last screen stays visible
         while not done():
             session.pump()
             session.tick()
@@ -237,7 +276,7 @@ def play_to_host(deliveries: dict[str, list[radio.Delivery]], session, speed: fl
     finally:
         for p in players:
             p.stop()
-        session.hub.stop()
+        host.station.hub.stop()
         for vp in ports.values():
             vp.close()
 
@@ -257,7 +296,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from ropemon.station.monitor import HostSession, MonitorView, SiteFigures, alarm_settings
+    from ropemon.station.monitor import MonitorView, SiteFigures, alarm_settings
     from ropemon.commission.replay import ReplayError, replay
     from ropemon.station.store import Store
 
@@ -310,22 +349,20 @@ def run(args: argparse.Namespace) -> int:
     store = Store(db)
     clock = DemoClock(speed)
     view = None if headless else MonitorView(site)
-    session = HostSession(keys, alarm_settings(site), store, view, clock)
-    session.hub.clock = clock
-    session.keep_frames = True
+    host = demo_host(keys, alarm_settings(site), clock, store, view)
     wind_s = t_frames[-1] - t_frames[0] if len(t_frames) else 0.0
     t = step(f"  playing {wind_s:.0f} s of frames at {speed:g}x real time (about {wind_s / speed:.0f} s)")
     try:
-        written = play_to_host(result.deliveries, session, speed, clock,
+        written = play_to_host(result.deliveries, host, speed, clock,
                                None if headless else Console())
     finally:
         store.close()
     step(f"  host done in {time.monotonic() - t:.1f} s")
 
-    acc = accuracy(session.frames, truth, t_truth, site.cylinder_area_m2,
+    acc = accuracy(host.kept.frames, truth, t_truth, site.cylinder_area_m2,
                    site.rated_rope_tension_n or 1.0, 1.0 / phys["frame_hz"])
     plot = plot_demo(acc, out / "demo.png") if acc.get("frames") else None
-    summary = summarize(sent, result, session, acc, written)
+    summary = summarize(sent, result, host, acc, written)
     summary["files"] = {"database": str(db), "plot": str(plot) if plot else None, "frames": str(frames_bin),
                         "config": str(node_json), "report": str(out / "report"),
                         "site": json.loads((sim_dir / "truth.json").read_text()).get("site_file")}
@@ -342,13 +379,15 @@ def run(args: argparse.Namespace) -> int:
     return 0 if summary["host"]["foreign_frames"] == 0 else 1
 
 
-def summarize(sent: Sent, result: radio.RadioResult, session, acc: dict, written: dict[str, int]) -> dict:
+def summarize(sent: Sent, result: radio.RadioResult, host: DemoHost, acc: dict, written: dict[str, int]) -> dict:
     """Frames sent/received/lost, per-receiver link quality, alarms, accuracy: plain JSON."""
     by_seq = {(f.node, f.seq): f for f in sent.frames}
-    foreign = sum(1 for f in session.frames
+    session = host.station
+    frames, events = host.kept.frames, host.alarms.engine.events
+    foreign = sum(1 for f in frames
                   if (f.node, f.seq) not in by_seq or not f.same_payload(by_seq[(f.node, f.seq)]))
     stats = session.hub.merge_stats()
-    unique = len(session.frames)
+    unique = len(frames)
     receivers = {}
     for name, dec in session.decoders.items():
         r = {"bytes_written": written.get(name, 0),
@@ -362,7 +401,7 @@ def summarize(sent: Sent, result: radio.RadioResult, session, acc: dict, written
                 (b["depth_from_m"], b["depth_to_m"], b["share"].get(name)) for b in st["by_depth"]]
         receivers[name] = r
     raises: dict[str, int] = {}
-    for e in session.alarms.events:
+    for e in events:
         if e.action == "raise":
             raises[e.kind] = raises.get(e.kind, 0) + 1
     return {
@@ -376,10 +415,10 @@ def summarize(sent: Sent, result: radio.RadioResult, session, acc: dict, written
             "gaps_counted": sum(st["lost"] for st in stats.values()),
             "duplicates_dropped": sum(st["duplicates"] for st in stats.values()),
             "foreign_frames": foreign,   # stored frames the node never sent: must be 0
-            "stored_frames": session.store.committed_frames if session.store is not None else None,
+            "stored_frames": host.store.committed_frames if host.store is not None else None,
         },
         "receivers": receivers,
-        "alarms": {"raised": raises, "events": [e.to_dict() for e in session.alarms.events][:50]},
+        "alarms": {"raised": raises, "events": [e.to_dict() for e in events][:50]},
         "accuracy": {k: v for k, v in acc.items() if not k.startswith("_")},
     }
 

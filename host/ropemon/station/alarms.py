@@ -353,14 +353,19 @@ class AlarmEngine:
                    f"{restarts} node seq restarts in total")
         return self._log(ev)
 
-    def ack(self, name_or_id: str, now_s: float) -> list[AlarmEvent]:
-        """Acknowledge latched alarms by id, by kind, or all with "*"."""
+    def ack(self, name_or_id: str, now_s: float, by: str | None = None) -> list[AlarmEvent]:
+        """Acknowledge latched alarms by id, by kind, or all with "*"; `by` (who) goes into
+        each event's message."""
         ev = []
         for a in self._alarms.values():
             if a.latched and name_or_id in ("*", a.id, a.kind):
                 a.latched = False
-                ev.append(self._event(a, now_s, "ack"))
+                ev.append(self._event(a, now_s, "ack", f"acknowledged by {by}: {a.message}" if by else None))
         return self._log(ev)
+
+    def nodes(self) -> list[int]:
+        """The nodes frames have come from."""
+        return sorted(self._last_frame_s)
 
     # -- outputs --------------------------------------------------------------
 

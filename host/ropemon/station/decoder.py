@@ -200,6 +200,16 @@ class StreamDecoder:
     def authenticity_checked(self) -> bool:
         return self.keys is not None
 
+    def take_rebased(self) -> dict[tuple[int, int], int]:
+        """New baselines taken since the last call (operator-accepted rewinds):
+        {(node, its seq): the node's previous newest seq}. For the caller of `feed`."""
+        rebased = self.replay.rebased
+        if not rebased:
+            return {}
+        out = {(node, seq): prev for node, seq, prev in rebased}
+        rebased.clear()
+        return out
+
     @property
     def pending(self) -> int:
         """Bytes held waiting for a delimiter (always <= max_frame)."""

@@ -10,7 +10,7 @@ bytes that arrived during the connect; the decoder resynchronises after them.
 
 `FrameHub` wires receivers to one StreamDecoder each and one shared Merger, and
 puts (receiver, frame, rx_time, is_new) on a queue for a single consumer thread
-(alarms, store and views belong to that thread: sqlite connections are not shared).
+(`ropemon.station.pipeline.Station`: alarms, store and views belong to that thread).
 `FrameHub.seed` gives every decoder, also of receivers added later, the replay
 state a restarted host resumes from (the log).
 """
@@ -19,13 +19,13 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Iterable, Mapping
 
 import serial
 import serial.rs485
 
-from ropemon.station.decoder import StreamDecoder
+from ropemon.station.decoder import DecodeCounts, StreamDecoder
 from ropemon.station.merge import Merger
 from ropemon.station.protocol import Frame
 
@@ -135,14 +135,35 @@ class Received:
     #                                  operator-accepted rewind): the node's newest seq before it
 
 
+@dataclass(frozen=True)
+class ReceiverStatus:
+    """One receiver as the hub saw it when asked: a copy, safe to keep and read in any thread."""
+
+    name: str
+    url: str | None                # None: fed directly (capture, test), no port
+    connected: bool                # port open (a receiver without a port counts as connected)
+    last_error: str | None         # why the port is not open, or the last read/consumer error
+    bytes_read: int
+    reconnects: int
+    callback_errors: int           # exceptions of the decoder or consumer: bytes were lost
+    last_callback_error: str | None
+    counts: DecodeCounts           # the decoder's counts
+
+
 class FrameHub:
-    """Several receivers -> decoders -> one Merger -> a queue of `Received`."""
+    """Several receivers -> decoders -> one Merger -> a queue of `Received`.
+
+    Each receiver's decoder is used only by the thread that feeds it. Other threads
+    talk to the hub through its methods: `accept_rewound` leaves the decision in each
+    decoder's inbox, applied by its own thread before its next bytes; `rewound`,
+    `counts` and `status` return copies taken under the hub's lock after each chunk.
+    """
 
     def __init__(self, keys: dict[int, bytes] | None = None, merger: Merger | None = None,
                  clock: Callable[[], float] = time.time, maxsize: int = 100000,
                  accept_rewound: Iterable[int] = ()):
         self.keys = keys
-        self._accept_rewound = set(accept_rewound)  # operator decisions, given to every receiver's decoder
+        self._accept_rewound = set(accept_rewound)  # operator decisions, for receivers added later
         self.merger = merger or Merger()
         self.clock = clock
         self.queue: "queue.Queue[Received]" = queue.Queue(maxsize)
@@ -150,6 +171,9 @@ class FrameHub:
         self.receivers: dict[str, SerialReceiver] = {}
         self.dropped = 0  # queue full: the consumer is not keeping up
         self._lock = threading.Lock()
+        self._inbox: dict[str, list[int]] = {}           # receiver -> nodes accepted, not yet applied
+        self._rewound: dict[str, dict[int, tuple[int, int]]] = {}
+        self._counts: dict[str, DecodeCounts] = {}
         self._seed: tuple[dict[int, int], dict[int, list[Frame]]] = ({}, {})
 
     def seed(self, last: Mapping[int, int], recent: Mapping[int, Iterable[Frame]] | None = None) -> None:
@@ -160,23 +184,29 @@ class FrameHub:
             dec.replay.seed(*self._seed)
 
     def feeder(self, name: str) -> Callable[[bytes], None]:
-        """A callback that decodes bytes of receiver `name` (also usable without a serial port)."""
-        dec = self.decoders.get(name)
-        if dec is None:
-            dec = self.decoders[name] = StreamDecoder(self.keys, accept_rewound=self._accept_rewound)
-            dec.replay.seed(*self._seed)
-        rebased = dec.replay.rebased  # appended to by dec.feed, in this receiver's thread only
+        """A callback that decodes bytes of receiver `name` (also usable without a serial port).
+        Call it from one thread at a time (the receiver's)."""
+        with self._lock:
+            dec = self.decoders.get(name)
+            if dec is None:
+                dec = self.decoders[name] = StreamDecoder(self.keys, accept_rewound=self._accept_rewound)
+                dec.replay.seed(*self._seed)
+                self._inbox[name] = []
+                self._rewound[name] = {}
+                self._counts[name] = replace(dec.counts)
 
         def on_bytes(data: bytes) -> None:
             now = self.clock()
-            frames = dec.feed(data)
-            if not frames:
-                return
-            base: dict[tuple[int, int], int] = {}
-            if rebased:
-                base = {(node, seq): prev for node, seq, prev in rebased}
-                rebased.clear()
             with self._lock:
+                accepted, self._inbox[name] = self._inbox[name], []
+            for node in accepted:
+                dec.replay.accept_rewound(node)
+            frames = dec.feed(data)
+            base = dec.take_rebased() if frames else {}
+            with self._lock:
+                self._counts[name] = replace(dec.counts)
+                if dec.replay.rewound != self._rewound[name]:
+                    self._rewound[name] = dict(dec.replay.rewound)
                 for f in frames:
                     item = Received(name, f, now, self.merger.add(name, f),
                                     base.get((f.node, f.seq)) if base else None)
@@ -206,18 +236,39 @@ class FrameHub:
         """Nodes refused because their boot counter went back: {node: (newest boot, its frame's boot)},
         over all receivers."""
         out: dict[int, tuple[int, int]] = {}
-        for dec in list(self.decoders.values()):
-            out.update(dec.replay.rewound)
+        with self._lock:
+            for r in self._rewound.values():
+                out.update(r)
         return out
 
     def accept_rewound(self, node: int) -> None:
-        """Operator decision: every receiver takes `node`'s next authenticated frame as its new baseline.
+        """Operator decision: every receiver takes `node`'s next authenticated frame as its new
+        baseline (applied by each receiver's own thread before its next bytes). Receivers added
+        later get it too."""
+        with self._lock:
+            self._accept_rewound.add(node)
+            for inbox in self._inbox.values():
+                inbox.append(node)
 
-        Receivers added later get it too. Called from the consumer thread while
-        readers decode: ReplayGuard only adds to a set, which the GIL makes atomic."""
-        self._accept_rewound.add(node)
-        for dec in list(self.decoders.values()):
-            dec.replay.accept_rewound(node)
+    def counts(self) -> dict[str, DecodeCounts]:
+        """Each receiver's decode counts (copies)."""
+        with self._lock:
+            return dict(self._counts)
+
+    def status(self) -> dict[str, ReceiverStatus]:
+        """Every receiver, with or without a port, as it is now (copies)."""
+        with self._lock:
+            counts = dict(self._counts)
+        out = {}
+        for name in list(dict.fromkeys([*self.receivers, *counts])):
+            r = self.receivers.get(name)
+            c = counts.get(name, DecodeCounts())
+            if r is None:
+                out[name] = ReceiverStatus(name, None, True, None, 0, 0, 0, None, c)
+            else:
+                out[name] = ReceiverStatus(name, r.url, r.connected, r.last_error, r.bytes_read, r.reconnects,
+                                           r.callback_errors, r.last_callback_error, c)
+        return out
 
     def merge_stats(self) -> dict:
         with self._lock:

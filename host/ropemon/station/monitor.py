@@ -1,17 +1,17 @@
 """`ropemon monitor`: the hoist-room live dashboard from one or more receiver ports.
 
-Bytes from each receiver -> decoder -> merger (duplicates dropped) -> alarms,
-SQLite log and the view. The view fits an 80x24 terminal (ssh from the hoist
-room): per rope compensated and raw tension, deviation from the mean, a trend,
-total load against rated, alarms (with the terminal bell), link quality per
-receiver and the node's battery. Key `a` acknowledges the alarms, `n` shows
-the next cage node (each cage has its own), `r` then `y` accepts a node refused
-because its boot counter went back (logged with who and when), `q` quits.
+The station (`ropemon.station.pipeline`: receivers -> decode, merge -> alarms,
+SQLite log) with one more listener, `MonitorView`, and the keys. The view fits
+an 80x24 terminal (ssh from the hoist room): per rope compensated and raw
+tension, deviation from the mean, a trend, total load against rated, alarms
+(with the terminal bell), link quality per receiver and the node's battery.
+Key `a` acknowledges the alarms, `n` shows the next cage node (each cage has
+its own), `r` then `y` accepts a node refused because its boot counter went
+back (logged with who and when), `q` quits. Keys become the station's commands.
 """
 from __future__ import annotations
 
 import argparse
-import datetime
 import getpass
 import json
 import os
@@ -28,10 +28,11 @@ from rich.console import Console, Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
-from ropemon.station.alarms import ActiveAlarm, AlarmEngine, AlarmEvent, AlarmSettings
+from ropemon.station.alarms import ActiveAlarm, AlarmEvent, AlarmSettings
 from ropemon.station.decode_cli import node_id
-from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, StreamDecoder
-from ropemon.station.link import DEFAULT_BAUDRATE, FrameHub
+from ropemon.station.link import DEFAULT_BAUDRATE, Received
+from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Station, StationStatus,
+                                      station_listeners)
 from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
 from ropemon.station.uncertainty import BandParams, DeviationBand
 
@@ -118,12 +119,14 @@ class NodeView:
     trend: list[deque[float]] = field(default_factory=list)
 
 
-class MonitorView:
-    """The operator's picture of the hoist, updated by merged frames, drawn by `render`.
+class MonitorView(Listener):
+    """The operator's picture of the hoist: a station listener, drawn by `render`.
 
     Each cage carries its own node; the view shows one node at a time (key `n`
     switches) and a line on the others, so two cages still fit 80x24.
     """
+
+    name = "terminal view"
 
     def __init__(self, site: SiteFigures | None = None, trend_len: int = TREND_LEN) -> None:
         self.site = site or SiteFigures()
@@ -137,8 +140,38 @@ class MonitorView:
         self.bands: dict[int, list[DeviationBand | None]] = {}  # node -> per rope deviation and band
         self.confirm_accept: int | None = None  # node awaiting the operator's `y`
         self.frames = 0
+        self.new_raises = 0     # raise events since the bell last rang
 
-    def on_frame(self, frame: Frame, now_s: float) -> None:
+    # -- the station's messages -------------------------------------------------------
+    def on_frame(self, item: Received, now_s: float) -> None:
+        self.show_frame(item.frame, now_s)
+
+    def on_event(self, event: AlarmEvent) -> None:
+        if event.action == "raise":
+            self.new_raises += 1
+
+    def on_alarms(self, state: AlarmState) -> None:
+        self.alarm_rows = [(alarm_text(a), not a.latched) for a in state.active]
+        self.bands = dict(state.bands)
+
+    def on_status(self, status: StationStatus) -> None:
+        down = {n: r.last_error or "not open" for n, r in status.receivers.items() if not r.connected}
+        errors = {n: (r.callback_errors, r.last_callback_error)
+                  for n, r in status.receivers.items() if r.callback_errors}
+        self.link_rows = link_figures(status.merge, {n: r.counts for n, r in status.receivers.items()}, down,
+                                      errors)
+        self.merge_text = merge_figures(status.merge)
+        if not status.authenticated:
+            self.merge_text += "  NO KEY: not authenticated"
+        if status.dropped:
+            self.merge_text += f"  HOST OVERLOADED: {status.dropped} frames not processed"
+        for name, (n, last) in status.listener_errors.items():
+            self.merge_text += f"  {name.upper()} FAILED {n}x: {last[:40]}"
+        self.refused = dict(status.rewound)
+        if self.confirm_accept not in self.refused:
+            self.confirm_accept = None
+
+    def show_frame(self, frame: Frame, now_s: float) -> None:
         """A new (merged, not duplicate) frame."""
         self.frames += 1
         nv = self.nodes.get(frame.node)
@@ -401,213 +434,6 @@ def alarm_text(a: ActiveAlarm) -> str:
     return f"{a.kind.upper().replace('_', ' ')}{rope}: {what}{state}"
 
 
-class HostSession:
-    """The host's data path: receivers -> `FrameHub` (decode, merge) -> alarms, log, view.
-
-    Reader threads decode and merge (the hub); `pump`, on the main loop's
-    thread, which also owns the SQLite store, consumes the merged frames.
-    Only new frames (not duplicates) reach the alarms, the log and the view.
-
-    With keys and a store that already holds frames, the replay protection
-    resumes from the log before any receiver is read (`resumed`): a frame at or
-    below the last one logged for its node is a replay (or a duplicate of one of
-    the last frames), as if the host had not stopped. A new baseline taken on an
-    operator-accepted rewind is logged (`rebase` event) so that a restart resumes
-    from it, not from the node's older, higher sequence numbers.
-    """
-
-    LINK_LOG_S = 10.0   # link statistics go to the log this often
-
-    def __init__(self, keys: dict[int, bytes] | None = None, settings: AlarmSettings | None = None,
-                 store: Any = None, view: MonitorView | None = None,
-                 clock: Callable[[], float] = time.monotonic, accept_rewound: Iterable[int] = ()) -> None:
-        self.keys = keys
-        self.hub = FrameHub(keys, accept_rewound=accept_rewound)
-        self.alarms = AlarmEngine(settings)
-        self.store = store
-        self.view = view
-        self.clock = clock
-        self.new_raises = 0          # raise events since the view last rang the bell
-        self.frames: list[Frame] = []
-        self.keep_frames = False     # the demo keeps them to compare with the truth
-        self._feeders: dict[str, Callable[[bytes], None]] = {}
-        self._link_logged_s: float | None = None
-        self._link_errors_logged: dict[str, int] = {}  # receiver -> callback_errors already logged
-        self._rebase_logged: dict[int, int] = {}        # node -> seq of the last baseline logged
-        self.resumed: dict[int, int] = {}               # node -> last seq logged, resumed from the store
-        if store is not None and keys:
-            self.resumed = {n: seq for n, seq in store.last_seqs().items() if n in keys}
-            self.hub.seed(self.resumed, {n: store.recent_frames(n, DUPLICATE_MEMORY) for n in self.resumed})
-
-    def resumed_text(self) -> str | None:
-        """One line saying where the replay protection resumed from (None: nothing logged before)."""
-        if not self.resumed:
-            return None
-        nodes = ", ".join(f"node {n} at boot {seq >> SEQ_COUNT_BITS} count {seq & ((1 << SEQ_COUNT_BITS) - 1)}"
-                          for n, seq in sorted(self.resumed.items()))
-        return f"resumed replay protection from the log: {nodes}"
-
-    @property
-    def decoders(self) -> dict[str, StreamDecoder]:
-        return self.hub.decoders
-
-    def add_receiver(self, name: str) -> Callable[[bytes], None]:
-        """The byte sink of receiver `name` (thread-safe: decodes and merges)."""
-        if name not in self._feeders:
-            self._feeders[name] = self.hub.feeder(name)
-        return self._feeders[name]
-
-    def add_port(self, url: str, name: str, **kw: Any) -> Any:
-        """Read receiver `name` from a serial port (pyserial URL); returns the SerialReceiver."""
-        rx = self.hub.add_port(url, name, **kw)
-        self._feeders[name] = rx.on_bytes
-        return rx
-
-    def feed(self, receiver: str, data: bytes) -> None:
-        """Bytes of one receiver, processed at once (tests, captures)."""
-        self.add_receiver(receiver)(data)
-        self.pump()
-
-    def pump(self) -> int:
-        """Consume every merged frame the hub has queued; return how many."""
-        n = 0
-        while True:
-            item = self.hub.get(timeout=0)
-            if item is None:
-                break
-            n += 1
-            if item.is_new:
-                f = item.frame
-                now = self.clock()
-                self._events(self.alarms.update(f, now))
-                if self.store is not None:
-                    self.store.add_frame(item.receiver, f, item.rx_time)
-                if self.keep_frames:
-                    self.frames.append(f)
-                if self.view is not None:
-                    self.view.on_frame(f, now)
-                    self.view.bands[f.node] = self.alarms.deviation_bands(f.node)
-            if item.rebased_from is not None:
-                self._log_rebase(item)
-        if self.keys:
-            now = self.clock()
-            for name, dec in list(self.hub.decoders.items()):
-                c = dec.counts
-                self._events(self.alarms.update_link(name, c.mac_fail, c.replayed, now))
-        return n
-
-    def tick(self) -> None:
-        """Time passes: silent alarm, store flush and link log, view figures."""
-        now = self.clock()
-        self._events(self.alarms.tick(now))
-        if self.store is not None:
-            self.store.flush()
-            if self._link_logged_s is None or now - self._link_logged_s >= self.LINK_LOG_S:
-                self.log_link_stats()
-                self._link_logged_s = now
-        self._refresh_view()
-
-    def ack_all(self) -> None:
-        self._events(self.alarms.ack("*", self.clock()))
-        self._refresh_view()
-
-    def accept_rewound(self, node: int, operator: str, how: str = "interactively") -> AlarmEvent:
-        """The operator accepts `node` although its boot counter went back: every receiver
-        takes its next authenticated frame as the new baseline. Logged (who, when, which
-        node) as an `accept` event: it decides whether frames are trusted."""
-        refused = self.hub.rewound().get(node)
-        self.hub.accept_rewound(node)
-        if self.view is not None and self.view.confirm_accept == node:
-            self.view.confirm_accept = None
-        wall = time.time()
-        when = datetime.datetime.fromtimestamp(wall, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
-        was = f" (boot counter went back {refused[0]} -> {refused[1]})" if refused else ""
-        ev = AlarmEvent(wall, "accept", f"rewound:n{node}", "rewound", node, None,
-                        refused[0] if refused else None, refused[1] if refused else None,
-                        f"operator {operator} accepted node {node}{was} {how} at {when}")
-        if self.store is not None:
-            self.store.add_event(ev)
-        self._refresh_view()
-        return ev
-
-    def _log_rebase(self, item: Any) -> None:
-        """A receiver took an accepted node's frame of an older boot as its new baseline:
-        logged after that frame (`rebase` event; the receivers of one node log it once),
-        so that a restart resumes the replay protection from this sequence."""
-        f, prev = item.frame, item.rebased_from
-        if self.store is None or self._rebase_logged.get(f.node) == f.seq:
-            return
-        self._rebase_logged[f.node] = f.seq
-        mask = (1 << SEQ_COUNT_BITS) - 1
-        self.store.add_event(AlarmEvent(
-            time.time(), "rebase", f"rewound:n{f.node}", "rewound", f.node, None, f.seq, prev,
-            f"node {f.node}: boot {f.seq >> SEQ_COUNT_BITS} count {f.seq & mask} taken as its new baseline "
-            f"(was boot {prev >> SEQ_COUNT_BITS} count {prev & mask}; receiver {item.receiver})"))
-
-    def link_errors(self) -> dict[str, tuple[int, str | None]]:
-        """Receivers whose decoder or consumer raised: {name: (count, last error)}."""
-        return {n: (r.callback_errors, r.last_callback_error)
-                for n, r in list(self.hub.receivers.items()) if r.callback_errors}
-
-    def log_link_stats(self) -> None:
-        """Decoder counts and merge shares of every receiver into the store, and a
-        `link_error` event for a receiver whose decoder or consumer raised since the
-        last log (link_stats has no text column: the event carries the message)."""
-        if self.store is None:
-            return
-        t = time.time()
-        for name, (n, last) in self.link_errors().items():
-            if n > self._link_errors_logged.get(name, 0):
-                self.store.add_event(AlarmEvent(
-                    t, "error", f"link_error:{name}", "link_error", None, None, n, None,
-                    f"receiver {name}: {n} decoder/consumer errors (bytes lost), last: {last}"))
-                self._link_errors_logged[name] = n
-        stats = self.hub.merge_stats()
-        for name, dec in list(self.decoders.items()):
-            self.store.add_link_stats(t, name, dec.counts.as_dict())
-            for node, st in stats.items():
-                r = st["receivers"].get(name)
-                if r is not None:
-                    self.store.add_link_stats(t, name, None, node, {
-                        "delivered": r["delivered"], "share": r["share"],
-                        "lost": st["lost"], "duplicates": st["duplicates"]})
-
-    def close(self) -> None:
-        """Stop the ports, process what is queued, log the link figures, commit."""
-        self.hub.stop()
-        self.pump()
-        if self.store is not None:
-            self.log_link_stats()
-            self.store.commit()
-
-    def _events(self, events: list[AlarmEvent]) -> None:
-        for e in events:
-            if e.action == "raise":
-                self.new_raises += 1
-            if self.store is not None:
-                self.store.add_event(e)
-
-    def _refresh_view(self) -> None:
-        if self.view is None:
-            return
-        stats = self.hub.merge_stats()
-        down = {n: r.last_error or "not open" for n, r in list(self.hub.receivers.items()) if not r.connected}
-        self.view.link_rows = link_figures(stats, {n: d.counts for n, d in list(self.decoders.items())}, down,
-                                           self.link_errors())
-        self.view.merge_text = merge_figures(stats)
-        if not self.keys:
-            self.view.merge_text += "  NO KEY: not authenticated"
-        if self.hub.dropped:
-            self.view.merge_text += f"  HOST OVERLOADED: {self.hub.dropped} frames not processed"
-        self.view.alarm_rows = [(alarm_text(a), not a.latched) for a in self.alarms.active()]
-        now = self.clock()
-        for node in self.view.nodes:
-            self.view.bands[node] = self.alarms.deviation_bands(node, now)
-        self.view.refused = self.hub.rewound()
-        if self.view.confirm_accept not in self.view.refused:
-            self.view.confirm_accept = None
-
-
 # -- the command -------------------------------------------------------------------
 
 
@@ -713,21 +539,20 @@ def operator_name() -> str:
     return f"{who} (ssh from {ssh[0]})" if ssh else who
 
 
-def handle_keys(session: HostSession, k: str, operator: str) -> bool:
-    """Act on key presses; False when the operator quits. `r` asks to accept the first
-    refused node, `y` confirms it, any other key cancels the question."""
-    view = session.view
-    assert view is not None
+def handle_keys(station: Station, view: MonitorView, k: str, operator: str) -> bool:
+    """Act on key presses; False when the operator quits. `a` and `y` become the station's
+    commands (carried out at its next pump); `r` asks to accept the first refused node,
+    `y` confirms it, any other key cancels the question."""
     k = k.lower()
     if "q" in k:
         return False
     if view.confirm_accept is not None:
         node, view.confirm_accept = view.confirm_accept, None
         if "y" in k:
-            session.accept_rewound(node, operator)
+            station.submit(AcceptRewound(operator, "terminal", node=node))
         return True
     if "a" in k:
-        session.ack_all()
+        station.submit(Acknowledge(operator, "terminal"))
     if "n" in k:
         view.next_node()
     if "r" in k and view.refused:
@@ -735,30 +560,28 @@ def handle_keys(session: HostSession, k: str, operator: str) -> bool:
     return True
 
 
-def live_loop(session: HostSession, console: Console, refresh_hz: float,
+def live_loop(station: Station, view: MonitorView, console: Console, refresh_hz: float,
               done: Callable[[], bool] = lambda: False) -> None:
-    """Draw the view until `q` or `done()`; `a` acknowledges, `r` `y` accepts a refused
-    node; bell on new alarms."""
+    """Run the station and draw the view until `q` or `done()`; `a` acknowledges, `r` `y`
+    accepts a refused node; bell on new alarms."""
     from rich.live import Live
 
-    view = session.view
-    assert view is not None
     keys = KeyReader()
     operator = operator_name()
     last_bell = 0.0
     try:
-        with Live(view.render(session.clock()), console=console, screen=console.is_terminal,
+        with Live(view.render(station.clock()), console=console, screen=console.is_terminal,
                   auto_refresh=False, transient=False) as live:
             while not done():
                 k = keys.read(1.0 / refresh_hz)
-                if k and not handle_keys(session, k, operator):
+                if k and not handle_keys(station, view, k, operator):
                     break
-                session.pump()
-                session.tick()
-                now = session.clock()
+                station.pump()
+                station.tick()
+                now = station.clock()
                 unacked = any(not acked for _, acked in view.alarm_rows)
-                ring = session.new_raises > 0 or (unacked and now - last_bell > BELL_REPEAT_S)
-                session.new_raises = 0
+                ring = view.new_raises > 0 or (unacked and now - last_bell > BELL_REPEAT_S)
+                view.new_raises = 0
                 live.update(view.render(now), refresh=True)
                 if ring and (unacked or last_bell == 0.0):
                     console.bell()
@@ -785,20 +608,20 @@ def run(args: argparse.Namespace) -> int:
     view = MonitorView(site)
     # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
-    session = HostSession(keys or None, alarm_settings(site, args.silent_s), store, view,
-                          clock=time.time, accept_rewound=args.accept_rewound)
-    resumed = session.resumed_text()
+    station = Station(keys or None, station_listeners(alarm_settings(site, args.silent_s), store, view),
+                      clock=time.time, accept_rewound=args.accept_rewound, resume_from=store)
+    resumed = station.resumed_text()
     if resumed is not None:
         print(f"ropemon monitor: {resumed}", file=sys.stderr)
     operator = operator_name()
     for node in args.accept_rewound:
-        session.accept_rewound(node, operator, "with --accept-rewound")
+        station.submit(AcceptRewound(operator, "command line", node=node, how="with --accept-rewound"))
     try:
         for name, url in receiver_names(args.port):
-            session.add_port(url, name, baudrate=args.baud, rs485=args.rs485).start()
-        live_loop(session, Console(), args.refresh_hz)
+            station.add_port(url, name, baudrate=args.baud, rs485=args.rs485).start()
+        live_loop(station, view, Console(), args.refresh_hz)
     finally:
-        session.close()
+        station.close()
         if store is not None:
             store.close()
     return 0

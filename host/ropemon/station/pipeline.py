@@ -1,0 +1,395 @@
+"""The station's data path: receivers -> decode and merge -> listeners.
+
+    receivers          one reader thread per port (`link.SerialReceiver`)       transport
+      -> FrameHub      a decoder per receiver, one merger, a queue (`link`)     protocol
+      -> Station       one consumer thread: `pump` and `tick`                   spine
+      -> listeners     alarm engine, store, terminal view, ...                  fan-out
+
+A listener knows none of the others: it receives messages from the station and
+may publish messages back, which the station hands to every listener after the
+current one (in the order the listeners were added):
+
+    on_frame(Received, now_s)   a merged frame, new (not a duplicate)
+    on_event(AlarmEvent)        an alarm raised, cleared or acknowledged; an operator's
+                                decision; a rebase; a receiver's or listener's error
+    on_status(StationStatus)    each `tick`: receivers, merge figures, refused nodes
+    on_alarms(AlarmState)       the active alarms and deviation bands (the alarm listener's)
+    on_command(Command, now_s)  an operator action
+    on_stop(StationStatus)      the station closes: log and commit what is pending
+
+Every listener method runs on the station's thread (the one calling `pump`,
+`tick` and `close`); a listener that serves another thread (a web server)
+copies what it needs. Operator actions come in through `submit`, from any
+thread, and run at the next `pump`: acknowledging goes to the listeners (the
+alarm listener acts on it); accepting a rewound node goes to the hub, which
+leaves it in each receiver's inbox for that receiver's own thread.
+
+A listener that raises does not stop the others: the station counts it, and
+publishes one `listener_error` event per listener and tick while it keeps failing.
+"""
+from __future__ import annotations
+
+import datetime
+import queue
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable
+
+from ropemon.station.alarms import ActiveAlarm, AlarmEngine, AlarmEvent, AlarmSettings
+from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, StreamDecoder
+from ropemon.station.link import FrameHub, Received, ReceiverStatus, SerialReceiver
+from ropemon.station.uncertainty import DeviationBand
+
+
+# -- messages ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StationStatus:
+    """What the station knows of its links at one moment."""
+
+    time_s: float
+    receivers: dict[str, ReceiverStatus]
+    merge: dict                                  # Merger.stats(): per node, shares and losses
+    dropped: int                                 # merged frames the station could not keep up with
+    authenticated: bool                          # node keys given: frames' MACs are checked
+    rewound: dict[int, tuple[int, int]]          # nodes refused: {node: (newest boot, frame's boot)}
+    listener_errors: dict[str, tuple[int, str]] = field(default_factory=dict)  # name -> (count, last)
+
+
+@dataclass(frozen=True)
+class AlarmState:
+    """The alarm engine's picture: active alarms (oldest first, warnings last) and, per node,
+    each rope's deviation and band (empty without the seal's friction lines)."""
+
+    time_s: float
+    active: tuple[ActiveAlarm, ...]
+    bands: dict[int, list[DeviationBand | None]]
+
+
+@dataclass(frozen=True)
+class Command:
+    """An operator action; `operator` says who, `via` where from (terminal, web, OPC UA)."""
+
+    operator: str
+    via: str
+
+
+@dataclass(frozen=True)
+class Acknowledge(Command):
+    alarm: str = "*"          # an alarm id, a kind, or "*" for all
+
+
+@dataclass(frozen=True)
+class AcceptRewound(Command):
+    """Trust `node` although its boot counter went back (flash wiped or replaced)."""
+
+    node: int = 0
+    how: str = "interactively"
+
+
+class Listener:
+    """Base of the station's listeners: override the messages you need (module docstring)."""
+
+    name = "listener"
+    publish: Callable[[Any], None] = staticmethod(lambda message: None)  # set by Station.add
+
+    def on_frame(self, item: Received, now_s: float) -> None:
+        pass
+
+    def on_event(self, event: AlarmEvent) -> None:
+        pass
+
+    def on_status(self, status: StationStatus) -> None:
+        pass
+
+    def on_alarms(self, state: AlarmState) -> None:
+        pass
+
+    def on_command(self, command: Command, now_s: float) -> None:
+        pass
+
+    def on_stop(self, status: StationStatus) -> None:
+        pass
+
+
+# -- the spine ---------------------------------------------------------------------
+
+
+class Station:
+    """Receivers -> `FrameHub` -> listeners, on one consumer thread (module docstring).
+
+    With keys and `resume_from` (a `Store` that already holds frames), the replay
+    protection resumes from the log before any receiver is read (`resumed`): a
+    frame at or below the last one logged for its node is a replay (or a duplicate
+    of one of the last frames), as if the station had not stopped.
+    """
+
+    def __init__(self, keys: dict[int, bytes] | None = None, listeners: Iterable[Listener] = (),
+                 clock: Callable[[], float] = time.monotonic, accept_rewound: Iterable[int] = (),
+                 resume_from: Any = None) -> None:
+        self.keys = keys or None
+        self.hub = FrameHub(self.keys, accept_rewound=accept_rewound)
+        self.clock = clock
+        self.listeners: list[Listener] = []
+        self.listener_errors: dict[str, tuple[int, str]] = {}
+        self.resumed: dict[int, int] = {}               # node -> last seq logged, resumed from the store
+        self._commands: "queue.SimpleQueue[Command]" = queue.SimpleQueue()
+        self._pending: deque[Any] = deque()
+        self._dispatching = False
+        self._rebase_logged: dict[int, int] = {}        # node -> seq of the last baseline published
+        self._errors_published: dict[str, int] = {}     # receiver -> callback_errors already published
+        self._listener_errors_published: set[str] = set()
+        if resume_from is not None and self.keys:
+            self.resumed = {n: seq for n, seq in resume_from.last_seqs().items() if n in self.keys}
+            self.hub.seed(self.resumed, {n: resume_from.recent_frames(n, DUPLICATE_MEMORY) for n in self.resumed})
+        for listener in listeners:
+            self.add(listener)
+
+    def add(self, listener: Listener) -> Listener:
+        """Add a listener: it gets every message from now on, after those added before it."""
+        listener.publish = self.publish
+        self.listeners.append(listener)
+        return listener
+
+    # -- inputs ----------------------------------------------------------------------
+
+    @property
+    def decoders(self) -> dict[str, StreamDecoder]:
+        return self.hub.decoders
+
+    def add_port(self, url: str, name: str, **kw: Any) -> SerialReceiver:
+        """Read receiver `name` from a serial port (pyserial URL); returns the SerialReceiver
+        (not started)."""
+        return self.hub.add_port(url, name, **kw)
+
+    def feed(self, receiver: str, data: bytes) -> None:
+        """Bytes of one receiver without a port (tests, captures), processed at once."""
+        self.hub.feeder(receiver)(data)
+        self.pump()
+
+    def submit(self, command: Command) -> None:
+        """An operator action, from any thread; carried out at the next `pump`."""
+        self._commands.put(command)
+
+    def resumed_text(self) -> str | None:
+        """One line saying where the replay protection resumed from (None: nothing logged before)."""
+        if not self.resumed:
+            return None
+        mask = (1 << SEQ_COUNT_BITS) - 1
+        nodes = ", ".join(f"node {n} at boot {seq >> SEQ_COUNT_BITS} count {seq & mask}"
+                          for n, seq in sorted(self.resumed.items()))
+        return f"resumed replay protection from the log: {nodes}"
+
+    # -- the consumer thread -----------------------------------------------------------
+
+    def pump(self) -> int:
+        """Carry out submitted commands, then hand every merged frame the hub has queued to
+        the listeners; return how many frames were taken from the queue."""
+        while True:
+            try:
+                cmd = self._commands.get_nowait()
+            except queue.Empty:
+                break
+            self._command(cmd)
+        n = 0
+        while True:
+            item = self.hub.get(timeout=0)
+            if item is None:
+                break
+            n += 1
+            if item.is_new:
+                self.publish(item)
+            if item.rebased_from is not None:
+                self._rebase(item)
+        return n
+
+    def tick(self) -> StationStatus:
+        """Time passes: every listener gets the links' status (the alarm listener then its
+        state). Call it a few times a second, frames or not."""
+        status = self.status()
+        self._publish_link_errors(status)
+        self._listener_errors_published.clear()
+        self.publish(status)
+        return status
+
+    def status(self) -> StationStatus:
+        return StationStatus(self.clock(), self.hub.status(), self.hub.merge_stats(), self.hub.dropped,
+                             self.keys is not None, self.hub.rewound(), dict(self.listener_errors))
+
+    def close(self) -> None:
+        """Stop the ports, hand on what is queued, and let every listener finish (`on_stop`)."""
+        self.hub.stop()
+        self.pump()
+        status = self.status()
+        for listener in self.listeners:
+            self._call(listener, "on_stop", status)
+
+    def publish(self, message: Any) -> None:
+        """Hand `message` to every listener; a message published while listeners are being
+        called is handed on after the current one, in order."""
+        self._pending.append(message)
+        if self._dispatching:
+            return
+        self._dispatching = True
+        try:
+            while self._pending:
+                msg = self._pending.popleft()
+                if isinstance(msg, (Received, Command)):
+                    method, args = ("on_frame" if isinstance(msg, Received) else "on_command"), (msg, self.clock())
+                else:
+                    method, args = _METHOD[type(msg)], (msg,)
+                for listener in self.listeners:
+                    self._call(listener, method, *args)
+        finally:
+            self._dispatching = False
+
+    # -- internals ---------------------------------------------------------------------
+
+    def _call(self, listener: Listener, method: str, *args: Any) -> None:
+        try:
+            getattr(listener, method)(*args)
+        except Exception as e:  # one failing listener must not stop the alarms or the others
+            name = listener.name
+            n = self.listener_errors.get(name, (0, ""))[0] + 1
+            text = f"{type(e).__name__}: {e}"
+            self.listener_errors[name] = (n, text)
+            if name not in self._listener_errors_published:
+                self._listener_errors_published.add(name)
+                self.publish(AlarmEvent(time.time(), "error", f"listener_error:{name}", "listener_error",
+                                        None, None, n, None, f"{name} failed on {method}: {text}"))
+
+    def _command(self, cmd: Command) -> None:
+        self.publish(cmd)
+        if isinstance(cmd, AcceptRewound):
+            self._accept_rewound(cmd)
+
+    def _accept_rewound(self, cmd: AcceptRewound) -> None:
+        """Every receiver takes `cmd.node`'s next authenticated frame as its new baseline. Logged
+        (who, when, which node) as an `accept` event: it decides whether frames are trusted."""
+        node = cmd.node
+        refused = self.hub.rewound().get(node)
+        self.hub.accept_rewound(node)
+        wall = time.time()
+        when = datetime.datetime.fromtimestamp(wall, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+        was = f" (boot counter went back {refused[0]} -> {refused[1]})" if refused else ""
+        self.publish(AlarmEvent(wall, "accept", f"rewound:n{node}", "rewound", node, None,
+                                refused[0] if refused else None, refused[1] if refused else None,
+                                f"operator {cmd.operator} accepted node {node}{was} {cmd.how} at {when}"))
+
+    def _rebase(self, item: Received) -> None:
+        """A receiver took an accepted node's frame of an older boot as its new baseline: a
+        `rebase` event after that frame (the receivers of one node publish it once), so that a
+        restart resumes the replay protection from this sequence."""
+        f, prev = item.frame, item.rebased_from
+        assert prev is not None
+        if self._rebase_logged.get(f.node) == f.seq:
+            return
+        self._rebase_logged[f.node] = f.seq
+        mask = (1 << SEQ_COUNT_BITS) - 1
+        self.publish(AlarmEvent(
+            time.time(), "rebase", f"rewound:n{f.node}", "rewound", f.node, None, f.seq, prev,
+            f"node {f.node}: boot {f.seq >> SEQ_COUNT_BITS} count {f.seq & mask} taken as its new baseline "
+            f"(was boot {prev >> SEQ_COUNT_BITS} count {prev & mask}; receiver {item.receiver})"))
+
+    def _publish_link_errors(self, status: StationStatus) -> None:
+        """A `link_error` event for a receiver whose decoder or consumer raised since the last one."""
+        for name, r in status.receivers.items():
+            if r.callback_errors > self._errors_published.get(name, 0):
+                self._errors_published[name] = r.callback_errors
+                self.publish(AlarmEvent(
+                    time.time(), "error", f"link_error:{name}", "link_error", None, None, r.callback_errors, None,
+                    f"receiver {name}: {r.callback_errors} decoder/consumer errors (bytes lost), "
+                    f"last: {r.last_callback_error}"))
+
+
+_METHOD = {AlarmEvent: "on_event", StationStatus: "on_status", AlarmState: "on_alarms"}
+
+
+# -- the station's own listeners ---------------------------------------------------
+
+
+class AlarmListener(Listener):
+    """The alarm engine on the station's messages: frames, ticks and acknowledgements in;
+    events, and its state (after any event and at every tick), out."""
+
+    name = "alarms"
+
+    def __init__(self, settings: AlarmSettings | None = None) -> None:
+        self.engine = AlarmEngine(settings)
+
+    def on_frame(self, item: Received, now_s: float) -> None:
+        if self._publish(self.engine.update(item.frame, now_s)):
+            self._publish_state(now_s)
+
+    def on_status(self, status: StationStatus) -> None:
+        now = status.time_s
+        self._publish(self.engine.tick(now))
+        if status.authenticated:
+            for name, r in status.receivers.items():
+                self._publish(self.engine.update_link(name, r.counts.mac_fail, r.counts.replayed, now))
+        self._publish_state(now)
+
+    def on_command(self, command: Command, now_s: float) -> None:
+        if isinstance(command, Acknowledge):
+            if self._publish(self.engine.ack(command.alarm, now_s, f"{command.operator} ({command.via})")):
+                self._publish_state(now_s)
+
+    def _publish(self, events: list[AlarmEvent]) -> int:
+        for e in events:
+            self.publish(e)
+        return len(events)
+
+    def _publish_state(self, now_s: float) -> None:
+        e = self.engine
+        self.publish(AlarmState(now_s, tuple(e.active()), {n: e.deviation_bands(n, now_s) for n in e.nodes()}))
+
+
+class StoreListener(Listener):
+    """Frames, events and link figures into the SQLite log (`ropemon.station.store.Store`)."""
+
+    name = "store"
+    LINK_LOG_S = 10.0   # link statistics go to the log this often
+
+    def __init__(self, store: Any) -> None:
+        self.store = store
+        self._link_logged_s: float | None = None
+
+    def on_frame(self, item: Received, now_s: float) -> None:
+        self.store.add_frame(item.receiver, item.frame, item.rx_time)
+
+    def on_event(self, event: AlarmEvent) -> None:
+        self.store.add_event(event)
+
+    def on_status(self, status: StationStatus) -> None:
+        self.store.flush()
+        if self._link_logged_s is None or status.time_s - self._link_logged_s >= self.LINK_LOG_S:
+            self.log_link_stats(status)
+            self._link_logged_s = status.time_s
+
+    def on_stop(self, status: StationStatus) -> None:
+        self.log_link_stats(status)
+        self.store.commit()
+
+    def log_link_stats(self, status: StationStatus) -> None:
+        """Decoder counts and merge shares of every receiver (`link_stats` table)."""
+        t = time.time()
+        for name, r in status.receivers.items():
+            self.store.add_link_stats(t, name, r.counts.as_dict())
+            for node, st in status.merge.items():
+                share = st["receivers"].get(name)
+                if share is not None:
+                    self.store.add_link_stats(t, name, None, node, {
+                        "delivered": share["delivered"], "share": share["share"],
+                        "lost": st["lost"], "duplicates": st["duplicates"]})
+
+
+def station_listeners(settings: AlarmSettings | None = None, store: Any = None,
+                      *views: Listener) -> list[Listener]:
+    """The hoist room's listeners in their order: the alarm engine, the log (when `store` is
+    given), then the views."""
+    out: list[Listener] = [AlarmListener(settings)]
+    if store is not None:
+        out.append(StoreListener(store))
+    return out + list(views)

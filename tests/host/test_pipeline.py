@@ -1,0 +1,145 @@
+"""The station's spine: listeners in order, messages published back, a failing listener, and
+operator commands from another thread reaching the decoders only through their own thread."""
+from __future__ import annotations
+
+import threading
+
+from host_framegen import KEYS
+from ropemon.station.alarms import AlarmEvent, AlarmSettings
+from ropemon.station.decoder import SEQ_COUNT_BITS
+from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmListener, AlarmState, Listener, Station,
+                                      StationStatus)
+from ropemon.station.protocol import encode_frame
+
+
+def w(seq: int, tension: int = 500, node: int = 1, boot: int = 0) -> bytes:
+    return encode_frame(node=node, seq=(boot << SEQ_COUNT_BITS) | seq, time_ms=seq * 100,
+                        ropes=[(tension, tension, tension, 0)] * 4, key=KEYS[node])[1]
+
+
+class Recorder(Listener):
+    def __init__(self, name: str, log: list) -> None:
+        self.name, self.log = name, log
+
+    def on_frame(self, item, now_s):
+        self.log.append((self.name, "frame", item.frame.seq))
+
+    def on_event(self, event):
+        self.log.append((self.name, "event", event.alarm))
+
+    def on_status(self, status):
+        self.log.append((self.name, "status", sorted(status.receivers)))
+
+    def on_alarms(self, state):
+        self.log.append((self.name, "alarms", len(state.active)))
+
+    def on_command(self, command, now_s):
+        self.log.append((self.name, "command", type(command).__name__))
+
+    def on_stop(self, status):
+        self.log.append((self.name, "stop", None))
+
+
+class Echo(Listener):
+    """Publishes an event for every frame: it must reach every listener, after the frame."""
+
+    name = "echo"
+
+    def on_frame(self, item, now_s):
+        self.publish(AlarmEvent(now_s, "raise", f"echo:{item.frame.seq}", "echo", 1, None, None, None, "echo"))
+
+
+def test_messages_reach_every_listener_in_order_and_published_ones_follow():
+    log: list = []
+    s = Station(KEYS, [Recorder("a", log), Echo(), Recorder("b", log)], clock=lambda: 1.0)
+    s.feed("pithead", w(0) + w(1))
+    s.feed("mid-shaft", w(1))                     # a duplicate: no listener sees it
+    assert log == [("a", "frame", 0), ("b", "frame", 0), ("a", "event", "echo:0"), ("b", "event", "echo:0"),
+                   ("a", "frame", 1), ("b", "frame", 1), ("a", "event", "echo:1"), ("b", "event", "echo:1")]
+    log.clear()
+    st = s.tick()
+    assert isinstance(st, StationStatus) and st.authenticated and st.time_s == 1.0
+    assert log == [("a", "status", ["mid-shaft", "pithead"]), ("b", "status", ["mid-shaft", "pithead"])]
+    assert st.receivers["pithead"].counts.frames_ok == 2 and st.receivers["mid-shaft"].url is None
+    log.clear()
+    s.close()
+    assert log == [("a", "stop", None), ("b", "stop", None)]
+
+
+def test_the_alarm_listener_publishes_events_and_state_and_takes_the_operators_ack():
+    log: list = []
+    clk = [0.0]
+    alarms = AlarmListener(AlarmSettings())
+    s = Station(KEYS, [alarms, Recorder("view", log)], clock=lambda: clk[0])
+    for k in range(12):                           # rope 4 at +~27 % of the mean
+        clk[0] = k * 0.1
+        s.feed("pithead", encode_frame(node=1, seq=k, time_ms=k * 100, key=KEYS[1],
+                                       ropes=[(500, 500, 500, 0)] * 3 + [(700, 700, 700, 0)])[1])
+    raised = [e for e in log if e[1] == "event"]
+    assert raised == [("view", "event", "deviation:n1:r3")]
+    assert ("view", "alarms", 1) in log           # the state follows the event
+    log.clear()
+    s.submit(Acknowledge("carol", "web"))
+    s.pump()
+    assert log == [("view", "command", "Acknowledge"), ("view", "event", "deviation:n1:r3"), ("view", "alarms", 1)]
+    ack = alarms.engine.events[-1]
+    assert ack.action == "ack" and ack.message.startswith("acknowledged by carol (web): rope 4")
+
+
+class Broken(Listener):
+    name = "broken store"
+
+    def on_frame(self, item, now_s):
+        raise OSError("database or disk is full")
+
+
+def test_a_failing_listener_does_not_stop_the_others_and_is_reported():
+    log: list = []
+    s = Station(None, [Broken(), Recorder("view", log)], clock=lambda: 2.0)
+    s.feed("pithead", w(0) + w(1))
+    assert [e for e in log if e[1] == "frame"] == [("view", "frame", 0), ("view", "frame", 1)]
+    errors = [e for e in log if e[1] == "event"]
+    assert errors == [("view", "event", "listener_error:broken store")]    # once until the next tick
+    st = s.tick()
+    assert st.listener_errors == {"broken store": (2, "OSError: database or disk is full")}
+    s.feed("pithead", w(2))
+    assert len([e for e in log if e[1] == "event"]) == 2                    # once more after a tick
+
+
+def test_accepting_a_rewound_node_from_another_thread_reaches_each_decoder_through_its_own_thread():
+    log: list = []
+    s = Station(KEYS, [Recorder("view", log)])
+    pit = s.hub.feeder("pithead")
+    pit(w(0, boot=7) + w(0, boot=0))              # the node's flash was wiped: refused
+    s.pump()
+    assert s.hub.rewound() == {1: (7, 0)}
+    t = threading.Thread(target=s.submit, args=(AcceptRewound("dave", "terminal", node=1),))
+    t.start()
+    t.join()
+    s.pump()                                      # the command runs on the station's thread ...
+    assert ("view", "command", "AcceptRewound") in log
+    assert ("view", "event", "rewound:n1") in log
+    assert s.decoders["pithead"].replay._rebase == set()   # ... and waits in the receiver's inbox
+    done = threading.Event()
+
+    def reader():                                 # the receiver's own thread applies it
+        pit(w(1, boot=0))
+        done.set()
+    threading.Thread(target=reader).start()
+    assert done.wait(5)
+    s.pump()
+    assert ("view", "frame", 1) in log and s.hub.rewound() == {}
+    assert [e for e in log if e == ("view", "event", "rewound:n1")] == [("view", "event", "rewound:n1")] * 2
+
+
+def test_alarm_state_carries_bands_only_with_the_seal_lines():
+    states: list[AlarmState] = []
+
+    class Keep(Listener):
+        def on_alarms(self, state):
+            states.append(state)
+
+    s = Station(None, [AlarmListener(), Keep()], clock=lambda: 0.0)
+    s.feed("pithead", w(0))
+    s.tick()
+    assert states[-1].active == () and states[-1].bands == {1: []}
