@@ -25,6 +25,7 @@ import numpy as np
 from ropemon.lab import estimators as E
 from ropemon.lab import metrics as M
 from ropemon.lab import population
+from ropemon.lab.rundir import NODE_EVALUATED, RunDir, decode_frames
 
 REPO = Path(__file__).resolve().parents[3]
 SCENARIO_DIR = REPO / "scenarios"
@@ -571,7 +572,6 @@ BED_QUICK = {"pressures_MPa": (3.0, 7.0, 11.0), "speeds_m_s": (0.001, 0.002, 0.0
              "hold_s": 0.6}
 SIGMA0_FITTED = ("fitted", "fitted sigma0, default sigma1")  # calibrate.fit's presliding sources
 REFUSED = "the node refuses the commissioned config"
-NODE_EVALUATED = "node-evaluated.json"  # the commissioned config, in the scenario's run directory
 
 
 def _toml(value) -> str:
@@ -684,7 +684,7 @@ def _commissioning_wind_doc(doc: dict) -> None:
 
 def fit_compliance(name: str, physical: dict, work: Path, seed: int) -> dict:
     """Simulate the scenario's commissioning wind into work/commissioning-wind and fit k there."""
-    from ropemon.commission import compliance, reference
+    from ropemon.commission import compliance
 
     def wind(doc: dict) -> None:
         _commissioning_wind_doc(doc)
@@ -693,7 +693,7 @@ def fit_compliance(name: str, physical: dict, work: Path, seed: int) -> dict:
 
     cw = work / "commissioning-wind"
     simulate(name, cw, seed + COMMISSIONING_SEED_OFFSET, wind)
-    _ropes, _hz, recs = reference.read_rsens(cw / "sensors.rsens")
+    recs = RunDir(cw).records
     try:
         return compliance.fit(physical, recs).as_dict()
     except compliance.ComplianceError as e:
@@ -723,24 +723,20 @@ def _site_physical(truth_meta: dict, friction: dict, compliance: dict | None = N
     return physical
 
 
-def _firmware_frames(physical: dict, rsens: Path, work: Path, node_json: Path | None = None,
-                     frames_name: str = "frames.bin") -> list:
+def firmware_frames(physical: dict, rsens: Path, work: Path, node_json: Path | None = None,
+                    frames_name: str = "frames.bin") -> list:
     """The data frames of the fixed-point firmware under `micropython` (`ropemon replay`)
     on a config (default: the commissioned one `build_case` wrote, `node-evaluated.json`),
     decoded, in order."""
-    from ropemon.station.decoder import StreamDecoder
-
     node_json = node_json or work / NODE_EVALUATED
     frames_bin = work / frames_name
     _run_step("firmware (ropemon replay)", [sys.executable, "-m", "ropemon.cli", "replay", str(rsens),
                                             "--out", str(frames_bin), "--config", str(node_json)],
               timeout_s=3600)
-    dec = StreamDecoder({int(physical["node_id"]): bytes.fromhex(physical["key_hex"])})
-    frames = [f for f in dec.feed(frames_bin.read_bytes()) if f.ropes]
-    bad = {k: v for k, v in dec.counts.as_dict().items() if k != "frames_ok" and v}
+    frames, counts = decode_frames(frames_bin, physical)
+    bad = {k: v for k, v in counts.as_dict().items() if k != "frames_ok" and v}
     if bad:
         raise EvaluationError(f"firmware frames did not decode cleanly: {bad}")
-    frames.sort(key=lambda f: f.seq)
     if frames and [f.seq for f in frames] != list(range(frames[0].seq, frames[0].seq + len(frames))):
         raise EvaluationError("firmware frames: sequence numbers not consecutive")
     return frames
@@ -784,8 +780,8 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
 
     sim = work / "sim"
     simulate(name, sim, seed)
-    meta = json.loads((sim / "truth.json").read_text())
-    truth = np.load(sim / "truth.npz")
+    run = RunDir(work)
+    meta, truth = run.meta, run.truth
     if meta.get("rig") != "hoist":
         raise EvaluationError(f"scenario {name}: rig {meta.get('rig')!r}, evaluate needs a hoist wind")
     plant_friction = meta["scenario_doc"]["plant"]["friction"]
@@ -798,9 +794,8 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     if "error" in hyd:
         problems.append(f"fit-compliance on the commissioning wind: {hyd['error']}")
     rated = float(physical["rated_rope_tension_N"])
-    _ropes, hz, recs = reference.read_rsens(sim / "sensors.rsens")
+    hz, recs = run.sample_hz, run.records[: run.length]
     truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]
-    recs = recs[: len(truth_n)]
     phase, excluded, steady, payload = scoring_masks(truth, truth_n, hz, rated,
                                                      float(physical["hall_marks_m"][-1]))
     case = Case(name=Path(name).stem, sample_hz=hz, frame_hz=int(physical["frame_hz"]), rated_n=rated,
@@ -870,12 +865,12 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
             case.estimates[est_name] = np.where(full.good, est, np.nan)
     case.estimates = {n: case.estimates[n] for n in E.ESTIMATORS}
     refused = any(pr.startswith(REFUSED) for pr in problems)
-    if not refused:  # the commissioned config, for the firmware and the tools (tools/*.py RUN)
+    if not refused:  # the commissioned config, for the firmware and the studies (`ropemon study`)
         from ropemon.commission.nodeconfig import make_node_json
 
         (work / NODE_EVALUATED).write_text(json.dumps(make_node_json(physical), indent=1))
     if firmware and not refused:
-        case.frames = _firmware_frames(physical, sim / "sensors.rsens", work)
+        case.frames = firmware_frames(physical, run.sensors_path, work)
         case.firmware_n = frame_means_n(case.frames)
     elif firmware:
         case.notes.append("**firmware NOT run**: the node refuses the commissioned config (above); "

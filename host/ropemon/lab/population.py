@@ -37,6 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ropemon.lab.rundir import RunDir
+
 TUNING_SEEDS = tuple(range(1, 21))
 SCORING_SEEDS = tuple(range(101, 201))
 PREFIX = "population-"
@@ -362,13 +364,14 @@ def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) ->
             out["alarms"][which] = {
                 "natural": alarm_figures(c.frames, truth, frame_s, factory, valid),
                 "superposed": superposed_alarm_figures(c.frames, truth, frame_s, factory, area, valid)}
-        out["ideal_bound"] = ideal_bound_figures(np.load(wind_dir / "sim" / "truth.npz"), case.physical)
+        out["ideal_bound"] = ideal_bound_figures(RunDir(wind_dir).truth, case.physical)
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out
 
 
 BASELINE_FIRMWARE = "firmware-baseline"
 BASELINE_NODE = "node-baseline.json"
+BASELINE_FRAMES = "frames-baseline.bin"
 
 
 def baseline_physical(physical: dict) -> dict:
@@ -387,10 +390,9 @@ def baseline_case(case, wind_dir):
     ph = baseline_physical(case.physical)
     node_json = wind_dir / BASELINE_NODE
     node_json.write_text(json.dumps(make_node_json(ph), indent=1))
-    rsens = wind_dir / "sim" / "sensors.rsens"
-    frames = EV._firmware_frames(ph, rsens, wind_dir, node_json, "frames-baseline.bin")
-    _ropes, _hz, recs = reference.read_rsens(rsens)
-    ref = reference.compensate(ph, recs[: len(case.truth_n)]).tension_n
+    run = RunDir(wind_dir)
+    frames = EV.firmware_frames(ph, run.sensors_path, wind_dir, node_json, BASELINE_FRAMES)
+    ref = reference.compensate(ph, run.records[: len(case.truth_n)]).tension_n
     return dataclasses.replace(case, frames=frames, firmware_n=EV.frame_means_n(frames),
                                estimates={E.FULL_COMPENSATION: ref}, physical=ph)
 
@@ -548,25 +550,15 @@ def rescore_wind(run_dir, overrides: dict | None = None) -> dict:
     """The alarm figures of a wind already run (`run_wind` with an `--out` directory), from its
     frames and truth, with `overrides` set in the commissioned config's `physical` (e.g. the
     band's keys): for choosing settings on the tuning seeds without re-simulating."""
-    import json
-    from pathlib import Path
-
     from ropemon.lab import evaluate as EV
     from ropemon.lab import metrics as M
-    from ropemon.station.decoder import StreamDecoder
 
-    run_dir = Path(run_dir)
-    physical = json.loads((run_dir / EV.NODE_EVALUATED).read_text())["physical"]
+    run = RunDir(run_dir)
+    physical = run.physical
     physical.update(overrides or {})
-    keys = {int(physical["node_id"]): bytes.fromhex(physical["key_hex"])}
-
-    def frames_of(name):   # a decoder per file: the two runs share their sequence numbers
-        dec = StreamDecoder(keys)
-        return sorted((f for f in dec.feed((run_dir / name).read_bytes()) if f.ropes), key=lambda f: f.seq)
-    frames = frames_of("frames.bin")
-    base = run_dir / "frames-baseline.bin"
-    frames_b = frames_of(base.name) if base.exists() else frames
-    truth = np.load(run_dir / "sim" / "truth.npz")
+    frames = run.frames(physical=physical)   # a decoder per file: the two runs share their sequence numbers
+    frames_b = run.frames(BASELINE_FRAMES, physical) if (run.path / BASELINE_FRAMES).exists() else frames
+    truth = run.truth
     hz = int(physical["sample_hz"])
     w = hz // int(physical["frame_hz"])
     n = len(frames)
