@@ -25,6 +25,7 @@ COMMANDS = {
     "record": ("ropemon.commission.record", "arm a node to record a commissioning wind; fetch the recording"),
     "demo": ("ropemon.lab.demo", "the whole chain on the simulated hoist"),
     "evaluate": ("ropemon.lab.evaluate", "accuracy of every estimator against simulator truth"),
+    "study": ("ropemon.lab.studies", "accuracy studies on evaluated runs: sensitivity, seed spread, pithead bound, ..."),
     "bench": ("ropemon.lab.bench", "benchmarks: firmware, plant, host"),
 }
 

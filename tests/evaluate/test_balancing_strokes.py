@@ -1,15 +1,12 @@
-"""tools/balancing_strokes.py on a hand-made wind: shared motion, then a one-piston stroke."""
+"""`ropemon study balancing-strokes` on a hand-made wind: shared motion, then a one-piston stroke;
+and the command on a simulated one."""
 from __future__ import annotations
-
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location("balancing_strokes", ROOT / "tools" / "balancing_strokes.py")
-bs = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bs)
+from ropemon import cli
+from ropemon.lab import evaluate as EV
+from ropemon.lab.studies import balancing_strokes as bs
 
 
 def test_a_stroke_is_counted_and_the_oil_balance_holds():
@@ -25,3 +22,14 @@ def test_a_stroke_is_counted_and_the_oil_balance_holds():
     assert r["sum_dx_vs_compression_rms_um"] < 1e-6
     assert r["stroke_seconds"] == 9 and r["stroke_seconds_per_rope"] == [9, 0, 0, 0]
     assert r["largest_share_histogram"]["<0.3"] == 9 and r["largest_share_histogram"]["0.95-1.05"] == 9
+
+
+def test_the_command_on_the_short_wind(tmp_path, capsys):
+    run = tmp_path / "short-test"
+    EV.simulate("short-test", run / "sim", 1)
+    assert cli.main(["study", "balancing-strokes", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"{run}: 6 s")  # 7 s of truth: six whole 1 s blocks apart
+    rms = float(out.split("compression N k dp: ")[1].split(" um rms")[0])
+    assert 0 <= rms < 5  # the cavities are joined: the pistons' motion is the oil's compression
+    assert "balancing strokes (one piston > half of it): " in out

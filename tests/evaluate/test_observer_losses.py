@@ -1,20 +1,16 @@
-"""tools/observer_losses.py: the friction error stage by stage (true position, tracker, play, node,
-and the node's two halves apart)."""
+"""`ropemon study observer-losses`: the friction error stage by stage (true position, tracker,
+play, node, and the node's two halves apart)."""
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 
-from ropemon.lab import evaluate as EV
+from ropemon import cli
 from ropemon.commission.nodeconfig import make_node_json
-
-ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location("observer_losses", ROOT / "tools" / "observer_losses.py")
-ol = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ol)
+from ropemon.lab import evaluate as EV
+from ropemon.lab.rundir import RunDir
+from ropemon.lab.studies import observer_losses as ol
 
 
 def test_the_play_passes_travel_beyond_its_half_width_and_nothing_inside():
@@ -33,7 +29,7 @@ def test_stages_on_the_short_wind(tmp_path, capsys):
     case = EV.build_case("short-test", work, 1, firmware=False, bed=EV.BED_QUICK)
     # without the firmware too, the run directory holds the commissioned config
     assert json.loads((work / "node-evaluated.json").read_text()) == make_node_json(case.physical)
-    rows = ol.losses(work)
+    rows = ol.losses(RunDir(work))
     assert [r["stage"] for r in rows] == list(ol.STAGES)
     # the node's LuGre, fitted on the test bed, driven by the plant's own piston position
     # reproduces the plant's seal friction
@@ -48,6 +44,6 @@ def test_stages_on_the_short_wind(tmp_path, capsys):
     # node's own size (the two halves' errors partly cancel in the node: one may exceed it)
     for half in rows[4:]:
         assert rows[0]["rope_rms_pct"] < half["rope_rms_pct"] < 2 * rows[3]["rope_rms_pct"]
-    assert ol.main([str(work)]) == 0
+    assert cli.main(["study", "observer-losses", str(work)]) == 0
     table = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| short-test")]
     assert len(table) == len(ol.STAGES) == 6

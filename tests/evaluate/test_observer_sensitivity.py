@@ -1,20 +1,13 @@
-"""tools/observer_sensitivity.py runs a scenario and prints one row per observer setting."""
+"""`ropemon study observer-sensitivity` runs a scenario and prints one row per observer setting."""
 from __future__ import annotations
 
 import re
-import runpy
-import sys
-from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "observer_sensitivity.py"
+from ropemon import cli
 
 
-def test_sensitivity_table_has_every_setting(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(sys, "argv", [str(TOOL), "short-test", "--quick", "--out", str(tmp_path)])
-    try:
-        runpy.run_path(str(TOOL), run_name="__main__")
-    except SystemExit as e:
-        assert e.code == 0
+def test_sensitivity_table_has_every_setting(tmp_path, capsys):
+    assert cli.main(["study", "observer-sensitivity", "short-test", "--quick", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith("| ") and not line.startswith("| setting")]
     labels = [r.split("|")[1].strip() for r in rows]

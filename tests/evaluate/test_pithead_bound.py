@@ -1,23 +1,17 @@
-"""tools/pithead_bound.py: the least spread of the pithead total the pressure noise allows."""
+"""`ropemon study pithead-bound`: the least spread of the pithead total the pressure noise allows."""
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from ropemon import cli
 from ropemon.lab import evaluate as EV
 from ropemon.lab.plant.friction import from_table
-
-ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location("pithead_bound", ROOT / "tools" / "pithead_bound.py")
-pb = importlib.util.module_from_spec(_spec)
-sys.modules["pithead_bound"] = pb  # its dataclasses look themselves up there
-_spec.loader.exec_module(pb)
+from ropemon.lab.rundir import RunDir
+from ropemon.lab.studies import pithead_bound as pb
 
 # the paper hoist's seal (scenarios/paper-field-trip.toml)
 SEAL = from_table({"law": "lugre", "Fs": {"intercept": 2500.0, "slope": 2000.0},
@@ -96,7 +90,7 @@ def test_outside_and_combined():
 def test_on_the_short_wind(tmp_path, capsys):
     run = tmp_path / "short-test"
     EV.simulate("short-test", run / "sim", 1)
-    r = pb.load(run)
+    r = pb.load(RunDir(run))
     # the records carry the site's noise (5 kPa and the ADC's), measured per channel
     assert np.all((r.channel_noise_pa > 4.9e3) & (r.channel_noise_pa < 5.5e3))
     # 20 um, and the 10.4 um counts' rounding
@@ -114,6 +108,6 @@ def test_on_the_short_wind(tmp_path, capsys):
     # half the noise: half the scale's sd and, linear in it, half the effect
     assert h.scale_sd == pytest.approx(e.scale_sd / 2)
     assert h.total_sd_pct == pytest.approx(e.total_sd_pct / 2, rel=0.05)
-    assert pb.main([str(run), "--scale", "1,0.5"]) == 0
+    assert cli.main(["study", "pithead-bound", str(run), "--scale", "1,0.5"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert [line.split(" | ")[1] for line in out if line.startswith("| short-test")] == ["x1", "x0.5"]

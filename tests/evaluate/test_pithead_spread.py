@@ -1,21 +1,16 @@
-"""tools/pithead_spread.py: the pithead total rerun on recombined seeds' inputs."""
+"""`ropemon study pithead-spread`: the pithead total rerun on recombined seeds' inputs."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import runpy
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location("pithead_spread", ROOT / "tools" / "pithead_spread.py")
-ps = importlib.util.module_from_spec(_spec)
-sys.modules["pithead_spread"] = ps  # its dataclass looks itself up there
-_spec.loader.exec_module(ps)
+from ropemon import cli
+from ropemon.lab.studies import parse_set
+from ropemon.lab.studies import pithead_spread as ps
+from ropemon.lab.studies.seed_spread import run_seed
 
 
 def test_spliced_takes_the_donors_columns_over_the_rows_only():
@@ -30,10 +25,10 @@ def test_spliced_takes_the_donors_columns_over_the_rows_only():
 
 
 def test_set_parses_json_values_and_refuses_a_malformed_one():
-    assert ps.parse_set(["a=1,2.5", "b=true"]) == [("a", [1, 2.5]), ("b", [True])]
+    assert parse_set(["a=1,2.5", "b=true"]) == [("a", [1, 2.5]), ("b", [True])]
     for bad in ("a", "=1", "a=", "a=1,x"):
         with pytest.raises(SystemExit, match="--set"):
-            ps.parse_set([bad])
+            parse_set([bad])
 
 
 def test_summary_adds_the_seeds_within_over_the_scenarios():
@@ -47,11 +42,10 @@ def test_summary_adds_the_seeds_within_over_the_scenarios():
 
 @pytest.fixture(scope="module")
 def two_seeds(tmp_path_factory):
-    """tools/seed_spread.py's work directory for seeds 1 and 2 of the short wind."""
+    """`ropemon study seed-spread`'s work directory for seeds 1 and 2 of the short wind."""
     out = tmp_path_factory.mktemp("spread")
-    tool = runpy.run_path(str(ROOT / "tools" / "seed_spread.py"))
     for seed in (1, 2):
-        tool["run_seed"](seed, ["short-test"], out, quick=True)
+        run_seed(seed, ["short-test"], out, quick=True)
     return out
 
 
@@ -90,7 +84,8 @@ def table_rows(out: str):
 
 
 def test_table_reproduces_the_evaluation_and_its_controls(two_seeds, capsys):
-    assert ps.main([str(two_seeds), "short-test", "--scale", "0", "--set", "friction_play_sigmas=1.45,2"]) == 0
+    assert cli.main(["study", "pithead-spread", str(two_seeds), "short-test", "--scale", "0",
+                     "--set", "friction_play_sigmas=1.45,2"]) == 0
     out = capsys.readouterr().out
     per_seed = table_rows(out)
 
@@ -116,8 +111,8 @@ def test_table_reproduces_the_evaluation_and_its_controls(two_seeds, capsys):
 
 
 def test_drift_keeps_the_commissioned_config_and_the_grid_runs_at_each_scale_and_drift(two_seeds, capsys):
-    assert ps.main([str(two_seeds), "short-test", "--scale", "0.5", "--drift", "1,0.5",
-                    "--set", "friction_play_sigmas=1.45,2"]) == 0
+    assert cli.main(["study", "pithead-spread", str(two_seeds), "short-test", "--scale", "0.5", "--drift", "1,0.5",
+                     "--set", "friction_play_sigmas=1.45,2"]) == 0
     per_seed = table_rows(capsys.readouterr().out)
     # the noise as commissioned is the evaluation itself
     assert per_seed("pressure noise x1 after commissioning") == per_seed("as evaluated")
@@ -136,7 +131,8 @@ def test_drift_keeps_the_commissioned_config_and_the_grid_runs_at_each_scale_and
 
 def test_a_setting_the_config_refuses_is_named(two_seeds):
     with pytest.raises(SystemExit, match="--set friction_play_sigmas=9: physical.rest_play_sigmas"):
-        ps.main([str(two_seeds), "short-test", "--scale", "", "--set", "friction_play_sigmas=9"])
+        cli.main(["study", "pithead-spread", str(two_seeds), "short-test", "--scale", "",
+                  "--set", "friction_play_sigmas=9"])
 
 
 def test_the_smoother_follows_its_model_with_less_noise_than_the_tracker(two_seeds):
@@ -177,7 +173,7 @@ def test_the_smoother_row_replays_its_estimate_into_the_reference(two_seeds, cap
     argv = [str(two_seeds), "short-test", "--scale", "", "--smoother", "2,1"]
 
     def rows():
-        assert ps.main(argv) == 0
+        assert cli.main(["study", "pithead-spread", *argv]) == 0
         out = capsys.readouterr().out
         return {line.split("|")[1].strip(): line.rstrip(" |").split("|")[-1] for line in out.splitlines()
                 if line.startswith("| ")}

@@ -1,26 +1,18 @@
-"""tools/seed_spread.py runs `ropemon evaluate` per seed and tabulates `lugre-p+loss`."""
+"""`ropemon study seed-spread` runs `ropemon evaluate` per seed and tabulates `lugre-p+loss`."""
 from __future__ import annotations
 
-import runpy
-import sys
-from pathlib import Path
-
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "seed_spread.py"
+from ropemon import cli
+from ropemon.lab.studies import seed_range
 
 
 def test_seed_range_parses_spans_and_lists():
-    tool = runpy.run_path(str(TOOL))
-    assert tool["seed_range"]("1-3") == [1, 2, 3]
-    assert tool["seed_range"]("2,5-6") == [2, 5, 6]
+    assert seed_range("1-3") == [1, 2, 3]
+    assert seed_range("2,5-6") == [2, 5, 6]
 
 
-def test_spread_table_has_a_row_per_scenario_over_the_seeds(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(sys, "argv", [str(TOOL), "short-test", "--seeds", "1-2", "--jobs", "2", "--quick",
-                                      "--out", str(tmp_path)])
-    try:
-        runpy.run_path(str(TOOL), run_name="__main__")
-    except SystemExit as e:
-        assert e.code == 0
+def test_spread_table_has_a_row_per_scenario_over_the_seeds(tmp_path, capsys):
+    assert cli.main(["study", "seed-spread", "short-test", "--seeds", "1-2", "--jobs", "2", "--quick",
+                     "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith("| short-test")]
     assert len(rows) == 1, out

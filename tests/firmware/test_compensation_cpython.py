@@ -398,15 +398,10 @@ def test_differential_sliding_outside_a_stroke_is_seal_travel_with_slide_followi
 
 
 def test_node_and_reference_take_the_same_stroke_at_the_same_sample():
-    """tools/stroke_events.py's two sides on the stroke wind: the reference's `strokes`
+    """`ropemon study stroke-events`' two sides on the stroke wind: the reference's `strokes`
     list and the node's kernel state agree on when rope 1's stroke starts and ends."""
-    import importlib.util
-    from pathlib import Path
+    from ropemon.lab.studies import stroke_events as tool
 
-    spec = importlib.util.spec_from_file_location(
-        "stroke_events", Path(__file__).resolve().parents[2] / "tools" / "stroke_events.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
     k_m = 3e-10
     doc = _stroke_doc(k_m)
     recs, _x, _p = _stroke_wind(doc["physical"], k_m, 33)
@@ -482,7 +477,7 @@ def test_a_drawn_winds_stroke_starts_place_the_stopped_pistons_in_the_nodes_step
     kernel = node_module("kernel")
     mode, events = 0, []
 
-    # the node's stroke starts and ends (as tools/stroke_events.py reads them) and tensions
+    # the node's stroke starts and ends (as `ropemon study stroke-events` reads them) and tensions
     ten = np.zeros((len(recs), node.n))
     good = np.zeros((len(recs), node.n), bool)
     rec = array.array("H", [0] * recs.shape[1])

@@ -1,15 +1,17 @@
-"""How closely any estimator could read the pithead total through the pressure noise.
+"""`ropemon study pithead-bound RUN [RUN ...] [--scale 1,0.5]`: how closely any estimator could
+read the pithead total through the pressure noise (docs/accuracy.md, "Transmitter noise").
 
 A resting seal relaxes by the path the cage's bounce makes its piston travel, and the
-node reads that path from the pressure channels, through their noise (notes/accuracy-research.md,
-"Where the spread comes from"). This tool bounds the spread that noise leaves, for an
+node reads that path from the pressure channels, through their noise (`ropemon study
+pithead-spread`). This study bounds the spread that noise leaves, for an
 estimator far better informed than the node: it knows the plant's seal law with its true
 parameters, the pistons' true creep, and the bounce's shape (frequency, decay, phase),
 and has only to read how large the bounce is, one unknown scale per episode after the
 final stop (split where the payload starts or stops changing: the arrival rest, the
 unloading, the empty rest).
 
-Per episode, from a run directory as `ropemon evaluate` left it:
+Per episode, from a run directory (`ropemon.lab.rundir`; the simulator's output is
+enough, the config is the simulator's):
 - the bounce is the part above 1 Hz (zero-phase Butterworth) of the mean tap pressure,
   and of each piston's position, over the episode;
 - the Cramer-Rao bound on its scale from the n pressure channels and the n
@@ -29,15 +31,14 @@ cannot do better; a biased one only by knowing the bounce before the wind shows 
 An episode whose bounce is less than twice its own sd is left out (its effect is not
 linear in the scale), which only lowers the bound. `--scale` multiplies the noise.
 
-    .venv/bin/python tools/pithead_bound.py out/evaluate/runs/paper-field-trip \\
-        out/evaluate/runs/payload-0t --scale 1,0.5,0.25
+    ropemon study pithead-bound out/evaluate/runs/paper-field-trip out/evaluate/runs/payload-0t \\
+        out/evaluate/runs/payload-12t --scale 1,0.5
 """
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,24 +46,22 @@ import numpy as np
 from scipy.signal import butter, sosfiltfilt
 from scipy.stats import norm
 
-from ropemon.lab import evaluate as EV
 from ropemon.lab import metrics as M
-from ropemon.commission import reference
 from ropemon.lab.plant.friction import LuGre, from_table
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling, however this was loaded
-from pithead_spread import count_step_pa, true_pressure_counts  # noqa: E402
-from seed_spread import PITHEAD_PCT as TARGET_PCT  # noqa: E402
+from ropemon.lab.rundir import RunDir
+from ropemon.lab.studies import pithead_target_pct
+from ropemon.lab.studies.pithead_spread import count_step_pa, true_pressure_counts
 
 BOUNCE_ABOVE_HZ = 1.0   # the bounce: what lies above this (the pistons' creep lies below)
 MIN_SNR = 2.0           # an episode counts when its bounce is this many sds of its scale
 
 
 @dataclass
-class Run:
+class PitheadRest:
+    """A run's final stop and pithead rest, what the bound needs of it."""
     name: str
     hz: int
-    truth: dict
+    truth: Mapping           # the truth arrays (rundir.Truth), over the samples with records
     law: LuGre
     stop: int                # first sample after the hoist's final motion
     scored: np.ndarray       # bool per sample: the pithead rest the total is scored over
@@ -71,17 +70,15 @@ class Run:
     channel_noise_m: np.ndarray   # and of each displacement channel's
 
 
-def load(run: Path) -> Run:
-    meta = json.loads((run / "sim" / "truth.json").read_text())
+def load(run: RunDir) -> PitheadRest:
+    meta = run.meta
     fr = meta["hidden"]["plant"]["friction"]
     law = from_table(fr, "plant.friction")
     if not isinstance(law, LuGre):
-        raise SystemExit(f"{run}: the plant's seal is {law.name}, not LuGre: no seal state to bound")
-    _ropes, hz, recs = reference.read_rsens(run / "sim" / "sensors.rsens")
-    with np.load(run / "sim" / "truth.npz") as z:
-        truth = {k: z[k] for k in z.files}
-    k = min(len(recs), len(truth["tension_N"]))
-    truth = {key: v[:k] for key, v in truth.items()}
+        raise SystemExit(f"{run.path}: the plant's seal is {law.name}, not LuGre: no seal state to bound")
+    hz, recs = run.sample_hz, run.records
+    k = run.length
+    truth = run.truth.cut(k)
     physical = meta["node_physical"]
     n = int(physical["ropes"])
     noise = (recs[:k, :n] - true_pressure_counts(physical, truth)).std(axis=0) * count_step_pa(physical)
@@ -90,22 +87,21 @@ def load(run: Path) -> Run:
         lo, hi = ch["range_m"]
         per_count = (hi - lo) / (ch["counts_hi"] - ch["counts_lo"])
         x_noise[i] = (recs[:k, n + i] - ch["counts_lo"] - (truth["piston_x_m"][:, i] - lo) / per_count).std() * per_count
-    truth_n = truth["tension_N"]
-    phase, excluded, steady, payload = EV.scoring_masks(truth, truth_n, hz, float(physical["rated_rope_tension_N"]),
-                                                        float(physical["hall_marks_m"][-1]))
+    sc = run.scoring(physical)
+    phase, excluded, steady, payload = sc.phase, sc.excluded, sc.steady, sc.payload_kg
     rest = M.pithead_rest(phase, excluded, steady)
     empty = rest & (payload == 0.0)
     scored = empty if empty.any() else rest
     moving = np.flatnonzero(np.abs(truth["wheel_speed_m_s"]) > 1e-3)
     if not scored.any() or not moving.size:
-        raise SystemExit(f"{run}: no pithead rest after a wind to bound")
+        raise SystemExit(f"{run.path}: no pithead rest after a wind to bound")
     stop, end = int(moving[-1]) + 1, int(np.flatnonzero(scored)[-1]) + 1
     # cut where the payload starts or stops changing
     changing = np.r_[False, np.diff(payload) != 0.0]
     flips = [i for i in range(stop + 1, end) if changing[i] != changing[i - 1]]
     edges = [stop, *flips, end]
-    return Run(run.name, hz, truth, law, stop, scored, [slice(a, b) for a, b in zip(edges, edges[1:])],
-               noise, x_noise)
+    return PitheadRest(run.path.name, hz, truth, law, stop, scored,
+                       [slice(a, b) for a, b in zip(edges, edges[1:])], noise, x_noise)
 
 
 def seal_friction(law: LuGre, x: np.ndarray, p: np.ndarray, z0: np.ndarray, hz: int) -> np.ndarray:
@@ -134,30 +130,30 @@ class Episode:
     total_sd_pct: float     # the scored total's change for a scale off by one sd (nan: left out)
 
 
-def bound(run: Run, noise_scale: float = 1.0) -> tuple[list[Episode], float]:
+def bound(rest: PitheadRest, noise_scale: float = 1.0) -> tuple[list[Episode], float]:
     """The episodes and the re-run's check (largest |friction - truth's| over the scored
     rest, in % of the true total there)."""
-    t = run.truth
-    sos = butter(2, BOUNCE_ABOVE_HZ, "highpass", fs=run.hz, output="sos")
+    t = rest.truth
+    sos = butter(2, BOUNCE_ABOVE_HZ, "highpass", fs=rest.hz, output="sos")
     x, p = np.asarray(t["piston_x_m"], float), np.asarray(t["p_cav_Pa"], float)
     bounce_x = sosfiltfilt(sos, x, axis=0)
     bounce_p = sosfiltfilt(sos, np.asarray(t["p_tap_Pa"], float).mean(axis=1))
-    start = max(0, run.stop - run.hz)             # a second before the stop: the state is the truth's
-    end = int(np.flatnonzero(run.scored)[-1]) + 1
-    scored = run.scored[start:end]
+    start = max(0, rest.stop - rest.hz)             # a second before the stop: the state is the truth's
+    end = int(np.flatnonzero(rest.scored)[-1]) + 1
+    scored = rest.scored[start:end]
     total = float(np.asarray(t["tension_N"], float)[start:end][scored].sum(axis=1).mean())
     z0 = np.asarray(t["z_m"], float)[start]
 
     def total_friction(path: np.ndarray) -> float:
-        f = seal_friction(run.law, path[start:end], p[start:end], z0, run.hz)
+        f = seal_friction(rest.law, path[start:end], p[start:end], z0, rest.hz)
         return float(f[scored].sum(axis=1).mean())
 
-    rerun = seal_friction(run.law, x[start:end], p[start:end], z0, run.hz)
+    rerun = seal_friction(rest.law, x[start:end], p[start:end], z0, rest.hz)
     check = float(np.abs(rerun[scored] - np.asarray(t["friction_N"], float)[start:end][scored]).sum(axis=1).max())
     out = []
-    for span in run.episodes:
-        sd = scale_sd(bounce_p[span], run.channel_noise_pa * noise_scale,
-                      bounce_x[span], run.channel_noise_m * noise_scale)
+    for span in rest.episodes:
+        sd = scale_sd(bounce_p[span], rest.channel_noise_pa * noise_scale,
+                      bounce_x[span], rest.channel_noise_m * noise_scale)
         amp = float(np.sqrt(2 * (bounce_x[span] ** 2).mean())) * 1e6
         effect = math.nan
         if sd * MIN_SNR <= 1.0:
@@ -187,40 +183,40 @@ def combined_sd(episodes: list[Episode]) -> float:
     return math.sqrt(sum(e.total_sd_pct ** 2 for e in episodes if math.isfinite(e.total_sd_pct)))
 
 
-def outside(sd: float, limit: float = TARGET_PCT) -> float:
-    """The share of winds beyond +-limit for a Gaussian error of this sd and no bias."""
+def outside(sd: float, limit: float | None = None) -> float:
+    """The share of winds beyond +-limit (default: the pithead target) for a Gaussian error
+    of this sd and no bias."""
+    limit = pithead_target_pct() if limit is None else limit
     return 2 * norm.sf(limit / sd) if sd > 0 else 0.0
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("runs", nargs="+", type=Path, help="run directories (out/evaluate/runs/SCENARIO)")
-    ap.add_argument("--scale", default="1", help="noise scales, comma-separated (default 1)")
-    args = ap.parse_args(argv)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("runs", nargs="+", type=Path, metavar="RUN", help="run directories (out/evaluate/runs/SCENARIO)")
+    p.add_argument("--scale", default="1", help="noise scales, comma-separated (default 1)")
+
+
+def run(args: argparse.Namespace) -> int:
     scales = [float(s) for s in args.scale.split(",")]
     rows = []
+    target = pithead_target_pct()
     for path in args.runs:
-        run = load(path)
-        noise = ", ".join(f"{v / 1e3:.2f}" for v in run.channel_noise_pa)
-        x_noise = ", ".join(f"{v * 1e6:.1f}" for v in run.channel_noise_m)
-        print(f"{run.name}: final stop at {run.stop / run.hz:.2f} s; noise of the pressure channels {noise} kPa rms, "
+        rest = load(RunDir(path))
+        noise = ", ".join(f"{v / 1e3:.2f}" for v in rest.channel_noise_pa)
+        x_noise = ", ".join(f"{v * 1e6:.1f}" for v in rest.channel_noise_m)
+        print(f"{rest.name}: final stop at {rest.stop / rest.hz:.2f} s; noise of the pressure channels {noise} kPa rms, "
               f"of the displacement channels {x_noise} um rms")
         for scale in scales:
-            eps, check = bound(run, scale)
+            eps, check = bound(rest, scale)
             for e in eps:
                 effect = "left out" if not math.isfinite(e.total_sd_pct) else f"{e.total_sd_pct:.3f} %"
-                print(f"  x{scale:g} {e.span.start / run.hz:7.2f}-{e.span.stop / run.hz:7.2f} s: bounce "
+                print(f"  x{scale:g} {e.span.start / rest.hz:7.2f}-{e.span.stop / rest.hz:7.2f} s: bounce "
                       f"{e.amplitude_um:.3f} um, scale sd {e.scale_sd:.3f}, total {effect}")
             sd = combined_sd(eps)
             print(f"  x{scale:g} bound: sd {sd:.3f} % (re-run check {check:.4f} %), "
-                  f"{outside(sd) * 100:.1f} % of winds beyond {TARGET_PCT} %")
-            rows.append(f"| {run.name} | x{scale:g} | {sd:.3f} | {outside(sd) * 100:.1f} % |")
+                  f"{outside(sd) * 100:.1f} % of winds beyond {target} %")
+            rows.append(f"| {rest.name} | x{scale:g} | {sd:.3f} | {outside(sd) * 100:.1f} % |")
     print()
-    print(f"| scenario | noise | bound on the sd of the pithead total, % | winds beyond {TARGET_PCT} % at least |")
+    print(f"| scenario | noise | bound on the sd of the pithead total, % | winds beyond {target} % at least |")
     print("|---|---:|---:|---:|")
     print("\n".join(rows))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,14 +1,14 @@
-"""How much the full compensation's figures move with the noise seed.
+"""`ropemon study seed-spread [SCENARIO ...] [--seeds 1-10] [--jobs 2] [--out DIR] [--quick]`:
+how much the full compensation's figures move with the noise seed.
 
 `ropemon evaluate` runs one seed: one draw of the sensor noise, of the test bed's
 noise (so one friction fit) and of the commissioning wind (so one k and one
 pressure noise). This runs `ropemon evaluate SCENARIO... --seed N --no-firmware
---json` for several seeds, exactly as a user would, and prints, per scenario,
-the spread of `lugre-p+loss` against the issue's targets (notes/accuracy-research.md,
-"Seed spread"). The firmware is left out: it tracks the float reference within
-0.05 % of rated on every scenario (`ropemon evaluate` without --no-firmware).
-
-    .venv/bin/python tools/seed_spread.py [SCENARIO ...] [--seeds 1-10] [--jobs 2] [--out DIR] [--quick]
+--json --out OUT/seed-N` for several seeds, exactly as a user would, and prints, per
+scenario, the spread of `lugre-p+loss` against the pithead target
+(`evaluate.TARGETS`). The firmware is left out (`ropemon evaluate` without
+--no-firmware compares it with the float reference). OUT/seed-N/runs/SCENARIO are the
+run directories `ropemon study pithead-spread` recombines.
 """
 from __future__ import annotations
 
@@ -21,21 +21,13 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from ropemon.lab.studies import pithead_target_pct, seed_range
+
 # the single-wind scenarios with a LuGre seal and the default sensors: where the
-# targets of notes/accuracy-research.md ("Targets of issue 6") apply
+# pithead target applies
 DEFAULT_SCENARIOS = ("paper-field-trip", "payload-0t", "payload-12t", "oil-0C", "oil-20C", "oil-40C",
                      "oil-0C-temp-input", "oil-40C-temp-input", "rope-length-5cm", "pithead-long-rest")
 ESTIMATOR = "lugre-p+loss"
-PITHEAD_PCT, RMS_PCT, PEAK_PCT = 0.3, 1.0, 3.0
-
-
-def seed_range(text: str) -> list[int]:
-    """'1-10' or '1,3,5' -> seeds."""
-    out: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out.extend(range(int(lo), int(hi or lo) + 1))
-    return out
 
 
 def run_seed(seed: int, scenarios: list[str], out: Path, quick: bool = False) -> dict:
@@ -54,9 +46,10 @@ def _span(values: list[float]) -> str:
 
 
 def table(results: dict[int, dict], scenarios: list[str]) -> str:
+    target = pithead_target_pct()
     seeds = sorted(results)
     lines = [f"| scenario | rope RMS % (worst seed) | rope peak % (worst seed) | pithead empty % min / median / max "
-             f"| seeds within {PITHEAD_PCT} % | pithead as arrived % min / median / max "
+             f"| seeds within {target} % | pithead as arrived % min / median / max "
              f"| false @8 % / missed @12 % (frames, all seeds) | operator alarms: false @8 % / missed @12 % "
              f"(frames, all seeds) | commissioned |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -67,7 +60,7 @@ def table(results: dict[int, dict], scenarios: list[str]) -> str:
         peak = max(e["rope_peak_pct"] for e in est)
         empty = [e["pithead_empty_total_pct"] for e in est if e.get("pithead_empty_total_pct") is not None]
         arrived = [e["pithead_arrival_total_pct"] for e in est if e.get("pithead_arrival_total_pct") is not None]
-        within = sum(abs(v) <= PITHEAD_PCT for v in empty)
+        within = sum(abs(v) <= target for v in empty)
         false8 = sum(e["alarms"]["8"]["false"] for e in est)
         missed12 = sum(e["alarms"]["12"]["missed"] for e in est)
         false_alarms = sum(e["alarms"]["8"]["false_alarms"] for e in est)
@@ -86,25 +79,23 @@ def table(results: dict[int, dict], scenarios: list[str]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("scenarios", nargs="*", default=list(DEFAULT_SCENARIOS))
-    ap.add_argument("--seeds", default="1-10", help="e.g. 1-10 or 1,4,7")
-    ap.add_argument("--jobs", type=int, default=2, help="seeds evaluated at once")
-    ap.add_argument("--out", type=Path, default=Path("out/seed-spread"), help="work directory")
-    ap.add_argument("--quick", action="store_true", help="the short test bed of `ropemon evaluate --quick`")
-    a = ap.parse_args(argv)
-    seeds = seed_range(a.seeds)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenarios", nargs="*", default=list(DEFAULT_SCENARIOS), metavar="SCENARIO",
+                   help="default: the single winds with a LuGre seal and the default sensors")
+    p.add_argument("--seeds", default="1-10", help="e.g. 1-10 or 1,4,7 (default 1-10)")
+    p.add_argument("--jobs", type=int, default=2, help="seeds evaluated at once (default 2)")
+    p.add_argument("--out", type=Path, default=Path("out/seed-spread"), help="work directory (default out/seed-spread)")
+    p.add_argument("--quick", action="store_true", help="the short test bed of `ropemon evaluate --quick`")
+
+
+def run(args: argparse.Namespace) -> int:
+    seeds = seed_range(args.seeds)
     t0 = time.monotonic()
-    with ThreadPoolExecutor(max_workers=max(1, a.jobs)) as pool:
-        runs = dict(zip(seeds, pool.map(lambda s: run_seed(s, a.scenarios, a.out, a.quick), seeds)))
-    print(f"## `{ESTIMATOR}` over {len(seeds)} seeds ({a.seeds})\n")
-    print(table(runs, a.scenarios))
-    quick = " --quick" if a.quick else ""
-    print(f"\n(made by `.venv/bin/python tools/seed_spread.py {' '.join(a.scenarios)} --seeds {a.seeds}{quick}` "
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        runs = dict(zip(seeds, pool.map(lambda s: run_seed(s, args.scenarios, args.out, args.quick), seeds)))
+    print(f"## `{ESTIMATOR}` over {len(seeds)} seeds ({args.seeds})\n")
+    print(table(runs, args.scenarios))
+    quick = " --quick" if args.quick else ""
+    print(f"\n(made by `ropemon study seed-spread {' '.join(args.scenarios)} --seeds {args.seeds}{quick}` "
           f"in {time.monotonic() - t0:.0f} s)")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

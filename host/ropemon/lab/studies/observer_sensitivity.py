@@ -1,28 +1,29 @@
-"""How the full compensation's accuracy depends on the friction observer's settings.
+"""`ropemon study observer-sensitivity [SCENARIO] [--out DIR] [--seed N] [--quick]`: how the
+full compensation's accuracy depends on the friction observer's settings.
 
-Commissions and simulates a scenario as `ropemon evaluate` does (no firmware run),
-then reruns the float reference `lugre-p+loss` with one setting changed at a time:
-the play multiplier `friction_play_sigmas`, the hydraulic compliance k scaled
-(as if fit-compliance were that far off), the pressure tracker's bounce frequency
-(as if fit-compliance had measured it that far off), damping and process noises, the threshold
-of the balancing-stroke tracking (`stroke_sigmas`; 0: none), the rest hold's
-threshold (`rest_sigmas`; 0: none), and no compliance at all. Prints a Markdown
-table (notes/accuracy-research.md, "Sensitivity").
-
-    .venv/bin/python tools/observer_sensitivity.py [SCENARIO] [--out DIR] [--seed N] [--quick]
+Commissions and simulates a scenario as `ropemon evaluate` does (no firmware run; the run
+directory is OUT/SCENARIO), then reruns the float reference `lugre-p+loss` with one setting
+changed at a time: the play multiplier `friction_play_sigmas`, the hydraulic compliance k
+scaled (as if fit-compliance were that far off), the pressure tracker's bounce frequency
+(as if fit-compliance had measured it that far off), damping and process noises, the
+threshold of the balancing-stroke tracking (`stroke_sigmas`; 0: none), the rest hold's
+threshold (`rest_sigmas`; 0: none), and no compliance at all. Prints a Markdown table
+(the figures of docs/model.md, docs/commissioning.md and docs/fitting.md on a wrong k or
+bounce, and on no compliance).
 """
 from __future__ import annotations
 
 import argparse
 import copy
-import sys
 import time
 from pathlib import Path
 
+from ropemon.commission import reference
+from ropemon.commission.nodeconfig import DEFAULTS, physical_params
 from ropemon.lab import evaluate as EV
 from ropemon.lab import metrics as M
-from ropemon.commission import reference
-from ropemon.commission.nodeconfig import DEFAULTS
+from ropemon.lab.rundir import RunDir
+from ropemon.lab.studies import fmt
 
 
 def variants(ph: dict) -> list[tuple[str, dict]]:
@@ -55,34 +56,29 @@ def variants(ph: dict) -> list[tuple[str, dict]]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("scenario", nargs="?", default=EV.FIELD_TRIP)
-    ap.add_argument("--out", type=Path, default=Path("out/sensitivity"), help="work directory")
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--quick", action="store_true", help="the short test bed of `ropemon evaluate --quick`")
-    a = ap.parse_args(argv)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", nargs="?", default=EV.FIELD_TRIP, help=f"a scenario name (default {EV.FIELD_TRIP})")
+    p.add_argument("--out", type=Path, default=Path("out/sensitivity"), help="work directory (default out/sensitivity)")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--quick", action="store_true", help="the short test bed of `ropemon evaluate --quick`")
+
+
+def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
-    case = EV.build_case(a.scenario, a.out / a.scenario, a.seed, firmware=False,
-                         bed=EV.BED_QUICK if a.quick else None)
-    _r, _hz, recs = reference.read_rsens(a.out / a.scenario / "sim" / "sensors.rsens")
-    recs = recs[: len(case.truth_n)]
-    print(f"## {a.scenario}: `lugre-p+loss` with one observer setting changed\n")
+    case = EV.build_case(args.scenario, args.out / args.scenario, args.seed, firmware=False,
+                         bed=EV.BED_QUICK if args.quick else None, diagnostics=False)
+    recs = RunDir(args.out / args.scenario).records[: len(case.truth_n)]
+    print(f"## {args.scenario}: `lugre-p+loss` with one observer setting changed\n")
     print("| setting | play (um) | rope RMS % | rope peak % | pithead empty % | pithead as arrived % |")
     print("|---|---:|---:|---:|---:|---:|")
-    from ropemon.commission.nodeconfig import physical_params
     for label, ph in variants(case.physical):
         est = reference.compensate(ph, recs).tension_n
         f = M.evaluate_estimate(est, case.truth_n, case.rated_n, case.phase, case.excluded, case.steady,
                                 case.payload_kg)
         play_um = physical_params(ph)["play_m"] * 1e6
         print(f"| {label} | {play_um:.2f} | {f['rope_rms_pct']:.2f} | {f['rope_peak_pct']:.2f} | "
-              f"{EV._fmt(f.get('pithead_empty_total_pct'))} | {EV._fmt(f.get('pithead_arrival_total_pct'))} |")
-    quick = " --quick" if a.quick else ""
-    print(f"\n(made by `.venv/bin/python tools/observer_sensitivity.py {a.scenario} --seed {a.seed}{quick}` "
+              f"{fmt(f.get('pithead_empty_total_pct'))} | {fmt(f.get('pithead_arrival_total_pct'))} |")
+    quick = " --quick" if args.quick else ""
+    print(f"\n(made by `ropemon study observer-sensitivity {args.scenario} --seed {args.seed}{quick}` "
           f"in {time.monotonic() - t0:.0f} s)")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

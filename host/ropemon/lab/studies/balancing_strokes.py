@@ -1,25 +1,26 @@
-"""How the pistons share the oil's common motion, from a simulated wind's truth.
+"""`ropemon study balancing-strokes RUN`: how the pistons share the oil's common motion, from a
+simulated wind's truth.
 
-Reads `truth.npz` (docs/simulator.md) and the plant's compliance, and prints, in
-1 s blocks: how well `sum_i dx_i` equals the oil's compression `N k dp` (the
-connecting assembly shares the oil), and how the motion is shared where the
-pistons move (at least 10 um together): the largest share of one piston, and
-the balancing strokes (one piston taking more than half of it). This is the
-analysis behind docs/model.md, "Balancing strokes", and notes/accuracy-research.md.
-
-    .venv/bin/python tools/balancing_strokes.py out/evaluate/runs/duty-cycle-50/sim/truth.npz
+Reads the run directory's truth (`ropemon.lab.rundir`; a simulator's output is enough) and
+prints, in 1 s blocks: how well `sum_i dx_i` equals the oil's compression `N k dp` (the
+connecting assembly shares the oil; k the plant's compliance per cylinder), and how the
+motion is shared where the pistons move (at least 10 um together): the largest share of
+one piston, and the balancing strokes (one piston taking more than half of it). The
+figures of docs/model.md, "Balancing strokes".
 """
 from __future__ import annotations
 
 import argparse
-import sys
+from pathlib import Path
 
 import numpy as np
+
+from ropemon.lab.rundir import RunDir
 
 K_M_PER_PA = 0.30e-9  # the plant's compliance per cylinder (docs/simulator.md), equal areas
 
 
-def analyse(truth: dict, sample_hz: int, k_m_per_pa: float = K_M_PER_PA, min_move_m: float = 10e-6) -> dict:
+def analyse(truth, sample_hz: int, k_m_per_pa: float = K_M_PER_PA, min_move_m: float = 10e-6) -> dict:
     x = np.asarray(truth["piston_x_m"], float)
     p = np.asarray(truth["p_cav_Pa"], float).mean(axis=1)
     n_ropes = x.shape[1]
@@ -44,13 +45,14 @@ def analyse(truth: dict, sample_hz: int, k_m_per_pa: float = K_M_PER_PA, min_mov
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("truth", help="truth.npz of a simulated wind")
-    ap.add_argument("--sample-hz", type=int, default=200)
-    a = ap.parse_args(argv)
-    r = analyse(np.load(a.truth), a.sample_hz)
-    print(f"{a.truth}: {r['seconds']} s")
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run", type=Path, metavar="RUN", help="a run directory (out/evaluate/runs/SCENARIO)")
+
+
+def run(args: argparse.Namespace) -> int:
+    wind = RunDir(args.run)
+    r = analyse(wind.truth, wind.sample_hz)
+    print(f"{args.run}: {r['seconds']} s")
     print(f"sum of piston motion against the oil's compression N k dp: {r['sum_dx_vs_compression_rms_um']:.2f} um rms "
           f"per second (the motion itself: {r['sum_dx_rms_um']:.1f} um rms)")
     print(f"seconds where the pistons move >= 10 um together: {r['moving_seconds']}; largest share of one piston: "
@@ -58,7 +60,3 @@ def main(argv: list[str] | None = None) -> int:
     print(f"balancing strokes (one piston > half of it): {r['stroke_seconds']} s, per rope "
           f"{r['stroke_seconds_per_rope']}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,10 +1,11 @@
-"""Where the pithead total's seed-to-seed spread comes from, and what would narrow it.
+"""`ropemon study pithead-spread OUT SCENARIO ... [--scale A,...] [--drift A,...] [--set KEY=V1,V2]
+[--smoother F,...]`: where the pithead total's seed-to-seed spread comes from, and what would narrow it.
 
-`tools/seed_spread.py` shows that the full compensation's pithead total moves with
-the noise seed (notes/accuracy-research.md, "Seed spread"). This takes its work directory
-(OUT/seed-N/runs/SCENARIO: each seed's simulated wind, the truth, and the node
-config that seed's commissioning made) and reruns the float reference
-(`lugre-p+loss`) on recombined inputs, one experiment per row:
+`ropemon study seed-spread` shows that the full compensation's pithead total moves with
+the noise seed. This takes its work directory (OUT/seed-N/runs/SCENARIO: each seed's run
+directory, `ropemon.lab.rundir`: the simulated wind, the truth, and the node config that
+seed's commissioning made) and reruns the float reference (`lugre-p+loss`) on recombined
+inputs, one experiment per row:
 
 - as evaluated: each seed's wind with its own config (seed_spread's figure);
 - seed-1 config: each seed's wind with the first seed's config (its friction
@@ -19,7 +20,7 @@ config that seed's commissioning made) and reruns the float reference
 - pressure noise x A after commissioning (`--drift A,...`): the same winds with
   the config as commissioned: the transmitters' noise changed since;
 - `--set KEY=V1,V2 ...`: each combination of settings of the config's
-  `physical` section (JSON values), as tools/observer_sensitivity.py changes them,
+  `physical` section (JSON values), as `ropemon study observer-sensitivity` changes them,
   on the winds as evaluated and again at each `--scale` (its own tuning) and each
   `--drift` (the config as commissioned, with the setting);
 - smoother, plays x F (`--smoother F,...`): each seed's wind with the tracker
@@ -33,71 +34,70 @@ Then, for one seed (`--window-seed`, default the one farthest from the first),
 how much of its difference from the first each stretch of the wind's pressure
 noise makes: the first seed's wind with that seed's pressure channels over one
 stretch only. With several scenarios, a last table adds up the seeds within
-0.3 % per experiment.
+the pithead target (`evaluate.TARGETS`) per experiment.
 
 The figure is the pithead total error, empty cage (the paper's case), or the
-arrival rest where the scenario has no empty one, in % of the true total.
+arrival rest where the scenario has no empty one, in % of the true total. The
+transmitters' noise figures of docs/commissioning.md and docs/model.md are its
+`--scale` and `--drift` rows:
 
-    .venv/bin/python tools/seed_spread.py paper-field-trip payload-12t --seeds 1-10 --out out/seed-spread
-    .venv/bin/python tools/pithead_spread.py out/seed-spread paper-field-trip payload-12t --scale 0,0.5
-    .venv/bin/python tools/pithead_spread.py out/seed-spread payload-12t --scale "" \\
+    ropemon study seed-spread paper-field-trip payload-12t --seeds 1-10 --out out/seed-spread
+    ropemon study pithead-spread out/seed-spread paper-field-trip payload-12t --scale 0,0.5
+    ropemon study pithead-spread out/seed-spread payload-12t --scale "" \\
         --set creep_q_Pa2_s3=3e8,3e9 --set friction_play_sigmas=0.8,1.45
-    .venv/bin/python tools/pithead_spread.py out/seed-spread paper-field-trip --scale 0.5 \\
+    ropemon study pithead-spread out/seed-spread paper-field-trip --scale 0.5 \\
         --set friction_play_sigmas=1.45,1.6 --drift 0.9,1.1
 """
 from __future__ import annotations
 
 import argparse
-import contextlib
 import itertools
 import json
 import math
 import statistics
-import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import scipy.linalg
 
-from ropemon.lab import evaluate as EV
-from ropemon.lab import metrics as M
 from ropemon.commission import reference
 from ropemon.commission.nodeconfig import (COMPLIANCE_DEFAULTS, DEFAULTS, MEDIAN_NOISE, namur_limits, pressure_noise_pa,
-                                pressure_tracker)
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling, however this was loaded
-from seed_spread import PITHEAD_PCT as TARGET_PCT  # noqa: E402  (issue 6: within 0.3 %)
-from seed_spread import seed_range  # noqa: E402
+                                           pressure_tracker)
+from ropemon.lab import metrics as M
+from ropemon.lab.rundir import RunDir
+from ropemon.lab.studies import parse_set, pithead_target_pct, seed_range
 
 
 @dataclass
 class Wind:
-    """One seed's run of a scenario: records, truth and the config its commissioning made."""
+    """One seed's run of a scenario: records, truth (both over the samples that have both)
+    and the config its commissioning made."""
     seed: int
     records: np.ndarray
-    truth: dict
+    truth: Mapping       # rundir.Truth
     physical: dict
     hz: int
 
 
 def load(out: Path, scenario: str, seed: int) -> Wind:
-    run = out / f"seed-{seed}" / "runs" / scenario
-    _ropes, hz, recs = reference.read_rsens(run / "sim" / "sensors.rsens")
-    with np.load(run / "sim" / "truth.npz") as z:
-        truth = {k: z[k] for k in z.files}
-    physical = json.loads((run / "node-evaluated.json").read_text())["physical"]
-    k = min(len(recs), len(truth["tension_N"]))
-    return Wind(seed, recs[:k], {key: v[:k] if np.ndim(v) else v for key, v in truth.items()}, physical, hz)
+    """Seed `seed`'s run of `scenario` in seed-spread's work directory `out`."""
+    run = RunDir(out / f"seed-{seed}" / "runs" / scenario)
+    k = run.length
+    return Wind(seed, run.records[:k], run.truth.cut(k), run.physical, run.sample_hz)
 
 
-def score(physical: dict, records: np.ndarray, wind: Wind) -> dict:
-    """The float reference's pithead total (%), its basis, and the rope RMS (% of rated)."""
+def score(physical: dict, records: np.ndarray, wind: Wind, tracker_class: type | None = None) -> dict:
+    """The float reference's pithead total (%), its basis, and the rope RMS (% of rated);
+    `tracker_class` in place of the node's pressure tracker (`reference.compensate`)."""
+    from ropemon.lab.evaluate import scoring_masks
+
     truth_n = np.asarray(wind.truth["tension_N"], float)[:len(records)]
     rated = float(physical["rated_rope_tension_N"])
-    phase, excluded, steady, payload = EV.scoring_masks(wind.truth, truth_n, wind.hz, rated,
-                                                        float(physical["hall_marks_m"][-1]))
-    est = reference.compensate(physical, records).tension_n
+    phase, excluded, steady, payload = scoring_masks(wind.truth, truth_n, wind.hz, rated,
+                                                     float(physical["hall_marks_m"][-1]))
+    est = reference.compensate(physical, records, tracker_class=tracker_class).tension_n
     f = M.evaluate_estimate(est, truth_n, rated, phase, excluded, steady, payload)
     return {"pithead": f["pithead_total_pct"], "basis": f["pithead_total_basis"], "rms": f["rope_rms_pct"]}
 
@@ -200,17 +200,6 @@ class Smoother:
         return float(np.sqrt(np.sum(self.run(y) ** 2)))
 
 
-@contextlib.contextmanager
-def _pressure_tracker(cls):
-    """reference.compensate with `cls` in place of the node's pressure tracker."""
-    saved = reference.PressureTracker
-    reference.PressureTracker = cls
-    try:
-        yield
-    finally:
-        reference.PressureTracker = saved
-
-
 def smoothed_score(physical: dict, records: np.ndarray, wind: Wind, factor: float) -> dict:
     """score() with the LuGre position from the smoother of the whole wind's median
     instead of the tracker, and the plays and the rest threshold scaled by its noise
@@ -222,8 +211,7 @@ def smoothed_score(physical: dict, records: np.ndarray, wind: Wind, factor: floa
             medians.append(y)
             return super().step(y)
 
-    with _pressure_tracker(Medians):
-        reference.compensate(physical, records)
+    reference.compensate(physical, records, tracker_class=Medians)
     smoother = Smoother(physical)
     out: list[float] = []
     for healthy, run in itertools.groupby(medians, key=lambda y: y is not None):
@@ -231,7 +219,7 @@ def smoothed_score(physical: dict, records: np.ndarray, wind: Wind, factor: floa
         out.extend(smoother.run(np.array(run, float)).tolist() if healthy else [out[-1] if out else 0.0] * len(run))
     replay = iter(out)
 
-    class Replay:
+    class SmoothedTracker:   # the smoother's estimate, sample by sample, as the tracker's
         def __init__(self, tr):
             self.tr = tr
 
@@ -244,8 +232,7 @@ def smoothed_score(physical: dict, records: np.ndarray, wind: Wind, factor: floa
     ph = {**DEFAULTS, **COMPLIANCE_DEFAULTS, **physical}
     scaled = {**physical, **{key: f * float(ph[key]) for key in ("friction_play_sigmas", "rest_sigmas",
                                                                   "rest_play_sigmas")}}
-    with _pressure_tracker(Replay):
-        return score(scaled, records, wind)
+    return score(scaled, records, wind, SmoothedTracker)
 
 
 def stretches(wind: Wind) -> list[tuple[str, slice]]:
@@ -258,8 +245,10 @@ def stretches(wind: Wind) -> list[tuple[str, slice]]:
     settle = min(stop + 4 * hz, len(wind.records))
     truth_n = np.asarray(wind.truth["tension_N"], float)
     rated = float(wind.physical["rated_rope_tension_N"])
-    phase, excluded, steady, payload = EV.scoring_masks(wind.truth, truth_n, hz, rated,
-                                                        float(wind.physical["hall_marks_m"][-1]))
+    from ropemon.lab.evaluate import scoring_masks
+
+    phase, excluded, steady, payload = scoring_masks(wind.truth, truth_n, hz, rated,
+                                                     float(wind.physical["hall_marks_m"][-1]))
     rest = M.pithead_rest(phase, excluded, steady)
     empty = rest & (payload == 0.0)
     scored = np.flatnonzero(empty if empty.any() else rest)
@@ -273,23 +262,9 @@ def stretches(wind: Wind) -> list[tuple[str, slice]]:
 
 def summary(values: list[float]) -> tuple[int, str]:
     """(seeds within the target, the table cells: within, mean, sd, range)."""
-    within = sum(abs(v) <= TARGET_PCT for v in values)
+    within = sum(abs(v) <= pithead_target_pct() for v in values)
     return within, (f"{within} of {len(values)} | {statistics.mean(values):+.2f} | "
                     f"{statistics.pstdev(values):.2f} | {min(values):+.2f} / {max(values):+.2f}")
-
-
-def parse_set(items: list[str]) -> list[tuple[str, list]]:
-    """['KEY=V1,V2', ...] -> [(KEY, [V1, V2]), ...] with JSON values."""
-    out = []
-    for item in items:
-        key, sep, values = item.partition("=")
-        if not sep or not key or not values:
-            raise SystemExit(f"--set {item!r}: expected KEY=V1[,V2...]")
-        try:
-            out.append((key, [json.loads(v) for v in values.split(",")]))
-        except json.JSONDecodeError as e:
-            raise SystemExit(f"--set {item!r}: {e}") from None
-    return out
 
 
 def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, list]],
@@ -339,10 +314,10 @@ def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: li
         seeds = sorted(int(p.name.split("-", 1)[1]) for p in out.glob("seed-*")
                        if (p / "runs" / scenario).is_dir())
     if not seeds:
-        raise SystemExit(f"{out}: no seed-N/runs/{scenario}; run tools/seed_spread.py --out {out} first")
+        raise SystemExit(f"{out}: no seed-N/runs/{scenario}; run `ropemon study seed-spread --out {out}` first")
     winds = [load(out, scenario, s) for s in seeds]
     print(f"## {scenario}: `lugre-p+loss` pithead total over seeds {', '.join(map(str, seeds))}\n")
-    print(f"| experiment | within {TARGET_PCT} % | mean % | sd % | min / max % | rope RMS % (worst) | per seed % |")
+    print(f"| experiment | within {pithead_target_pct()} % | mean % | sd % | min / max % | rope RMS % (worst) | per seed % |")
     print("|---|---:|---:|---:|---:|---:|---|")
     own: dict[int, float] = {}
     bases = set()
@@ -384,7 +359,7 @@ def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: li
 def summary_table(tallies: dict[str, dict[str, tuple[int, int, float]]]) -> list[str]:
     """Markdown lines: per experiment, the seed-scenarios within the target over all scenarios."""
     names = list(tallies)
-    lines = [f"## All {len(names)} scenarios: seed-scenarios within {TARGET_PCT} %", "",
+    lines = [f"## All {len(names)} scenarios: seed-scenarios within {pithead_target_pct()} %", "",
              "| experiment | within | " + " | ".join(names) + " | rope RMS % (worst) |",
              "|---|---:|" + "---:|" * len(names) + "---:|"]
     for label in tallies[names[0]]:
@@ -394,32 +369,29 @@ def summary_table(tallies: dict[str, dict[str, tuple[int, int, float]]]) -> list
     return lines
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("out", type=Path, help="tools/seed_spread.py's --out directory")
-    ap.add_argument("scenarios", nargs="+")
-    ap.add_argument("--seeds", default=None, help="e.g. 1-10 (default: every seed-N under OUT); the first is the base")
-    ap.add_argument("--scale", default="0,0.5", help="pressure noise scales, comma-separated ('' for none)")
-    ap.add_argument("--drift", default="", metavar="A,...",
-                    help="pressure noise scales with the config as commissioned (comma-separated)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2",
-                    help="a setting of `physical` and its values (JSON); repeat for a grid; "
-                         "run as evaluated, at each --scale and at each --drift")
-    ap.add_argument("--smoother", default="", metavar="F,...",
-                    help="the whole wind's Kalman smoother for the tracker, its plays x F (comma-separated)")
-    ap.add_argument("--window-seed", type=int, default=None)
-    a = ap.parse_args(argv)
-    seeds = seed_range(a.seeds) if a.seeds else None
-    scales = [float(v) for v in a.scale.split(",") if v.strip()]
-    sets = parse_set(a.set)
-    smoothers = [float(v) for v in a.smoother.split(",") if v.strip()]
-    drifts = [float(v) for v in a.drift.split(",") if v.strip()]
-    tallies = {name: scenario_table(a.out, name, seeds, scales, sets, a.window_seed, smoothers, drifts)
-               for name in a.scenarios}
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("out", type=Path, help="`ropemon study seed-spread`'s --out directory")
+    p.add_argument("scenarios", nargs="+", metavar="SCENARIO")
+    p.add_argument("--seeds", default=None, help="e.g. 1-10 (default: every seed-N under OUT); the first is the base")
+    p.add_argument("--scale", default="0,0.5", help="pressure noise scales, comma-separated ('' for none)")
+    p.add_argument("--drift", default="", metavar="A,...",
+                   help="pressure noise scales with the config as commissioned (comma-separated)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2",
+                   help="a setting of `physical` and its values (JSON); repeat for a grid; "
+                        "run as evaluated, at each --scale and at each --drift")
+    p.add_argument("--smoother", default="", metavar="F,...",
+                   help="the whole wind's Kalman smoother for the tracker, its plays x F (comma-separated)")
+    p.add_argument("--window-seed", type=int, default=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    seeds = seed_range(args.seeds) if args.seeds else None
+    scales = [float(v) for v in args.scale.split(",") if v.strip()]
+    sets = parse_set(args.set)
+    smoothers = [float(v) for v in args.smoother.split(",") if v.strip()]
+    drifts = [float(v) for v in args.drift.split(",") if v.strip()]
+    tallies = {name: scenario_table(args.out, name, seeds, scales, sets, args.window_seed, smoothers, drifts)
+               for name in args.scenarios}
     if len(tallies) > 1:
         print("\n".join(summary_table(tallies)))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
