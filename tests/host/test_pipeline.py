@@ -143,3 +143,100 @@ def test_alarm_state_carries_bands_only_with_the_seal_lines():
     s.feed("pithead", w(0))
     s.tick()
     assert states[-1].active == () and states[-1].bands == {1: []}
+
+
+def test_a_full_disk_keeps_the_station_alarming_and_loses_no_frame_once_space_returns(tmp_path):
+    """The log's file may not grow (SQLite's max_page_count: what a full disk looks like to it):
+    frames still reach the alarms and the views, STATION FAULT is raised with the reason, the
+    frames wait in memory; once there is room they are stored, in order, exactly once."""
+    from ropemon.station.pipeline import StoreListener
+    from ropemon.station.store import Store
+
+    clk = [0.0]
+    store = Store(tmp_path / "hoist.db", batch_frames=5)
+    pages = store.db.execute("PRAGMA page_count").fetchone()[0]
+    store.db.execute(f"PRAGMA max_page_count = {pages + 2}")
+    log: list = []
+    alarms = AlarmListener(AlarmSettings(silent_s=60.0))
+    s = Station(KEYS, [alarms, StoreListener(store, clock=lambda: clk[0]), Recorder("view", log)],
+                clock=lambda: clk[0])
+    seqs = []
+    for k in range(400):
+        clk[0] = k * 0.1
+        s.feed("pithead", w(k, tension=500 + k % 7))
+        seqs.append(k)
+        if k % 3 == 0:
+            s.tick()
+    assert [e for e in log if e[1] == "frame"] == [("view", "frame", k) for k in seqs]   # nothing held up
+    active = {a.id: a for a in alarms.engine.active()}
+    assert "station_fault:store" in active and active["station_fault:store"].present
+    assert "database or disk is full" in active["station_fault:store"].message
+    assert "frames and" in active["station_fault:store"].message
+    stored_while_full = store.db.execute("SELECT count(*) FROM frames").fetchone()[0]
+    assert stored_while_full < 400
+
+    store.db.execute("PRAGMA max_page_count = 1073741823")       # space again
+    for k in range(400, 420):
+        clk[0] = 40.0 + (k - 400) * 0.5
+        s.feed("pithead", w(k))
+        seqs.append(k)
+        s.tick()
+    s.close()
+    rows = [r[0] for r in store.db.execute("SELECT seq FROM frames ORDER BY id")]
+    assert rows == seqs                                            # every frame, once, in order
+    kinds = [r[0] for r in store.db.execute("SELECT action FROM events WHERE kind = 'station_fault'")]
+    assert kinds == ["raise", "clear"]                             # and the log says so
+    assert not [a for a in alarms.engine.active() if a.kind == "station_fault" and a.present]
+    store.close()
+
+
+def active_ids(alarms: AlarmListener) -> list[str]:
+    return sorted(a.id for a in alarms.engine.active() if a.present)
+
+
+def test_a_dead_receiver_and_a_configured_node_never_heard_raise_alarms_within_the_set_seconds():
+    """A wrong port: nothing is ever heard. The station does not stay quiet: RECEIVER DOWN (with the
+    device and the reason) after receiver_down_s, and the configured node SILENT after silent_s."""
+    clk = [0.0]
+    alarms = AlarmListener(AlarmSettings(silent_s=5.0, receiver_down_s=2.0, nodes=(1,)))
+    s = Station(KEYS, [alarms], clock=lambda: clk[0])
+    s.add_port("/dev/ropemon-no-such-port", "pithead", backoff_s=0.01).start()
+    try:
+        for k in range(9):                     # 0 .. 2 s
+            clk[0] = k * 0.25
+            s.tick()
+        assert active_ids(alarms) == []        # within the configured seconds: not yet
+        for k in range(9, 25):                 # .. 6 s
+            clk[0] = k * 0.25
+            s.tick()
+        assert active_ids(alarms) == ["receiver_down:pithead", "silent:n1"]
+        down = [a for a in alarms.engine.active() if a.kind == "receiver_down"][0]
+        assert "/dev/ropemon-no-such-port" in down.message and "open" in down.message
+    finally:
+        s.close()
+
+
+def test_no_frame_from_any_node_is_an_alarm_without_a_configured_node_and_clears_on_a_frame():
+    clk = [0.0]
+    alarms = AlarmListener(AlarmSettings(silent_s=5.0))
+    s = Station(None, [alarms], clock=lambda: clk[0])
+    for k in range(30):
+        clk[0] = k * 0.25
+        s.tick()
+    assert active_ids(alarms) == ["no_data"]
+    for k in range(30, 50):
+        clk[0] = k * 0.25
+        s.feed("pithead", encode_frame(node=3, seq=k, ropes=[(500, 500, 500, 0)] * 4)[1])
+        s.tick()
+    assert active_ids(alarms) == []
+
+
+def test_the_nodes_own_imbalance_bit_is_alarmed():
+    from ropemon.station.protocol import L
+    clk = [0.0]
+    alarms = AlarmListener(AlarmSettings())
+    s = Station(None, [alarms], clock=lambda: clk[0])
+    for k in range(5):
+        clk[0] = k * 0.1
+        s.feed("pithead", encode_frame(node=1, seq=k, status=L.ST_IMBALANCE, ropes=[(500, 500, 500, 0)] * 4)[1])
+    assert active_ids(alarms) == ["node_imbalance:n1"]

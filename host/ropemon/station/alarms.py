@@ -14,9 +14,15 @@ band of the deviation reaches the limit while the node's deviation does not; fro
 `ropemon.station.uncertainty`, only with `AlarmSettings.band`), overload (total vs rated),
 slack (a rope below a floor), sensor_fault (fault bits), sensor_stuck (a rope's
 pressure frozen while the others move, see `_StuckTracker`), config_fault, silent
-(no frame from a node), battery_low, pressure_noise (the node's noise_changed bit:
-its transmitters' noise moved beyond what it follows without a re-check),
-link_integrity (MAC failures or replays).
+(no frame from a node: also a configured node never heard since the station started),
+no_data (no frame from any node since the station started, no node configured),
+battery_low, pressure_noise (the node's noise_changed bit: its transmitters' noise moved
+beyond what it follows without a re-check), node_imbalance (the node's own imbalance bit),
+link_integrity (MAC failures or replays), receiver_down (a receiver's port not open),
+station_fault (a part of the station failing, e.g. the log cannot be written).
+
+Fail-safe: the station raises an alarm whenever it cannot vouch for the ropes (no frame,
+a receiver down, a station part failing); it is never quiet because it sees nothing.
 """
 from __future__ import annotations
 
@@ -66,6 +72,9 @@ class AlarmSettings:
     fault_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=2.0, min_frames=2)
     silent_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=1.0, min_frames=1)
     link_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=10.0, min_frames=1)
+    receiver_down_s: float = 2.0            # a receiver's port not open for longer than this
+    receiver_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=2.0, min_frames=1)
+    nodes: tuple[int, ...] = ()             # the nodes the station is configured for: silent until heard
     # the seal's friction lines and the band's parameters (ropemon.station.uncertainty): with them the
     # engine keeps a band per rope and raises deviation_possible; None: no band, no such warning
     band: BandParams | None = None
@@ -247,6 +256,8 @@ class AlarmEngine:
         self._bands: dict[int, SealBandTracker] = {}
         self._last_frame_s: dict[int, float] = {}
         self._link_bad: dict[str, int] = {}
+        self._started_s: float | None = None      # the first update or tick: when the station began to look
+        self._down_since: dict[str, float] = {}   # receiver -> when its port was first seen down
         self.events: deque[AlarmEvent] = deque(maxlen=10000)  # recent history; the store keeps all
 
     # -- inputs ---------------------------------------------------------------
@@ -256,7 +267,11 @@ class AlarmEngine:
         s = self.settings
         ev: list[AlarmEvent] = []
         node = frame.node
+        if self._started_s is None:
+            self._started_s = now_s
         self._last_frame_s[node] = now_s
+        self._step(ev, "no_data", "no_data", None, None, s.silent_timing, now_s, False, True, 0.0, s.silent_s,
+                   "frames arriving")
         self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
                    False, True, 0.0, s.silent_s, "frames arriving")
         ropes = frame.ropes
@@ -316,6 +331,9 @@ class AlarmEngine:
             lo, hi = bit, not bit
         self._step(ev, f"battery_low:n{node}", "battery_low", node, None, s.timing, now_s,
                    lo, hi, mv, s.battery_low_mv, f"battery {mv} mV low")
+        imb = bool(frame.status & L.ST_IMBALANCE)
+        self._step(ev, f"node_imbalance:n{node}", "node_imbalance", node, None, s.fault_timing, now_s,
+                   imb, not imb, None, None, "the node reports a rope beyond its own imbalance limit")
         noisy = bool(frame.status & L.ST_NOISE_CHANGED)
         self._step(ev, f"pressure_noise:n{node}", "pressure_noise", node, None, s.fault_timing, now_s,
                    noisy, not noisy, None, None,
@@ -324,9 +342,22 @@ class AlarmEngine:
         return self._log(ev)
 
     def tick(self, now_s: float) -> list[AlarmEvent]:
-        """Time passes without frames: the node-silent alarm."""
+        """Time passes without frames: the node-silent alarm (for a configured node never heard,
+        counted from the station's start), and no_data while no node has been heard at all."""
         s = self.settings
         ev: list[AlarmEvent] = []
+        if self._started_s is None:
+            self._started_s = now_s
+        quiet_since_start = now_s - self._started_s
+        if not self._last_frame_s and not s.nodes:
+            self._step(ev, "no_data", "no_data", None, None, s.silent_timing, now_s,
+                       quiet_since_start > s.silent_s, False, round(quiet_since_start, 3), s.silent_s,
+                       f"no frame from any node since the station started {quiet_since_start:.0f} s ago")
+        for node in s.nodes:
+            if node not in self._last_frame_s:
+                self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
+                           quiet_since_start > s.silent_s, False, round(quiet_since_start, 3), s.silent_s,
+                           f"no frame from node {node} since the station started {quiet_since_start:.0f} s ago")
         for node, last in self._last_frame_s.items():
             quiet = now_s - last
             self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
@@ -351,6 +382,28 @@ class AlarmEngine:
                    now_s, new > 0, new <= 0, new, 0,
                    f"receiver {source}: {mac_fail} MAC failures, {replayed} replays, "
                    f"{restarts} node seq restarts in total")
+        return self._log(ev)
+
+    def update_receiver(self, name: str, url: str | None, connected: bool, why: str | None,
+                        now_s: float) -> list[AlarmEvent]:
+        """A receiver's port state (each tick): receiver_down after `receiver_down_s` not open."""
+        s = self.settings
+        if connected:
+            self._down_since.pop(name, None)
+        else:
+            self._down_since.setdefault(name, now_s)
+        down_s = now_s - self._down_since.get(name, now_s)
+        ev: list[AlarmEvent] = []
+        self._step(ev, f"receiver_down:{name}", "receiver_down", None, None, s.receiver_timing, now_s,
+                   not connected and down_s > s.receiver_down_s, connected, round(down_s, 1), s.receiver_down_s,
+                   f"receiver {name} ({url}) down for {down_s:.0f} s: {why or 'not open'}")
+        return self._log(ev)
+
+    def update_fault(self, source: str, active: bool, message: str, now_s: float) -> list[AlarmEvent]:
+        """A part of the station failing (`source`, e.g. the log) or working again."""
+        ev: list[AlarmEvent] = []
+        self._step(ev, f"station_fault:{source}", "station_fault", None, None, self.settings.receiver_timing, now_s,
+                   active, not active, None, None, message)
         return self._log(ev)
 
     def ack(self, name_or_id: str, now_s: float, by: str | None = None) -> list[AlarmEvent]:

@@ -12,6 +12,7 @@ back (logged with who and when), `q` quits. Keys become the station's commands.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import getpass
 import json
 import os
@@ -608,7 +609,9 @@ def run(args: argparse.Namespace) -> int:
     view = MonitorView(site)
     # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
-    station = Station(keys or None, station_listeners(alarm_settings(site, args.silent_s), store, view),
+    # The nodes it has keys for are the nodes it must hear: silent until heard.
+    settings = dataclasses.replace(alarm_settings(site, args.silent_s), nodes=tuple(sorted(keys or ())))
+    station = Station(keys or None, station_listeners(settings, store, view),
                       clock=time.time, accept_rewound=args.accept_rewound, resume_from=store)
     resumed = station.resumed_text()
     if resumed is not None:

@@ -26,11 +26,15 @@ leaves it in each receiver's inbox for that receiver's own thread.
 
 A listener that raises does not stop the others: the station counts it, and
 publishes one `listener_error` event per listener and tick while it keeps failing.
+Each tick's status names the parts failing now (`faults`: a listener that raised
+since the last tick, or whose `health()` says what is wrong); the alarm listener
+raises STATION FAULT for each.
 """
 from __future__ import annotations
 
 import datetime
 import queue
+import sqlite3
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -56,6 +60,7 @@ class StationStatus:
     authenticated: bool                          # node keys given: frames' MACs are checked
     rewound: dict[int, tuple[int, int]]          # nodes refused: {node: (newest boot, frame's boot)}
     listener_errors: dict[str, tuple[int, str]] = field(default_factory=dict)  # name -> (count, last)
+    faults: dict[str, str] = field(default_factory=dict)  # station parts failing now: name -> what is wrong
 
 
 @dataclass(frozen=True)
@@ -113,6 +118,10 @@ class Listener:
     def on_stop(self, status: StationStatus) -> None:
         pass
 
+    def health(self) -> str | None:
+        """None while this listener works; otherwise what is wrong (the station alarms on it)."""
+        return None
+
 
 # -- the spine ---------------------------------------------------------------------
 
@@ -141,6 +150,7 @@ class Station:
         self._rebase_logged: dict[int, int] = {}        # node -> seq of the last baseline published
         self._errors_published: dict[str, int] = {}     # receiver -> callback_errors already published
         self._listener_errors_published: set[str] = set()
+        self._errors_seen: dict[str, int] = {}          # listener -> errors counted at the last tick
         if resume_from is not None and self.keys:
             self.resumed = {n: seq for n, seq in resume_from.last_seqs().items() if n in self.keys}
             self.hub.seed(self.resumed, {n: resume_from.recent_frames(n, DUPLICATE_MEMORY) for n in self.resumed})
@@ -209,14 +219,26 @@ class Station:
         """Time passes: every listener gets the links' status (the alarm listener then its
         state). Call it a few times a second, frames or not."""
         status = self.status()
+        self._errors_seen = {name: n for name, (n, _) in self.listener_errors.items()}
         self._publish_link_errors(status)
         self._listener_errors_published.clear()
         self.publish(status)
         return status
 
     def status(self) -> StationStatus:
+        faults = {}
+        for listener in self.listeners:
+            try:
+                why = listener.health()
+            except Exception as e:  # a health check that fails is itself a fault
+                why = f"health check failed: {type(e).__name__}: {e}"
+            if why:
+                faults[listener.name] = why
+        for name, (n, last) in self.listener_errors.items():
+            if n > self._errors_seen.get(name, 0):
+                faults[name] = f"failed {n - self._errors_seen.get(name, 0)} time(s) since the last tick: {last}"
         return StationStatus(self.clock(), self.hub.status(), self.hub.merge_stats(), self.hub.dropped,
-                             self.keys is not None, self.hub.rewound(), dict(self.listener_errors))
+                             self.keys is not None, self.hub.rewound(), dict(self.listener_errors), faults)
 
     def close(self) -> None:
         """Stop the ports, hand on what is queued, and let every listener finish (`on_stop`)."""
@@ -318,6 +340,7 @@ class AlarmListener(Listener):
 
     def __init__(self, settings: AlarmSettings | None = None) -> None:
         self.engine = AlarmEngine(settings)
+        self._faulted: set[str] = set()   # station parts that have failed since the start
 
     def on_frame(self, item: Received, now_s: float) -> None:
         if self._publish(self.engine.update(item.frame, now_s)):
@@ -325,10 +348,17 @@ class AlarmListener(Listener):
 
     def on_status(self, status: StationStatus) -> None:
         now = status.time_s
-        self._publish(self.engine.tick(now))
-        if status.authenticated:
-            for name, r in status.receivers.items():
-                self._publish(self.engine.update_link(name, r.counts.mac_fail, r.counts.replayed, now))
+        e = self.engine
+        self._publish(e.tick(now))
+        for name, r in status.receivers.items():
+            if status.authenticated:
+                self._publish(e.update_link(name, r.counts.mac_fail, r.counts.replayed, now))
+            if r.url is not None:
+                self._publish(e.update_receiver(name, r.url, r.connected, r.last_error, now))
+        self._faulted |= set(status.faults)    # each tick until its alarm clears, too
+        for source in sorted(self._faulted):
+            why = status.faults.get(source)
+            self._publish(e.update_fault(source, why is not None, why or f"{source} works again", now))
         self._publish_state(now)
 
     def on_command(self, command: Command, now_s: float) -> None:
@@ -347,42 +377,126 @@ class AlarmListener(Listener):
 
 
 class StoreListener(Listener):
-    """Frames, events and link figures into the SQLite log (`ropemon.station.store.Store`)."""
+    """Frames, events and link figures into the SQLite log (`ropemon.station.store.Store`).
+
+    A write that fails (disk full, I/O error) does not stop the station: what the log has not
+    stored yet stays in memory, in order, and is written again every `RETRY_S` until the log
+    takes it; meanwhile `health()` says so (STATION FAULT). Past `MAX_HELD` items the oldest
+    frames are dropped and counted (events are kept). Frames held in memory are lost if the
+    station itself stops.
+    """
 
     name = "store"
     LINK_LOG_S = 10.0   # link statistics go to the log this often
+    RETRY_S = 5.0       # a failing log is tried again this often
+    MAX_HELD = 200_000  # items held while the log fails (about 5 h of frames at 10 frames/s)
 
-    def __init__(self, store: Any) -> None:
+    def __init__(self, store: Any, clock: Callable[[], float] = time.monotonic) -> None:
         self.store = store
+        self.clock = clock
         self._link_logged_s: float | None = None
+        self._held: deque[tuple[str, tuple]] = deque()   # writes not yet committed, oldest first
+        self.error: str | None = None                     # the last write error while failing
+        self.dropped = 0                                  # frames dropped while the log failed
+        self._retry_at = 0.0
 
     def on_frame(self, item: Received, now_s: float) -> None:
-        self.store.add_frame(item.receiver, item.frame, item.rx_time)
+        self._write("add_frame", (item.receiver, item.frame, item.rx_time))
 
     def on_event(self, event: AlarmEvent) -> None:
-        self.store.add_event(event)
+        self._write("add_event", (event,))
 
     def on_status(self, status: StationStatus) -> None:
-        self.store.flush()
+        if self.error is None:
+            self._attempt(self.store.flush)
+        else:
+            self._retry()
         if self._link_logged_s is None or status.time_s - self._link_logged_s >= self.LINK_LOG_S:
             self.log_link_stats(status)
             self._link_logged_s = status.time_s
 
     def on_stop(self, status: StationStatus) -> None:
         self.log_link_stats(status)
-        self.store.commit()
+        if self.error is not None:
+            self._retry(force=True)
+        self._attempt(self.store.commit)
+
+    def health(self) -> str | None:
+        if self.error is None:
+            return None
+        frames = sum(1 for op, _ in self._held if op == "add_frame")
+        lost = f"; {self.dropped} older frames dropped" if self.dropped else ""
+        return (f"cannot write {self.store.path}: {self.error}; {frames} frames and "
+                f"{len(self._held) - frames} other records held in memory, retrying every {self.RETRY_S:.0f} s{lost}")
 
     def log_link_stats(self, status: StationStatus) -> None:
         """Decoder counts and merge shares of every receiver (`link_stats` table)."""
         t = time.time()
         for name, r in status.receivers.items():
-            self.store.add_link_stats(t, name, r.counts.as_dict())
+            self._write("add_link_stats", (t, name, r.counts.as_dict()))
             for node, st in status.merge.items():
                 share = st["receivers"].get(name)
                 if share is not None:
-                    self.store.add_link_stats(t, name, None, node, {
+                    self._write("add_link_stats", (t, name, None, node, {
                         "delivered": share["delivered"], "share": share["share"],
-                        "lost": st["lost"], "duplicates": st["duplicates"]})
+                        "lost": st["lost"], "duplicates": st["duplicates"]}))
+
+    # -- writing, and holding what the log could not take --------------------------------
+
+    def _write(self, op: str, args: tuple) -> None:
+        self._held.append((op, args))
+        if len(self._held) > self.MAX_HELD:
+            self._drop_oldest_frame()
+        if self.error is None:
+            self._attempt(getattr(self.store, op), *args)
+        else:
+            self._retry()
+
+    def _attempt(self, fn: Callable[..., Any], *args: Any) -> bool:
+        try:
+            fn(*args)
+        except sqlite3.Error as e:
+            self._failed(e)
+            return False
+        if not self.store.db.in_transaction:   # committed: everything held is stored
+            self._held.clear()
+        return True
+
+    def _failed(self, e: Exception) -> None:
+        self.error = f"{type(e).__name__}: {e}"
+        self._retry_at = self.clock() + self.RETRY_S
+        try:
+            self.store.rollback()
+        except sqlite3.Error:
+            pass  # the next retry rolls back again
+
+    def _retry(self, force: bool = False) -> None:
+        """Write everything held again, in order, in one transaction; commit."""
+        if not force and self.clock() < self._retry_at:
+            return
+        items, stored = list(self._held), 0
+        try:
+            self.store.rollback()
+            for k, (op, args) in enumerate(items):
+                getattr(self.store, op)(*args)
+                if not self.store.db.in_transaction:   # the store committed: these are stored
+                    stored = k + 1
+            self.store.commit()
+        except sqlite3.Error as e:
+            for _ in range(stored):
+                self._held.popleft()
+            self._failed(e)
+            return
+        self._held.clear()
+        self.error = None
+
+    def _drop_oldest_frame(self) -> None:
+        for k, (op, _) in enumerate(self._held):
+            if op == "add_frame":
+                del self._held[k]
+                self.dropped += 1
+                return
+        self._held.popleft()
 
 
 def station_listeners(settings: AlarmSettings | None = None, store: Any = None,

@@ -268,6 +268,18 @@ class Store:
         self.committed_frames += n
         return n
 
+    def rollback(self) -> None:
+        """After a failed write (disk full, I/O error): drop the open transaction, so that the
+        caller can write its unstored frames again; the trip detector resumes from what is stored."""
+        if self.db.in_transaction:
+            self.db.execute("ROLLBACK")
+        self._pending = 0
+        self._pending_since = None
+        d = self._trip
+        self._trip = _TripDetector(d.moving_mm_s, d.rest_s, d.start_m)
+        for tid, node in self.db.execute("SELECT id, node FROM trips WHERE end_time IS NULL"):
+            self._trip.open[node] = tid
+
     def close(self) -> None:
         self.commit()
         self.db.close()
