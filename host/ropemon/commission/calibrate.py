@@ -4,8 +4,8 @@ Method (docs/commissioning.md, "Friction calibration"):
 1. Split the record into constant-velocity runs; the second half of each run
    (the bristles have settled) gives one steady-state point (v, F, p).
 2. Group the runs into pressure levels; per level fit the steady-state Stribeck
-   curve F = sgn(v) (Fc + (Fs - Fc) exp(-(v/vs)^2)) + sigma2 v to both
-   directions with scipy.optimize.least_squares.
+   curve F = sgn(v) (Fc + (Fs - Fc) exp(-(v/vs)^2)) + sigma2 v to both directions
+   with scipy.optimize.least_squares (the seal model: ropemon.commission.seal).
 3. Fit Fs, Fc, vs, sigma2 each linearly against pressure (slope, intercept, r,
    95 % confidence intervals).
 4. sigma0, sigma1 from the slow stretches (pre-sliding reversals): the LuGre
@@ -42,6 +42,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ropemon.commission.seal import LINES, bristle_force, g, line_at, lines_at, steady_force
 
 COLUMNS = ("time_s", "pressure_MPa", "velocity_m_s", "friction_N")
 
@@ -82,7 +84,7 @@ MIN_STANDSTILL_HOLD = 0.5      # a LuGre seal holds ~0.9 of its sliding force; b
 RESIDUAL_MAX_SLIDING = 0.05
 RESIDUAL_MAX_PRESLIDING = 0.10
 
-PARAMS = ("Fs", "Fc", "vs", "sigma2")
+PARAMS = LINES
 UNITS = {"Fs": "N", "Fc": "N", "vs": "m/s", "sigma2": "N s/m"}
 
 
@@ -245,10 +247,6 @@ def steady_levels(rec: Record, runs: list[tuple[int, int]]) -> list[Level]:
 # ---------------------------------------------------------------- Stribeck fit per level
 
 
-def stribeck(v: np.ndarray, Fs: float, Fc: float, vs: float, sigma2: float) -> np.ndarray:
-    return np.sign(v) * (Fc + (Fs - Fc) * np.exp(-(v / vs) ** 2)) + sigma2 * v
-
-
 def fit_level(lv: Level) -> None:
     """Fit Fs, Fc, vs, sigma2 of one pressure level to both directions (fills lv.params)."""
     from scipy.optimize import least_squares
@@ -264,7 +262,7 @@ def fit_level(lv: Level) -> None:
     x0 = np.clip(x0, lo + 1e-12, hi / 2)
 
     def resid(x: np.ndarray) -> np.ndarray:
-        return stribeck(lv.v, *x) - lv.F
+        return steady_force(lv.v, *x) - lv.F
 
     res = least_squares(resid, x0, bounds=(lo, hi), x_scale=np.maximum(np.abs(x0), 1e-6), method="trf")
     where = f"pressure level {lv.pressure_MPa:.2f} MPa"
@@ -325,25 +323,13 @@ def fit_lines(levels: list[Level]) -> dict[str, dict[str, Any]]:
     return out
 
 
-def line_at(lines: dict[str, Any], key: str, p: np.ndarray | float) -> Any:
-    return lines[key]["intercept"] + lines[key]["slope"] * p
-
-
 # ---------------------------------------------------------------- pre-sliding
 
 
-def bristle_force(w_ss: np.ndarray, decay: np.ndarray, w0: float) -> np.ndarray:
-    """w = sigma0 z over the samples by the exact update with v held over each step.
-
-    w_ss = sgn(v) g(v) is the steady bristle force and decay = exp(-sigma0 |v| h / g(v))
-    per step; the update w+ = w_ss + (w - w_ss) decay is stable at any step.
-    """
-    out = np.empty(len(w_ss))
-    w = w0
-    for i, (ws, d) in enumerate(zip(w_ss.tolist(), decay.tolist())):
-        w = ws + (w - ws) * d
-        out[i] = w
-    return out
+def _g_of(lines: dict[str, Any], vel: np.ndarray, pres: np.ndarray) -> np.ndarray:
+    """g(v) by the fitted lines, kept positive where a line runs out of its range."""
+    fs, fc, vs, _ = lines_at(lines, pres)
+    return np.maximum(g(vel, fs, fc, np.maximum(vs, 1e-9)), 1e-9)
 
 
 @dataclass
@@ -411,12 +397,8 @@ def fit_presliding(rec: Record, lines: dict[str, Any], runs: list[tuple[int, int
     frac = (np.arange(n_sub) + 0.5) / n_sub
     v_sub = v_prev[:, None] + (v - v_prev)[:, None] * frac[None, :]      # (samples, substeps)
 
-    def g_of(vel: np.ndarray, pres: np.ndarray) -> np.ndarray:
-        fc, fs, vs = (line_at(lines, k, pres) for k in ("Fc", "Fs", "vs"))
-        return np.maximum(fc + (fs - fc) * np.exp(-(vel / np.maximum(vs, 1e-9)) ** 2), 1e-9)
-
-    g = g_of(v, p)
-    g_sub = g_of(v_sub, p[:, None])
+    gv = _g_of(lines, v, p)
+    g_sub = _g_of(lines, v_sub, p[:, None])
     w_ss = (np.sign(v_sub) * g_sub).ravel()
     rate = (np.abs(v_sub) / g_sub * (dts / n_sub)[:, None]).ravel()   # decay exponent per unit sigma0
     y_all = rec.F - line_at(lines, "sigma2", p) * rec.v   # F - sigma2 v = sigma0 z + sigma1 dz/dt
@@ -426,10 +408,10 @@ def fit_presliding(rec: Record, lines: dict[str, Any], runs: list[tuple[int, int
         out = []
         for a, s, e, at_rest in ps.segments:
             # from rest at a level start, else steady sliding at the end of the last run
-            w0 = 0.0 if at_rest else math.copysign(g[a], v[a])
+            w0 = 0.0 if at_rest else math.copysign(gv[a], v[a])
             sl = slice(a * n_sub, e * n_sub)
             w = bristle_force(w_ss[sl], np.exp(-sigma0 * rate[sl]), w0)[n_sub - 1::n_sub][s - a:]
-            out.append((w, v[s:e] - np.abs(v[s:e]) * w / g[s:e], y_all[s:e]))
+            out.append((w, v[s:e] - np.abs(v[s:e]) * w / gv[s:e], y_all[s:e]))
         return out
 
     def solve(log_s0: float, skip: int = -1) -> tuple[float, float]:
@@ -610,19 +592,14 @@ def model_force(rec: Record, doc: dict[str, Any]) -> np.ndarray:
     frac = (np.arange(n_sub) + 0.5) / n_sub
     v_sub = v_prev[:, None] + (v - v_prev)[:, None] * frac[None, :]
 
-    def g_of(vel: np.ndarray, pres: np.ndarray) -> np.ndarray:
-        fc, fs, vs = (line_at(doc, k, pres) for k in ("Fc", "Fs", "vs"))
-        return np.maximum(fc + (fs - fc) * np.exp(-(vel / np.maximum(vs, 1e-9)) ** 2), 1e-9)
-
-    g_sub = g_of(v_sub, p[:, None])
+    g_sub = _g_of(doc, v_sub, p[:, None])
     w_ss = np.sign(v_sub) * g_sub
     decay = np.exp(-s0 * np.abs(v_sub) / g_sub * (dts / n_sub)[:, None])
     w = np.empty(len(v))
     edges = list(np.flatnonzero(starts)) + [len(v)]
     for a, b in zip(edges, edges[1:]):
         w[a:b] = bristle_force(w_ss[a:b].ravel(), decay[a:b].ravel(), 0.0)[n_sub - 1::n_sub]
-    g = g_of(v, p)
-    zdot = v - np.abs(v) * w / g
+    zdot = v - np.abs(v) * w / _g_of(doc, v, p)
     return w + s1 * zdot + line_at(doc, "sigma2", p) * v
 
 
@@ -850,7 +827,7 @@ def write_plots(directory: Path, rec: Record, doc: dict[str, Any], levels: list[
         vmax = float(np.max(np.abs(lv.v)))
         vv = np.concatenate([-np.geomspace(vmax, vmax / 1e3, 200), np.geomspace(vmax / 1e3, vmax, 200)])
         pr = lv.params
-        ax.plot(vv * 1e3, stribeck(vv, pr["Fs"], pr["Fc"], pr["vs"], pr["sigma2"]) / 1e3, "-", color=c,
+        ax.plot(vv * 1e3, steady_force(vv, pr["Fs"], pr["Fc"], pr["vs"], pr["sigma2"]) / 1e3, "-", color=c,
                 label=f"{lv.pressure_MPa:.1f} MPa")
     ax.set_xscale("symlog", linthresh=1.0)
     ax.set_xlabel("piston velocity (mm/s)")

@@ -21,6 +21,7 @@ import numpy as np
 
 from ropemon.firmware import node_module
 from ropemon.commission.nodeconfig import DEFAULTS, NOISE_CLIP, NOISE_RANGE, namur_limits, physical_params
+from ropemon.commission.seal import g, lines_at
 
 RS = node_module("rsens")  # the .rsens format is firmware/ropenode/rsens.py's, never restated
 RSENS_HEADER = struct.Struct(RS.HEADER)
@@ -111,25 +112,24 @@ def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray,
     the per-sample increment of the LuGre position (elastic step), `dxp` that of its
     play (dissipation), `vq` the velocity of the viscous term; the seal starts unloaded.
     In zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g;
-    F = zf + sigma1 dz/dt + sigma2 v (docs/model.md)."""
+    F = zf + sigma1 dz/dt + sigma2 v (docs/model.md); the lines and g(v) are
+    ropemon.commission.seal's."""
     sigma0, sigma1 = float(fr["sigma0"]), float(fr["sigma1"])
     h = 1.0 / fs
     c1 = sigma1 / (sigma0 * h)
-    pm = np.asarray(p_pa, float) / 1e6
-    lin = {key: float(fr[key]["intercept"]) + float(fr[key]["slope"]) * pm
-           for key in ("Fs", "Fc", "vs", "sigma2")}
+    f_static, f_coulomb, v_stribeck, sigma2 = lines_at(fr, np.asarray(p_pa, float) / 1e6)
     # g at the velocity of x_s: g at the noisy v would dip with every noise peak and
     # the bound |zf| <= g would ratchet zf down
-    g = lin["Fc"] + (lin["Fs"] - lin["Fc"]) * np.exp(-(dxs * fs / lin["vs"]) ** 2)
-    zn = np.empty(len(g))
+    gv = g(dxs * fs, f_static, f_coulomb, v_stribeck)
+    zn = np.empty(len(gv))
     z = 0.0
-    for j, (gj, wj, wd) in enumerate(zip(g.tolist(), (sigma0 * dxs).tolist(),
+    for j, (gj, wj, wd) in enumerate(zip(gv.tolist(), (sigma0 * dxs).tolist(),
                                          (sigma0 * np.abs(dxp)).tolist())):
         z = (z + wj) * gj / (gj + wd)
         z = gj if z > gj else (-gj if z < -gj else z)
         zn[j] = z
     zprev = np.concatenate(([0.0], zn[:-1]))
-    return zn + c1 * (zn - zprev) + lin["sigma2"] * vq
+    return zn + c1 * (zn - zprev) + sigma2 * vq
 
 
 def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,

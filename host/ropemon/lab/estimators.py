@@ -11,10 +11,11 @@ the seal-friction term F_i and in whether the pipe loss dp_i is compensated:
     lugre-p          LuGre with Fs, Fc, vs, sigma2 linear in pressure (the node's model)
 
 each also as `NAME+loss` with dp compensated. The static laws are evaluated here
-on the sensor signals (pressure at the tap, piston velocity, pipe loss) that the
-float reference derives; the LuGre ones are the float reference itself
-(`ropemon.commission.reference`) run on a modified `physical` section (`lugre_const_physical`,
-`no_loss_physical`), so LuGre is written once, in the reference.
+(with the pressure lines and g of `ropemon.commission.seal`) on the sensor signals
+(pressure at the tap, piston velocity, pipe loss) that the float reference derives;
+the LuGre ones are the float reference itself (`ropemon.commission.reference`) run on
+a modified `physical` section (`lugre_const_physical`, `no_loss_physical`), so LuGre
+is written once, in the reference.
 
 The static laws have no memory: at rest (v = 0) they predict no friction, while
 a real seal holds the piston; that is the effect the paper's field test shows.
@@ -26,13 +27,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ropemon.commission.seal import LINES, g, lines_at
+
 STATIC_FRICTION_LAWS = ("raw", "coulomb", "coulomb-viscous", "stribeck")
 LUGRE_LAWS = ("lugre-const", "lugre-p")
 FRICTION_LAWS = STATIC_FRICTION_LAWS + LUGRE_LAWS
 ESTIMATORS = tuple(n + s for n in FRICTION_LAWS for s in ("", "+loss"))
 FULL_COMPENSATION = "lugre-p+loss"  # what the node runs
 
-PRESSURE_DEPENDENT = ("Fs", "Fc", "vs", "sigma2")
+PRESSURE_DEPENDENT = LINES
 
 # Below a dead band the sign of the velocity estimate is noise: a static law reads
 # no friction there (Karnopp-style, as such estimators are used in practice;
@@ -60,14 +63,6 @@ class Signals:
     dp_pa: np.ndarray      # pipe loss cavity -> tap the node's table gives for its flow
 
 
-def friction_param(friction: dict, name: str, p_mpa: np.ndarray) -> np.ndarray:
-    """A LuGre parameter at sensor pressure p (MPa): linear ones by their line, others constant."""
-    f = friction[name]
-    if isinstance(f, dict):
-        return f["intercept"] + f["slope"] * p_mpa
-    return np.full_like(p_mpa, float(f))
-
-
 def static_friction_n(law: str, friction: dict, p_tap_pa: np.ndarray, v_m_s: np.ndarray,
                       deadband_m_s: float = VELOCITY_DEADBAND_M_S) -> np.ndarray:
     """Seal friction force (N, sign of v) of a memoryless law at each sample."""
@@ -76,17 +71,13 @@ def static_friction_n(law: str, friction: dict, p_tap_pa: np.ndarray, v_m_s: np.
     sgn = np.where(np.abs(v) > deadband_m_s, np.sign(v), 0.0)
     if law == "raw":
         return np.zeros_like(v)
-    fc = friction_param(friction, "Fc", p_mpa)
+    fs, fc, vs, s2 = lines_at(friction, p_mpa)
     if law == "coulomb":
         return fc * sgn
-    s2 = friction_param(friction, "sigma2", p_mpa)
     if law == "coulomb-viscous":
         return fc * sgn + s2 * v
     if law == "stribeck":
-        fs = friction_param(friction, "Fs", p_mpa)
-        vs = friction_param(friction, "vs", p_mpa)
-        g = fc + (fs - fc) * np.exp(-np.square(v / vs))
-        return g * sgn + s2 * v
+        return g(v, fs, fc, vs) * sgn + s2 * v
     raise ValueError(f"unknown static friction law {law!r}; known: {STATIC_FRICTION_LAWS}")
 
 

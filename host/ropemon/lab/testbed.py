@@ -1,8 +1,9 @@
 """A simulated friction test bed: the CSV `ropemon fit-friction` reads, from known seal friction.
 
 It plays the test procedure of docs/commissioning.md on a cylinder whose seal
-friction is known (LuGre with Fs, Fc, vs, sigma2 linear in pressure, any ropemon.lab.plant
-law of a scenario's [plant.friction], or any object with `force(v_m_s, p_MPa, h_s) -> N`),
+friction is known (LuGre with Fs, Fc, vs, sigma2 linear in pressure: the product's float
+model, ropemon.commission.seal; any ropemon.lab.plant law of a scenario's [plant.friction];
+or any object with `force(v_m_s, p_MPa, h_s) -> N`),
 and records what the real bed's instruments would: time, oil pressure, piston velocity
 and friction force, each with measurement noise. Used by the tests, the docs, the example fit
 scenarios/paper-friction.json and the accuracy evaluation.
@@ -27,6 +28,9 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
+
+from ropemon.commission.seal import LuGre, lines_at, steady_force
+from ropemon.commission.seal import line_at as line
 
 # Seal friction of the example site's 100 mm cylinders (lip seal, ISO VG46), the
 # truth behind scenarios/paper-friction.json. Magnitudes: the paper's field
@@ -59,38 +63,9 @@ class FrictionLaw(Protocol):
         """Advance the law's state by h_s (0: do not advance) at velocity v and pressure p; return the force (N)."""
 
 
-def line(params: dict[str, Any], key: str, p_MPa: float) -> float:
-    return params[key]["intercept"] + params[key]["slope"] * p_MPa
-
-
 def stribeck_N(params: dict[str, Any], v_m_s: float, p_MPa: float) -> float:
     """Steady-state LuGre friction at constant velocity (the curve fit-friction fits)."""
-    fc, fs, vs = line(params, "Fc", p_MPa), line(params, "Fs", p_MPa), line(params, "vs", p_MPa)
-    g = fc + (fs - fc) * math.exp(-(v_m_s / vs) ** 2)
-    return math.copysign(g, v_m_s) + line(params, "sigma2", p_MPa) * v_m_s if v_m_s else 0.0
-
-
-class LuGre:
-    """LuGre seal friction with pressure-dependent Fs, Fc, vs, sigma2 (docs/model.md).
-
-    z is advanced with the exact solution for v held over the step, which is
-    stable at any step (explicit Euler is not at these stiffnesses).
-    """
-
-    def __init__(self, params: dict[str, Any]):
-        self.p = params
-        self.z = 0.0
-
-    def force(self, v: float, p: float, h: float) -> float:
-        pr = self.p
-        s0, s1 = pr["sigma0"], pr["sigma1"]
-        fc, fs, vs = line(pr, "Fc", p), line(pr, "Fs", p), line(pr, "vs", p)
-        g = fc + (fs - fc) * math.exp(-(v / vs) ** 2)
-        if v:
-            z_ss = math.copysign(g / s0, v)
-            self.z = z_ss + (self.z - z_ss) * math.exp(-s0 * abs(v) / g * h)
-        dz = v - s0 * abs(v) * self.z / g  # dz/dt at the end of the step
-        return s0 * self.z + s1 * dz + line(pr, "sigma2", p) * v
+    return steady_force(v_m_s, *lines_at(params, p_MPa))
 
 
 class PlantLaw:

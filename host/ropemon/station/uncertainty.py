@@ -77,6 +77,9 @@ _RANGES = {
 
 
 class Line(NamedTuple):
+    """A friction line X(p) = intercept + slope p (p in MPa, a float or an array). The one
+    evaluation of the seal's pressure lines: ropemon.commission.seal uses it too."""
+
     intercept: float
     slope: float      # per MPa
 

@@ -22,6 +22,9 @@ clamped at 0: cavitation is not modelled). Parameters may be per rope.
 Every law takes a per-rope `force_scale` (default 1): rope i's force and its partials
 are s_i times the law's (Fs, Fc, sigma2 and the stiffnesses scaled alike), the state
 dynamics and pre-sliding distances are unchanged.
+
+These laws are the truth and share no code with the product's float seal model
+(`ropemon.commission.seal`, which the fit, the float reference and the test bed use) on purpose.
 """
 from __future__ import annotations
 

@@ -10,6 +10,10 @@ inverse. Per rope, the x, z and q rows are eliminated into a 2x2 system in (v, p
 own z and p, so each eliminates like a single z); its solution is affine in the three shared unknowns (cage r, rd and junction
 pressure pj), which a 3x3 system gives. W's factors are built once per step (ROS2:
 they serve both stages).
+
+Its seal friction (the Stribeck curve, the pressure lines) is its own, not the product's
+float seal model (`ropemon.commission.seal`): the simulator is the truth and shares no code
+with what it tests, on purpose.
 """
 from __future__ import annotations
 
