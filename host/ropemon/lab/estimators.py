@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ropemon.commission.seal import LINES, g, lines_at
+from ropemon.commission.seal import LINES, g, line_at, lines_at
 
 STATIC_FRICTION_LAWS = ("raw", "coulomb", "coulomb-viscous", "stribeck")
 LUGRE_LAWS = ("lugre-const", "lugre-p")
@@ -97,8 +97,7 @@ def lugre_const_physical(physical: dict, calibration_pressure_mpa: float) -> dic
     out = copy.deepcopy(physical)
     for name in PRESSURE_DEPENDENT:
         line = out["friction"][name]
-        line["intercept"] = line["intercept"] + line["slope"] * calibration_pressure_mpa
-        line["slope"] = 0.0
+        line["intercept"], line["slope"] = line_at(out["friction"], name, calibration_pressure_mpa), 0.0
     return out
 
 
