@@ -86,7 +86,8 @@ def load(run: RunDir) -> PitheadRest:
     for i, ch in enumerate(physical["displacement_channels"]):
         lo, hi = ch["range_m"]
         per_count = (hi - lo) / (ch["counts_hi"] - ch["counts_lo"])
-        x_noise[i] = (recs[:k, n + i] - ch["counts_lo"] - (truth["piston_x_m"][:, i] - lo) / per_count).std() * per_count
+        x_noise[i] = (recs[:k, n + i] - ch["counts_lo"]
+                      - (truth["piston_x_m"][:, i] - lo) / per_count).std() * per_count
     sc = run.scoring(physical)
     phase, excluded, steady, payload = sc.phase, sc.excluded, sc.steady, sc.payload_kg
     rest = M.pithead_rest(phase, excluded, steady)
@@ -203,8 +204,8 @@ def run(args: argparse.Namespace) -> int:
         rest = load(RunDir(path))
         noise = ", ".join(f"{v / 1e3:.2f}" for v in rest.channel_noise_pa)
         x_noise = ", ".join(f"{v * 1e6:.1f}" for v in rest.channel_noise_m)
-        print(f"{rest.name}: final stop at {rest.stop / rest.hz:.2f} s; noise of the pressure channels {noise} kPa rms, "
-              f"of the displacement channels {x_noise} um rms")
+        print(f"{rest.name}: final stop at {rest.stop / rest.hz:.2f} s; noise of the pressure channels "
+              f"{noise} kPa rms, of the displacement channels {x_noise} um rms")
         for scale in scales:
             eps, check = bound(rest, scale)
             for e in eps:

@@ -7,7 +7,7 @@ directory, `ropemon.lab.rundir`: the simulated wind, the truth, and the node con
 seed's commissioning made) and reruns the float reference (`lugre-p+loss`) on recombined
 inputs, one experiment per row:
 
-- as evaluated: each seed's wind with its own config (seed_spread's figure);
+- as evaluated: each seed's wind with its own config (seed-spread's figure);
 - seed-1 config: each seed's wind with the first seed's config (its friction
   fit, k, pressure noise and bounce; the first of `--seeds`, seed 1 by
   default): what the calibration's draw adds;
@@ -214,10 +214,11 @@ def smoothed_score(physical: dict, records: np.ndarray, wind: Wind, factor: floa
     reference.compensate(physical, records, tracker_class=Medians)
     smoother = Smoother(physical)
     out: list[float] = []
-    for healthy, run in itertools.groupby(medians, key=lambda y: y is not None):
-        run = list(run)  # each stretch with a median smoothed on its own; without, the last estimate held
-        out.extend(smoother.run(np.array(run, float)).tolist() if healthy else [out[-1] if out else 0.0] * len(run))
-    replay = iter(out)
+    for healthy, stretch in itertools.groupby(medians, key=lambda y: y is not None):
+        stretch = list(stretch)  # each stretch with a median smoothed on its own; without, the last estimate held
+        out.extend(smoother.run(np.array(stretch, float)).tolist() if healthy
+                   else [out[-1] if out else 0.0] * len(stretch))
+    smoothed = iter(out)
 
     class SmoothedTracker:   # the smoother's estimate, sample by sample, as the tracker's
         def __init__(self, tr):
@@ -226,7 +227,7 @@ def smoothed_score(physical: dict, records: np.ndarray, wind: Wind, factor: floa
         def step(self, y):
             if self.tr is None:
                 return 0.0
-            return min(max(next(replay), -reference.P_L_MAX_PA), reference.P_L_MAX_PA)
+            return min(max(next(smoothed), -reference.P_L_MAX_PA), reference.P_L_MAX_PA)
 
     f = factor * smoother.noise_gain(float(physical["sample_hz"])) / smoother.tracker_noise_gain
     ph = {**DEFAULTS, **COMPLIANCE_DEFAULTS, **physical}
@@ -317,7 +318,8 @@ def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: li
         raise SystemExit(f"{out}: no seed-N/runs/{scenario}; run `ropemon study seed-spread --out {out}` first")
     winds = [load(out, scenario, s) for s in seeds]
     print(f"## {scenario}: `lugre-p+loss` pithead total over seeds {', '.join(map(str, seeds))}\n")
-    print(f"| experiment | within {pithead_target_pct()} % | mean % | sd % | min / max % | rope RMS % (worst) | per seed % |")
+    print(f"| experiment | within {pithead_target_pct()} % | mean % | sd % | min / max % | rope RMS % (worst) "
+          "| per seed % |")
     print("|---|---:|---:|---:|---:|---:|---|")
     own: dict[int, float] = {}
     bases = set()
