@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ropemon.lab.plant.kernel import Stepper
+from ropemon.lab.plant.stepper import Stepper
 from ropemon.lab.plant.model import G
 from ropemon.lab.plant.scenario import load_scenario
 from ropemon.lab.plant.solver import GAMMA, integrate
@@ -57,7 +57,7 @@ def test_fast_kernel_is_the_numpy_model(scenarios_dir, name):
 
 
 def test_fast_and_dense_integrators_agree(scenarios_dir):
-    from ropemon.lab.plant.kernel import integrate_fast
+    from ropemon.lab.plant.stepper import integrate_fast
 
     sc = load_scenario(scenarios_dir / "short-test.toml")
     p, u = sc.plant, sc.inputs
@@ -132,7 +132,7 @@ def test_equalisation_after_a_load_imbalance(connection_device):
 
 def test_chunked_inputs_give_the_same_run(scenarios_dir):
     """Long runs turn inputs into Python lists a chunk of steps at a time: same states, bit for bit."""
-    from ropemon.lab.plant.kernel import integrate_fast
+    from ropemon.lab.plant.stepper import integrate_fast
 
     sc = load_scenario(scenarios_dir / "short-test.toml")
     p, u = sc.plant, sc.inputs

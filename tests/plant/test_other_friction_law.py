@@ -4,7 +4,7 @@ import tomllib
 import numpy as np
 
 from ropemon.lab.plant.friction import CoulombStribeck
-from ropemon.lab.plant.kernel import Stepper
+from ropemon.lab.plant.stepper import Stepper
 from ropemon.lab.plant.run import simulate
 from ropemon.lab.plant.scenario import build
 from ropemon.lab.plant.solver import GAMMA

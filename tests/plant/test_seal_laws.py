@@ -11,7 +11,7 @@ from scipy.integrate import solve_ivp
 from ropemon.lab import testbed
 from ropemon.lab.plant.friction import (LAWS, CoulombStribeck, ElastoPlastic, Line, LuGre, MaxwellSlip,
                                     example_table, from_table)
-from ropemon.lab.plant.kernel import Stepper, integrate_fast
+from ropemon.lab.plant.stepper import Stepper, integrate_fast
 from ropemon.lab.plant.run import simulate
 from ropemon.lab.plant.scenario import ScenarioError, build
 from ropemon.lab.plant.solver import GAMMA, integrate, state_scale

@@ -289,7 +289,7 @@ class MaxwellSlip:
         return out if self.force_scale is None else _scaled(out, self.force_scale)
 
     def terms(self, v: float, z, pm: float, dpos: float, jac: bool):
-        """One rope, scalar (the fast kernel, the test bed), unscaled: (F, [dz_j/dt]) and with jac
+        """One rope, scalar (the fast stepper, the test bed), unscaled: (F, [dz_j/dt]) and with jac
         also (F_v, [F_z_j], F_p, [zd_v_j], [zd_z_j], [zd_p_j]); pm in MPa (>= 0), dpos 1e-6 or 0."""
         fl = self._lines()
         g, g_v, g_p = _g1(v, pm, fl)
@@ -347,7 +347,7 @@ class MaxwellSlip:
         1 - phi < 0 beyond the break, so a reversal would push z further out), which let elements
         run away to hundreds of their break displacements. Each element's equation couples only
         to v and p, so once the linear step has given them, the element's root is found exactly
-        (Newton from the linear step's value `guess`, in its bracket); the kernel's
+        (Newton from the linear step's value `guess`, in its bracket); the stepper's
         `_newton_settled` iterates the whole step around it. Returns a list, one per element."""
         return settle_states(self, v, zh, pm, c, guess)
 
@@ -417,7 +417,7 @@ class ElastoPlastic:
 
         As Maxwell-slip's elements: beyond z_ss (u > 1), d(dz/dt)/dv = 1 - u < 0, so one linearised
         step that reverses v pushed z further out instead of back along the spring (population-148:
-        z to 257 z_ss, the seal friction to 299 Fs, the oil pressure to -20 MPa); the kernel's
+        z to 257 z_ss, the seal friction to 299 Fs, the oil pressure to -20 MPa); the stepper's
         `_newton_settled` solves the step with this row settled exactly."""
         return settle_states(self, v, zh, pm, c, guess)
 

@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from ropemon.lab.plant.kernel import integrate_fast
+from ropemon.lab.plant.stepper import integrate_fast
 from ropemon.lab.plant.model import G
 from ropemon.lab.plant.scenario import Scenario
 

@@ -18,7 +18,7 @@ import numpy as np
 from ropemon.commission import tomlfields
 from ropemon.lab.plant import friction as friction_mod
 from ropemon.lab.plant.hydraulics import Local, Path as PipePath, PathSet, Segment
-from ropemon.lab.plant.kernel import METHODS
+from ropemon.lab.plant.stepper import METHODS
 from ropemon.lab.plant.model import Inputs, Plant
 from ropemon.lab.plant.motion import Timeline, piecewise_linear
 from ropemon.commission.oil import Oil
@@ -124,7 +124,7 @@ class Scenario:
     bounce_rad_per_step: float = 0.0
     make_inputs: Any = None      # hoist: t -> Inputs for any times
     grid_points: int = 0
-    method: str = "bdf2"          # kernel.integrate_fast method: "bdf2" (default) or "ros2"
+    method: str = "bdf2"          # stepper.integrate_fast method: "bdf2" (default) or "ros2"
 
     @property
     def duration_s(self) -> float:

@@ -1,5 +1,5 @@
-"""Dense reference integrators on the numpy model: ROS2 and BDF2 (the kernel's default, see
-`kernel.integrate_fast` and docs/simulator.md for why), and the solve_ivp baseline.
+"""Dense reference integrators on the numpy model: ROS2 and BDF2 (the stepper's default, see
+`stepper.integrate_fast` and docs/simulator.md for why), and the solve_ivp baseline.
 
 Fixed-step, linearly implicit 2-stage Rosenbrock method (ROS2):
 
@@ -45,7 +45,7 @@ def state_scale(plant) -> np.ndarray:
 def integrate(plant, u, h: float, y0: np.ndarray,
               progress: Callable[[int, int], None] | None = None, method: str = "ros2") -> np.ndarray:
     """States at every grid time u.t[k] (k = 0..K-1), shape (K, n): dense ROS2, or with method
-    "bdf2" the constant-step form of the kernel's BDF2 (the reference the kernel is tested against)."""
+    "bdf2" the constant-step form of the stepper's BDF2 (the reference the stepper is tested against)."""
     if method == "bdf2":
         return _integrate_bdf2(plant, u, h, y0)
     K = len(u.t)
@@ -107,9 +107,9 @@ def _integrate_bdf2(plant, u, h: float, y0: np.ndarray) -> np.ndarray:
 
 def _integrate_bdf2_settled(plant, u, h, y0, Y, sc, jscale, eye):
     """`_integrate_bdf2` for a law whose states each step solves exactly (`solve_states`:
-    Maxwell-slip, elasto-plastic): every step by the kernel's Newton iteration
-    (`kernel._newton_settled`), here with dense solves."""
-    from ropemon.lab.plant.kernel import _newton_settled, settle_rows
+    Maxwell-slip, elasto-plastic): every step by the stepper's Newton iteration
+    (`stepper._newton_settled`), here with dense solves."""
+    from ropemon.lab.plant.stepper import _newton_settled, settle_rows
 
     law, n, nz = plant.friction, plant.n, plant.nz
 

@@ -46,7 +46,7 @@ class Stepper:
         # 0: LuGre, 1: Coulomb-Stribeck (both inline), 2: a law's own scalar `terms` per rope
         self.kind = 0 if self.lugre else 1 if isinstance(fr, CoulombStribeck) else 2
         if self.kind == 2 and not isinstance(fr, (MaxwellSlip, ElastoPlastic)):
-            raise TypeError(f"no fast kernel for friction law {type(fr).__name__}")
+            raise TypeError(f"no fast stepper for friction law {type(fr).__name__}")
         self.terms = fr.terms if self.kind == 2 else None
         self.scale = None if fr.force_scale is None else [float(a) for a in fr.force_scale]
         if self.nz > 1:
