@@ -3,7 +3,7 @@ import io
 
 from rich.console import Console
 
-from ropemon.station.monitor import SiteFigures, alarm_settings
+from ropemon.station.physical import SiteFigures, alarm_settings
 from station_rig import Rig
 from ropemon.station.protocol import Rope, encode_frame
 
@@ -26,6 +26,22 @@ def wire(seq, dan=(4600, 4600, 4600, 4600), key=KEY):
 def session(keys={1: KEY}):
     clk = Clock()
     return Rig(keys, alarm_settings(SITE), SITE, clk), clk
+
+
+def write_node_json(path, **physical):
+    """A node.json whose physical section is the shipped example's with these keys (rated tension
+    80 kN, cylinders of 0.0314 m^2, battery low at 3.4 V, and a seal of nearly no friction, so
+    that no band widens the alarms these tests are about)."""
+    import json
+
+    from ropemon.commission.nodeconfig import example_physical
+
+    ph = example_physical()
+    line = {"intercept": 10.0, "slope": 0.0}
+    ph.update(cylinder_area_m2=[0.0314] * 4, rated_rope_tension_N=80_000, imbalance_frac=0.10, battery_low_V=3.4,
+              friction=dict(ph["friction"], Fs=line, Fc=line))
+    ph.update(physical)
+    path.write_text(json.dumps({"physical": ph}))
 
 
 def screen(s):
@@ -123,13 +139,8 @@ def test_without_keys_the_screen_says_frames_are_not_authenticated():
 def test_slack_rope_raises_through_the_settings_built_from_a_node_json(tmp_path):
     """`ropemon config` writes physical.conveyance_weight_N; the monitor's alarm settings turn it into
     the slack floor: 60 % of each rope's share of the empty conveyance load."""
-    import json
-
-    doc = {"physical": {"ropes": 4, "cylinder_area_m2": [0.0314] * 4, "rated_rope_tension_N": 80_000,
-                        "imbalance_frac": 0.10, "battery_low_V": 3.4, "conveyance_weight_N": 185_400,
-                        "slack_frac": 0.60}}
     path = tmp_path / "node.json"
-    path.write_text(json.dumps(doc))
+    write_node_json(path, conveyance_weight_N=185_400, slack_frac=0.60)
     site = SiteFigures.from_node_json(path)
     settings = alarm_settings(site)
     floor = round(0.6 * 18_540 / 4)                       # daN
@@ -150,16 +161,12 @@ def test_slack_rope_raises_through_the_settings_built_from_a_node_json(tmp_path)
 
 
 def test_node_json_without_empty_load_leaves_slack_off_and_a_bad_one_is_refused(tmp_path):
-    import json
-
     import pytest
 
     path = tmp_path / "node.json"
-    path.write_text(json.dumps({"physical": {"ropes": 4, "cylinder_area_m2": [0.0314] * 4,
-                                             "rated_rope_tension_N": 80_000}}))
+    write_node_json(path)
     assert alarm_settings(SiteFigures.from_node_json(path)).slack_dan is None
-    path.write_text(json.dumps({"physical": {"ropes": 4, "cylinder_area_m2": [0.0314] * 4,
-                                             "rated_rope_tension_N": 80_000, "conveyance_weight_N": -1}}))
+    write_node_json(path, conveyance_weight_N=-1)
     with pytest.raises(ValueError, match="physical.conveyance_weight_N"):
         SiteFigures.from_node_json(path)
 
@@ -167,14 +174,11 @@ def test_node_json_without_empty_load_leaves_slack_off_and_a_bad_one_is_refused(
 def test_overload_threshold_is_the_sites_rated_load_times_its_overload_factor(tmp_path):
     """`ropemon config` writes physical.rated_load_N and overload_frac; the overload alarm then
     raises above their product, not above ropes x rated rope tension."""
-    import json
-
     import pytest
 
     path = tmp_path / "node.json"
-    phys = {"ropes": 4, "cylinder_area_m2": [0.0314] * 4, "rated_rope_tension_N": 80_000,
-            "conveyance_weight_N": 185_400, "rated_load_N": 263_880, "overload_frac": 1.10}
-    path.write_text(json.dumps({"physical": phys}))
+    phys = {"conveyance_weight_N": 185_400, "rated_load_N": 263_880, "overload_frac": 1.10}
+    write_node_json(path, **phys)
     settings = alarm_settings(SiteFigures.from_node_json(path))
     assert settings.rated_load_dan == 26_388 and settings.overload_frac == 1.10
     clk = Clock()
@@ -187,6 +191,6 @@ def test_overload_threshold_is_the_sites_rated_load_times_its_overload_factor(tm
         clk.t = seq * 0.1
         s.feed("pithead", wire(seq, dan=(7300, 7300, 7300, 7300)))
     assert [a.kind for a in s.alarms.active()] == ["overload"]
-    path.write_text(json.dumps({"physical": dict(phys, overload_frac=0.9)}))
+    write_node_json(path, **dict(phys, overload_frac=0.9))
     with pytest.raises(ValueError, match="physical.overload_frac"):
         SiteFigures.from_node_json(path)

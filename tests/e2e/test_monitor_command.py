@@ -86,11 +86,12 @@ def test_monitor_refuses_conflicting_keys_and_configs_of_different_hoists(tmp_pa
     import json
 
     from ropemon.cli import main
+    from ropemon.commission.nodeconfig import example_physical
 
     def node_json(name, node, key, area):
         p = tmp_path / name
-        p.write_text(json.dumps({"physical": {"node_id": node, "key_hex": key.hex(), "ropes": 4,
-                                              "cylinder_area_m2": [area] * 4, "rated_rope_tension_N": 80_000}}))
+        p.write_text(json.dumps({"physical": dict(example_physical(), node_id=node, key_hex=key.hex(), ropes=4,
+                                                  cylinder_area_m2=[area] * 4, rated_rope_tension_N=80_000)}))
         return str(p)
 
     a = node_json("a.json", 1, KEY, 0.0314)

@@ -4,7 +4,8 @@ import math
 
 from rich.console import Console
 
-from ropemon.station.monitor import MonitorView, SiteFigures, sparkline
+from ropemon.station.monitor import MonitorView, sparkline
+from ropemon.station.physical import SiteFigures
 from ropemon.station.protocol import Rope, decode_raw, encode_frame
 
 AREA = 0.0314
@@ -111,7 +112,7 @@ def test_two_cage_nodes_one_shown_the_other_summarised_and_switchable():
 def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
     """With the seal's friction lines each rope shows its deviation's band; a rope whose estimate
     flipped while its pressure barely moved reads +6 % but may reach 10 %: DEVIATION POSSIBLE, yellow."""
-    from ropemon.station.monitor import alarm_settings
+    from ropemon.station.physical import alarm_settings
     from station_rig import Rig
     from ropemon.station.uncertainty import BandParams
 

@@ -4,7 +4,8 @@ import numpy as np
 
 from ropemon.lab import radio
 from ropemon.lab.demo import DemoClock, Sent, demo_host, play_to_host, summarize
-from ropemon.station.monitor import MonitorView, SiteFigures, alarm_settings
+from ropemon.station.monitor import MonitorView
+from ropemon.station.physical import SiteFigures, alarm_settings
 from ropemon.station.protocol import Rope, decode_raw, encode_frame
 
 KEY = bytes(range(32))

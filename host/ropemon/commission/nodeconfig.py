@@ -4,7 +4,9 @@
 the firmware uses (scales in docs/model.md, "Fixed-point scales") and proves
 that no integer the node computes leaves +-2**30 over the declared ranges; a
 physical value that would break that raises ValueError naming the field.
-`make_node_json(physical)` adds schema and CRC; `example_physical()` is the
+The section is read through `ropemon.station.physical.Physical`, which refuses what is not
+physical (ranges, types, list lengths); what is checked here is what the node's fixed point
+can represent. `make_node_json(physical)` adds schema and CRC; `example_physical()` is the
 documented default for the paper's field hoist, shipped as firmware/node.json
 (regenerate: `python -m ropemon.commission.nodeconfig > firmware/node.json`).
 """
@@ -17,68 +19,16 @@ import sys
 from typing import Any
 
 from ropemon.firmware import node_module
+from ropemon.station.physical import COMPLIANCE_DEFAULTS, NODE_DEFAULTS, Physical, as_physical
 
 I30 = 1 << 30
 SCHEMA = 1
 GEXP_STEP = 1 / 32          # u step of the exp(-u^2) table
 GEXP_POINTS = 129
 
-# Defaults for physical keys that docs/config.md does not list (see docs/model.md).
-DEFAULTS = {
-    "piston_speed_max_m_s": 0.2,   # velocity estimate saturates here
-    "hoist_speed_max_m_s": 20.0,   # larger counter jumps are glitches
-    "hall_snap_m": 2.0,            # a Hall mark snaps depth only within this distance
-    "start_depth_m": 0.0,          # depth assumed at boot (pithead landing)
-    # LuGre observer (docs/model.md, "LuGre"): the seal state follows a slower
-    # low-pass of position, through a play of a few noise sigmas for the dissipation.
-    # With a hydraulic compliance k (m/Pa per rope), that position is x_h = k p_l + b:
-    # the oil's compression from the tracked pressure p_l, plus b, a slow low-pass of
-    # x_f - k p_l (docs/model.md, "LuGre (noise-robust observer)").
-    "friction_cutoff_hz": 1.0,     # low-pass b: 1 Hz without compliance, 0.03 Hz with
-    "displacement_noise_m": 2e-5,  # rms noise of the displacement channel (transmitter + ADC)
-    "friction_play_sigmas": 2.0,   # play half-width in rms noise of that position
-    # the pressure tracker that gives p_l (docs/model.md): a steady-state Kalman filter of
-    # the median pressure with a creep at a constant rate and the rope bounce, a damped
-    # oscillator at bounce_hz (measured by fit-compliance); the process noises are the
-    # spectral densities of the creep's and the bounce's random forcing
-    "bounce_hz": 2.8,              # the cage's bounce at the pithead landing
-    "bounce_filter_damping": 0.2,  # the tracker's oscillator (broader than the rope's own)
-    "creep_q_Pa2_s3": 3e9,
-    "bounce_q_Pa2_s3": 3e9,
-    "pressure_noise_Pa": 5e3,      # rms noise of the pressure channel (transmitter + ADC)
-    "friction_warmup_s": 0.0,      # b a running mean this long after the start: 0 s without, 2 s with
-    # balancing strokes (docs/model.md), tracked with a compliance and 2 or more ropes: the
-    # low-pass of each rope's x_f - x_h and of the common motion, the threshold on the
-    # former in its rms noise, the common speed below which it has no direction, and how
-    # long a direction must hold before a stroke is looked for
-    "stroke_cutoff_hz": 1.0,
-    "stroke_sigmas": 6.5,
-    "stroke_min_speed_m_s": 1e-5,
-    "stroke_settle_s": 4.0,
-    # slide following (docs/model.md, "Balancing strokes"): outside a stroke, of what x_h
-    # takes over from e the share (|e| - lo) / (hi - lo), 0 .. 1, with lo and hi these
-    # many times e's rms noise, is the piston's proven travel and goes into the seal state
-    # (slide_follow false, or both sigmas 0: off; chosen on tuning seeds)
-    "slide_follow": True,
-    "slide_follow_lo_sigmas": 3.0,
-    "slide_follow_hi_sigmas": 5.0,
-    # rest hold (docs/model.md), with a compliance: a rope is quiet while the low-pass of
-    # |x_s - x_l| (x_l: a slower low-pass of x_s) stays below rest_sigmas times the
-    # position noise; then b stands and the play widens to rest_play_sigmas, so the noise
-    # of a long rest does not wear the seal state down (rest_sigmas 0: no rest hold)
-    "rest_sigmas": 0.0,
-    "rest_play_sigmas": 4.0,
-    "rest_slow_cutoff_hz": 0.2,
-    "rest_cutoff_hz": 0.5,
-    # noise following (docs/model.md), with a compliance: the node measures each pressure
-    # channel's noise (the low-pass, this slow, of |second difference|) and scales the plays
-    # and the rest threshold by the median channel's over pressure_noise_Pa's (0: fixed)
-    "noise_follow_s": 0.0,
-}
-# the defaults that change when a compliance is given
-COMPLIANCE_DEFAULTS = {"friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0,
-                       "friction_play_sigmas": 1.45, "rest_sigmas": 1.12, "rest_play_sigmas": 4.5,
-                       "noise_follow_s": 20.0}
+# Defaults of the optional physical keys (docs/config.md, docs/model.md): one table, in
+# ropemon.station.physical, with the ones a compliance changes (COMPLIANCE_DEFAULTS).
+DEFAULTS = NODE_DEFAULTS
 # rms of the median of N independent channels of unit rms noise (Gaussian; of two: their
 # mean): the LuGre position's pressure with a compliance (docs/model.md)
 MEDIAN_NOISE = (1.0, 0.7071, 0.6696, 0.5458)
@@ -123,39 +73,9 @@ def fit_mul_shift(value: float, max_in: float, field: str, mul_max: int = PRESSU
     return best
 
 
-def _get(ph: dict, key: str) -> Any:
-    if key in ph:
-        return ph[key]
-    if key in DEFAULTS:
-        return DEFAULTS[key]
-    raise ValueError(f"physical.{key}: missing")
-
-
-def _num(ph: dict, key: str, lo: float, hi: float) -> float:
-    v = _get(ph, key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ValueError(f"physical.{key}: must be a number")
-    if not lo <= v <= hi:
-        raise ValueError(f"physical.{key}: {v} out of range {lo}..{hi}")
-    return float(v)
-
-
-def _per_rope(ph: dict, key: str, n: int) -> list:
-    v = _get(ph, key)
-    if not isinstance(v, list) or len(v) != n:
-        raise ValueError(f"physical.{key}: must be a list of {n} entries (one per rope)")
-    return v
-
-
 def _check(field: str, value: float, limit: float = I30) -> None:
     if not -limit < value < limit:
         raise ValueError(f"{field}: the node would compute {value:.0f}, beyond +-{limit:.0f}")
-
-
-def pressure_max_pa(chan: dict) -> float:
-    """Sensor pressure at the highest good count (21 mA)."""
-    lo, hi = chan["range_Pa"]
-    return lo + (hi - lo) * 17 / 16
 
 
 def filtered_noise_m(noise_m: float, alpha: float, alpha_z: float) -> float:
@@ -179,19 +99,6 @@ def noise_level_per_rms() -> float:
         c = NOISE_CLIP * level / s  # the clip in rms of the second difference
         level = s * (math.sqrt(2 / math.pi) * (1 - math.exp(-c * c / 2)) + c * math.erfc(c / math.sqrt(2)))
     return level
-
-
-def compliance(ph: dict, n: int) -> list[float]:
-    """Per-rope hydraulic compliance k (m/Pa) of `physical`, zeros when it is not given."""
-    k = ph.get("hydraulic_compliance_m_per_Pa")
-    if k is None:
-        return [0.0] * n
-    if (not isinstance(k, list) or len(k) != n
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-                       and 0 <= x <= 1e-6 for x in k)):
-        raise ValueError(f"physical.hydraulic_compliance_m_per_Pa: must be a list of {n} numbers "
-                         "in 0 .. 1e-6 m/Pa (one per rope)")
-    return [float(x) for x in k]
 
 
 TRACKER_ITERATIONS = 100000  # Riccati steps at most (it converges in a few thousand)
@@ -274,43 +181,35 @@ def tracker_gains(fs: float, bounce_hz: float, damping: float, q_creep: float, q
             "noise_gain": math.sqrt(acc)}
 
 
-def pressure_tracker(ph: dict, fs: float, n: int) -> dict:
+def pressure_tracker(ph: dict | Physical, fs: float, n: int) -> dict:
     """tracker_gains for `physical` (with the compliance defaults applied): the median of
     all n channels' noise, with the node's kPa/16 rounding, is the measurement noise."""
-    return tracker_gains(fs, _num(ph, "bounce_hz", 0.5, fs / 8), _num(ph, "bounce_filter_damping", 0.05, 1.0),
-                         _num(ph, "creep_q_Pa2_s3", 1e3, 1e15), _num(ph, "bounce_q_Pa2_s3", 1e3, 1e15),
-                         (MEDIAN_NOISE[n - 1] * pressure_noise_pa(ph)) ** 2)
+    p = as_physical(ph)
+    return tracker_gains(fs, p.setting("bounce_hz"), p.setting("bounce_filter_damping"),
+                         p.setting("creep_q_Pa2_s3"), p.setting("bounce_q_Pa2_s3"),
+                         (MEDIAN_NOISE[n - 1] * pressure_noise_pa(p)) ** 2)
 
 
-def pressure_noise_pa(ph: dict) -> float:
+def pressure_noise_pa(ph: dict | Physical) -> float:
     """rms noise of one pressure channel as the node reads it (in kPa/16 steps)."""
-    return math.hypot(_num(ph, "pressure_noise_Pa", 0.0, 1e6), 1e3 / 16 / math.sqrt(12))
+    return math.hypot(as_physical(ph).setting("pressure_noise_Pa"), 1e3 / 16 / math.sqrt(12))
 
 
-def physical_params(ph: dict) -> dict:
-    """The SI quantities both the builder and the float reference derive from `physical`."""
-    n = int(_num(ph, "ropes", 1, 4))
-    fs = _num(ph, "sample_hz", 1, 1000)
-    k = compliance(ph, n)
-    if any(k):
-        ph = {**COMPLIANCE_DEFAULTS, **ph}
-    fc_hz = _num(ph, "velocity_cutoff_hz", 0.01, fs / 2)
-    fz_hz = _num(ph, "friction_cutoff_hz", 0.001, fc_hz)
+def physical_params(ph: dict | Physical) -> dict:
+    """The SI quantities both the builder and the float reference derive from `physical`
+    (a dict is checked by Physical.from_dict: ValueError naming the field)."""
+    p = as_physical(ph)
+    n = p.ropes
+    fs = float(p.sample_hz)
+    k = list(p.compliance)
+    fc_hz = p.velocity_cutoff_hz
+    fz_hz = p.setting("friction_cutoff_hz")
     # low-pass gains as the node holds them (Q14): a 0.03 Hz gain is 15.4/16384, and the
     # reference must follow the node's 15, not the exact value, to agree within 0.05 %
     alpha, alpha_z = (max(1, round((1 - math.exp(-2 * math.pi * f / fs)) * 16384)) / 16384
                       for f in (fc_hz, fz_hz))
-    if "pressure_cutoff_hz" in ph:
-        raise ValueError("physical.pressure_cutoff_hz: no longer used: the pressure tracker "
-                         "(bounce_hz, docs/config.md) replaced the pressure low-pass")
-    xch = _per_rope(ph, "displacement_channels", n)
-    try:
-        q_m = max((float(c["range_m"][1]) - float(c["range_m"][0]))
-                  / (int(c["counts_hi"]) - int(c["counts_lo"])) for c in xch)
-    except (KeyError, TypeError, ValueError, IndexError, ZeroDivisionError):
-        raise ValueError("physical.displacement_channels: need counts_lo < counts_hi, "
-                         "range_m [lo, hi]") from None
-    noise_m = _num(ph, "displacement_noise_m", 0.0, 1e-3)
+    q_m = max(c.m_per_count for c in p.displacement_channels)
+    noise_m = p.setting("displacement_noise_m")
     # rms noise of the LuGre position that makes false travel: without compliance, the
     # displacement's through both low-passes; with it, k times the noise of the median of
     # the ropes' pressure channels, each with the node's kPa/16 steps) through the pressure
@@ -318,52 +217,44 @@ def physical_params(ph: dict) -> dict:
     # pressure channels: the median of fewer is noisier, so a faulted loop widens the play
     tracker = None
     if any(k):
-        tracker = pressure_tracker(ph, fs, n)
-        p_noise = pressure_noise_pa(ph) * tracker["noise_gain"]
+        tracker = pressure_tracker(p, fs, n)
+        p_noise = pressure_noise_pa(p) * tracker["noise_gain"]
         sigmas = [max(k) * MEDIAN_NOISE[m - 1] * p_noise for m in range(1, n + 1)]
     else:
         sigmas = [filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_z)] * n
     # in steps of PLAY_STEP_M: channels that differ by a few counts per metre share a play
-    def in_steps(key: str, hi: float) -> list[float]:
-        m = _num(ph, key, 0.0, hi)
+    def in_steps(key: str) -> list[float]:
+        m = p.setting(key)
         return [PLAY_STEP_M * round(m * s / PLAY_STEP_M) for s in sigmas]
-    plays = in_steps("friction_play_sigmas", 10.0)
+    plays = in_steps("friction_play_sigmas")
     # the rest hold: only with a compliance (without one b is the position low-pass itself)
-    rest = in_steps("rest_sigmas", 10.0) if any(k) else [0.0] * n
-    rest_plays = in_steps("rest_play_sigmas", 20.0)
+    rest = in_steps("rest_sigmas") if any(k) else [0.0] * n
+    rest_plays = in_steps("rest_play_sigmas")
     if any(rest) and min(rest_plays) < max(plays):
         raise ValueError("physical.rest_play_sigmas: must be at least friction_play_sigmas")
     # noise following: the level the plays are sized for (Pa) and the low-pass's shift
-    follow_s = _num(ph, "noise_follow_s", 0.0, 3600.0)
+    follow_s = p.setting("noise_follow_s")
     noise_ref, noise_shift = 0.0, 0
     if any(k) and follow_s > 0:
-        noise_ref = pressure_noise_pa(ph) * noise_level_per_rms()
+        noise_ref = pressure_noise_pa(p) * noise_level_per_rms()
         noise_shift = min(16, max(1, round(math.log2(follow_s * fs))))
-    alpha_l, alpha_a = (max(1, round((1 - math.exp(-2 * math.pi * _num(ph, key, 0.001, fs / 2) / fs)) * 16384))
+    alpha_l, alpha_a = (max(1, round((1 - math.exp(-2 * math.pi * p.setting(key) / fs)) * 16384))
                         / 16384 for key in ("rest_slow_cutoff_hz", "rest_cutoff_hz"))
-    fe_hz = _num(ph, "stroke_cutoff_hz", 0.01, fs / 2)
+    fe_hz = p.setting("stroke_cutoff_hz")
     alpha_e = min(4096, max(1, round((1 - math.exp(-2 * math.pi * fe_hz / fs)) * 16384))) / 16384
     # each cylinder's area over the mean (Q8, as the node holds it); build_node_section
-    # checks the areas themselves and refuses weights beyond 0.5 .. 1.5
-    areas = ph.get("cylinder_area_m2")
-    area_w = [1.0] * n
-    if isinstance(areas, list) and len(areas) == n and all(
-            isinstance(a, (int, float)) and not isinstance(a, bool) and a > 0 for a in areas):
-        area_w = [round(256 * a * n / sum(areas)) / 256 for a in areas]
+    # refuses weights beyond 0.5 .. 1.5
+    areas = p.cylinder_area_m2
+    area_w = [round(256 * a * n / sum(areas)) / 256 for a in areas]
     # a stroke shows in the low-pass of x_f - x_h beyond stroke_sigmas times its noise:
     # the displacement's through x_f and that low-pass; only with a compliance and 2+
     # ropes (stroke_sigmas 0: not tracked)
     stroke_m = 0.0
-    sigmas = _num(ph, "stroke_sigmas", 0.0, 100.0)
+    sigmas = p.setting("stroke_sigmas")
     # slide following: lo and the span hi - lo in e's noise, in the node's um/256 (span >= 1)
-    slide_on = _get(ph, "slide_follow")
-    if not isinstance(slide_on, bool):
-        raise ValueError("physical.slide_follow: must be true or false")
-    lo_s = _num(ph, "slide_follow_lo_sigmas", 0.0, 100.0)
-    hi_s = _num(ph, "slide_follow_hi_sigmas", 0.0, 100.0)
-    if (lo_s or hi_s) and hi_s <= lo_s:
-        raise ValueError(f"physical.slide_follow_hi_sigmas: {hi_s:g} must exceed "
-                         f"slide_follow_lo_sigmas {lo_s:g} (both 0: off)")
+    slide_on = p.setting("slide_follow")
+    lo_s = p.setting("slide_follow_lo_sigmas")
+    hi_s = p.setting("slide_follow_hi_sigmas")
     slide_lo_m = slide_span_m = 0.0
     if any(k) and n > 1 and sigmas > 0:
         e_noise = filtered_noise_m(math.hypot(noise_m, abs(q_m) / math.sqrt(12)), alpha, alpha_e)
@@ -382,10 +273,10 @@ def physical_params(ph: dict) -> dict:
         "slide_lo_m": slide_lo_m,      # slide following: |e| from which the take-over is travel
         "slide_span_m": slide_span_m,  # and over which it becomes all travel (0: off)
         # um/65536 per sample, as the node compares it (at most 2**29)
-        "stroke_vmin": min(round(_num(ph, "stroke_min_speed_m_s", 0.0, 1.0) / fs * 1e6 * 65536), 1 << 29) / 65536e6,
-        "stroke_settle": round(_num(ph, "stroke_settle_s", 0.0, 300.0) * fs),
+        "stroke_vmin": min(round(p.setting("stroke_min_speed_m_s") / fs * 1e6 * 65536), 1 << 29) / 65536e6,
+        "stroke_settle": round(p.setting("stroke_settle_s") * fs),
         "compliance": k,
-        "warmup": round(_num(ph, "friction_warmup_s", 0.0, 60.0) * fs),
+        "warmup": round(p.setting("friction_warmup_s") * fs),
         # the play half-width with every pressure channel healthy, and per count of them
         "play_m": plays[-1],
         "plays_m": plays,
@@ -395,8 +286,8 @@ def physical_params(ph: dict) -> dict:
         "noise_shift": noise_shift,  # its low-pass gain is 2**-noise_shift
         "alpha_l": alpha_l,
         "alpha_a": alpha_a,
-        "v_max": _num(ph, "piston_speed_max_m_s", 1e-3, 2.0),
-        "p_max_pa": friction_p_max_pa(ph, n),
+        "v_max": p.setting("piston_speed_max_m_s"),
+        "p_max_pa": p.friction_p_max_Pa,
     }
 
 
@@ -409,7 +300,7 @@ def _tracker_fields(tr: dict | None) -> dict:
             "tracker_v_shift": tr["v_shift"], "tracker_b_shift": tr["b_shift"]}
 
 
-def sigma0_max(ph: dict) -> float:
+def sigma0_max(ph: dict | Physical) -> float:
     """The stiffest pre-sliding sigma0 (N/m) the node represents for this config.
 
     The bristle increment sigma0 * dx of the largest believable per-sample step
@@ -417,80 +308,51 @@ def sigma0_max(ph: dict) -> float:
     covers the rounding of the multiplier). A stiffer seal is, at the displacement
     channel's resolution, a seal with no measurable pre-sliding at all.
     """
-    dx_max_q8um = round(physical_params(ph)["v_max"] / _num(ph, "sample_hz", 1, 1000) * 256e6)
+    p = as_physical(ph)
+    dx_max_q8um = round(p.setting("piston_speed_max_m_s") / p.sample_hz * 256e6)
     return 0.99 * (1 << 19) * 16e6 / dx_max_q8um
 
 
-def friction_p_max_pa(ph: dict, n: int) -> float:
-    """Sensor pressure above which the friction lines are held, not extrapolated (Pa).
-
-    The top of the sensor range, or lower with `friction_p_max_MPa` (the highest
-    pressure the friction test bed reached: a fit is not trusted beyond its data).
-    """
-    top = max(pressure_max_pa(c) for c in _per_rope(ph, "pressure_channels", n))
-    if ph.get("friction_p_max_MPa") is None:
-        return top
-    return _num(ph, "friction_p_max_MPa", 0.1, top / 1e6) * 1e6
-
-
-def build_node_section(ph: dict) -> dict:
+def build_node_section(ph: dict | Physical) -> dict:
     """The integer node section for physical section `ph` (raises ValueError naming the field)."""
-    if not isinstance(ph, dict):
-        raise ValueError("physical: must be an object")
-    pp = physical_params(ph)
-    n = pp["ropes"]
-    fs = int(_num(ph, "sample_hz", 1, 1000))
-    frame_hz = int(_num(ph, "frame_hz", 1, fs))
-    if fs != _get(ph, "sample_hz") or frame_hz != _get(ph, "frame_hz") or fs % frame_hz:
-        raise ValueError("physical.frame_hz: sample_hz and frame_hz must be integers, "
-                         "sample_hz a multiple of frame_hz")
-    key_hex = _get(ph, "key_hex")
-    try:
-        key = bytes.fromhex(key_hex)
-    except (TypeError, ValueError):
-        raise ValueError("physical.key_hex: not a hex string") from None
-    if not 16 <= len(key) <= 32:
-        raise ValueError(f"physical.key_hex: {len(key)} bytes, need 16..32")
-    areas = _per_rope(ph, "cylinder_area_m2", n)
-    for i, a in enumerate(areas):
-        if not isinstance(a, (int, float)) or not 1e-4 <= a <= 0.1:
-            raise ValueError(f"physical.cylinder_area_m2[{i}]: {a!r} out of range 1e-4..0.1 m^2")
+    p = as_physical(ph)
+    pp = physical_params(p)
+    n = p.ropes
+    fs = p.sample_hz
+    frame_hz = p.frame_hz
+    key = bytes.fromhex(p.key_hex)
+    areas = p.cylinder_area_m2
     for i, w in enumerate(pp["area_w"]):
         if not 0.5 <= w <= 1.5:
             raise ValueError(f"physical.cylinder_area_m2[{i}]: {w:.2f} times the ropes' mean area; the node "
                              "shares the oil's motion among cylinders within 0.5 .. 1.5 of it")
-    rated = _num(ph, "rated_rope_tension_N", 1e3, 3e5)
+    rated = p.rated_rope_tension_N
     p_max_pa = pp["p_max_pa"]
     p_kpa_max = math.ceil(p_max_pa / 1000)
     _check("physical.pressure_channels", p_kpa_max, 100000)
     tension_limit = 1 << 19  # N: config.py TENSION_MAX_N
 
     nd: dict[str, Any] = {
-        "node_id": int(_num(ph, "node_id", 0, 255)),
+        "node_id": p.node_id,
         "key": list(key),
         "ropes": n,
         "sample_hz": fs,
         "frame_hz": frame_hz,
         "rated_rope_tension_n": round(rated),
-        "imbalance_permille": round(_num(ph, "imbalance_frac", 0, 1) * 1000),
-        "battery_low_mv": round(_num(ph, "battery_low_V", 0, 65) * 1000),
+        "imbalance_permille": round(p.imbalance_frac * 1000),
+        "battery_low_mv": round(p.battery_low_V * 1000),
         "p_kpa_max": p_kpa_max,
     }
-    bm, bs = fit_mul_shift(_num(ph, "battery_V_per_count", 1e-6, 1e-2) * 1000, 65535,
+    bm, bs = fit_mul_shift(p.battery_V_per_count * 1000, 65535,
                            "physical.battery_V_per_count")
     nd["battery_mv_mul"], nd["battery_mv_shift"] = bm, bs
 
     pressure = []
     raw_t_max = 0.0
-    for i, ch in enumerate(_per_rope(ph, "pressure_channels", n)):
+    for i, ch in enumerate(p.pressure_channels):
         f = f"physical.pressure_channels[{i}]"
-        try:
-            c4, c20 = int(ch["counts_4mA"]), int(ch["counts_20mA"])
-            lo, hi = (float(x) for x in ch["range_Pa"])
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f"{f}: needs counts_4mA, counts_20mA, range_Pa [lo, hi]") from None
-        if not 0 <= c4 < c20 <= 65535 or not hi > lo:
-            raise ValueError(f"{f}: need 0 <= counts_4mA < counts_20mA <= 65535 and hi > lo")
+        c4, c20 = ch.counts_4mA, ch.counts_20mA
+        lo, hi = ch.range_Pa
         flo, fhi = namur_limits(c4, c20)
         pa_per_count = (hi - lo) / (c20 - c4)
         km, ks = fit_mul_shift(pa_per_count / 1000, 65535, f + ".range_Pa")
@@ -510,15 +372,10 @@ def build_node_section(ph: dict) -> dict:
     nd["pressure"] = pressure
 
     displacement = []
-    for i, ch in enumerate(_per_rope(ph, "displacement_channels", n)):
+    for i, ch in enumerate(p.displacement_channels):
         f = f"physical.displacement_channels[{i}]"
-        try:
-            clo, chi = int(ch["counts_lo"]), int(ch["counts_hi"])
-            lo, hi = (float(x) for x in ch["range_m"])
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f"{f}: needs counts_lo, counts_hi, range_m [lo, hi]") from None
-        if not 0 <= clo < chi <= 65535 or not hi > lo:
-            raise ValueError(f"{f}: need 0 <= counts_lo < counts_hi <= 65535 and hi > lo")
+        clo, chi = ch.counts_lo, ch.counts_hi
+        lo, hi = ch.range_m
         flo, fhi = namur_limits(clo, chi)
         q8_per_count = (hi - lo) / (chi - clo) * 256e6
         dm, ds = fit_mul_shift(q8_per_count, 65535, f + ".range_m")
@@ -555,26 +412,14 @@ def build_node_section(ph: dict) -> dict:
         _check("physical.rest_sigmas (activity threshold with noise following, um/65536)",
                max(rest_q16um), 1 << 20)
 
-    fr = _get(ph, "friction")
-    if not isinstance(fr, dict):
-        raise ValueError("physical.friction: must be an object")
-
-    def fnum(key: str) -> float:
-        v = fr.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ValueError(f"physical.friction.{key}: must be a number")
-        return float(v)
+    fr = p.friction
 
     def flin(key: str) -> tuple[float, float]:
-        v = fr.get(key)
-        if not isinstance(v, dict) or "slope" not in v or "intercept" not in v:
-            raise ValueError(f"physical.friction.{key}: must be {{slope, intercept}}")
-        return float(v["intercept"]), float(v["slope"])
+        line = getattr(fr, key)
+        return line.intercept, line.slope
 
-    sigma0 = fnum("sigma0")
-    sigma1 = fnum("sigma1")
-    if sigma0 <= 0 or sigma1 < 0:
-        raise ValueError("physical.friction.sigma0: must be > 0 (and sigma1 >= 0)")
+    sigma0 = fr.sigma0
+    sigma1 = fr.sigma1
     s0m, s0s = fit_mul_shift(sigma0 / 16e6, dx_max, "physical.friction.sigma0", mul_max=1 << 11)
     _check("physical.friction.sigma0 (sigma0 * dx_max, N/16)", (dx_max * s0m) >> s0s, 1 << 19)
     c1 = sigma1 / (sigma0 / fs)
@@ -639,22 +484,10 @@ def build_node_section(ph: dict) -> dict:
                       "stroke_settle": min(pp["stroke_settle"], 65535),
                       "slide_lo_q8um": slide_lo_q8um, "slide_span_q8um": slide_span_q8um,
                       **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
-    fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p for p in (0.0, p_kpa_max / 1000))
+    fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p_mpa for p_mpa in (0.0, p_kpa_max / 1000))
     f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous
 
-    loss = _get(ph, "loss")
-    try:
-        temps = [float(t) for t in loss["temps_C"]]
-        flows = [float(q) for q in loss["flow_m3_s"]]
-        dps = loss["dp_Pa"]
-    except (KeyError, TypeError, ValueError):
-        raise ValueError("physical.loss: needs temps_C, flow_m3_s, dp_Pa") from None
-    if flows[0] != 0 or any(b <= a for a, b in zip(flows, flows[1:])) or len(flows) > 32:
-        raise ValueError("physical.loss.flow_m3_s: must start at 0, ascend, at most 32 points")
-    if any(b <= a for a, b in zip(temps, temps[1:])) or not 1 <= len(temps) <= 8:
-        raise ValueError("physical.loss.temps_C: must ascend, 1..8 points")
-    if not isinstance(dps, list) or len(dps) != n:
-        raise ValueError(f"physical.loss.dp_Pa: must have {n} rope entries")
+    temps, flows, dps = p.loss.temps_C, p.loss.flow_m3_s, p.loss.dp_Pa
     v_rows, f_rows = [], []
     loss_max = 0.0
     for i in range(n):
@@ -663,13 +496,9 @@ def build_node_section(ph: dict) -> dict:
             raise ValueError(f"physical.loss.flow_m3_s: piston speeds of rope {i} not "
                              "distinct in um/s or beyond 0.5 m/s")
         v_rows.append(v_row)
-        if not isinstance(dps[i], list) or len(dps[i]) != len(temps):
-            raise ValueError(f"physical.loss.dp_Pa[{i}]: needs {len(temps)} temperature rows")
         rows = []
         for t, row in enumerate(dps[i]):
-            if not isinstance(row, list) or len(row) != len(flows):
-                raise ValueError(f"physical.loss.dp_Pa[{i}][{t}]: needs {len(flows)} values")
-            fr_row = [round(float(dp) * areas[i]) for dp in row]
+            fr_row = [round(dp * areas[i]) for dp in row]
             if fr_row[0] != 0:
                 raise ValueError(f"physical.loss.dp_Pa[{i}][{t}][0]: loss at zero flow must be 0")
             for x in fr_row:
@@ -684,19 +513,13 @@ def build_node_section(ph: dict) -> dict:
     _check("physical (largest tension: raw + loss + friction)", t_max, tension_limit)
     _check("physical.frame_hz (tension sums over a window)", t_max * (fs // frame_hz), I30)
 
-    temp = _get(ph, "temperature")
-    assumed = round(_num(ph, "oil_temp_assumed_C", -50, 150) * 100)
+    temp = p.temperature
+    assumed = round(p.oil_temp_assumed_C * 100)
     if temp is None:
         nd["temperature"] = {"fitted": 0, "counts_at_0c": 0, "cc_mul": 0, "cc_shift": 0,
                              "fault_lo_counts": 0, "fault_hi_counts": 0, "assumed_cc": assumed}
     else:
-        try:
-            c0 = float(temp["counts_at_0C"])
-            cpc = float(temp["counts_per_C"])
-        except (KeyError, TypeError, ValueError):
-            raise ValueError("physical.temperature: needs counts_at_0C, counts_per_C") from None
-        if cpc == 0:
-            raise ValueError("physical.temperature.counts_per_C: must not be 0")
+        c0, cpc = temp.counts_at_0C, temp.counts_per_C
         tm_, ts_ = fit_mul_shift(100 / cpc, 65535, "physical.temperature.counts_per_C")
         ends = sorted((c0 - 40 * cpc, c0 + 125 * cpc))  # a reading outside -40..125 C is a fault
         nd["temperature"] = {"fitted": 1, "counts_at_0c": round(c0), "cc_mul": tm_,
@@ -705,23 +528,19 @@ def build_node_section(ph: dict) -> dict:
                              "fault_hi_counts": min(65534, math.floor(ends[1])),
                              "assumed_cc": assumed}
 
-    mpp = _num(ph, "speed_m_per_pulse", 1e-5, 10)
+    mpp = p.speed_m_per_pulse
     mmpp_q16 = round(mpp * 1000 * 65536)
-    max_pulses = math.ceil(_num(ph, "hoist_speed_max_m_s", 0.1, 50) / mpp / fs) + 1
+    max_pulses = math.ceil(p.setting("hoist_speed_max_m_s") / mpp / fs) + 1
     _check("physical.speed_m_per_pulse (pulses per sample * mm per pulse, Q16)",
            max_pulses * mmpp_q16, 1 << 28)
     _check("physical.speed_m_per_pulse (travel per frame window, Q16)",
            max_pulses * mmpp_q16 * (fs // frame_hz), 1 << 29)
-    marks = _get(ph, "hall_marks_m")
-    if not isinstance(marks, list) or len(marks) > 64:
-        raise ValueError("physical.hall_marks_m: must be a list of at most 64 depths")
-    marks_mm = [round(float(m) * 1000) for m in marks]
+    marks_mm = [round(m * 1000) for m in p.hall_marks_m]
     if any(b <= a for a, b in zip(marks_mm, marks_mm[1:])):
-        raise ValueError("physical.hall_marks_m: must ascend")
+        raise ValueError("physical.hall_marks_m: must ascend in mm (the node's resolution)")
     nd["shaft"] = {"mm_per_pulse_q16": mmpp_q16, "max_pulses_per_sample": max_pulses,
-                   "marks_mm": marks_mm, "snap_mm": round(_num(ph, "hall_snap_m", 0, 100) * 1000),
-                   "start_depth_mm":
-                       round(_num(ph, "start_depth_m", -100, 5000) * 1000)}
+                   "marks_mm": marks_mm, "snap_mm": round(p.setting("hall_snap_m") * 1000),
+                   "start_depth_mm": round(p.setting("start_depth_m") * 1000)}
 
     # Last line of defence: the node's own validator must accept what we built.
     cfg_mod = node_module("config")
@@ -732,9 +551,11 @@ def build_node_section(ph: dict) -> dict:
     return nd
 
 
-def make_node_json(physical: dict) -> dict:
+def make_node_json(physical: dict | Physical) -> dict:
     """A complete node.json document: schema, physical, node, crc."""
     nd = build_node_section(physical)
+    if isinstance(physical, Physical):
+        physical = physical.to_dict()
     cfg_mod = node_module("config")
     crc16 = node_module("crc16").crc16
     return {"schema": SCHEMA, "physical": physical, "node": nd,

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ropemon.commission import tomlfields
+from ropemon.station import physical as physical_section
 
 G_M_S2 = 9.81
 
@@ -567,36 +568,17 @@ def check_friction(fr: Any, p_max_MPa: float, name: str = "friction", refuse_unh
     Returns the parameters the node uses: each line as {"slope", "intercept"},
     sigma0 and sigma1. The line values must stay physical (Fs >= Fc > 0, vs > 0,
     sigma2 >= 0) across the whole operating pressure range, because the node
-    evaluates them there.
+    evaluates them there (`ropemon.station.physical.friction_from_dict`, the check
+    node.json's friction gets too); a fit also needs sigma1 > 0.
     """
-    if not isinstance(fr, dict):
-        raise SiteError(f"{name}: must be an object, got {type(fr).__name__}")
-    out: dict[str, Any] = {}
-    for key in FRICTION_LINES:
-        line = fr.get(key)
-        if not isinstance(line, dict):
-            raise SiteError(f"{name}.{key}: missing or not an object with slope and intercept")
-        out[key] = {k: _check_number(line.get(k), f"{name}.{key}.{k}") for k in ("slope", "intercept")}
-    for key in ("sigma0", "sigma1"):
-        out[key] = _check_number(fr.get(key), f"{name}.{key}", gt=0)
-    refusal = seal_refusal(fr, name) if refuse_unheld else None
-    if refusal:
-        raise SiteError(refusal)
+    from ropemon.station.physical import friction_from_dict
 
-    def at(key: str, p: float) -> float:
-        return out[key]["intercept"] + out[key]["slope"] * p
-
-    for p in (0.0, p_max_MPa):
-        if not at("Fc", p) > 0:
-            raise SiteError(f"{name}.Fc: must be > 0 over 0..{p_max_MPa:.2f} MPa, is {at('Fc', p):g} N at {p:g} MPa")
-        if not at("Fs", p) >= at("Fc", p):
-            raise SiteError(f"{name}.Fs: must be >= Fc over 0..{p_max_MPa:.2f} MPa, "
-                            f"Fs={at('Fs', p):g} < Fc={at('Fc', p):g} N at {p:g} MPa")
-        if not at("vs", p) > 0:
-            raise SiteError(f"{name}.vs: must be > 0 over 0..{p_max_MPa:.2f} MPa, is {at('vs', p):g} m/s at {p:g} MPa")
-        if not at("sigma2", p) >= 0:
-            raise SiteError(f"{name}.sigma2: must be >= 0 over 0..{p_max_MPa:.2f} MPa, "
-                            f"is {at('sigma2', p):g} N s/m at {p:g} MPa")
+    if isinstance(fr, dict) and refuse_unheld:
+        refusal = seal_refusal(fr, name)
+        if refusal:
+            raise SiteError(refusal)
+    out = friction_from_dict(fr, p_max_MPa, name, SiteError).to_dict()
+    _check_number(fr.get("sigma1"), f"{name}.sigma1", gt=0)
     return out
 
 
@@ -631,7 +613,7 @@ def _read_friction(path: Path | str) -> Any:
 
 # ---------------------------------------------------------------- compliance file
 
-COMPLIANCE_K_MAX = 1e-6      # m/Pa: the node's limit (ropemon.commission.nodeconfig.compliance)
+COMPLIANCE_K_MAX = physical_section.COMPLIANCE_K_MAX  # m/Pa
 # [compliance] friction_play_sigmas: the range evaluated (notes/accuracy-research.md, "Sensitivity" and
 # "The transmitters' noise"); above 2 the rest play (4.5 sigma of four channels) would be
 # narrower than the play of one channel
@@ -639,9 +621,10 @@ PLAY_SIGMAS_MIN, PLAY_SIGMAS_MAX = 1.2, 2.0
 # [compliance] noise_follow_s: 0 (off) or this range; at 5 s each channel's noise level is
 # good to about 2.5 %, at 20 s (the node's default) to about 1 % (docs/model.md)
 NOISE_FOLLOW_MIN_S, NOISE_FOLLOW_MAX_S = 5.0, 600.0
-PRESSURE_NOISE_MAX_PA = 1e6  # rms: the node's limit for pressure_noise_Pa
-DISPLACEMENT_NOISE_MAX_M = 1e-3  # rms: the node's limit for displacement_noise_m
-BOUNCE_MIN_HZ, BOUNCE_MAX_HZ = 0.5, 125.0  # the node's limits for bounce_hz (at most sample_hz/8)
+# the limits of `physical` (ropemon.station.physical): rms noises, and bounce_hz at most sample_hz/8
+PRESSURE_NOISE_MAX_PA = physical_section.SETTING_RANGES["pressure_noise_Pa"][1]
+DISPLACEMENT_NOISE_MAX_M = physical_section.SETTING_RANGES["displacement_noise_m"][1]
+BOUNCE_MIN_HZ, BOUNCE_MAX_HZ = physical_section.SETTING_RANGES["bounce_hz"][0], 1000 / 8
 
 
 def read_compliance(path: Path | str) -> Any:
@@ -760,12 +743,23 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
         physical["friction_play_sigmas"] = site.play_sigmas
     if site.noise_follow_s is not None and hydraulic:
         physical["noise_follow_s"] = site.noise_follow_s
+    # What `ropemon config` writes is checked by the code the station and the node's
+    # builder read it with (ropemon.station.physical).
+    checked = _checked_physical(physical, site)
     # A seal stiffer in pre-sliding than the node can represent (e.g. a fit of a seal
     # with no measurable pre-sliding) is commissioned at the node's stiffest sigma0;
     # `ropemon config` warns about it (siteconfig.site_warnings).
     from ropemon.commission.nodeconfig import sigma0_max
 
-    s0_max = sigma0_max(physical)
+    s0_max = sigma0_max(checked)
     if fr["sigma0"] > s0_max:  # sigma1 keeps its ratio to sigma0 (the bristle damping time)
         physical["friction"] = dict(fr, sigma0=s0_max, sigma1=fr["sigma1"] * s0_max / fr["sigma0"])
-    return physical
+        checked = _checked_physical(physical, site)
+    return checked.to_dict()
+
+
+def _checked_physical(physical: dict[str, Any], site: Site) -> "physical_section.Physical":
+    try:
+        return physical_section.Physical.from_dict(physical)
+    except physical_section.PhysicalError as e:
+        raise SiteError(f"{e} (node config built from {site.path})") from None

@@ -296,7 +296,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from ropemon.station.monitor import MonitorView, SiteFigures, alarm_settings
+    from ropemon.station.monitor import MonitorView
+    from ropemon.station.physical import SiteFigures, alarm_settings
     from ropemon.commission.replay import ReplayError, replay
     from ropemon.station.store import Store
 

@@ -26,6 +26,7 @@ from ropemon.lab import estimators as E
 from ropemon.lab import metrics as M
 from ropemon.lab import population
 from ropemon.lab.rundir import NODE_EVALUATED, RunDir, decode_frames
+from ropemon.station.physical import Physical
 
 REPO = Path(__file__).resolve().parents[3]
 SCENARIO_DIR = REPO / "scenarios"
@@ -793,12 +794,12 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     problems = commissioning_problems(fit, physical)
     if "error" in hyd:
         problems.append(f"fit-compliance on the commissioning wind: {hyd['error']}")
-    rated = float(physical["rated_rope_tension_N"])
+    phys = Physical.from_dict(physical)
+    rated = phys.rated_rope_tension_N
     hz, recs = run.sample_hz, run.records[: run.length]
     truth_n = np.asarray(truth["tension_N"], float)[: len(recs)]
-    phase, excluded, steady, payload = scoring_masks(truth, truth_n, hz, rated,
-                                                     float(physical["hall_marks_m"][-1]))
-    case = Case(name=Path(name).stem, sample_hz=hz, frame_hz=int(physical["frame_hz"]), rated_n=rated,
+    phase, excluded, steady, payload = scoring_masks(truth, truth_n, hz, rated, phys.hall_marks_m[-1])
+    case = Case(name=Path(name).stem, sample_hz=hz, frame_hz=phys.frame_hz, rated_n=rated,
                 truth_n=truth_n, phase=phase, excluded=excluded, steady=steady, payload_kg=payload,
                 physical=physical)
     from ropemon.commission.site import seal_refusal
@@ -840,8 +841,8 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
         f"simulated test bed{' (the float estimators below use the refused fit as it is)' if problems or refusal else ''}: "
         f"sigma0 {fit.get('sigma0', float('nan')):.4g} N/m, sigma1 {fit.get('sigma1', float('nan')):.4g} N s/m "
         f"({fit.get('presliding', {}).get('source', '?')}); oil {oil.min():.0f}..{oil.max():.0f} C actual, "
-        f"{physical['oil_temp_assumed_C']:g} C assumed, temperature input "
-        f"{'fitted' if physical.get('temperature') else 'none'}")
+        f"{phys.oil_temp_assumed_C:g} C assumed, temperature input "
+        f"{'fitted' if phys.temperature else 'none'}")
 
     p_cal = float(np.mean(fit.get("pressure_range_MPa", [6.0, 6.0])))
     variants = {
@@ -853,7 +854,7 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     case.estimates[E.FULL_COMPENSATION] = full.tension_n
     for est_name, ph in variants.items():
         case.estimates[est_name] = reference.compensate(ph, recs).tension_n
-    area = np.asarray(physical["cylinder_area_m2"], float)
+    area = np.asarray(phys.cylinder_area_m2, float)
     sig = E.Signals(full.p_pa, full.v_m_s, full.loss_n / area)
     still = _standstill(meta, np.arange(len(truth_n)) / hz)
     deadband = E.deadband_from_standstill(full.v_m_s[still])
@@ -918,7 +919,8 @@ def _add_diagnostics(case: Case, physical: dict, meta: dict, truth, recs: np.nda
 
     law = from_table(dict(meta["scenario_doc"]["plant"]["friction"]), "plant.friction")
     ideal_ph, ideal_recs = ideal_displacement(physical, recs, truth["piston_x_m"])
-    site_span = 0.5 * abs(np.diff(physical["displacement_channels"][0]["range_m"])[0])
+    phys = Physical.from_dict(physical)
+    site_span = 0.5 * abs(np.diff(phys.displacement_channels[0].range_m)[0])
     runs = {"noiseless displacement at the site's resolution":
             ideal_displacement(physical, recs, truth["piston_x_m"], site_span),
             "ideal displacement": (ideal_ph, ideal_recs)}
@@ -926,7 +928,7 @@ def _add_diagnostics(case: Case, physical: dict, meta: dict, truth, recs: np.nda
     # position low-pass at the velocity filter's cutoff, a play of one count's noise): what
     # the node would do if its displacement channel were good enough to follow every stroke
     direct = {k: v for k, v in ideal_ph.items() if k not in ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa")}
-    direct.update(friction_cutoff_hz=float(physical.get("velocity_cutoff_hz", 5.0)), displacement_noise_m=0.0,
+    direct.update(friction_cutoff_hz=phys.velocity_cutoff_hz, displacement_noise_m=0.0,
                   friction_play_sigmas=1.0)
     runs[DIRECT_DIAGNOSTIC] = (direct, ideal_recs)
     runs[NO_STROKES_DIAGNOSTIC] = (dict(physical, stroke_sigmas=0.0), recs)

@@ -14,14 +14,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import getpass
-import json
 import os
 import select
 import sys
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from rich import box
@@ -29,13 +27,14 @@ from rich.console import Console, Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
-from ropemon.station.alarms import ActiveAlarm, AlarmEvent, AlarmSettings
+from ropemon.station.alarms import ActiveAlarm, AlarmEvent
 from ropemon.station.decode_cli import node_id
 from ropemon.station.link import DEFAULT_BAUDRATE, Received
+from ropemon.station.physical import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Station, StationStatus,
                                       station_listeners)
 from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
-from ropemon.station.uncertainty import BandParams, DeviationBand
+from ropemon.station.uncertainty import DeviationBand
 
 TENSION_ABSENT = L.TENSION_ABSENT   # a rope whose sensor failed for the whole window
 
@@ -52,63 +51,6 @@ def sparkline(values: Iterable[float], lo: float, hi: float) -> str:
         k = 0 if span <= 0 else int((v - lo) / span * (len(SPARK) - 1) + 0.5)
         out.append(SPARK[max(0, min(len(SPARK) - 1, k))])
     return "".join(out)
-
-
-@dataclass
-class SiteFigures:
-    """What the view needs to know about the hoist beyond the frames."""
-
-    cylinder_area_m2: list[float] = field(default_factory=list)  # per rope; empty: raw shown in kPa
-    rated_rope_tension_n: float | None = None
-    rated_load_n: float | None = None        # total of all ropes; default ropes x rated rope
-    imbalance_frac: float = 0.10
-    battery_low_v: float | None = None
-    conveyance_weight_n: float | None = None  # weight of the empty cage alone; None: no slack alarm
-    slack_frac: float = 0.60                 # slack below this share of a rope's part of conveyance_weight_n
-    overload_frac: float = 1.0               # overload above this share of rated_load_n
-    band: BandParams | None = None           # the seal's friction lines: each rope's band (ropemon.station.uncertainty)
-
-    @classmethod
-    def from_node_json(cls, path: str | Path) -> "SiteFigures":
-        """The figures from a node.json's `physical` section (docs/config.md)."""
-        try:
-            phys = json.loads(Path(path).read_text())["physical"]
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            raise ValueError(f"{path}: cannot read the physical section of a node config: {e}") from None
-        area = phys.get("cylinder_area_m2", [])
-        ropes = int(phys.get("ropes", len(area) if isinstance(area, list) else 4))
-        if not isinstance(area, list):
-            area = [float(area)] * ropes
-        rated = phys.get("rated_rope_tension_N")
-        empty = phys.get("conveyance_weight_N")
-        if empty is not None and (isinstance(empty, bool) or not isinstance(empty, (int, float))
-                                  or not empty > 0):
-            raise ValueError(f"{path}: physical.conveyance_weight_N: {empty!r} is not a positive load in N")
-        slack_frac = phys.get("slack_frac", 0.60)
-        if isinstance(slack_frac, bool) or not isinstance(slack_frac, (int, float)) or not 0 < slack_frac < 1:
-            raise ValueError(f"{path}: physical.slack_frac: {slack_frac!r} is not a fraction between 0 and 1")
-        rated_load = phys.get("rated_load_N", float(rated) * ropes if rated is not None else None)
-        if rated_load is not None and (isinstance(rated_load, bool) or not isinstance(rated_load, (int, float))
-                                       or not rated_load > 0):
-            raise ValueError(f"{path}: physical.rated_load_N: {rated_load!r} is not a positive load in N")
-        overload_frac = phys.get("overload_frac", 1.0)
-        if isinstance(overload_frac, bool) or not isinstance(overload_frac, (int, float)) or not overload_frac >= 1:
-            raise ValueError(f"{path}: physical.overload_frac: {overload_frac!r} is not a factor >= 1")
-        try:
-            band = BandParams.from_physical(phys)
-        except ValueError as e:
-            raise ValueError(f"{path}: {e}") from None
-        return cls(
-            band=band,
-            cylinder_area_m2=[float(a) for a in area],
-            rated_rope_tension_n=float(rated) if rated is not None else None,
-            rated_load_n=float(rated_load) if rated_load is not None else None,
-            imbalance_frac=float(phys.get("imbalance_frac", 0.10)),
-            battery_low_v=phys.get("battery_low_V"),
-            conveyance_weight_n=float(empty) if empty is not None else None,
-            slack_frac=float(slack_frac),
-            overload_frac=float(overload_frac),
-        )
 
 
 @dataclass
@@ -469,38 +411,6 @@ def receiver_names(ports: list[str]) -> list[tuple[str, str]]:
             name, url = (default[i] if i < len(default) else f"rx{i + 1}"), spec
         out.append((name, url))
     return out
-
-
-def site_from_configs(paths: list[str]) -> SiteFigures:
-    """The hoist's figures from its node.json files (defaults without any). The view and the
-    alarms use one set of figures: node configs that disagree on them are refused."""
-    figures = [(p, SiteFigures.from_node_json(p)) for p in paths]
-    for p, f in figures[1:]:
-        if f != figures[0][1]:
-            raise ValueError(f"{p} and {figures[0][0]} describe different hoists (cylinder areas, rated "
-                             "tension, loads or thresholds differ): run one monitor per hoist")
-    return figures[0][1] if figures else SiteFigures()
-
-
-def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
-    """Alarm thresholds from the node config's figures (regulation defaults otherwise).
-
-    With the empty conveyance's weight (`physical.conveyance_weight_N`, written by `ropemon config`)
-    the slack-rope alarm is on: a rope below `slack_frac` of its share of that load. With the seal's
-    friction lines (`physical.friction`) each rope gets a band and DEVIATION POSSIBLE is on."""
-    kw: dict[str, Any] = dict(
-        deviation_frac=site.imbalance_frac,
-        battery_low_mv=int(site.battery_low_v * 1000) if site.battery_low_v else None,
-        silent_s=silent_s,
-        overload_frac=site.overload_frac,
-        band=site.band,
-    )
-    rated_dan = int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None
-    n_ropes = len(site.cylinder_area_m2)
-    if site.conveyance_weight_n and rated_dan and n_ropes:
-        return AlarmSettings.from_loads(rated_dan, round(site.conveyance_weight_n / DAN_TO_N), n_ropes,
-                                        slack_frac_of_empty=site.slack_frac, **kw)
-    return AlarmSettings(rated_load_dan=rated_dan, **kw)
 
 
 class KeyReader:

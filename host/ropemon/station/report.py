@@ -278,7 +278,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def areas_from(args: argparse.Namespace) -> list[float]:
     if args.config:
-        from ropemon.station.monitor import SiteFigures
+        from ropemon.station.physical import SiteFigures
         return SiteFigures.from_node_json(args.config).cylinder_area_m2
     if args.area_m2:
         return [args.area_m2] * 4

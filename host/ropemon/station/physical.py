@@ -1,0 +1,691 @@
+"""node.json's `physical` section, typed and checked in one place (docs/config.md).
+
+`Physical.from_dict(d)` turns the SI section into a frozen `Physical` or refuses it
+with the field and the reason (`physical.imbalance_frac: must be <= 0.5, got 0.6`): a
+missing required key or an unknown one, a wrong type (a bool or a string where a number
+belongs, a float where an integer does), NaN or infinity, a value outside its physical
+range, a per-rope list whose length is not `ropes`, a friction line that leaves the
+seal's physics (Fs >= Fc > 0, vs > 0, sigma2 >= 0) below the pressure it is held at.
+`to_dict()` gives the section back (`from_dict(p.to_dict()) == p`). `load_node_json`
+reads a node.json with a size limit.
+
+Everything that writes or reads `physical` goes through here: `ropemon config`
+(`commission.site.physical_from_site` builds one), the node section's builder
+(`commission.nodeconfig`), the station (`SiteFigures`: the monitor's view and its alarm
+thresholds, the report) and the lab's evaluation. Checked here is what is physical;
+what the node's fixed point can represent is `commission.nodeconfig`'s to check when
+it builds the integer `node` section.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ropemon.commission import tomlfields
+from ropemon.station.alarms import AlarmSettings
+from ropemon.station.protocol import DAN_TO_N, L
+from ropemon.station.uncertainty import DEFAULTS as BAND_DEFAULTS
+from ropemon.station.uncertainty import BandParams, Line
+
+MAX_NODE_JSON_BYTES = 4 << 20   # a node.json is a few tens of kB; a bigger file is not one
+MAX_MARKS = 64                  # Hall marks the node holds
+MAX_LOSS_TEMPS = 8              # temperature rows of the loss table
+MAX_LOSS_FLOWS = 32             # flow points of the loss table
+COMPLIANCE_K_MAX = 1e-6         # m/Pa
+FRICTION_LINES = ("Fs", "Fc", "vs", "sigma2")
+
+
+class PhysicalError(ValueError):
+    """A `physical` section that cannot be used; the message names the field and the reason."""
+
+
+# Defaults of the optional node settings (docs/config.md, docs/model.md). A key written in
+# `physical` always wins; `Physical.setting` applies these.
+NODE_DEFAULTS: dict[str, Any] = {
+    "piston_speed_max_m_s": 0.2,   # velocity estimate saturates here
+    "hoist_speed_max_m_s": 20.0,   # larger counter jumps are glitches
+    "hall_snap_m": 2.0,            # a Hall mark snaps depth only within this distance
+    "start_depth_m": 0.0,          # depth assumed at boot (pithead landing)
+    # LuGre observer (docs/model.md, "LuGre"): the seal state follows a slower
+    # low-pass of position, through a play of a few noise sigmas for the dissipation.
+    # With a hydraulic compliance k (m/Pa per rope), that position is x_h = k p_l + b:
+    # the oil's compression from the tracked pressure p_l, plus b, a slow low-pass of
+    # x_f - k p_l (docs/model.md, "LuGre (noise-robust observer)").
+    "friction_cutoff_hz": 1.0,     # low-pass b: 1 Hz without compliance, 0.03 Hz with
+    "displacement_noise_m": 2e-5,  # rms noise of the displacement channel (transmitter + ADC)
+    "friction_play_sigmas": 2.0,   # play half-width in rms noise of that position
+    # the pressure tracker that gives p_l (docs/model.md): a steady-state Kalman filter of
+    # the median pressure with a creep at a constant rate and the rope bounce, a damped
+    # oscillator at bounce_hz (measured by fit-compliance); the process noises are the
+    # spectral densities of the creep's and the bounce's random forcing
+    "bounce_hz": 2.8,              # the cage's bounce at the pithead landing
+    "bounce_filter_damping": 0.2,  # the tracker's oscillator (broader than the rope's own)
+    "creep_q_Pa2_s3": 3e9,
+    "bounce_q_Pa2_s3": 3e9,
+    "pressure_noise_Pa": 5e3,      # rms noise of the pressure channel (transmitter + ADC)
+    "friction_warmup_s": 0.0,      # b a running mean this long after the start: 0 s without, 2 s with
+    # balancing strokes (docs/model.md), tracked with a compliance and 2 or more ropes: the
+    # low-pass of each rope's x_f - x_h and of the common motion, the threshold on the
+    # former in its rms noise, the common speed below which it has no direction, and how
+    # long a direction must hold before a stroke is looked for
+    "stroke_cutoff_hz": 1.0,
+    "stroke_sigmas": 6.5,
+    "stroke_min_speed_m_s": 1e-5,
+    "stroke_settle_s": 4.0,
+    # slide following (docs/model.md, "Balancing strokes"): outside a stroke, of what x_h
+    # takes over from e the share (|e| - lo) / (hi - lo), 0 .. 1, with lo and hi these
+    # many times e's rms noise, is the piston's proven travel and goes into the seal state
+    # (slide_follow false, or both sigmas 0: off; chosen on tuning seeds)
+    "slide_follow": True,
+    "slide_follow_lo_sigmas": 3.0,
+    "slide_follow_hi_sigmas": 5.0,
+    # rest hold (docs/model.md), with a compliance: a rope is quiet while the low-pass of
+    # |x_s - x_l| (x_l: a slower low-pass of x_s) stays below rest_sigmas times the
+    # position noise; then b stands and the play widens to rest_play_sigmas, so the noise
+    # of a long rest does not wear the seal state down (rest_sigmas 0: no rest hold)
+    "rest_sigmas": 0.0,
+    "rest_play_sigmas": 4.0,
+    "rest_slow_cutoff_hz": 0.2,
+    "rest_cutoff_hz": 0.5,
+    # noise following (docs/model.md), with a compliance: the node measures each pressure
+    # channel's noise (the low-pass, this slow, of |second difference|) and scales the plays
+    # and the rest threshold by the median channel's over pressure_noise_Pa's (0: fixed)
+    "noise_follow_s": 0.0,
+}
+# the defaults that change when a compliance is given
+COMPLIANCE_DEFAULTS: dict[str, float] = {
+    "friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0, "friction_play_sigmas": 1.45,
+    "rest_sigmas": 1.12, "rest_play_sigmas": 4.5, "noise_follow_s": 20.0}
+# the host's alarm settings when `physical` does not name them
+HOST_DEFAULTS = {"slack_frac": 0.60, "overload_frac": 1.0}
+
+# Ranges of the optional node settings: (low, high), both inclusive; a string bound is a
+# limit that depends on the rest of the section (`Physical._limit`).
+SETTING_RANGES: dict[str, tuple[float, float | str]] = {
+    "piston_speed_max_m_s": (1e-3, 2.0),
+    "hoist_speed_max_m_s": (0.1, 50.0),
+    "hall_snap_m": (0.0, 100.0),
+    "start_depth_m": (-100.0, 5000.0),
+    "friction_cutoff_hz": (0.001, "velocity_cutoff_hz"),
+    "displacement_noise_m": (0.0, 1e-3),
+    "friction_play_sigmas": (0.0, 10.0),
+    "bounce_hz": (0.5, "sample_hz/8"),
+    "bounce_filter_damping": (0.05, 1.0),
+    "creep_q_Pa2_s3": (1e3, 1e15),
+    "bounce_q_Pa2_s3": (1e3, 1e15),
+    "pressure_noise_Pa": (0.0, 1e6),
+    "friction_warmup_s": (0.0, 60.0),
+    "rest_sigmas": (0.0, 10.0),
+    "rest_play_sigmas": (0.0, 20.0),
+    "noise_follow_s": (0.0, 3600.0),
+    "rest_slow_cutoff_hz": (0.001, "sample_hz/2"),
+    "rest_cutoff_hz": (0.001, "sample_hz/2"),
+    "stroke_sigmas": (0.0, 100.0),
+    "stroke_cutoff_hz": (0.01, "sample_hz/2"),
+    "stroke_min_speed_m_s": (0.0, 1.0),
+    "stroke_settle_s": (0.0, 300.0),
+    "slide_follow_lo_sigmas": (0.0, 100.0),
+    "slide_follow_hi_sigmas": (0.0, 100.0),
+}
+# the pressure tracker's settings: its defaults are checked only where it runs (a compliance)
+TRACKER_SETTINGS = ("bounce_hz", "bounce_filter_damping", "creep_q_Pa2_s3", "bounce_q_Pa2_s3")
+BAND_KEYS = tuple(BAND_DEFAULTS)
+# keys that are refused with their reason (no longer used)
+RETIRED = {"pressure_cutoff_hz": "no longer used: the pressure tracker (bounce_hz, docs/config.md) "
+                                 "replaced the pressure low-pass"}
+
+
+# ---------------------------------------------------------------- the parts
+
+
+@dataclass(frozen=True)
+class PressureChannel:
+    """A 4-20 mA pressure transmitter, linear in the ADC counts."""
+
+    counts_4mA: int
+    counts_20mA: int
+    range_Pa: tuple[float, float]
+
+    @property
+    def p_max_Pa(self) -> float:
+        """Sensor pressure at the highest good count (21 mA, NAMUR NE43)."""
+        lo, hi = self.range_Pa
+        return lo + (hi - lo) * 17 / 16
+
+    def to_dict(self) -> dict:
+        return {"counts_4mA": self.counts_4mA, "counts_20mA": self.counts_20mA, "range_Pa": list(self.range_Pa)}
+
+
+@dataclass(frozen=True)
+class DisplacementChannel:
+    """A piston position transmitter, linear in the ADC counts (x > 0: piston pulled out)."""
+
+    counts_lo: int
+    counts_hi: int
+    range_m: tuple[float, float]
+
+    @property
+    def m_per_count(self) -> float:
+        return (self.range_m[1] - self.range_m[0]) / (self.counts_hi - self.counts_lo)
+
+    def to_dict(self) -> dict:
+        return {"counts_lo": self.counts_lo, "counts_hi": self.counts_hi, "range_m": list(self.range_m)}
+
+
+@dataclass(frozen=True)
+class TemperatureInput:
+    """The oil temperature input, linear in the ADC counts."""
+
+    counts_at_0C: float
+    counts_per_C: float
+
+    def to_dict(self) -> dict:
+        return {"counts_at_0C": self.counts_at_0C, "counts_per_C": self.counts_per_C}
+
+
+@dataclass(frozen=True)
+class Friction:
+    """The LuGre seal as `ropemon fit-friction` writes it: lines in the sensor pressure (MPa)."""
+
+    Fs: Line                  # N
+    Fc: Line                  # N
+    vs: Line                  # m/s
+    sigma2: Line              # N s/m
+    sigma0: float             # N/m
+    sigma1: float             # N s/m
+    residual: float | None = None   # N, host only: the fit's residual for the band
+
+    def to_dict(self) -> dict:
+        d: dict[str, Any] = {k: {"slope": getattr(self, k).slope, "intercept": getattr(self, k).intercept}
+                             for k in FRICTION_LINES}
+        d["sigma0"] = self.sigma0
+        d["sigma1"] = self.sigma1
+        if self.residual is not None:
+            d["residual"] = self.residual
+        return d
+
+
+@dataclass(frozen=True)
+class LossTable:
+    """Pressure loss cavity -> sensor tap: dp_Pa[rope][temp][flow] for flow >= 0 (odd in the flow)."""
+
+    temps_C: tuple[float, ...]
+    flow_m3_s: tuple[float, ...]
+    dp_Pa: tuple[tuple[tuple[float, ...], ...], ...]
+
+    def to_dict(self) -> dict:
+        return {"temps_C": list(self.temps_C), "flow_m3_s": list(self.flow_m3_s),
+                "dp_Pa": [[list(row) for row in rope] for rope in self.dp_Pa]}
+
+
+@dataclass(frozen=True)
+class ResidualFrac:
+    """The friction fit's worst-level RMS residual over Fs(p), host only (for the band)."""
+
+    sliding: float | None = None
+    presliding: float | None = None
+
+    def to_dict(self) -> dict:
+        return {k: v for k, v in (("sliding", self.sliding), ("presliding", self.presliding)) if v is not None}
+
+
+# ---------------------------------------------------------------- the section
+
+
+@dataclass(frozen=True)
+class Physical:
+    """node.json's `physical` section (docs/config.md), checked. Optional keys are None when
+    the section leaves them out (`setting` gives the value the node uses)."""
+
+    node_id: int
+    key_hex: str
+    ropes: int
+    sample_hz: int
+    frame_hz: int
+    rated_rope_tension_N: float
+    imbalance_frac: float
+    battery_low_V: float
+    cylinder_area_m2: tuple[float, ...]
+    pressure_channels: tuple[PressureChannel, ...]
+    displacement_channels: tuple[DisplacementChannel, ...]
+    speed_m_per_pulse: float
+    hall_marks_m: tuple[float, ...]
+    battery_V_per_count: float
+    temperature: TemperatureInput | None
+    oil_temp_assumed_C: float
+    velocity_cutoff_hz: float
+    friction: Friction
+    loss: LossTable
+    adc_bits: int | None = None
+    # optional node settings (NODE_DEFAULTS, COMPLIANCE_DEFAULTS)
+    piston_speed_max_m_s: float | None = None
+    hoist_speed_max_m_s: float | None = None
+    hall_snap_m: float | None = None
+    start_depth_m: float | None = None
+    friction_cutoff_hz: float | None = None
+    displacement_noise_m: float | None = None
+    friction_play_sigmas: float | None = None
+    hydraulic_compliance_m_per_Pa: tuple[float, ...] | None = None
+    pressure_noise_Pa: float | None = None
+    bounce_hz: float | None = None
+    bounce_filter_damping: float | None = None
+    creep_q_Pa2_s3: float | None = None
+    bounce_q_Pa2_s3: float | None = None
+    friction_warmup_s: float | None = None
+    rest_sigmas: float | None = None
+    rest_play_sigmas: float | None = None
+    noise_follow_s: float | None = None
+    rest_slow_cutoff_hz: float | None = None
+    rest_cutoff_hz: float | None = None
+    stroke_sigmas: float | None = None
+    stroke_cutoff_hz: float | None = None
+    stroke_min_speed_m_s: float | None = None
+    stroke_settle_s: float | None = None
+    slide_follow: bool | None = None
+    slide_follow_lo_sigmas: float | None = None
+    slide_follow_hi_sigmas: float | None = None
+    friction_p_max_MPa: float | None = None
+    # host only (the node section and its CRC do not depend on them)
+    friction_residual_frac: ResidualFrac | None = None
+    conveyance_weight_N: float | None = None
+    slack_frac: float | None = None
+    rated_load_N: float | None = None
+    overload_frac: float | None = None
+    band_anchor: bool | None = None
+    band_margin: float | None = None
+    band_gain: float | None = None
+    band_saturation: float | None = None
+    band_anchor_travel: float | None = None
+    band_blind_s: float | None = None
+
+    # -- derived figures ----------------------------------------------------------------
+    @property
+    def compliance(self) -> tuple[float, ...]:
+        """k per rope (m/Pa); zeros without a compliance."""
+        return self.hydraulic_compliance_m_per_Pa or (0.0,) * self.ropes
+
+    @property
+    def has_compliance(self) -> bool:
+        return any(self.compliance)
+
+    def setting(self, key: str) -> Any:
+        """The value the node uses for an optional setting: as written, else its default
+        (the compliance's where one is given)."""
+        v = getattr(self, key)
+        if v is not None:
+            return v
+        if self.has_compliance and key in COMPLIANCE_DEFAULTS:
+            return COMPLIANCE_DEFAULTS[key]
+        return NODE_DEFAULTS[key]
+
+    @property
+    def sensor_p_max_Pa(self) -> float:
+        """The highest pressure any transmitter reads (21 mA)."""
+        return max(c.p_max_Pa for c in self.pressure_channels)
+
+    @property
+    def friction_p_max_Pa(self) -> float:
+        """Sensor pressure above which the friction lines are held, not extrapolated."""
+        if self.friction_p_max_MPa is None:
+            return self.sensor_p_max_Pa
+        return self.friction_p_max_MPa * 1e6
+
+    @property
+    def rated_total_N(self) -> float:
+        """The rated load the overload alarm refers to: `rated_load_N`, else ropes x the rated rope tension."""
+        return self.rated_load_N if self.rated_load_N is not None else self.ropes * self.rated_rope_tension_N
+
+    def band(self) -> BandParams | None:
+        """Each rope's band (ropemon.station.uncertainty)."""
+        return BandParams.from_physical(self.to_dict())
+
+    # -- dict form ----------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """The section as node.json holds it; keys left out stay out."""
+        out: dict[str, Any] = {}
+        for f in self.__dataclass_fields__.values():
+            v = getattr(self, f.name)
+            if v is None and f.name != "temperature":
+                continue
+            if hasattr(v, "to_dict"):
+                v = v.to_dict()
+            elif isinstance(v, tuple):
+                v = [x.to_dict() if hasattr(x, "to_dict") else x for x in v]
+            out[f.name] = v
+        return out
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "physical") -> "Physical":
+        """The section `d`, checked; PhysicalError `<where>.<field>: <reason>` otherwise."""
+        try:
+            return _parse(d, where)
+        except RecursionError:
+            raise PhysicalError(f"{where}: nested too deeply") from None
+
+
+def as_physical(ph: "Physical | dict", where: str = "physical") -> Physical:
+    """`ph` itself, or the dict checked into a Physical."""
+    return ph if isinstance(ph, Physical) else Physical.from_dict(ph, where)
+
+
+# ---------------------------------------------------------------- checking
+
+
+def _t(data: Any, name: str) -> tomlfields.Table:
+    return tomlfields.Table(data, name, PhysicalError)
+
+
+def _numbers(t: tomlfields.Table, key: str, length: int | None = None, *, what: str = "numbers",
+             max_len: int | None = None, **bounds) -> tuple[float, ...]:
+    v = t.array(key, length=length, max_len=max_len, what=what)
+    return tuple(tomlfields.check_number(x, t.field(key) + f"[{i}]", PhysicalError, **bounds)
+                 for i, x in enumerate(v))
+
+
+def _pressure_channel(t: tomlfields.Table, full: int) -> PressureChannel:
+    c4 = t.integer("counts_4mA", lo=0, hi=full)
+    c20 = t.integer("counts_20mA", lo=0, hi=full)
+    if not c20 > c4:
+        raise PhysicalError(f"{t.field('counts_20mA')}: must be > counts_4mA = {c4}, got {c20}")
+    rng = t.pair("range_Pa")
+    t.finish()
+    return PressureChannel(c4, c20, rng)
+
+
+def _displacement_channel(t: tomlfields.Table, full: int) -> DisplacementChannel:
+    lo = t.integer("counts_lo", lo=0, hi=full)
+    hi = t.integer("counts_hi", lo=0, hi=full)
+    if not hi > lo:
+        raise PhysicalError(f"{t.field('counts_hi')}: must be > counts_lo = {lo}, got {hi}")
+    rng = t.pair("range_m")
+    t.finish()
+    return DisplacementChannel(lo, hi, rng)
+
+
+def friction_from_dict(fr: Any, p_max_MPa: float, name: str = "physical.friction",
+                       error: type[Exception] = PhysicalError) -> Friction:
+    """The friction lines and sigmas of `fr` (a friction fit, or physical.friction), checked to
+    stay physical over 0 .. p_max_MPa, where the node evaluates them: Fs >= Fc > 0, vs > 0,
+    sigma2 >= 0; sigma0 > 0, sigma1 >= 0. Other keys of `fr` (a fit's statistics) are the caller's."""
+    if not isinstance(fr, dict):
+        raise error(f"{name}: must be an object, got {type(fr).__name__}")
+    lines = {}
+    for key in FRICTION_LINES:
+        line = fr.get(key)
+        if not isinstance(line, dict):
+            raise error(f"{name}.{key}: missing or not an object with slope and intercept")
+        lines[key] = Line(tomlfields.number(line, "intercept", f"{name}.{key}", error),
+                          tomlfields.number(line, "slope", f"{name}.{key}", error))
+    sigma0 = tomlfields.check_number(fr.get("sigma0"), f"{name}.sigma0", error, gt=0)
+    sigma1 = tomlfields.check_number(fr.get("sigma1"), f"{name}.sigma1", error, ge=0)
+    for p in (0.0, p_max_MPa):
+        fs, fc, vs, s2 = (lines[k].at(p) for k in FRICTION_LINES)
+        if not fc > 0:
+            raise error(f"{name}.Fc: must be > 0 over 0..{p_max_MPa:.2f} MPa, is {fc:g} N at {p:g} MPa")
+        if not fs >= fc:
+            raise error(f"{name}.Fs: must be >= Fc over 0..{p_max_MPa:.2f} MPa, "
+                        f"Fs={fs:g} < Fc={fc:g} N at {p:g} MPa")
+        if not vs > 0:
+            raise error(f"{name}.vs: must be > 0 over 0..{p_max_MPa:.2f} MPa, is {vs:g} m/s at {p:g} MPa")
+        if not s2 >= 0:
+            raise error(f"{name}.sigma2: must be >= 0 over 0..{p_max_MPa:.2f} MPa, "
+                        f"is {s2:g} N s/m at {p:g} MPa")
+    return Friction(lines["Fs"], lines["Fc"], lines["vs"], lines["sigma2"], sigma0, sigma1)
+
+
+def _loss(t: tomlfields.Table, ropes: int) -> LossTable:
+    temps = _numbers(t, "temps_C", what="temperatures in C", max_len=MAX_LOSS_TEMPS, ge=-50, le=150)
+    if not temps or any(b <= a for a, b in zip(temps, temps[1:])):
+        raise PhysicalError(f"{t.field('temps_C')}: must be 1..{MAX_LOSS_TEMPS} ascending temperatures")
+    flows = _numbers(t, "flow_m3_s", what="flows in m^3/s", max_len=MAX_LOSS_FLOWS, ge=0)
+    if not flows or flows[0] != 0 or any(b <= a for a, b in zip(flows, flows[1:])):
+        raise PhysicalError(f"{t.field('flow_m3_s')}: must start at 0 and ascend, at most {MAX_LOSS_FLOWS} points")
+    dp_raw = t.array("dp_Pa", length=ropes, what="one table per rope")
+    dp = []
+    for i, rope in enumerate(dp_raw):
+        name = f"{t.field('dp_Pa')}[{i}]"
+        if not isinstance(rope, list) or len(rope) != len(temps):
+            raise PhysicalError(f"{name}: must have {len(temps)} temperature rows")
+        rows = []
+        for j, row in enumerate(rope):
+            if not isinstance(row, list) or len(row) != len(flows):
+                raise PhysicalError(f"{name}[{j}]: must have {len(flows)} values (one per flow)")
+            rows.append(tuple(tomlfields.check_number(x, f"{name}[{j}][{k}]", PhysicalError, ge=0)
+                              for k, x in enumerate(row)))
+        dp.append(tuple(rows))
+    t.finish()
+    return LossTable(temps, flows, tuple(dp))
+
+
+def _limit(bound: float | str, kw: dict[str, Any]) -> float:
+    if not isinstance(bound, str):
+        return bound
+    if bound == "velocity_cutoff_hz":
+        return kw["velocity_cutoff_hz"]
+    if bound == "sample_hz/2":
+        return kw["sample_hz"] / 2
+    if bound == "sample_hz/8":
+        return kw["sample_hz"] / 8
+    raise AssertionError(bound)  # pragma: no cover
+
+
+def _parse(d: Any, where: str) -> Physical:
+    t = _t(d, where)
+    for key, why in RETIRED.items():
+        if key in t.data:
+            raise PhysicalError(f"{t.field(key)}: {why}")
+    kw: dict[str, Any] = {}
+    kw["node_id"] = t.integer("node_id", lo=0, hi=255)
+    key_hex = t.string("key_hex")
+    try:
+        key_len = len(bytes.fromhex(key_hex))
+    except ValueError:
+        raise PhysicalError(f"{t.field('key_hex')}: must be hexadecimal") from None
+    if not 16 <= key_len <= 32:
+        raise PhysicalError(f"{t.field('key_hex')}: key must be 16..32 bytes, got {key_len}")
+    kw["key_hex"] = key_hex
+    n = kw["ropes"] = t.integer("ropes", lo=1, hi=L.MAX_ROPES)
+    fs = kw["sample_hz"] = t.integer("sample_hz", lo=1, hi=1000)
+    frame_hz = kw["frame_hz"] = t.integer("frame_hz", lo=1, hi=fs)
+    if fs % frame_hz:
+        raise PhysicalError(f"{t.field('frame_hz')}: sample_hz ({fs}) must be a multiple of it, got {frame_hz}")
+    kw["rated_rope_tension_N"] = t.number("rated_rope_tension_N", ge=1e3, le=3e5)
+    kw["imbalance_frac"] = t.number("imbalance_frac", gt=0, le=0.5)
+    kw["battery_low_V"] = t.number("battery_low_V", gt=0, le=65)
+    kw["cylinder_area_m2"] = _numbers(t, "cylinder_area_m2", n, what="areas in m^2, one per rope", ge=1e-4, le=0.1)
+    bits = kw["adc_bits"] = t.integer("adc_bits", lo=8, hi=16) if t.has("adc_bits") else None
+    full = (1 << (bits or 16)) - 1
+    kw["pressure_channels"] = tuple(
+        _pressure_channel(_t(c, f"{t.field('pressure_channels')}[{i}]"), full)
+        for i, c in enumerate(t.array("pressure_channels", length=n, what="channels, one per rope")))
+    kw["displacement_channels"] = tuple(
+        _displacement_channel(_t(c, f"{t.field('displacement_channels')}[{i}]"), full)
+        for i, c in enumerate(t.array("displacement_channels", length=n, what="channels, one per rope")))
+    kw["speed_m_per_pulse"] = t.number("speed_m_per_pulse", ge=1e-5, le=10)
+    marks = kw["hall_marks_m"] = _numbers(t, "hall_marks_m", what="depths in m", max_len=MAX_MARKS)
+    if any(b <= a for a, b in zip(marks, marks[1:])):
+        raise PhysicalError(f"{t.field('hall_marks_m')}: must be strictly ascending, got {list(marks)}")
+    kw["battery_V_per_count"] = t.number("battery_V_per_count", ge=1e-6, le=1e-2)
+    temp = t.raw("temperature")
+    if temp is not None:
+        tt = _t(temp, t.field("temperature"))
+        c0 = tt.number("counts_at_0C", ge=0, le=65535)
+        cpc = tt.number("counts_per_C")
+        if cpc == 0:
+            raise PhysicalError(f"{tt.field('counts_per_C')}: must not be 0")
+        tt.finish()
+        temp = TemperatureInput(c0, cpc)
+    kw["temperature"] = temp
+    kw["oil_temp_assumed_C"] = t.number("oil_temp_assumed_C", ge=-50, le=150)
+    kw["velocity_cutoff_hz"] = t.number("velocity_cutoff_hz", ge=0.01, le=fs / 2)
+
+    # optional node settings: what is written is checked; the defaults the node then uses too
+    if t.raw("hydraulic_compliance_m_per_Pa", None) is not None:
+        kw["hydraulic_compliance_m_per_Pa"] = _numbers(t, "hydraulic_compliance_m_per_Pa", n,
+                                                       what="k in m/Pa, one per rope", ge=0, le=COMPLIANCE_K_MAX)
+    k_on = any(kw.get("hydraulic_compliance_m_per_Pa") or ())
+    for key, (lo, hi) in SETTING_RANGES.items():
+        if t.has(key):
+            kw[key] = t.number(key, ge=lo, le=_limit(hi, kw))
+        elif key not in TRACKER_SETTINGS or k_on:
+            v = COMPLIANCE_DEFAULTS.get(key, NODE_DEFAULTS[key]) if k_on else NODE_DEFAULTS[key]
+            if not lo <= v <= _limit(hi, kw):
+                raise PhysicalError(f"{t.field(key)}: the default {v:g} is outside {lo:g}..{_limit(hi, kw):g} "
+                                    "here; give a value")
+    if t.has("slide_follow"):
+        kw["slide_follow"] = t.boolean("slide_follow")
+
+    def eff(key: str) -> Any:
+        v = kw.get(key)
+        return v if v is not None else (COMPLIANCE_DEFAULTS.get(key, NODE_DEFAULTS[key]) if k_on
+                                        else NODE_DEFAULTS[key])
+
+    if k_on and eff("rest_sigmas") > 0 and eff("rest_play_sigmas") < eff("friction_play_sigmas"):
+        raise PhysicalError(f"{t.field('rest_play_sigmas')}: must be at least friction_play_sigmas "
+                            f"({eff('friction_play_sigmas'):g}) with the rest hold on, got {eff('rest_play_sigmas'):g}")
+    lo_s, hi_s = eff("slide_follow_lo_sigmas"), eff("slide_follow_hi_sigmas")
+    if (lo_s or hi_s) and hi_s <= lo_s:
+        raise PhysicalError(f"{t.field('slide_follow_hi_sigmas')}: {hi_s:g} must exceed "
+                            f"slide_follow_lo_sigmas {lo_s:g} (both 0: off)")
+
+    top_MPa = max(c.p_max_Pa for c in kw["pressure_channels"]) / 1e6
+    if t.raw("friction_p_max_MPa", None) is not None:
+        kw["friction_p_max_MPa"] = t.number("friction_p_max_MPa", ge=0.1, le=top_MPa)
+    p_max_MPa = kw.get("friction_p_max_MPa") or top_MPa
+    fr, fname = t.raw("friction"), t.field("friction")
+    friction = friction_from_dict(fr, p_max_MPa, fname)
+    tomlfields.known(fr, fname, {*FRICTION_LINES, "sigma0", "sigma1", "residual"}, PhysicalError)
+    for key in FRICTION_LINES:
+        tomlfields.known(fr[key], f"{fname}.{key}", {"slope", "intercept"}, PhysicalError)
+    if "residual" in fr:
+        friction = dataclasses.replace(friction, residual=tomlfields.number(fr, "residual", fname, PhysicalError, ge=0))
+    kw["friction"] = friction
+    kw["loss"] = _loss(_t(t.raw("loss"), t.field("loss")), n)
+
+    # host only
+    if t.has("friction_residual_frac"):
+        rt = _t(t.raw("friction_residual_frac"), t.field("friction_residual_frac"))
+        kw["friction_residual_frac"] = ResidualFrac(
+            *(rt.number(part, ge=0) if rt.has(part) else None for part in ("sliding", "presliding")))
+        rt.finish()
+    if t.has("conveyance_weight_N"):
+        kw["conveyance_weight_N"] = t.number("conveyance_weight_N", gt=0)
+    if t.has("slack_frac"):
+        kw["slack_frac"] = t.number("slack_frac", gt=0, lt=1)
+    if t.has("rated_load_N"):
+        kw["rated_load_N"] = t.number("rated_load_N", gt=0)
+    if t.has("overload_frac"):  # 2: an overload alarm that never raises is no alarm
+        kw["overload_frac"] = t.number("overload_frac", ge=1, le=2)
+    for key in BAND_KEYS:
+        if t.has(key):
+            kw[key] = t.boolean(key) if isinstance(BAND_DEFAULTS[key], bool) else t.number(key)
+    t.finish()
+    p = Physical(**kw)
+    try:  # the band's own ranges (ropemon.station.uncertainty)
+        p.band()
+    except ValueError as e:
+        raise PhysicalError(where + str(e)[len("physical"):] if str(e).startswith("physical") else str(e)) from None
+    return p
+
+
+# ---------------------------------------------------------------- node.json
+
+
+def load_node_json(path: Path | str, max_bytes: int = MAX_NODE_JSON_BYTES) -> tuple[Physical, dict]:
+    """(the checked `physical` section, the whole document) of the node.json at `path`.
+
+    PhysicalError names the file and the fault: unreadable, larger than `max_bytes` (a
+    node.json is a few tens of kB; /dev/zero is not read forever), not JSON, nested too
+    deeply, not a node config, or a `physical` section `Physical.from_dict` refuses."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            data = f.read(max_bytes + 1)
+    except OSError as e:
+        raise PhysicalError(f"{path}: cannot read: {e.strerror or e}") from None
+    if len(data) > max_bytes:
+        raise PhysicalError(f"{path}: larger than {max_bytes / (1 << 20):g} MB: not a node config")
+    try:
+        doc = json.loads(data)
+    except RecursionError:
+        raise PhysicalError(f"{path}: nested too deeply: not a node config") from None
+    except (UnicodeDecodeError, ValueError) as e:
+        raise PhysicalError(f"{path}: not valid JSON: {e}") from None
+    if not isinstance(doc, dict) or "physical" not in doc:
+        raise PhysicalError(f"{path}: not a node config (no `physical` section)")
+    return Physical.from_dict(doc["physical"], f"{path}: physical"), doc
+
+
+# ---------------------------------------------------------------- the station's figures
+
+
+@dataclass
+class SiteFigures:
+    """What the monitor's view and alarms need to know about the hoist beyond the frames."""
+
+    cylinder_area_m2: list[float] = field(default_factory=list)  # per rope; empty: raw shown in kPa
+    rated_rope_tension_n: float | None = None
+    rated_load_n: float | None = None        # total of all ropes; default ropes x rated rope
+    imbalance_frac: float = 0.10
+    battery_low_v: float | None = None
+    conveyance_weight_n: float | None = None  # weight of the empty cage alone; None: no slack alarm
+    slack_frac: float = HOST_DEFAULTS["slack_frac"]        # slack below this share of a rope's part of conveyance_weight_n
+    overload_frac: float = HOST_DEFAULTS["overload_frac"]  # overload above this share of rated_load_n
+    band: BandParams | None = None           # the seal's friction lines: each rope's band (ropemon.station.uncertainty)
+
+    @classmethod
+    def from_physical(cls, p: Physical) -> "SiteFigures":
+        """The figures of a checked `physical` section."""
+        return cls(
+            cylinder_area_m2=list(p.cylinder_area_m2),
+            rated_rope_tension_n=p.rated_rope_tension_N,
+            rated_load_n=p.rated_total_N,
+            imbalance_frac=p.imbalance_frac,
+            battery_low_v=p.battery_low_V,
+            conveyance_weight_n=p.conveyance_weight_N,
+            slack_frac=p.slack_frac if p.slack_frac is not None else HOST_DEFAULTS["slack_frac"],
+            overload_frac=p.overload_frac if p.overload_frac is not None else HOST_DEFAULTS["overload_frac"],
+            band=p.band(),
+        )
+
+    @classmethod
+    def from_node_json(cls, path: str | Path) -> "SiteFigures":
+        """The figures from a node.json's `physical` section (docs/config.md); ValueError names
+        the file, the field and the reason."""
+        return cls.from_physical(load_node_json(path)[0])
+
+
+def site_from_configs(paths: list[str]) -> SiteFigures:
+    """The hoist's figures from its node.json files (defaults without any). The view and the
+    alarms use one set of figures: node configs that disagree on them are refused."""
+    figures = [(p, SiteFigures.from_node_json(p)) for p in paths]
+    for p, f in figures[1:]:
+        if f != figures[0][1]:
+            raise ValueError(f"{p} and {figures[0][0]} describe different hoists (cylinder areas, rated "
+                             "tension, loads or thresholds differ): run one monitor per hoist")
+    return figures[0][1] if figures else SiteFigures()
+
+
+def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
+    """Alarm thresholds from the node config's figures (regulation defaults otherwise).
+
+    With the empty conveyance's weight (`physical.conveyance_weight_N`, written by `ropemon config`)
+    the slack-rope alarm is on: a rope below `slack_frac` of its share of that load. With the seal's
+    friction lines (`physical.friction`) each rope gets a band and DEVIATION POSSIBLE is on."""
+    kw: dict[str, Any] = dict(
+        deviation_frac=site.imbalance_frac,
+        battery_low_mv=int(site.battery_low_v * 1000) if site.battery_low_v else None,
+        silent_s=silent_s,
+        overload_frac=site.overload_frac,
+        band=site.band,
+    )
+    rated_dan = int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None
+    n_ropes = len(site.cylinder_area_m2)
+    if site.conveyance_weight_n and rated_dan and n_ropes:
+        return AlarmSettings.from_loads(rated_dan, round(site.conveyance_weight_n / DAN_TO_N), n_ropes,
+                                        slack_frac_of_empty=site.slack_frac, **kw)
+    return AlarmSettings(rated_load_dan=rated_dan, **kw)
+
