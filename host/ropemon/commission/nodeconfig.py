@@ -569,23 +569,23 @@ def node_part(doc: dict) -> dict:
     return {key: doc[key] for key in ("schema", "node", "crc") if key in doc}
 
 
-def _walther_cst(temp_c: float) -> float:
-    """ISO VG46 kinematic viscosity (cSt) by the Walther/ASTM D341 fit of the domain brief."""
-    return 10 ** (10 ** (9.32 - 3.65 * math.log10(temp_c + 273.15))) - 0.7
+EXAMPLE_TEMPS_C = (0.0, 20.0, 40.0)
+EXAMPLE_FLOWS_M3_S = (0.0, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4, 1.2e-3, 1.6e-3)
 
 
-def example_loss_pa(flow_m3_s: float, temp_c: float) -> float:
-    """The example tap line's loss: 3 m of 12 mm bore (laminar Hagen-Poiseuille or
-    Blasius) plus fittings zeta = 3, VG46 at temp_c, density 870 kg/m^3."""
-    d, length, zeta, rho = 0.012, 3.0, 3.0, 870.0
-    nu = _walther_cst(temp_c) * 1e-6
-    area = math.pi * d * d / 4
-    u = flow_m3_s / area
-    if u <= 0:
-        return 0.0
-    re = u * d / nu
-    lam = 64 / re if re < 2300 else 0.3164 * re ** -0.25
-    return (lam * length / d + zeta) * rho * u * u / 2
+def example_loss_dp_pa() -> list[list[int]]:
+    """The example tap line's loss dp_Pa[temp][flow] (Pa, rounded): 3 m of 12 mm bore plus
+    fittings of K = 3, ISO VG46 at EXAMPLE_TEMPS_C, by the product's pipe-loss model
+    (ropemon.commission.losses) and oil (ropemon.commission.oil)."""
+    from ropemon.commission import losses
+    from ropemon.commission.oil import Oil
+    from ropemon.commission.site import Fitting, PipePath, PipeSegment
+
+    pipe = PipePath(segments=(PipeSegment(length_m=3.0, bore_m=0.012, roughness_m=1.5e-6),),
+                    fittings=(Fitting(kind="custom", bore_m=0.012, K=3.0),))
+    oil = Oil.grade(46)
+    return [[round(losses.pressure_loss_Pa(pipe, q, float(oil.rho_kg_m3(t)), float(oil.nu_m2_s(t))))
+             for q in EXAMPLE_FLOWS_M3_S] for t in EXAMPLE_TEMPS_C]
 
 
 def example_physical() -> dict:
@@ -601,12 +601,12 @@ def example_physical() -> dict:
       0.04 mm/s per MPa, sigma2 = 20 + 2 kN s/m per MPa, sigma0 = 2e7 N/m
       (pre-sliding ~0.4 mm), sigma1 = 3e4 N s/m.
     - tap line 3 m x 12 mm with fittings; VG46 at 0/20/40 C (laminar: tenfold in
-      viscosity); temperature input not fitted, 20 C assumed.
+      viscosity; `example_loss_dp_pa`); temperature input not fitted, 20 C assumed.
     """
     area = math.pi * 0.1 ** 2 / 4
-    temps = [0.0, 20.0, 40.0]
-    flows = [0.0, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4, 1.2e-3, 1.6e-3]
-    dp = [[round(example_loss_pa(q, t)) for q in flows] for t in temps]
+    temps = list(EXAMPLE_TEMPS_C)
+    flows = list(EXAMPLE_FLOWS_M3_S)
+    dp = example_loss_dp_pa()
     chan_p = {"counts_4mA": 9600, "counts_20mA": 48000, "range_Pa": [0.0, 25e6]}
     chan_x = {"counts_lo": 9600, "counts_hi": 48000, "range_m": [-0.05, 0.05]}
     return {

@@ -10,8 +10,9 @@ vectorised over ropes and (for outputs) over time:
   with K1, Kinf taken once from Hooper's tables in `fluids` (laminar hose flow makes
   the K1 term dominate); contractions and expansions use fluids' turbulent K.
 
-The node's loss table (ropemon.commission.losses) uses other correlations on purpose: the
-plant is the truth the node's model is tested against.
+This is the simulator's own pipe-loss model, kept apart from the product's
+(ropemon.commission.losses, which computes the node's loss table) on purpose and with other
+correlations: the plant is the truth the node's model is tested against.
 """
 from __future__ import annotations
 
