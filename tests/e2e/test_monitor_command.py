@@ -102,3 +102,33 @@ def test_monitor_refuses_conflicting_keys_and_configs_of_different_hoists(tmp_pa
     assert "describe different hoists" in capsys.readouterr().err
     assert main(["monitor", "--port", "loop://", "--key", "1:zz"]) == 2
     assert "not hex" in capsys.readouterr().err
+
+
+def test_headless_monitor_on_a_wrong_port_alarms_as_json_lines_and_stops_on_sigterm(tmp_path):
+    """A wrong port and a node that is never heard: the headless station is not quiet. Within the
+    configured seconds it prints RECEIVER DOWN (with the device) and SILENT for node 1 as JSON lines."""
+    import json
+    p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "monitor", "--port", "/dev/ttyUSB-ropemon-none",
+                          "--key", "1:" + KEY.hex(), "--headless", "--silent-s", "1", "--db", str(tmp_path / "h.db")],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    lines = []
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and {ln.get("id") for ln in lines} < {"receiver_down:pithead", "silent:n1"}:
+            line = p.stdout.readline()
+            if not line:
+                break
+            lines.append(json.loads(line))
+    finally:
+        p.send_signal(signal.SIGTERM)
+        out, err = p.communicate(timeout=20)
+    assert p.returncode == 0, err
+    raised = {ln["id"]: ln for ln in lines if ln["event"] == "raise"}
+    assert set(raised) >= {"receiver_down:pithead", "silent:n1"}, lines
+    down = raised["receiver_down:pithead"]
+    assert down["alarm"] == "receiver_down" and "/dev/ttyUSB-ropemon-none" in down["message"]
+    assert down["t"].endswith("Z") and down["rope"] is None
+    con = sqlite3.connect(tmp_path / "h.db")                  # and the log has them
+    kinds = {r[0] for r in con.execute("SELECT kind FROM events WHERE action = 'raise'")}
+    con.close()
+    assert {"receiver_down", "silent"} <= kinds

@@ -91,7 +91,7 @@ def test_failed_sensor_rope_is_shown_as_fault_and_left_out_of_the_sum():
     v.show_frame(frame(1, dan=(4600, -32768, 4600, 4600)), 1.0)
     r = rows(draw(v))
     assert r["2"][1] == "FAULT"
-    assert r["sum"][1] == "138.0" and "missing" in " ".join(r["sum"])
+    assert r["part"][1] == "138.0" and "PARTIAL SUM: rope 2 missing" in " ".join(r["part"])
     assert r["1"][3] == "+0.0"
 
 

@@ -71,8 +71,9 @@ def test_export_csv(tmp_path):
     r = ropemon("export", str(db), "--out", str(tmp_path / "out"))
     assert r.returncode == 0, r.stderr
     lines = (tmp_path / "out" / "frames.csv").read_text().splitlines()
-    assert len(lines) == 41 and lines[0].startswith("id,rx_time,receiver,node,seq")
-    assert f"r{L.MAX_ROPES - 1}_raw_kpa" in lines[0]
+    assert len(lines) == 41 and lines[0].startswith("id,rx_time,rx_time_utc,receiver,node,seq")
+    assert f"r{L.MAX_ROPES}_raw_kpa" in lines[0] and "r0_" not in lines[0]     # ropes from 1, as on the cage
+    assert lines[2].split(",")[2] == "1970-01-01T00:00:01.000Z"
     r = ropemon("export", str(tmp_path / "nope.db"), "--out", str(tmp_path / "o2"))
     assert r.returncode == 2 and b"no such database" in r.stderr
 

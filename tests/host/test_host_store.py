@@ -107,9 +107,11 @@ def test_events_link_stats_and_csv_export(tmp_path):
     names = sorted(p.name for p in paths)
     assert names == ["events.csv", "frames.csv", "link_stats.csv", "trips.csv"]
     rows = list(csv.DictReader((tmp_path / "csv" / "frames.csv").open()))
-    assert len(rows) == 10 and rows[3]["seq"] == "3" and rows[3]["r3_mean_dan"] == "7000"
+    assert len(rows) == 10 and rows[3]["seq"] == "3" and rows[3]["r4_mean_dan"] == "7000"   # rope 4 of the cage
+    assert rows[3]["rx_time_utc"] == "1970-01-01T00:00:00.300Z"
     ev = list(csv.DictReader((tmp_path / "csv" / "events.csv").open()))
     assert ev[0]["action"] == "raise" and float(ev[0]["value"]) > 0.1
+    assert ev[0]["rope"] == "4" and ev[0]["alarm"] == "deviation:n1:r3"
     ls = list(csv.DictReader((tmp_path / "csv" / "link_stats.csv").open()))
     assert ls[0]["crc_fail"] == "2" and ls[0]["share"] == "0.9"
 

@@ -240,3 +240,46 @@ def test_the_nodes_own_imbalance_bit_is_alarmed():
         clk[0] = k * 0.1
         s.feed("pithead", encode_frame(node=1, seq=k, status=L.ST_IMBALANCE, ropes=[(500, 500, 500, 0)] * 4)[1])
     assert active_ids(alarms) == ["node_imbalance:n1"]
+
+
+def test_an_old_frame_replayed_into_the_other_receiver_is_refused_and_counted():
+    """Pithead heard seq 0-99, mid-shaft 100-6000 (the cage stood at the bottom); copies of
+    1000-1004 sent into pithead are replays, not current data, although pithead never had them."""
+    from ropemon.station.pipeline import StoreListener  # noqa: F401  (the same station as the monitor's)
+    log: list = []
+    clk = [0.0]
+    alarms = AlarmListener(AlarmSettings())
+    s = Station(KEYS, [alarms, Recorder("view", log)], clock=lambda: clk[0])
+    s.feed("pithead", b"".join(w(k) for k in range(100)))
+    s.feed("mid-shaft", b"".join(w(k) for k in range(100, 6001)))
+    log.clear()
+    s.feed("pithead", b"".join(w(k) for k in range(1000, 1005)))
+    assert [e for e in log if e[1] == "frame"] == []
+    assert s.decoders["pithead"].counts.replayed == 5
+    s.tick()
+    assert "link_integrity:pithead" in active_ids(alarms)
+    # a late frame a few behind that no receiver delivered yet is a gap filled, not a replay
+    s.feed("mid-shaft", w(6003))
+    s.feed("pithead", w(6002))
+    assert [e for e in log if e[1] == "frame"] == [("view", "frame", 6003), ("view", "frame", 6002)]
+    assert s.decoders["pithead"].counts.replayed == 5
+
+
+def test_shelving_goes_through_the_command_path_and_a_bad_command_is_refused_and_logged():
+    from ropemon.station.pipeline import Shelve, Unshelve
+    log: list = []
+    clk = [0.0]
+    alarms = AlarmListener(AlarmSettings())
+    s = Station(None, [alarms, Recorder("view", log)], clock=lambda: clk[0])
+    for k in range(12):
+        clk[0] = k * 0.1
+        s.feed("pithead", encode_frame(node=1, seq=k, ropes=[(500, 500, 500, 0)] * 3 + [(700, 700, 700, 0)])[1])
+    s.submit(Shelve("erin", "web", alarm="deviation:n1:r3", minutes=30, reason=""))
+    s.submit(Shelve("erin", "web", alarm="deviation:n1:r3", minutes=30, reason="rope change"))
+    s.pump()
+    events = [e for e in alarms.engine.events if e.action in ("refused", "shelve")]
+    assert [e.action for e in events] == ["shelve"]
+    assert alarms.engine.hidden()[0].note == "rope change (erin (web))"
+    s.submit(Unshelve("erin", "web", alarm="nope"))
+    s.pump()
+    assert ("view", "event", "nope") in log                    # refused: published and logged

@@ -23,6 +23,16 @@ station_fault (a part of the station failing, e.g. the log cannot be written).
 
 Fail-safe: the station raises an alarm whenever it cannot vouch for the ropes (no frame,
 a receiver down, a station part failing); it is never quiet because it sees nothing.
+
+Lifecycle (after ISA-18.2 / IEC 62682): an alarm raised is unacknowledged; acknowledged
+while its condition stays; cleared before it was acknowledged it is "returned to normal,
+unacknowledged" and stays listed until acknowledged. An operator may shelve an alarm
+(with a reason, until an expiry) or an engineer take it out of service (with a reason,
+until returned): it is then not annunciated (listed apart, no acknowledgement needed) but
+still evaluated and logged. A rope's deviation and slack alarms are suppressed by design
+while that rope's sensor has failed (SENSOR FAULT names it). Each alarm keeps its worst
+value since it was raised, its raise, clear and acknowledgement times and who acknowledged.
+More than FLOOD_RAISES raises within FLOOD_S is an alarm flood (ALARM FLOOD).
 """
 from __future__ import annotations
 
@@ -32,6 +42,12 @@ from dataclasses import dataclass
 from ropemon.station.protocol import DAN_TO_N, L, Frame
 from ropemon.station.uncertainty import BandParams, DeviationBand, RopeInterval, SealBandTracker, deviation_bounds
 
+#: Alarm flood: more than this many raises within FLOOD_S (ISA-18.2's 10 per 10 minutes).
+FLOOD_RAISES, FLOOD_S = 10, 600.0
+#: Priority of each kind (1 highest); kinds not listed are 1.
+PRIORITY = {"battery_low": 2, "pressure_noise": 2, "sensor_stuck": 2, "alarm_flood": 2, "deviation_possible": 3}
+#: Kinds whose worst value is the lowest (the others: the largest in magnitude).
+WORST_LOW = frozenset({"slack", "battery_low"})
 SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
 # A condition "held for 0.5 s" over frames 0.1 s apart holds at the sixth frame, whatever the
 # float rounding of the two times (38 * 0.1 and 43 * 0.1 are 0.49999999999999 apart).
@@ -93,14 +109,17 @@ class AlarmSettings:
 @dataclass(frozen=True)
 class AlarmEvent:
     time_s: float
-    action: str          # "raise", "clear" or "ack"
+    action: str          # raise, clear, ack, shelve, unshelve, out_of_service, in_service; station: accept, ...
     alarm: str           # id, e.g. "deviation:n1:r2"
     kind: str
     node: int | None
-    rope: int | None
+    rope: int | None     # from 0 (the screen, the CSV and JSON number ropes from 1)
     value: float | None
     threshold: float | None
     message: str
+    worst: float | None = None      # the worst value since the alarm was raised
+    operator: str | None = None     # who acted (ack, shelve, ...), None for the engine's own
+    annunciated: bool = True        # False: raised while shelved, out of service or suppressed
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -148,6 +167,14 @@ class _Alarm:
     message: str = ""
     raised_s: float | None = None
     band: float | None = None    # deviation_possible: the deviation's band (fraction)
+    worst: float | None = None   # worst value since raised
+    cleared_s: float | None = None
+    acked_s: float | None = None
+    acked_by: str | None = None
+    shelved_until: float | None = None
+    shelved: str | None = None   # "reason, by whom" while shelved
+    out_of_service: str | None = None  # "reason, by whom" while out of service
+    suppressed: bool = False     # by design (its rope's sensor failed)
 
     @property
     def present(self) -> bool:
@@ -157,10 +184,27 @@ class _Alarm:
     def active(self) -> bool:
         return self.present or self.latched
 
+    @property
+    def hidden(self) -> bool:
+        """Not annunciated: shelved, out of service or suppressed by design."""
+        return self.shelved is not None or self.out_of_service is not None or self.suppressed
+
+    def state(self) -> str:
+        if self.out_of_service is not None:
+            return "out_of_service"
+        if self.shelved is not None:
+            return "shelved"
+        if self.suppressed:
+            return "suppressed"
+        if self.present:
+            return "unacknowledged" if self.latched else "acknowledged"
+        return "rtn_unacknowledged" if self.latched else "normal"
+
 
 @dataclass(frozen=True)
 class ActiveAlarm:
-    """What a display shows: present = condition now, latched = awaiting acknowledgement."""
+    """What a display shows: present = condition now, latched = awaiting acknowledgement;
+    `state` names the lifecycle state (module docstring)."""
 
     id: str
     kind: str
@@ -173,6 +217,14 @@ class ActiveAlarm:
     message: str
     raised_s: float | None
     band: float | None = None    # deviation_possible: how far beyond |value| the deviation may reach
+    worst: float | None = None
+    state: str = "unacknowledged"   # unacknowledged, acknowledged, rtn_unacknowledged, shelved, ...
+    priority: int = 1               # 1 highest
+    cleared_s: float | None = None
+    acked_s: float | None = None
+    acked_by: str | None = None
+    shelved_until: float | None = None
+    note: str | None = None         # shelved or out of service: the reason and who
 
     @property
     def warning(self) -> bool:
@@ -181,6 +233,25 @@ class ActiveAlarm:
 
 
 WARNING_KINDS = frozenset({"deviation_possible"})
+
+
+def _fault_ropes(mask: int) -> str:
+    """What a fault_mask names, ropes from 1 as on the cage (layout: bit i pressure loop of rope
+    i+1, bit FAULT_DISPLACEMENT_SHIFT + i its displacement channel)."""
+    parts = []
+    for shift, what in ((L.FAULT_PRESSURE_SHIFT, "pressure loop"), (L.FAULT_DISPLACEMENT_SHIFT, "displacement")):
+        ropes = [str(i + 1) for i in range(4) if mask >> (shift + i) & 1]
+        if ropes:
+            parts.append(f"{what} of rope{'s' if len(ropes) > 1 else ''} {', '.join(ropes)}")
+    return (": " + "; ".join(parts)) if parts else ""
+
+
+def _worse(kind: str, worst: float | None, value: float | None) -> float | None:
+    if value is None or worst is None:
+        return worst if value is None else value
+    if kind in WORST_LOW:
+        return min(worst, value)
+    return value if abs(value) > abs(worst) else worst
 
 
 class _StuckTracker:
@@ -258,6 +329,7 @@ class AlarmEngine:
         self._link_bad: dict[str, int] = {}
         self._started_s: float | None = None      # the first update or tick: when the station began to look
         self._down_since: dict[str, float] = {}   # receiver -> when its port was first seen down
+        self._raises: deque[float] = deque()       # times of annunciated raises (the flood count)
         self.events: deque[AlarmEvent] = deque(maxlen=10000)  # recent history; the store keeps all
 
     # -- inputs ---------------------------------------------------------------
@@ -278,6 +350,16 @@ class AlarmEngine:
         # Ropes whose sensor gave no healthy sample carry TENSION_ABSENT: they are not judged
         # (their alarms hold their state; sensor_fault reports them) and not averaged in.
         present = [(i, r.mean_dan) for i, r in enumerate(ropes) if r.mean_dan != L.TENSION_ABSENT]
+        judged = {i for i, _ in present}
+        for i in range(len(ropes)):
+            for kind in ("deviation", "deviation_possible", "slack"):
+                a = self._alarms.get(f"{kind}:n{node}:r{i}")
+                if a is not None:
+                    was, a.suppressed = a.suppressed, i not in judged
+                    if a.suppressed:
+                        a.latched = False
+                    elif was:
+                        a.latched = a.present   # annunciated again: a present alarm needs an ack
         if s.band is not None and s.deviation_frac is not None and ropes:
             tr = self._bands.get(node)
             if tr is None:
@@ -318,7 +400,7 @@ class AlarmEngine:
         flags = ",".join(f for f in frame.status_flags if f.endswith("_fault") and f != "config_fault")
         self._step(ev, f"sensor_fault:n{node}", "sensor_fault", node, None, s.fault_timing, now_s,
                    fault, not fault, frame.fault_mask, None,
-                   f"sensor fault {flags or '-'} fault_mask=0x{frame.fault_mask:02x}")
+                   f"sensor fault {flags or '-'}{_fault_ropes(frame.fault_mask)}")
         cfg = bool(frame.status & L.ST_CONFIG_FAULT) or frame.kind == L.KIND_STATUS
         self._step(ev, f"config_fault:n{node}", "config_fault", node, None, s.fault_timing, now_s,
                    cfg, not cfg, None, None, "node reports a config fault: no compensated tension")
@@ -346,6 +428,15 @@ class AlarmEngine:
         counted from the station's start), and no_data while no node has been heard at all."""
         s = self.settings
         ev: list[AlarmEvent] = []
+        for a in list(self._alarms.values()):
+            if a.shelved_until is not None and now_s >= a.shelved_until:
+                ev += self.unshelve(a.id, now_s)
+        while self._raises and self._raises[0] < now_s - FLOOD_S:
+            self._raises.popleft()
+        n = len(self._raises)
+        self._step(ev, "alarm_flood", "alarm_flood", None, None, s.silent_timing, now_s, n > FLOOD_RAISES,
+                   n <= FLOOD_RAISES // 2, n, FLOOD_RAISES,
+                   f"alarm flood: {n} alarms raised in the last {FLOOD_S / 60:.0f} min")
         if self._started_s is None:
             self._started_s = now_s
         quiet_since_start = now_s - self._started_s
@@ -407,13 +498,13 @@ class AlarmEngine:
         return self._log(ev)
 
     def ack(self, name_or_id: str, now_s: float, by: str | None = None) -> list[AlarmEvent]:
-        """Acknowledge latched alarms by id, by kind, or all with "*"; `by` (who) goes into
-        each event's message."""
+        """Acknowledge latched alarms by id, by kind, or all with "*"; `by` (who) is recorded."""
         ev = []
         for a in self._alarms.values():
             if a.latched and name_or_id in ("*", a.id, a.kind):
                 a.latched = False
-                ev.append(self._event(a, now_s, "ack", f"acknowledged by {by}: {a.message}" if by else None))
+                a.acked_s, a.acked_by = now_s, by
+                ev.append(self._event(a, now_s, "ack", f"acknowledged by {by}: {a.message}" if by else None, by))
         return self._log(ev)
 
     def nodes(self) -> list[int]:
@@ -423,10 +514,61 @@ class AlarmEngine:
     # -- outputs --------------------------------------------------------------
 
     def active(self) -> list[ActiveAlarm]:
-        """Alarms present or latched, oldest raise first; warnings after the alarms."""
-        out = [ActiveAlarm(a.id, a.kind, a.node, a.rope, a.present, a.latched, a.value, a.threshold,
-                           a.message, a.raised_s, a.band) for a in self._alarms.values() if a.active]
-        return sorted(out, key=lambda x: (x.warning, x.raised_s or 0.0, x.id))
+        """Annunciated alarms present or latched (unacknowledged, acknowledged, returned to
+        normal unacknowledged): by priority, then oldest raise first (first out)."""
+        out = [self._view(a) for a in self._alarms.values() if a.active and not a.hidden]
+        return sorted(out, key=lambda x: (x.priority, x.raised_s or 0.0, x.id))
+
+    def hidden(self) -> list[ActiveAlarm]:
+        """Alarms shelved, out of service or suppressed by design (present or not)."""
+        return sorted((self._view(a) for a in self._alarms.values() if a.hidden), key=lambda x: x.id)
+
+    @staticmethod
+    def _view(a: _Alarm) -> ActiveAlarm:
+        return ActiveAlarm(a.id, a.kind, a.node, a.rope, a.present, a.latched, a.value, a.threshold,
+                           a.message, a.raised_s, a.band, a.worst, a.state(), PRIORITY.get(a.kind, 1),
+                           a.cleared_s, a.acked_s, a.acked_by, a.shelved_until, a.shelved or a.out_of_service)
+
+    # -- operator actions (each logged with who) ----------------------------------
+
+    def shelve(self, alarm_id: str, now_s: float, until_s: float, reason: str, by: str) -> list[AlarmEvent]:
+        """Shelve one alarm until `until_s` (then it returns by itself): not annunciated meanwhile.
+        Raises KeyError for an alarm the engine does not know, ValueError without a reason or
+        with an expiry not in the future."""
+        a = self._alarms[alarm_id]
+        if not reason.strip() or not until_s > now_s:
+            raise ValueError("shelving needs a reason and an expiry in the future")
+        a.shelved, a.shelved_until, a.latched = f"{reason} ({by})", until_s, False
+        return self._log([self._event(a, now_s, "shelve", f"shelved by {by} until t={until_s:.0f} s: {reason}", by)])
+
+    def unshelve(self, alarm_id: str, now_s: float, by: str | None = None) -> list[AlarmEvent]:
+        a = self._alarms[alarm_id]
+        if a.shelved is None:
+            return []
+        a.shelved, a.shelved_until = None, None
+        a.latched = a.present           # annunciated again: a present alarm needs an acknowledgement
+        why = f"unshelved by {by}" if by else "shelving expired"
+        return self._log([self._event(a, now_s, "unshelve", f"{why}: {a.message}", by)])
+
+    def remove_from_service(self, alarm_id: str, now_s: float, reason: str, by: str) -> list[AlarmEvent]:
+        """Take an alarm out of service (maintenance) until returned; KeyError, ValueError as `shelve`."""
+        a = self._alarms[alarm_id]
+        if not reason.strip():
+            raise ValueError("taking an alarm out of service needs a reason")
+        a.out_of_service, a.latched = f"{reason} ({by})", False
+        return self._log([self._event(a, now_s, "out_of_service", f"out of service by {by}: {reason}", by)])
+
+    def return_to_service(self, alarm_id: str, now_s: float, by: str) -> list[AlarmEvent]:
+        a = self._alarms[alarm_id]
+        if a.out_of_service is None:
+            return []
+        a.out_of_service = None
+        a.latched = a.present
+        return self._log([self._event(a, now_s, "in_service", f"returned to service by {by}: {a.message}", by)])
+
+    def known(self) -> list[str]:
+        """Every alarm id the engine has seen (what can be shelved or taken out of service)."""
+        return sorted(self._alarms)
 
     def deviation_bands(self, node: int, now_s: float | None = None) -> list[DeviationBand | None]:
         """Per rope of `node`'s last frame: its deviation and band (`ropemon.station.uncertainty`), widened
@@ -518,19 +660,25 @@ class AlarmEngine:
         if change is None:
             if a.present and not clear_cond:
                 a.message = message
+                a.worst = _worse(kind, a.worst, value)
             return
         if change == "clear":
+            a.cleared_s = now_s
             ev.append(self._event(a, now_s, "clear", f"cleared: {message}"))
         else:
-            a.latched = True
-            a.raised_s = now_s
+            a.latched = not a.hidden        # a hidden alarm is logged, not annunciated: no ack due
+            a.raised_s, a.cleared_s, a.acked_s, a.acked_by = now_s, None, None, None
             a.message = message
+            a.worst = value
             ev.append(self._event(a, now_s, "raise"))
+            if not a.hidden:
+                self._raises.append(now_s)
 
     @staticmethod
-    def _event(a: _Alarm, now_s: float, action: str, message: str | None = None) -> AlarmEvent:
+    def _event(a: _Alarm, now_s: float, action: str, message: str | None = None,
+               operator: str | None = None) -> AlarmEvent:
         return AlarmEvent(now_s, action, a.id, a.kind, a.node, a.rope, a.value, a.threshold,
-                          message if message is not None else a.message)
+                          message if message is not None else a.message, a.worst, operator, not a.hidden)
 
     def _log(self, ev: list[AlarmEvent]) -> list[AlarmEvent]:
         self.events.extend(ev)

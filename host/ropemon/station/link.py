@@ -25,11 +25,14 @@ from typing import Callable, Iterable, Mapping
 import serial
 import serial.rs485
 
-from ropemon.station.decoder import DecodeCounts, StreamDecoder
+from ropemon.station.decoder import DUPLICATE_MEMORY, DecodeCounts, StreamDecoder
 from ropemon.station.merge import Merger
 from ropemon.station.protocol import Frame
 
 DEFAULT_BAUDRATE = 115200
+#: With keys, a frame this many seqs behind the node's newest (from any receiver) is still taken
+#: if no receiver delivered it yet (a late frame filling a gap); older ones are replays.
+LATE_FRAMES = DUPLICATE_MEMORY
 
 
 class SerialReceiver:
@@ -153,7 +156,10 @@ class ReceiverStatus:
 class FrameHub:
     """Several receivers -> decoders -> one Merger -> a queue of `Received`.
 
-    Each receiver's decoder is used only by the thread that feeds it. Other threads
+    With keys, the hub is the one authority on each node's sequence over all receivers
+    (`_current`): a frame older than the newest taken is a replay whichever receiver brings
+    it, counted as `replayed` on that receiver. Each receiver's decoder is used only by the
+    thread that feeds it. Other threads
     talk to the hub through its methods: `accept_rewound` leaves the decision in each
     decoder's inbox, applied by its own thread before its next bytes; `rewound`,
     `counts` and `status` return copies taken under the hub's lock after each chunk.
@@ -174,12 +180,15 @@ class FrameHub:
         self._inbox: dict[str, list[int]] = {}           # receiver -> nodes accepted, not yet applied
         self._rewound: dict[str, dict[int, tuple[int, int]]] = {}
         self._counts: dict[str, DecodeCounts] = {}
+        self._top: dict[int, int] = {}                   # node -> newest seq taken from any receiver
         self._seed: tuple[dict[int, int], dict[int, list[Frame]]] = ({}, {})
 
     def seed(self, last: Mapping[int, int], recent: Mapping[int, Iterable[Frame]] | None = None) -> None:
         """Replay state to resume from (`ReplayGuard.seed`): given to every receiver's
         decoder, also to those added later. Call before any bytes are fed."""
         self._seed = (dict(last), {n: list(fs) for n, fs in (recent or {}).items()})
+        with self._lock:
+            self._top.update(last)
         for dec in list(self.decoders.values()):
             dec.replay.seed(*self._seed)
 
@@ -204,17 +213,31 @@ class FrameHub:
             frames = dec.feed(data)
             base = dec.take_rebased() if frames else {}
             with self._lock:
-                self._counts[name] = replace(dec.counts)
-                if dec.replay.rewound != self._rewound[name]:
-                    self._rewound[name] = dict(dec.replay.rewound)
                 for f in frames:
-                    item = Received(name, f, now, self.merger.add(name, f),
-                                    base.get((f.node, f.seq)) if base else None)
+                    prev = base.get((f.node, f.seq)) if base else None
+                    if self.keys is not None and not self._current(f, prev):
+                        dec.counts.replayed += 1      # older than what another receiver brought
+                        continue
+                    item = Received(name, f, now, self.merger.add(name, f), prev)
                     try:
                         self.queue.put_nowait(item)
                     except queue.Full:
                         self.dropped += 1
+                self._counts[name] = replace(dec.counts)
+                if dec.replay.rewound != self._rewound[name]:
+                    self._rewound[name] = dict(dec.replay.rewound)
         return on_bytes
+
+    def _current(self, f: Frame, rebased_from: int | None) -> bool:
+        """The node-wide replay check over all receivers (with keys; under the lock): a frame is
+        taken if it is the node's newest, an operator-accepted new baseline, a copy of one the
+        merger remembers (a duplicate), or at most LATE_FRAMES behind the newest and not seen (a
+        late frame filling a gap). Anything older is a replay, whichever receiver brings it."""
+        top = self._top.get(f.node)
+        if rebased_from is not None or top is None or f.seq > top:
+            self._top[f.node] = f.seq
+            return True
+        return f.seq >= top - LATE_FRAMES or self.merger.has(f.node, f.seq)
 
     def add_port(self, url: str, name: str | None = None, **kw) -> SerialReceiver:
         name = name or f"rx{len(self.receivers) + 1}"

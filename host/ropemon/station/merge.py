@@ -111,6 +111,11 @@ class Merger:
         b.sent += 1
         return True
 
+    def has(self, node: int, seq: int) -> bool:
+        """True if a frame (node, seq) of the current sequence is remembered (a copy would be a duplicate)."""
+        st = self._nodes.get(node)
+        return st is not None and seq in st.seen
+
     @staticmethod
     def _delivered(st: _NodeState, b: _DepthBin, receiver: str) -> None:
         st.delivered[receiver] = st.delivered.get(receiver, 0) + 1

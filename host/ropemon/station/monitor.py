@@ -13,14 +13,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import datetime
 import getpass
+import json
 import os
 import select
+import signal
 import sys
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable
+from typing import IO, Any, Callable, Iterable
 
 from rich import box
 from rich.console import Console, Group, RenderableType
@@ -41,6 +45,7 @@ TENSION_ABSENT = L.TENSION_ABSENT   # a rope whose sensor failed for the whole w
 SPARK = "▁▂▃▄▅▆▇█"
 TREND_LEN = 24           # frames in the sparkline (2.4 s at 10 frames/s)
 BELL_REPEAT_S = 5.0      # ring again while an alarm stays unacknowledged
+STALE_S = 2.0            # a node's last frame older than this: its figures are greyed as not current
 
 
 def sparkline(values: Iterable[float], lo: float, hi: float) -> str:
@@ -166,7 +171,7 @@ class MonitorView(Listener):
 
     # -- drawing ------------------------------------------------------------
     def render(self, now_s: float) -> RenderableType:
-        parts: list[RenderableType] = [self._header(now_s), self._ropes()]
+        parts: list[RenderableType] = [self._header(now_s), self._ropes(now_s)]
         if len(self.nodes) > 1:
             parts.append(self._others(now_s))
         keys = "a: acknowledge alarms   " + ("n: next node   " if len(self.nodes) > 1 else "") + "q: quit"
@@ -216,13 +221,13 @@ class MonitorView(Listener):
         t.append(f" battery {bat_v:.2f} V", style="bold red" if low else "")
         temp = f.oil_temp_c
         t.append(f"  oil {temp:.1f} C" if temp is not None else "  oil -- C")
-        t.append(f"  last frame {age:4.1f} s ago", style="bold red reverse" if age > 2.0 else "")
+        t.append(f"  last frame {age:4.1f} s ago", style="bold red reverse" if age > STALE_S else "")
         flags = [n for n in f.status_flags if n != "temp_absent"]
         if flags:
             t.append("  " + " ".join(flags), style="bold yellow")
         return t
 
-    def _ropes(self) -> Table:
+    def _ropes(self, now_s: float | None = None) -> Table:
         kn = "kN"
         table = Table(box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, expand=False,
                       show_edge=False)
@@ -237,6 +242,8 @@ class MonitorView(Listener):
             why = "no frame yet" if f is None else "STATUS ONLY: node not compensating"
             table.add_row("-", "-", "-", "-", "-", Text(why, style="bold red" if f else "yellow"))
             return table
+        age = 0.0 if now_s is None or self.last_at_s is None else now_s - self.last_at_s
+        stale = age > STALE_S      # not current: greyed, never in the normal colours
         ok = [r.mean_dan != TENSION_ABSENT for r in f.ropes]
         comp = [r.mean_dan * DAN_TO_N if good else 0 for r, good in zip(f.ropes, ok)]
         used = [c for c, good in zip(comp, ok) if good]
@@ -266,18 +273,24 @@ class MonitorView(Listener):
             else:
                 raw_sum += raw
                 raw_txt = f"{raw / 1000:.1f}"
-            table.add_row(str(i + 1), f"{comp[i] / 1000:.1f}", raw_txt, Text(dev_txt, style=style),
+            table.add_row(str(i + 1), f"{comp[i] / 1000:.1f}", raw_txt, Text(dev_txt, style="dim" if stale else style),
                           f"{r.min_dan * DAN_TO_N / 1000:.1f}..{r.max_dan * DAN_TO_N / 1000:.1f}",
-                          self._spark(i, min_span))
+                          self._spark(i, min_span), style="dim" if stale else None)
         total = sum(used)
         rated = self.site.rated_load_n
         load = Text(f"load of rated {rated / 1000:.0f} kN: {total / rated * 100:.0f} %" if rated else "")
         if rated and total > rated:
             load.stylize("bold red reverse")
+        label = "sum"
         if not all(ok):
-            load = Text(f"{ok.count(False)} rope(s) missing from the sum", style="bold red")
-        table.add_row("sum", Text(f"{total / 1000:.1f}", style="bold"),
-                      f"{raw_sum / 1000:.1f}" if raw_ok else "-", "", "", load)
+            missing = ", ".join(str(i + 1) for i, good in enumerate(ok) if not good)
+            label = "part"           # not the total: never read as the hoist's load
+            load = Text(f"PARTIAL SUM: rope {missing} missing", style="bold red")
+        table.add_row(label, Text(f"{total / 1000:.1f}", style="bold"),
+                      f"{raw_sum / 1000:.1f}" if raw_ok else "-", "", "", load, style="dim" if stale else None)
+        if stale:
+            table.add_row("", Text("STALE", style="bold red reverse"), "", "", "",
+                          Text(f"last frame {age:.0f} s ago: not current", style="bold red"))
         return table
 
     def _spark(self, rope: int, min_span: float) -> str:
@@ -356,24 +369,29 @@ def is_warning(text: str) -> bool:
 
 
 def alarm_text(a: ActiveAlarm) -> str:
-    """One line for the operator; ropes numbered from 1 as on the cage."""
+    """One line for the operator; ropes numbered from 1 as on the cage. A cleared alarm shows the
+    worst value it reached, not the value it cleared at."""
     rope = f" rope {a.rope + 1}" if a.rope is not None else ""
-    v, thr = a.value, a.threshold
+    v = a.value if a.present or a.worst is None else a.worst
+    thr = a.threshold
+    reached = "" if a.present else "reached "
     if a.kind == "deviation" and v is not None and thr is not None:
-        what = f"{v * 100:+.1f} % from mean (limit {thr * 100:.0f} %)"
+        what = f"{reached}{v * 100:+.1f} % from mean (limit {thr * 100:.0f} %)"
+        if a.present and a.worst is not None and abs(a.worst) > abs(v) + 0.0005:
+            what += f", worst {a.worst * 100:+.1f} %"
     elif a.kind == "deviation_possible" and v is not None and thr is not None and a.band is not None:
         what = f"{v * 100:+.1f} % +-{a.band * 100:.1f} from mean: may reach {thr * 100:.0f} %"
     elif a.kind == "overload" and v is not None and thr is not None:
-        what = f"total {v * DAN_TO_N / 1000:.1f} kN > {thr * DAN_TO_N / 1000:.1f} kN"
+        what = f"{reached}total {v * DAN_TO_N / 1000:.1f} kN > {thr * DAN_TO_N / 1000:.1f} kN"
     elif a.kind == "slack" and v is not None and thr is not None:
-        what = f"{v * DAN_TO_N / 1000:.1f} kN < {thr * DAN_TO_N / 1000:.1f} kN"
+        what = f"{reached}{v * DAN_TO_N / 1000:.1f} kN < {thr * DAN_TO_N / 1000:.1f} kN"
     elif a.kind == "battery_low" and v is not None:
-        what = f"{v / 1000:.2f} V"
+        what = f"{reached}{v / 1000:.2f} V"
     elif a.kind == "silent" and v is not None:
         what = f"no frame for {v:.1f} s"
     else:
         what = a.message
-    state = "" if a.present else " (cleared)"
+    state = "" if a.present else " (cleared, not acknowledged)"
     return f"{a.kind.upper().replace('_', ' ')}{rope}: {what}{state}"
 
 
@@ -397,7 +415,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"baud rate of the receiver lines (default {DEFAULT_BAUDRATE})")
     p.add_argument("--rs485", action="store_true",
                    help="half-duplex RS485 mode for adapters whose driver needs it (RTS switching)")
-    p.add_argument("--refresh-hz", type=float, default=4.0, help="screen refreshes per second")
+    p.add_argument("--refresh-hz", type=float, default=4.0, help="screen refreshes (station ticks) per second")
+    p.add_argument("--headless", action="store_true",
+                   help="no screen: run as a service and print every alarm event as one JSON line on stdout "
+                        "(stops on SIGTERM or SIGINT)")
     p.add_argument("--silent-s", type=float, default=5.0, help="node-silent alarm after this many seconds")
 
 
@@ -501,6 +522,35 @@ def live_loop(station: Station, view: MonitorView, console: Console, refresh_hz:
         keys.close()
 
 
+class JsonAlarmLines(Listener):
+    """Every alarm event as one JSON line (the headless station's output, docs/operator.md)."""
+
+    name = "json lines"
+
+    def __init__(self, out: IO[str]) -> None:
+        self.out = out
+
+    def on_event(self, e: AlarmEvent) -> None:
+        t = datetime.datetime.fromtimestamp(e.time_s, datetime.timezone.utc)
+        line = {"event": e.action, "alarm": e.kind, "id": e.alarm, "node": e.node,
+                "rope": None if e.rope is None else e.rope + 1, "value": e.value, "worst": e.worst,
+                "threshold": e.threshold, "t": t.isoformat(timespec="milliseconds").replace("+00:00", "Z"),
+                "operator": e.operator, "annunciated": e.annunciated, "message": e.message}
+        self.out.write(json.dumps(line, allow_nan=False, default=str) + "\n")
+        self.out.flush()
+
+
+def headless_loop(station: Station, ticks_hz: float, done: Callable[[], bool] = lambda: False) -> None:
+    """Run the station with no screen until SIGTERM, SIGINT or `done()`."""
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    while not stop.is_set() and not done():
+        station.pump()
+        station.tick()
+        stop.wait(1.0 / ticks_hz)
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         keys = keys_from_options(args.key, args.config, args.accept_rewound)
@@ -516,7 +566,7 @@ def run(args: argparse.Namespace) -> int:
         except StoreError as e:
             print(f"ropemon monitor: {e}", file=sys.stderr)
             return 2
-    view = MonitorView(site)
+    view: Listener = JsonAlarmLines(sys.stdout) if args.headless else MonitorView(site)
     # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
     # The nodes it has keys for are the nodes it must hear: silent until heard.
@@ -532,7 +582,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         for name, url in receiver_names(args.port):
             station.add_port(url, name, baudrate=args.baud, rs485=args.rs485).start()
-        live_loop(station, view, Console(), args.refresh_hz)
+        if isinstance(view, MonitorView):
+            live_loop(station, view, Console(), args.refresh_hz)
+        else:
+            headless_loop(station, args.refresh_hz)
     finally:
         station.close()
         if store is not None:

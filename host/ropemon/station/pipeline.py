@@ -71,6 +71,7 @@ class AlarmState:
     time_s: float
     active: tuple[ActiveAlarm, ...]
     bands: dict[int, list[DeviationBand | None]]
+    hidden: tuple[ActiveAlarm, ...] = ()      # shelved, out of service, suppressed by design
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,33 @@ class Command:
 @dataclass(frozen=True)
 class Acknowledge(Command):
     alarm: str = "*"          # an alarm id, a kind, or "*" for all
+
+
+@dataclass(frozen=True)
+class Shelve(Command):
+    """Shelve one alarm for `minutes` with a reason (it returns by itself)."""
+
+    alarm: str = ""
+    minutes: float = 0.0
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class Unshelve(Command):
+    alarm: str = ""
+
+
+@dataclass(frozen=True)
+class RemoveFromService(Command):
+    """Take one alarm out of service (maintenance) with a reason, until returned."""
+
+    alarm: str = ""
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class ReturnToService(Command):
+    alarm: str = ""
 
 
 @dataclass(frozen=True)
@@ -362,9 +390,27 @@ class AlarmListener(Listener):
         self._publish_state(now)
 
     def on_command(self, command: Command, now_s: float) -> None:
-        if isinstance(command, Acknowledge):
-            if self._publish(self.engine.ack(command.alarm, now_s, f"{command.operator} ({command.via})")):
-                self._publish_state(now_s)
+        e, who = self.engine, f"{command.operator} ({command.via})"
+        try:
+            if isinstance(command, Acknowledge):
+                events = e.ack(command.alarm, now_s, who)
+            elif isinstance(command, Shelve):
+                events = e.shelve(command.alarm, now_s, now_s + command.minutes * 60.0, command.reason, who)
+            elif isinstance(command, Unshelve):
+                events = e.unshelve(command.alarm, now_s, who)
+            elif isinstance(command, RemoveFromService):
+                events = e.remove_from_service(command.alarm, now_s, command.reason, who)
+            elif isinstance(command, ReturnToService):
+                events = e.return_to_service(command.alarm, now_s, who)
+            else:
+                return
+        except (KeyError, ValueError) as err:
+            why = f"no alarm {command.alarm!r}" if isinstance(err, KeyError) else str(err)
+            self.publish(AlarmEvent(now_s, "refused", getattr(command, "alarm", ""), "command", None, None, None,
+                                    None, f"{type(command).__name__} by {who} refused: {why}", operator=who))
+            return
+        if self._publish(events):
+            self._publish_state(now_s)
 
     def _publish(self, events: list[AlarmEvent]) -> int:
         for e in events:
@@ -373,7 +419,8 @@ class AlarmListener(Listener):
 
     def _publish_state(self, now_s: float) -> None:
         e = self.engine
-        self.publish(AlarmState(now_s, tuple(e.active()), {n: e.deviation_bands(n, now_s) for n in e.nodes()}))
+        self.publish(AlarmState(now_s, tuple(e.active()), {n: e.deviation_bands(n, now_s) for n in e.nodes()},
+                                tuple(e.hidden())))
 
 
 class StoreListener(Listener):

@@ -14,12 +14,15 @@ One Store belongs to one thread (sqlite3 connections are not shared).
 from __future__ import annotations
 
 import csv
+import datetime
 import sqlite3
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ropemon.station.protocol import Frame, Rope
+from ropemon.station.protocol import Frame, L, Rope
+
+OIL_TEMP_ABSENT = L.OIL_TEMP_ABSENT
 
 SCHEMA_VERSION = 1
 
@@ -64,7 +67,9 @@ CREATE TABLE IF NOT EXISTS events (
     rope INTEGER,
     value REAL,
     threshold REAL,
-    message TEXT NOT NULL
+    message TEXT NOT NULL,
+    worst REAL,
+    operator TEXT
 );
 CREATE TABLE IF NOT EXISTS link_stats (
     id INTEGER PRIMARY KEY,
@@ -95,7 +100,25 @@ _LINK_COLS = ("frames_ok", "crc_fail", "malformed", "mac_fail", "replayed", "byt
 #: link_stats columns added to schema 1 before its first release; files written
 #: before that get them on open (nullable, so their old rows read as NULL).
 _LINK_COLS_ADDED = ("rewound", "duplicate")
-_EVENT_COLS = ("time_s", "action", "alarm", "kind", "node", "rope", "value", "threshold", "message")
+_EVENT_COLS = ("time_s", "action", "alarm", "kind", "node", "rope", "value", "threshold", "message", "worst",
+               "operator")
+#: events columns added to schema 1 later; files written before get them on open (NULL in old rows).
+_EVENT_COLS_ADDED = {"worst": "REAL", "operator": "TEXT"}
+
+
+def _with_utc(row: list, *cols) -> list:
+    """`row` with an ISO-8601 UTC column after each time column (given by name in a header
+    row, by index in a data row; an empty time stays empty)."""
+    if cols and isinstance(cols[0], str):
+        at = {row.index(c) for c in cols}
+        return [x for k, name in enumerate(row) for x in ((name, f"{name}_utc") if k in at else (name,))]
+    out = []
+    for k, v in enumerate(row):
+        out.append(v)
+        if k in cols:
+            out.append("" if v is None else datetime.datetime.fromtimestamp(v, datetime.timezone.utc)
+                       .isoformat(timespec="milliseconds").replace("+00:00", "Z"))
+    return out
 
 
 class StoreError(RuntimeError):
@@ -163,6 +186,10 @@ class Store:
         for col in _LINK_COLS_ADDED:
             if col not in have:
                 self.db.execute(f"ALTER TABLE link_stats ADD COLUMN {col} INTEGER")
+        have = {r[1] for r in self.db.execute("PRAGMA table_info(events)")}
+        for col, typ in _EVENT_COLS_ADDED.items():
+            if col not in have:
+                self.db.execute(f"ALTER TABLE events ADD COLUMN {col} {typ}")
         self._trip = _TripDetector(trip_moving_mm_s, trip_rest_s, trip_start_m)
         for tid, node in self.db.execute("SELECT id, node FROM trips WHERE end_time IS NULL"):
             self._trip.open[node] = tid
@@ -407,17 +434,21 @@ class Store:
         return [dict(zip(names, r)) for r in cur]
 
     def export_csv(self, out_dir: str | Path) -> list[Path]:
-        """Write frames.csv (one row per frame, rope columns r<i>_<field>), events, link_stats, trips."""
+        """Write frames.csv, events.csv, link_stats.csv and trips.csv for people and spreadsheets:
+        ropes numbered from 1 as on the cage (`r1_mean_dan`, events' `rope`), each time column
+        followed by its ISO-8601 UTC form (`rx_time_utc`), an absent oil temperature empty."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         self.commit()
         n_ropes = self.db.execute("SELECT coalesce(max(rope) + 1, 0) FROM ropes").fetchone()[0]
         rope_fields = ("mean_dan", "min_dan", "max_dan", "raw_kpa")
+        oil = _FRAME_COLS.index("oil_temp_cc") + 1
         paths = []
         p = out / "frames.csv"
         with p.open("w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(["id", *_FRAME_COLS] + [f"r{i}_{f}" for i in range(n_ropes) for f in rope_fields])
+            w.writerow(_with_utc(["id", *_FRAME_COLS], "rx_time")
+                       + [f"r{i + 1}_{f}" for i in range(n_ropes) for f in rope_fields])
             cur = self.db.execute(f"SELECT id, {','.join(_FRAME_COLS)} FROM frames ORDER BY id")
             rope_cur = self.db.execute("SELECT frame_id, rope, mean_dan, min_dan, max_dan, raw_kpa "
                                        "FROM ropes ORDER BY frame_id, rope")
@@ -431,14 +462,24 @@ class Store:
                     pending = next(rope_cur, None)
                 row = list(row)
                 row[-1] = row[-1].hex()  # mac
-                w.writerow(row + cells)
+                if row[oil] == OIL_TEMP_ABSENT:
+                    row[oil] = ""
+                w.writerow(_with_utc(row, 1) + cells)
         paths.append(p)
-        for table in ("events", "link_stats", "trips"):
+        for table, times in (("events", ("time_s",)), ("link_stats", ("time_s",)),
+                             ("trips", ("start_time", "end_time"))):
             p = out / f"{table}.csv"
             cur = self.db.execute(f"SELECT * FROM {table} ORDER BY id")
+            names = [d[0] for d in cur.description]
+            at = [names.index(t) for t in times]
+            rope = names.index("rope") if table == "events" else None
             with p.open("w", newline="") as fh:
                 w = csv.writer(fh)
-                w.writerow([d[0] for d in cur.description])
-                w.writerows(cur)
+                w.writerow(_with_utc(names, *times))
+                for r in cur:
+                    r = list(r)
+                    if rope is not None and r[rope] is not None:
+                        r[rope] += 1
+                    w.writerow(_with_utc(r, *at))
             paths.append(p)
         return paths
