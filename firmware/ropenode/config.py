@@ -5,7 +5,7 @@ and the presence, type and range of every field of the integer `node` section,
 and returns a `Config`; a bad file raises `ConfigError(field, reason)` naming
 the field. A HAL boots with `load_for_boot`, which never raises and, for a
 refused file, still gives the node identity to sign config-fault frames with.
-The host builds the section (`ropemon.nodeconfig`) and uses `canonical` from
+The host builds the section (`ropemon.nodejson`) and uses `canonical` from
 here, so both sides hash the same bytes. Runs at boot only: allocation is fine
 here, never in the sample path. Validation is driven by the tables below (less
 code resident on the node than one call per field).

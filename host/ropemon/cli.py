@@ -20,7 +20,7 @@ COMMANDS = {
     "export": ("ropemon.station.store_cli", "export a ropemon database to CSV"),
     "fit-friction": ("ropemon.commission.calibrate", "fit LuGre friction parameters from test-bed data"),
     "fit-compliance": ("ropemon.commission.compliance", "fit each cylinder's hydraulic compliance from a recorded wind"),
-    "config": ("ropemon.commission.siteconfig", "generate a node config from a site description"),
+    "config": ("ropemon.commission.config_cli", "generate a node config from a site description"),
     "deploy": ("ropemon.commission.deploy", "cross-compile and copy firmware and config to a node with mpremote"),
     "record": ("ropemon.commission.record", "arm a node to record a commissioning wind; fetch the recording"),
     "demo": ("ropemon.lab.demo", "the whole chain on the simulated hoist"),

@@ -13,7 +13,7 @@ import pytest
 from ropemon.commission import compliance
 from ropemon.cli import main as ropemon
 from ropemon.firmware import node_module
-from ropemon.commission.nodeconfig import example_physical, make_node_json
+from ropemon.commission.nodejson import example_physical, make_node_json
 from ropemon.lab.plant.output import write_rsens
 from ropemon.commission.site import SiteError, load_site, physical_from_site
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from ropemon.firmware import node_module
-from ropemon.commission.nodeconfig import make_node_json
+from ropemon.commission.nodejson import make_node_json
 from ropemon.commission.site import SiteError, load_site, physical_from_site
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -34,7 +34,7 @@ def write_node_json(path, **physical):
     that no band widens the alarms these tests are about)."""
     import json
 
-    from ropemon.commission.nodeconfig import example_physical
+    from ropemon.commission.nodejson import example_physical
 
     ph = example_physical()
     line = {"intercept": 10.0, "slope": 0.0}

@@ -86,7 +86,7 @@ def test_monitor_refuses_conflicting_keys_and_configs_of_different_hoists(tmp_pa
     import json
 
     from ropemon.cli import main
-    from ropemon.commission.nodeconfig import example_physical
+    from ropemon.commission.nodejson import example_physical
 
     def node_json(name, node, key, area):
         p = tmp_path / name

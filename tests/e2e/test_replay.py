@@ -113,7 +113,7 @@ def test_replay_into_a_log_that_report_and_export_read(wind, tmp_path, capsys):
 def test_an_imbalanced_rope_raises_the_deviation_alarm_on_node_time(wind, tmp_path, capsys):
     """Rope 2's cylinder area 30 % too large in the config: the node reads it ~+21 % from the
     mean from the first frame, so DEVIATION rope 2 raises after its 0.5 s hold of node time."""
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
     from ropemon.station.store import Store
 
     doc = json.loads((wind / "node.json").read_text())

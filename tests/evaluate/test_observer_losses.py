@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from ropemon import cli
-from ropemon.commission.nodeconfig import make_node_json
+from ropemon.commission.nodejson import make_node_json
 from ropemon.lab import evaluate as EV
 from ropemon.lab.rundir import RunDir
 from ropemon.lab.studies import observer_losses as ol

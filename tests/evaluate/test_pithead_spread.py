@@ -156,11 +156,11 @@ def test_the_smoother_row_replays_its_estimate_into_the_reference(two_seeds, cap
     # the tracker itself put in the smoother's place must give back the evaluation's
     # figures: the medians, the replay and the play scaling are right (said to be half
     # as noisy as the tracker, its plays x2 are the tracker's own)
-    from ropemon.commission import nodeconfig, reference
+    from ropemon.commission import nodejson, reference
 
     class TrackerAsSmoother:
         def __init__(self, physical):
-            self.tr = nodeconfig.physical_params(physical)["tracker"]
+            self.tr = nodejson.physical_params(physical)["tracker"]
             self.tracker_noise_gain = self.tr["noise_gain"]
 
         def run(self, y):

@@ -13,7 +13,7 @@ from streams_cpython import random_stream, run_node, slide_stream, wind_records
 from ropemon.station import protocol
 from ropemon.commission import reference
 from ropemon.firmware import node_module
-from ropemon.commission.nodeconfig import COMPLIANCE_DEFAULTS, example_physical, make_node_json
+from ropemon.commission.nodejson import COMPLIANCE_DEFAULTS, example_physical, make_node_json
 
 config = node_module("config")
 Node = node_module("node").Node
@@ -552,10 +552,10 @@ def test_at_rest_the_pressure_noise_does_not_wear_the_seal_state_down():
 def test_a_faulted_pressure_loop_sizes_the_play_for_the_median_of_the_others(monkeypatch):
     """With rope 1's pressure loop open, the LuGre position of the other ropes takes the
     median of three channels, 1.23 times noisier than of four: the node widens the play
-    to match (nodeconfig MEDIAN_NOISE), so without the rest hold the noise relaxes their
+    to match (nodejson MEDIAN_NOISE), so without the rest hold the noise relaxes their
     seals over 18 s of rest by a quarter less than with the play of four channels; the
     node does as the reference."""
-    from ropemon.commission import nodeconfig
+    from ropemon.commission import nodejson
 
     doc = make_node_json(_rest_physical(rest_sigmas=0.0))
     ph = doc["physical"]
@@ -564,7 +564,7 @@ def test_a_faulted_pressure_loop_sizes_the_play_for_the_median_of_the_others(mon
     recs[t >= 10, 0] = 0  # below 3.6 mA
     a, b = int(12 * fs), int(30 * fs)
     per_count = reference.compensate(ph, recs).friction_n
-    monkeypatch.setattr(nodeconfig, "MEDIAN_NOISE", (nodeconfig.MEDIAN_NOISE[3],) * 4)
+    monkeypatch.setattr(nodejson, "MEDIAN_NOISE", (nodejson.MEDIAN_NOISE[3],) * 4)
     one_play = reference.compensate(ph, recs).friction_n
     monkeypatch.undo()
     relax, relax_one = per_count[a, 1:] - per_count[b, 1:], one_play[a, 1:] - one_play[b, 1:]

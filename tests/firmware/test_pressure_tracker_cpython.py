@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from ropemon.commission.nodeconfig import example_physical, physical_params, tracker_gains
+from ropemon.commission.nodejson import example_physical, physical_params, tracker_gains
 from ropemon.commission.reference import PressureTracker
 
 FS = 200.0
@@ -90,7 +90,7 @@ def test_the_node_tracker_follows_the_float_one_within_a_few_pascal():
     import array
 
     from ropemon.firmware import node_module
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
     kernel = node_module("kernel")
     ph = dict(example_physical(), hydraulic_compliance_m_per_Pa=[3e-10] * 4)
     doc = make_node_json(ph)

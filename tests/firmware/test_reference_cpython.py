@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ropemon.commission import reference
-from ropemon.commission.nodeconfig import example_physical
+from ropemon.commission.nodejson import example_physical
 
 C4, C20 = 9600, 48000
 

@@ -180,7 +180,7 @@ def test_what_config_writes_for_every_scenario_site_is_what_the_station_reads(tm
     """`ropemon config`'s physical section (commission.site) is built through Physical and
     comes back out of node.json as the same Physical."""
     pytest.importorskip("fluids")
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
     from ropemon.commission.site import load_site, physical_from_site
 
     sites = sorted({p for p in (ROOT / "scenarios").glob("*.toml") if "[hoist]" in p.read_text()})

@@ -65,7 +65,7 @@ def test_speed_counter_and_hall_marks(short_out):
 
 
 def test_node_json_is_a_complete_node_config(short_out):
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
 
     doc = json.loads((short_out / "node.json").read_text())
     assert doc["schema"] == 1 and isinstance(doc["crc"], int) and doc["node"]

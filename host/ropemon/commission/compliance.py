@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ropemon.commission.nodeconfig import namur_limits, physical_params
+from ropemon.commission.nodejson import namur_limits, physical_params
 from ropemon.station.protocol import L
 from ropemon.commission.reference import read_rsens
 

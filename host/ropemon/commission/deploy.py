@@ -9,7 +9,7 @@ four runs per deploy); the steps:
 3. build on the host: the firmware packages cross-compiled with mpy-cross for that
    arch (or the .py sources with --py); main.py/boot.py stay .py, MicroPython only
    boots those from source; node.json without its `physical` section, which is the
-   host's (`nodeconfig.node_part`: the node parses half the heap at boot);
+   host's (`nodejson.node_part`: the node parses half the heap at boot);
 4. stage: copy everything into `.staged/` on the node and hash it there (SHA-256),
    compared with the host's hashes;
 5. swap, in one exec: `deployswap.swap` (firmware/deployswap.py, sent as source)
@@ -43,7 +43,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ropemon.firmware import FIRMWARE_DIR, install_shim, node_module
-from ropemon.commission.nodeconfig import node_part
+from ropemon.commission.nodejson import node_part
 
 install_shim()
 import deployswap  # noqa: E402  firmware/deployswap.py: the node side of the swap, one copy
@@ -287,7 +287,7 @@ def build(firmware_dir: Path, out_dir: Path, arch: str | None, as_py: bool,
     if errors:
         raise DeployError("\n".join(errors))
     hashes = {dst.relative_to(out_dir).as_posix(): _sha256(dst) for dst in outputs}
-    if config is not None:  # the node's part only (nodeconfig.node_part), as checked
+    if config is not None:  # the node's part only (nodejson.node_part), as checked
         (out_dir / CONFIG_NAME).write_text(json.dumps(node_part(json.loads(config.read_text())),
                                                       separators=(",", ":")))
         hashes[CONFIG_NAME] = _sha256(out_dir / CONFIG_NAME)

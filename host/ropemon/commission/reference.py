@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ropemon.firmware import node_module
-from ropemon.commission.nodeconfig import DEFAULTS, NOISE_CLIP, NOISE_RANGE, namur_limits, physical_params
+from ropemon.commission.nodejson import DEFAULTS, NOISE_CLIP, NOISE_RANGE, namur_limits, physical_params
 from ropemon.commission.seal import g, lines_at
 
 RS = node_module("rsens")  # the .rsens format is firmware/ropenode/rsens.py's, never restated
@@ -211,7 +211,7 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
 
 class PressureTracker:
     """The node's pressure tracker in floats (docs/model.md, "Pressure tracker"), with its
-    quantised gains `tr` (nodeconfig.tracker_gains; None: no compliance, p_l stays 0):
+    quantised gains `tr` (nodejson.tracker_gains; None: no compliance, p_l stays 0):
     a steady-state Kalman filter of the median pressure as a creep at a constant rate plus
     the rope bounce, a damped oscillator. It starts afresh at the first median after none."""
 

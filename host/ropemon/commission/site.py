@@ -748,8 +748,8 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
     checked = _checked_physical(physical, site)
     # A seal stiffer in pre-sliding than the node can represent (e.g. a fit of a seal
     # with no measurable pre-sliding) is commissioned at the node's stiffest sigma0;
-    # `ropemon config` warns about it (siteconfig.site_warnings).
-    from ropemon.commission.nodeconfig import sigma0_max
+    # `ropemon config` warns about it (config_cli.site_warnings).
+    from ropemon.commission.nodejson import sigma0_max
 
     s0_max = sigma0_max(checked)
     if fr["sigma0"] > s0_max:  # sigma1 keeps its ratio to sigma0 (the bristle damping time)

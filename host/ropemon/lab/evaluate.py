@@ -643,7 +643,7 @@ def fit_plant_seal(plant_friction: dict, work: Path, seed: int, bed: dict | None
 def commissioning_problems(fit: dict, physical: dict) -> list[str]:
     """Why the node could not be commissioned from this fit (empty when it can): sigma0 not
     fitted (fit-friction fell back to its default), or the config the node refuses."""
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
 
     problems = []
     src = fit.get("presliding", {}).get("source", "?")
@@ -867,7 +867,7 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     case.estimates = {n: case.estimates[n] for n in E.ESTIMATORS}
     refused = any(pr.startswith(REFUSED) for pr in problems)
     if not refused:  # the commissioned config, for the firmware and the studies (`ropemon study`)
-        from ropemon.commission.nodeconfig import make_node_json
+        from ropemon.commission.nodejson import make_node_json
 
         (work / NODE_EVALUATED).write_text(json.dumps(make_node_json(physical), indent=1))
     if firmware and not refused:

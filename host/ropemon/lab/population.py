@@ -385,7 +385,7 @@ def baseline_case(case, wind_dir):
     from ropemon.lab import estimators as E
     from ropemon.lab import evaluate as EV
     from ropemon.commission import reference
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
 
     ph = baseline_physical(case.physical)
     node_json = wind_dir / BASELINE_NODE

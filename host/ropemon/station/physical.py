@@ -11,9 +11,9 @@ reads a node.json with a size limit.
 
 Everything that writes or reads `physical` goes through here: `ropemon config`
 (`commission.site.physical_from_site` builds one), the node section's builder
-(`commission.nodeconfig`), the station (`SiteFigures`: the monitor's view and its alarm
+(`commission.nodejson`), the station (`SiteFigures`: the monitor's view and its alarm
 thresholds, the report) and the lab's evaluation. Checked here is what is physical;
-what the node's fixed point can represent is `commission.nodeconfig`'s to check when
+what the node's fixed point can represent is `commission.nodejson`'s to check when
 it builds the integer `node` section.
 """
 from __future__ import annotations

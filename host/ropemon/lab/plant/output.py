@@ -106,7 +106,7 @@ def write_outputs(res: Result, out_dir: Path | str, summary: dict[str, Any]) -> 
         "scenario_doc": sc.doc, "summary": summary,
     }
     if sc.site is not None and sc.sensors is not None:
-        from ropemon.commission.nodeconfig import make_node_json
+        from ropemon.commission.nodejson import make_node_json
 
         physical, source = node_physical(res)
         node = make_node_json(physical)

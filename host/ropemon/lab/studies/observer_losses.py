@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ropemon.commission import reference
-from ropemon.commission.nodeconfig import physical_params
+from ropemon.commission.nodejson import physical_params
 from ropemon.lab import metrics as M
 from ropemon.lab.rundir import RunDir
 from ropemon.lab.studies import fmt

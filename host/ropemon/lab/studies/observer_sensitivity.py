@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from ropemon.commission import reference
-from ropemon.commission.nodeconfig import DEFAULTS, physical_params
+from ropemon.commission.nodejson import DEFAULTS, physical_params
 from ropemon.lab import evaluate as EV
 from ropemon.lab import metrics as M
 from ropemon.lab.rundir import RunDir

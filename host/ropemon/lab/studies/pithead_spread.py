@@ -63,7 +63,7 @@ import numpy as np
 import scipy.linalg
 
 from ropemon.commission import reference
-from ropemon.commission.nodeconfig import (COMPLIANCE_DEFAULTS, DEFAULTS, MEDIAN_NOISE, namur_limits, pressure_noise_pa,
+from ropemon.commission.nodejson import (COMPLIANCE_DEFAULTS, DEFAULTS, MEDIAN_NOISE, namur_limits, pressure_noise_pa,
                                            pressure_tracker)
 from ropemon.lab import metrics as M
 from ropemon.lab.rundir import RunDir
@@ -157,7 +157,7 @@ def scaled_pressure_noise(wind: Wind, scale: float) -> tuple[np.ndarray, dict]:
 
 class Smoother:
     """The steady-state Kalman smoother (Rauch-Tung-Striebel) of the median pressure on the
-    pressure tracker's own model (nodeconfig.tracker_gains: a creep at a constant rate plus
+    pressure tracker's own model (nodejson.tracker_gains: a creep at a constant rate plus
     the bounce, its quantised oscillator, the same process and measurement noises)."""
 
     def __init__(self, physical: dict):

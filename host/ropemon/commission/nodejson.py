@@ -8,7 +8,7 @@ The section is read through `ropemon.station.physical.Physical`, which refuses w
 physical (ranges, types, list lengths); what is checked here is what the node's fixed point
 can represent. `make_node_json(physical)` adds schema and CRC; `example_physical()` is the
 documented default for the paper's field hoist, shipped as firmware/node.json
-(regenerate: `python -m ropemon.commission.nodeconfig > firmware/node.json`).
+(regenerate: `python -m ropemon.commission.nodejson > firmware/node.json`).
 """
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from ropemon.firmware import FIRMWARE_DIR, node_module
-from ropemon.commission.nodeconfig import (COMPLIANCE_DEFAULTS, MEDIAN_NOISE, build_node_section, example_physical,
+from ropemon.commission.nodejson import (COMPLIANCE_DEFAULTS, MEDIAN_NOISE, build_node_section, example_physical,
                                 make_node_json, tracker_gains)
 
 config = node_module("config")

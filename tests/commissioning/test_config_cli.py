@@ -10,7 +10,7 @@ import pytest
 
 from ropemon.cli import main as ropemon
 from ropemon.firmware import node_module
-from ropemon.commission.nodeconfig import make_node_json
+from ropemon.commission.nodejson import make_node_json
 from ropemon.commission.site import load_site, physical_from_site
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,7 +56,7 @@ def test_paper_site_gives_a_node_json_the_node_accepts(site_dir, capsys):
 
 def test_node_loss_table_is_the_physical_one_in_newtons(site_dir):
     site = load_site(site_dir / "paper-site.toml")
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
     doc = make_node_json(physical_from_site(site))
     ph, nd = doc["physical"], doc["node"]
     area = ph["cylinder_area_m2"][0]
@@ -134,7 +134,7 @@ def test_rated_pressure_is_tension_over_area():
 def test_a_seal_stiffer_than_the_node_represents_is_commissioned_at_its_limit(site_dir, capsys):
     """A fit with no measurable pre-sliding (sigma0 ~ 5e10 N/m) gets the node's stiffest
     sigma0 with a warning, and the node accepts the config; a representable one is kept."""
-    from ropemon.commission.nodeconfig import sigma0_max
+    from ropemon.commission.nodejson import sigma0_max
 
     fr = json.loads((site_dir / "paper-friction.json").read_text())
     site = load_site(site_dir / "paper-site.toml")
@@ -196,7 +196,7 @@ def test_deviation_cover_hand_checked():
     """Four equal ropes of 40 kN, Fs flat, no residual: S = 1.25 Fs. Fs = 2 kN: S = 2.5 kN,
     d_max = 4 x 42.5 / (42.5 + 3 x 37.5) - 1 = 9.68 %; Fs = 2.2 kN: 4 x 42.75 / (42.75 + 3 x 37.25) - 1
     = 10.68 %."""
-    from ropemon.commission.siteconfig import deviation_cover
+    from ropemon.commission.config_cli import deviation_cover
 
     def physical(fs):
         return {"ropes": 4, "cylinder_area_m2": [0.008] * 4, "imbalance_frac": 0.1,

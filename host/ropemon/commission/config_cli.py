@@ -2,7 +2,7 @@
 
 SITE.toml -> ropemon.commission.site (validated site, `physical` section with the pipe loss
 tables, the friction fit and the optional hydraulic compliance fit) ->
-ropemon.commission.nodeconfig.make_node_json (fixed-point `node` section, every integer
+ropemon.commission.nodejson.make_node_json (fixed-point `node` section, every integer
 proved within +-2**30, schema, CRC) -> node.json. A site file, friction or
 compliance fit that cannot be used is refused with the field and the reason, exit 1.
 """
@@ -20,13 +20,13 @@ def node_json_from_site(site: Site, friction: dict[str, Any] | None = None,
                         compliance: dict[str, Any] | None = None) -> dict[str, Any]:
     """The complete node.json document for a site (friction and compliance from its
     [friction] and [compliance] files unless given)."""
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
 
     physical = physical_from_site(site, friction, compliance)
     try:
         return make_node_json(physical)
     except ValueError as e:
-        # nodeconfig names the physical field; say which site input it came from.
+        # nodejson names the physical field; say which site input it came from.
         raise SiteError(f"{e} (node config built from {site.path})") from None
 
 
