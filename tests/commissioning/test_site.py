@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from docedit import edited
 from ropemon.commission.site import SiteError, check_friction, load_site, parse_site
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -32,22 +33,6 @@ def test_paper_site_loads_with_the_papers_hoist():
     assert site.oil.temp_assumed_C in site.oil.table_temps_C
     assert site.friction_path == PAPER_SITE.parent / "paper-friction.json"
     assert site.sensors.temperature is None
-
-
-def edited(doc: dict, path: str, value=..., delete: bool = False) -> dict:
-    """A copy of doc with one dotted field set (or deleted); list items as [i]."""
-    d = copy.deepcopy(doc)
-    keys = path.replace("[", ".[").split(".")
-    node = d
-    for k in keys[:-1]:
-        node = node[int(k[1:-1])] if k.startswith("[") else node[k]
-    last = keys[-1]
-    last = int(last[1:-1]) if last.startswith("[") else last
-    if delete:
-        del node[last]
-    else:
-        node[last] = value
-    return d
 
 
 BAD = [

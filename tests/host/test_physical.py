@@ -2,13 +2,13 @@
 writes, what the node's builder reads and what the station reads; every refusal names the field."""
 from __future__ import annotations
 
-import copy
 import json
 import math
 from pathlib import Path
 
 import pytest
 
+import docedit
 from ropemon.firmware import FIRMWARE_DIR
 from ropemon.station.physical import (Physical, PhysicalError, SiteFigures, alarm_settings, load_node_json,
                                       site_from_configs)
@@ -19,18 +19,7 @@ SHIPPED = json.loads((FIRMWARE_DIR / "node.json").read_text())["physical"]
 
 def edited(path: str, value=..., delete: bool = False) -> dict:
     """The shipped section with one dotted field set (or deleted); list items as [i]."""
-    d = copy.deepcopy(SHIPPED)
-    keys = path.replace("[", ".[").split(".")
-    node = d
-    for k in keys[:-1]:
-        node = node[int(k[1:-1])] if k.startswith("[") else node[k]
-    last = keys[-1]
-    last = int(last[1:-1]) if last.startswith("[") else last
-    if delete:
-        del node[last]
-    else:
-        node[last] = value
-    return d
+    return docedit.edited(SHIPPED, path, value, delete)
 
 
 A = SHIPPED["cylinder_area_m2"][0]
