@@ -231,3 +231,40 @@ def test_a_decoder_error_is_shown_on_the_link_line_and_logged_once(tmp_path):
             assert "decoder bug" in ev[0]["message"]
         finally:
             rx.stop()
+
+
+def test_a_socket_receiver_reads_a_burst_in_large_chunks_not_byte_by_byte():
+    """socket:// (a serial-to-Ethernet gateway) reports one byte waiting whatever it holds: the
+    receiver must still take a burst in chunks, or a backlog drains at a few KiB/s."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    port = srv.getsockname()[1]
+    chunks: list[int] = []
+    rx = SerialReceiver(f"socket://127.0.0.1:{port}", "gateway", lambda d: chunks.append(len(d)))
+    burst = bytes(range(256)) * 1024                     # 256 KiB
+    conns = []
+
+    def serve():
+        c, _ = srv.accept()
+        conns.append(c)
+
+    t = threading.Thread(target=serve)
+    t.start()
+    rx.start()
+    try:
+        t.join(5)
+        assert wait_for(lambda: rx.connected)
+        time.sleep(0.2)                                  # pyserial flushes input on open
+        conns[0].sendall(burst)
+        assert wait_for(lambda: sum(chunks) >= len(burst), timeout=10)
+        assert sum(chunks) == len(burst)
+        assert len(chunks) < len(burst) // 1024          # on average at least 1 KiB per read
+    finally:
+        rx.stop()
+        for c in conns:
+            c.close()
+        srv.close()

@@ -185,3 +185,62 @@ def test_sigkill_loses_no_frame_reported_stored(tmp_path):
         stored = {b.frame.seq for b in s.frames()}
     assert reported <= stored
     assert len(reported) >= 3 * 40 * 7
+
+
+def test_report_and_export_read_a_write_protected_log(tmp_path):
+    """A log copied off the hoist-room PC, read-only, in a read-only folder: readable, never written."""
+    import os
+    import stat
+    import subprocess
+    import sys
+
+    folder = tmp_path / "copy"
+    folder.mkdir()
+    db = folder / "hoist.db"
+    with Store(db) as s:
+        for i in range(5):
+            _, w = encode_frame(node=1, seq=i, speed_mm_s=0, ropes=[(5000, 0, 0, 0)] * 4)
+            s.add_frame("a", StreamDecoder().feed(w)[0], float(i))
+    for p in folder.iterdir():
+        if p.name != "hoist.db":
+            p.unlink()                                   # no -wal/-shm left behind
+    before = db.read_bytes()
+    db.chmod(stat.S_IRUSR)
+    folder.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    try:
+        with Store(db, readonly=True) as s:
+            assert len(s.frames()) == 5 and s.events() == []
+        out = tmp_path / "csv"
+        r = subprocess.run([sys.executable, "-m", "ropemon.cli", "export", str(db), "--out", str(out)],
+                           capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        assert len((out / "frames.csv").read_text().splitlines()) == 6
+    finally:
+        folder.chmod(stat.S_IRWXU)
+        db.chmod(stat.S_IRUSR | stat.S_IWUSR)
+    assert db.read_bytes() == before                     # the log itself is never written
+    if os.geteuid() != 0:          # root may create SQLite's -shm beside it; anyone else cannot
+        assert sorted(p.name for p in folder.iterdir()) == ["hoist.db"]
+
+
+def test_a_log_sqlite_cannot_open_read_only_in_wal_is_opened_immutable(tmp_path, monkeypatch):
+    """In a folder it cannot write, SQLite cannot make a WAL log's -shm and mode=ro fails (as a
+    non-root user; root can always write, so the refusal is stood in for here)."""
+    import ropemon.station.store as st
+
+    db = tmp_path / "hoist.db"
+    with Store(db):
+        pass
+    real = sqlite3.connect
+    uris = []
+
+    def connect(database, *a, **kw):
+        uris.append(database)
+        if "immutable" not in database:
+            raise sqlite3.OperationalError("unable to open database file")
+        return real(database, *a, **kw)
+
+    monkeypatch.setattr(st.sqlite3, "connect", connect)
+    with Store(db, readonly=True) as s:
+        assert s.frames() == []
+    assert uris[-1].endswith("?mode=ro&immutable=1")

@@ -17,6 +17,7 @@ state a restarted host resumes from (the log).
 from __future__ import annotations
 
 import queue
+import select
 import threading
 import time
 from dataclasses import dataclass, replace
@@ -24,12 +25,14 @@ from typing import Callable, Iterable, Mapping
 
 import serial
 import serial.rs485
+from serial.urlhandler import protocol_socket
 
 from ropemon.station.decoder import DUPLICATE_MEMORY, DecodeCounts, StreamDecoder
 from ropemon.station.merge import Merger
 from ropemon.station.protocol import Frame
 
 DEFAULT_BAUDRATE = 115200
+READ_CHUNK = 4096   # bytes asked of a port per read when it does not say how many are waiting
 #: With keys, a frame this many seqs behind the node's newest (from any receiver) is still taken
 #: if no receiver delivered it yet (a late frame filling a gap); older ones are replays.
 LATE_FRAMES = DUPLICATE_MEMORY
@@ -96,6 +99,22 @@ class SerialReceiver:
             except Exception:  # closing a vanished device can fail in many ways; it is gone anyway
                 pass
 
+    def _read(self, ser: serial.SerialBase) -> bytes:
+        """What the port holds now (at least one byte, or nothing after the read timeout)."""
+        if isinstance(ser, protocol_socket.Serial):
+            # socket:// reports 1 byte waiting whatever it holds, and its read(n) drops the
+            # bytes it had when the peer closes before n arrive: take what the socket has in
+            # one recv, so a gateway's burst is read in chunks and nothing before a close is lost.
+            sock = ser._socket
+            ready, _, _ = select.select([sock], [], [], self.read_timeout_s)
+            if not ready:
+                return b""
+            data = sock.recv(READ_CHUNK)
+            if not data:
+                raise serial.SerialException("socket disconnected")
+            return data
+        return ser.read(max(1, ser.in_waiting))
+
     def _run(self) -> None:
         delay = self.backoff_s
         while not self._stop.is_set():
@@ -114,7 +133,7 @@ class SerialReceiver:
             try:
                 ser = self.serial
                 while not self._stop.is_set():
-                    data = ser.read(max(1, ser.in_waiting))
+                    data = self._read(ser)
                     if data:
                         self.bytes_read += len(data)
                         try:

@@ -320,7 +320,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     payload = dict(zip(("pithead", "bottom"), args.payload_kg)) if args.payload_kg else None
     try:
-        store = Store(db)
+        store = Store(db, readonly=True)
     except StoreError as e:
         print(f"ropemon report: {e}", file=sys.stderr)
         return 2

@@ -106,6 +106,22 @@ _EVENT_COLS = ("time_s", "action", "alarm", "kind", "node", "rope", "value", "th
 _EVENT_COLS_ADDED = {"worst": "REAL", "operator": "TEXT"}
 
 
+def _open_readonly(path: str) -> sqlite3.Connection:
+    """A read-only connection: the file is never written (report and export on a copied or
+    write-protected log). In WAL mode SQLite still wants the -shm file; where it cannot make
+    it (a read-only folder), the file is opened as immutable (no writer may run then)."""
+    uri = Path(path).resolve().as_uri()
+    last: Exception | None = None
+    for query in ("?mode=ro", "?mode=ro&immutable=1"):
+        try:
+            db = sqlite3.connect(uri + query, uri=True, isolation_level=None)
+            db.execute("SELECT count(*) FROM sqlite_master").fetchone()
+            return db
+        except sqlite3.DatabaseError as e:
+            last = e
+    raise StoreError(f"{path}: cannot open read-only ({last})")
+
+
 def _with_utc(row: list, *cols) -> list:
     """`row` with an ISO-8601 UTC column after each time column (given by name in a header
     row, by index in a data row; an empty time stays empty)."""
@@ -165,31 +181,41 @@ class _TripDetector:
 class Store:
     def __init__(self, path: str | Path, *, batch_frames: int = 50, max_latency_s: float = 0.5,
                  synchronous: str = "FULL", trip_moving_mm_s: int = 100, trip_rest_s: float = 3.0,
-                 trip_start_m: float = 0.5):
+                 trip_start_m: float = 0.5, readonly: bool = False):
         self.path = str(path)
         self.batch_frames = batch_frames
         self.max_latency_s = max_latency_s
+        self.readonly = readonly
+        if readonly:
+            self.db = _open_readonly(self.path)
+        else:
+            try:
+                self.db = sqlite3.connect(self.path, isolation_level=None)
+                self.db.execute("PRAGMA journal_mode=WAL")
+                self.db.execute(f"PRAGMA synchronous={synchronous}")
+                self.db.executescript(_SCHEMA)
+            except sqlite3.DatabaseError as e:
+                raise StoreError(f"{self.path}: not a usable ropemon database ({e})") from None
         try:
-            self.db = sqlite3.connect(self.path, isolation_level=None)
-            self.db.execute("PRAGMA journal_mode=WAL")
-            self.db.execute(f"PRAGMA synchronous={synchronous}")
-            self.db.executescript(_SCHEMA)
+            row = self.db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
         except sqlite3.DatabaseError as e:
             raise StoreError(f"{self.path}: not a usable ropemon database ({e})") from None
-        row = self.db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+        if row is None and readonly:
+            raise StoreError(f"{self.path}: not a ropemon database (no schema version)")
         if row is None:
             self.db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
             self.db.execute("INSERT INTO meta VALUES ('created', ?)", (str(time.time()),))
         elif int(row[0]) > SCHEMA_VERSION:
             raise StoreError(f"{self.path}: schema version {row[0]} is newer than this ropemon ({SCHEMA_VERSION})")
-        have = {r[1] for r in self.db.execute("PRAGMA table_info(link_stats)")}
-        for col in _LINK_COLS_ADDED:
-            if col not in have:
-                self.db.execute(f"ALTER TABLE link_stats ADD COLUMN {col} INTEGER")
-        have = {r[1] for r in self.db.execute("PRAGMA table_info(events)")}
-        for col, typ in _EVENT_COLS_ADDED.items():
-            if col not in have:
-                self.db.execute(f"ALTER TABLE events ADD COLUMN {col} {typ}")
+        if not readonly:
+            have = {r[1] for r in self.db.execute("PRAGMA table_info(link_stats)")}
+            for col in _LINK_COLS_ADDED:
+                if col not in have:
+                    self.db.execute(f"ALTER TABLE link_stats ADD COLUMN {col} INTEGER")
+            have = {r[1] for r in self.db.execute("PRAGMA table_info(events)")}
+            for col, typ in _EVENT_COLS_ADDED.items():
+                if col not in have:
+                    self.db.execute(f"ALTER TABLE events ADD COLUMN {col} {typ}")
         self._trip = _TripDetector(trip_moving_mm_s, trip_rest_s, trip_start_m)
         for tid, node in self.db.execute("SELECT id, node FROM trips WHERE end_time IS NULL"):
             self._trip.open[node] = tid
@@ -424,7 +450,8 @@ class Store:
         return [Trip(*r) for r in self.db.execute(sql + " ORDER BY start_time, id", args)]
 
     def events(self) -> list[dict]:
-        cur = self.db.execute(f"SELECT id, {','.join(_EVENT_COLS)} FROM events ORDER BY id")
+        have = {r[1] for r in self.db.execute("PRAGMA table_info(events)")}   # an older read-only file
+        cur = self.db.execute(f"SELECT id, {','.join(c for c in _EVENT_COLS if c in have)} FROM events ORDER BY id")
         names = [d[0] for d in cur.description]
         return [dict(zip(names, r)) for r in cur]
 

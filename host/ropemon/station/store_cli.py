@@ -18,7 +18,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"ropemon export: {args.db}: no such database file", file=sys.stderr)
         return 2
     try:
-        with Store(args.db) as store:
+        with Store(args.db, readonly=True) as store:
             paths = store.export_csv(args.out)
     except (StoreError, OSError) as e:
         print(f"ropemon export: {e}", file=sys.stderr)
