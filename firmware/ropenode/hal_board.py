@@ -40,6 +40,8 @@ _REG_CONV = const(0)
 _REG_CONFIG = const(1)
 # OS=1 start, PGA +-4.096 V (001), single shot, 860 SPS (111), comparator off (11)
 _CFG_BASE = const(0x8000 | 0x0200 | 0x0100 | 0x00E0 | 0x0003)
+_SHUNT_OHM = const(150)         # each 4-20 mA loop's shunt to ground: 4 mA = 0.6 V, 20 mA = 3.0 V
+_WORD_SHIFT = const(1)          # stream word = ADS1115 code << 1 (0..32767 -> 0..65534)
 _CONV_US = const(1300)          # one 860 SPS conversion plus margin
 _AUX_EVERY = const(20)          # battery and temperature: one sample in 20
 _WDT_MS = const(2000)
@@ -103,7 +105,7 @@ class Board:
         v = (self.conv[0] << 8) | self.conv[1]
         if v & 0x8000:
             return 0
-        return v << 1
+        return v << _WORD_SHIFT
 
     def _convert(self, ain, words, first):
         """One conversion of input `ain` on every rope's chip, in parallel."""

@@ -153,4 +153,4 @@ def test_physical_needs_a_friction_fit(doc):
     ph = physical_from_site(site, LINES)
     assert ph["friction"] == {k: LINES[k] for k in ("Fs", "Fc", "vs", "sigma2", "sigma0", "sigma1")}
     assert ph["cylinder_area_m2"] == [c.area_m2 for c in site.cylinders]
-    assert ph["pressure_channels"][0] == {"counts_4mA": 4800, "counts_20mA": 24000, "range_Pa": [0.0, 25e6]}
+    assert ph["pressure_channels"][0] == {"counts_4mA": 9600, "counts_20mA": 48000, "range_Pa": [0.0, 25e6]}

@@ -139,7 +139,7 @@ COMMISSIONED_BEFORE = {"pressure-noise-drift": _set("sensors.pressure_noise_Pa",
 REFUSAL_EXPECTED = ("plant-other-friction",)
 # What `make evaluate` runs when no scenario is named.
 DEFAULT_SCENARIOS = (FIELD_TRIP, *VARIANTS)
-TEMPERATURE_INPUT = "temperature = { counts_at_0C = 8000.0, counts_per_C = 160.0 }"
+TEMPERATURE_INPUT = "temperature = { counts_at_0C = 16000.0, counts_per_C = 320.0 }"
 FIRMWARE = "firmware"
 
 

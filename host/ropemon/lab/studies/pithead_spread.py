@@ -16,7 +16,8 @@ inputs, one experiment per row:
 - pressure noise x A (`--scale A,...`): each seed's wind with its pressure noise
   scaled by A around the true tap pressure (0: a noise-free transmitter on the
   same ADC), the config's `pressure_noise_Pa` scaled to match: transmitters of
-  that noise, commissioned with it;
+  that noise, commissioned with it (where the config refuses them, e.g. too quiet for
+  the pressure tracker's gains, the row says so);
 - pressure noise x A after commissioning (`--drift A,...`): the same winds with
   the config as commissioned: the transmitters' noise changed since;
 - `--set KEY=V1,V2 ...`: each combination of settings of the config's
@@ -270,7 +271,8 @@ def summary(values: list[float]) -> tuple[int, str]:
 
 def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, list]],
                 smoothers: list[float] = (), drifts: list[float] = ()):
-    """(label, [(seed, score), ...]) per experiment."""
+    """(label, [(seed, score), ...]) per experiment; (label, reason) for a `--scale` whose
+    transmitters the config refuses (and for its `--set` rows the config refuses too)."""
     base = winds[0]
     n = int(base.physical["ropes"])
     yield "as evaluated", [(w.seed, score(w.physical, w.records, w)) for w in winds]
@@ -281,8 +283,14 @@ def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, li
                                                      spliced(base.records, w.records, slice(n, 2 * n)), base))
                                       for w in winds]
     levels = {a: [scaled_pressure_noise(w, a) for w in winds] for a in (*scales, *drifts)}
+    refused = {}  # scale -> why the config refuses a transmitter of that noise
     for a in scales:
-        yield f"pressure noise x{a:g}", [(w.seed, score(ph, recs, w)) for w, (recs, ph) in zip(winds, levels[a])]
+        try:
+            rows = [(w.seed, score(ph, recs, w)) for w, (recs, ph) in zip(winds, levels[a])]
+        except ValueError as e:  # e.g. too quiet for the node's pressure tracker
+            refused[a] = str(e)
+            rows = str(e)
+        yield f"pressure noise x{a:g}", rows
     for a in drifts:  # the records of x a, the config as commissioned
         yield (f"pressure noise x{a:g} after commissioning",
                [(w.seed, score(w.physical, recs, w)) for w, (recs, _) in zip(winds, levels[a])])
@@ -295,15 +303,18 @@ def experiments(winds: list[Wind], scales: list[float], sets: list[tuple[str, li
         change = dict(zip(keys, combo))
         label = " ".join(f"{k}={json.dumps(v)}" for k, v in change.items())
         as_evaluated = [(w.records, w.physical) for w in winds]
-        runs = [(label, as_evaluated)]
-        runs += [(f"pressure noise x{a:g}, {label}", levels[a]) for a in scales]
+        runs = [(label, as_evaluated, None)]
+        runs += [(f"pressure noise x{a:g}, {label}", levels[a], a) for a in scales]
         runs += [(f"pressure noise x{a:g} after commissioning, {label}",
-                  [(recs, w.physical) for w, (recs, _) in zip(winds, levels[a])]) for a in drifts]
-        for name, inputs in runs:
+                  [(recs, w.physical) for w, (recs, _) in zip(winds, levels[a])], None) for a in drifts]
+        for name, inputs, scale in runs:
             try:
                 rows = [(w.seed, score({**ph, **change}, recs, w)) for w, (recs, ph) in zip(winds, inputs)]
-            except ValueError as e:  # the config refuses the setting: say which and why
-                raise SystemExit(f"--set {label}: {e}") from None
+            except ValueError as e:
+                if scale in refused:  # refused without the setting too: the scale's transmitters
+                    yield name, str(e)
+                    continue
+                raise SystemExit(f"--set {label}: {e}") from None  # the setting: say which and why
             yield name, rows
 
 
@@ -325,6 +336,10 @@ def scenario_table(out: Path, scenario: str, seeds: list[int] | None, scales: li
     bases = set()
     tally = {}
     for label, rows in experiments(winds, scales, sets, smoothers, drifts):
+        if isinstance(rows, str):  # the config refuses this experiment's transmitters
+            tally[label] = (0, 0, 0.0)
+            print(f"| {label} | config refused: {rows} | | | | | |", flush=True)
+            continue
         vals = [r["pithead"] for _, r in rows]
         bases.update(r["basis"] for _, r in rows)
         if label == "as evaluated":
