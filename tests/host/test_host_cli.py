@@ -48,9 +48,10 @@ def test_decode_stdin_with_keys():
     rows = [json.loads(x) for x in r.stdout.decode().splitlines()]
     assert len(rows) == 40 and all(row["authenticated"] is True for row in rows)
     assert "MAC checked" in r.stderr.decode()
-    # wrong key: every frame refused, counted, still exit 0 (the input was read)
+    # wrong key: every frame refused, counted, and exit 1 saying the key is probably wrong
     r = ropemon("decode", "-", f"--key=1={'00' * 16}", f"--key=2={'00' * 16}", stdin=data)
-    assert r.returncode == 0 and r.stdout == b"" and "mac_fail=40" in r.stderr.decode()
+    assert r.returncode == 1 and r.stdout == b"" and "mac_fail=40" in r.stderr.decode()
+    assert b"all 40 frame(s) failed authentication" in r.stderr and b"key is probably wrong" in r.stderr
 
 
 def test_decode_unreadable_input_fails_clearly(tmp_path):

@@ -33,7 +33,6 @@ points, no convergence) raises FitError with the reason; the command exits 1.
 """
 from __future__ import annotations
 
-import csv
 import json
 import math
 import sys
@@ -44,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ropemon.commission.seal import LINES, bristle_force, g, line_at, lines_at, steady_force
+from ropemon.station import files
 
 COLUMNS = ("time_s", "pressure_MPa", "velocity_m_s", "friction_N")
 
@@ -116,33 +116,31 @@ class Record:
 def read_csv(path: Path | str) -> Record:
     """The four columns of a test-bed CSV (header required, extra columns ignored)."""
     path = Path(path)
-    try:
-        f = path.open(newline="", encoding="utf-8-sig")  # spreadsheet exports often start with a BOM
-    except OSError as e:
-        raise FitError(f"{path}: cannot read: {e.strerror}") from None
-    with f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        if header is None:
-            raise FitError(f"{path}: empty file")
-        header = [h.strip() for h in header]
-        missing = [c for c in COLUMNS if c not in header]
-        if missing:
-            raise FitError(f"{path}: missing column(s) {', '.join(missing)} in the header "
-                           f"(need {', '.join(COLUMNS)}; got {', '.join(header)})")
-        idx = [header.index(c) for c in COLUMNS]
-        rows = []
-        for line_no, row in enumerate(reader, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            try:
-                vals = [float(row[i]) for i in idx]
-            except (ValueError, IndexError):
-                raise FitError(f"{path}:{line_no}: not a number in {', '.join(COLUMNS)}: {row!r}") from None
-            for name, x in zip(COLUMNS, vals):
-                if not math.isfinite(x):
-                    raise FitError(f"{path}:{line_no}: {name} is {x} (NaN or infinite values are not accepted)")
-            rows.append(vals)
+    # a regular file of at most files.MAX_CSV, UTF-8 (spreadsheet exports often start with a BOM),
+    # fields of at most files.MAX_CSV_FIELD characters, at most files.MAX_CSV_ROWS rows
+    text = files.read_text(path, "test-bed CSV", files.MAX_CSV, FitError, encoding="utf-8-sig")
+    reader = files.csv_rows(text, path, "test-bed CSV", FitError)
+    header = next(reader, (0, None))[1]
+    if header is None:
+        raise FitError(f"{path}: empty file")
+    header = [h.strip() for h in header]
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise FitError(f"{path}: missing column(s) {', '.join(missing)} in the header "
+                       f"(need {', '.join(COLUMNS)}; got {', '.join(header)})")
+    idx = [header.index(c) for c in COLUMNS]
+    rows = []
+    for line_no, row in reader:
+        if not row or all(not c.strip() for c in row):
+            continue
+        try:
+            vals = [float(row[i]) for i in idx]
+        except (ValueError, IndexError):
+            raise FitError(f"{path}:{line_no}: not a number in {', '.join(COLUMNS)}: {row!r}") from None
+        for name, x in zip(COLUMNS, vals):
+            if not math.isfinite(x):
+                raise FitError(f"{path}:{line_no}: {name} is {x} (NaN or infinite values are not accepted)")
+        rows.append(vals)
     if len(rows) < MIN_RECORDS:
         raise FitError(f"{path}: too few records ({len(rows)}; need at least {MIN_RECORDS})")
     a = np.asarray(rows)

@@ -56,6 +56,7 @@ import numpy as np
 from ropemon.commission.nodejson import namur_limits, physical_params
 from ropemon.station.protocol import L
 from ropemon.commission.reference import read_rsens
+from ropemon.station import files
 
 MIN_SPAN_PA = 0.3e6   # the pressure must change at least this much over the recording
 MIN_R = 0.5           # correlation of position and pressure below which the fit is refused
@@ -501,10 +502,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     try:
-        try:
-            doc = json.loads(args.node_json.read_text())
-        except json.JSONDecodeError as e:
-            raise ComplianceError(f"{args.node_json}: not valid JSON: {e}") from None
+        doc = files.read_json(args.node_json, "node.json", files.MAX_NODE_JSON, ComplianceError, allow_nan=True)
         ph = doc.get("physical") if isinstance(doc, dict) else None
         if not isinstance(ph, dict):
             raise ComplianceError(f"{args.node_json}: no physical section (a node.json from `ropemon config`)")

@@ -13,7 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ropemon.commission.site import Site, SiteError, load_site, physical_from_site, read_compliance
+from ropemon.commission.site import (Site, SiteError, in_file, load_site, physical_from_site, read_compliance,
+                                     read_friction)
 
 
 def node_json_from_site(site: Site, friction: dict[str, Any] | None = None,
@@ -132,18 +133,22 @@ def run(args) -> int:
     friction = None
     try:
         site = load_site(args.site)
-        fpath = Path(args.friction) if args.friction else site.friction_path
+    except SiteError as e:
+        print(f"config: error: {in_file(e, args.site)}", file=sys.stderr)
+        return 1
+    fpath = Path(args.friction) if args.friction else site.friction_path
+    try:
         friction_doc = None
         if fpath is not None:
-            try:
-                friction_doc = json.loads(fpath.read_text())
-            except (OSError, json.JSONDecodeError) as e:
-                raise SiteError(f"friction.file: cannot read {fpath}: {e}") from None
+            friction_doc = read_friction(fpath)
             friction = friction_doc
         compliance = read_compliance(args.compliance) if args.compliance else None
         doc = node_json_from_site(site, friction, compliance)
-    except SiteError as e:
-        print(f"config: error: {e}", file=sys.stderr)
+    except SiteError as e:  # a fault of the fit files is named with the file (of SITE.toml, with the field)
+        fits = {"friction": fpath if friction is not None else None, "compliance": args.compliance}
+        path = next((p for k, p in fits.items() if p and (str(e).startswith(k + ".") or str(e).startswith(k + ":"))),
+                    None)
+        print(f"config: error: {in_file(e, path) if path else e}", file=sys.stderr)
         return 1
     for w in site_warnings(site, doc, friction_doc):
         print(f"config: warning: {w}", file=sys.stderr)

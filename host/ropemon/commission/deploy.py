@@ -304,10 +304,13 @@ def check_config(path: Path) -> dict:
     The check is the firmware's own `ropenode.config.parse` (schema, CRC over the
     canonical node section, every field's type and range), run here under CPython.
     """
+    from ropemon.station import files  # a regular file of at most MAX_NODE_JSON: no FIFO, no /dev/zero
+
+    data = files.read_bytes(path, "config", files.MAX_NODE_JSON, DeployError)
     try:
-        doc = json.loads(path.read_text())
-    except OSError as e:
-        raise DeployError(f"config {path}: cannot read: {e.strerror}") from None
+        doc = json.loads(data)
+    except RecursionError:
+        raise DeployError(f"config {path}: not JSON: nested too deeply") from None
     except ValueError as e:
         raise DeployError(f"config {path}: not JSON: {e}") from None
     config = node_module("config")

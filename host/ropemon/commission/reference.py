@@ -52,11 +52,19 @@ class Frames:
 
 
 def read_rsens(path: str | Path) -> tuple[int, int, np.ndarray]:
-    """(ropes, sample_hz, records[k, 2N+4] uint16) of a .rsens file (docs/data-formats.md)."""
-    data = Path(path).read_bytes()
+    """(ropes, sample_hz, records[k, 2N+4] uint16) of a .rsens file (docs/data-formats.md).
+    ValueError names the file and the fault (not a regular file, larger than files.MAX_RSENS,
+    not a version-1 stream of 1..4 ropes)."""
+    from ropemon.station import files
+
+    data = files.read_bytes(path, "sensor stream", files.MAX_RSENS, ValueError)
+    if len(data) < RSENS_HEADER.size:
+        raise ValueError(f"{path}: too short for a .rsens header ({len(data)} bytes < {RSENS_HEADER.size})")
     magic, version, ropes, hz, _ = RSENS_HEADER.unpack_from(data)
     if magic != RS.MAGIC or version != 1:
         raise ValueError(f"{path}: not a version-1 .rsens stream")
+    if not 1 <= ropes <= 4 or hz == 0:
+        raise ValueError(f"{path}: header says {ropes} ropes at {hz} Hz: not a valid stream")
     w = 2 * ropes + 4
     k = (len(data) - RSENS_HEADER.size) // (2 * w)  # a partial last record is ignored
     body = np.frombuffer(data, dtype="<u2", count=k * w, offset=RSENS_HEADER.size)

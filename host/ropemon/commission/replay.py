@@ -27,6 +27,7 @@ from pathlib import Path
 
 from ropemon.firmware import FIRMWARE_DIR, micropython_command
 from ropemon.commission.reference import RS, RSENS_HEADER
+from ropemon.station import files
 
 DEFAULT_CONFIG = FIRMWARE_DIR / "node.json"
 RECEIVER = "replay"   # the receiver name of the replayed frames in the database
@@ -39,12 +40,13 @@ class ReplayError(RuntimeError):
 
 def read_header(path: Path) -> dict:
     """Check a .rsens file (docs/data-formats.md) before handing it to the firmware."""
-    try:
-        size = path.stat().st_size
-        with path.open("rb") as fh:
+    # a regular file (a FIFO or /dev/zero would feed the firmware for ever) of at most files.MAX_RSENS
+    with files.open_file(path, "sensor stream", files.MAX_RSENS, ReplayError) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        try:
             head = fh.read(RSENS_HEADER.size)
-    except OSError as e:
-        raise ReplayError(f"{path}: cannot read: {e.strerror or e}") from None
+        except OSError as e:
+            raise ReplayError(f"{path}: cannot read: {e.strerror or e}") from None
     if len(head) < RSENS_HEADER.size:
         raise ReplayError(f"{path}: too short for a .rsens header ({len(head)} bytes < {RSENS_HEADER.size})")
     magic, version, ropes, sample_hz, _ = RSENS_HEADER.unpack(head)
@@ -68,10 +70,14 @@ def replay(sensors: str | Path, out: str | Path, config: str | Path = DEFAULT_CO
     if head["trailing_bytes"]:
         print(f"ropemon replay: {sensors}: {head['trailing_bytes']} bytes after the last whole record "
               "are ignored (truncated recording?)", file=sys.stderr)
-    if not config.is_file():
+    if not config.exists():
         # The node itself would run on with config-fault status frames; a user who
         # named a file that is not there made a mistake, so say it.
         raise ReplayError(f"{config}: no such config file")
+    # The node refuses a config it cannot use (and says why); a file that is no JSON object
+    # at all, a FIFO, a device or a huge file is refused here, before the firmware runs.
+    if not isinstance(files.read_json(config, "node.json", files.MAX_NODE_JSON, ReplayError, allow_nan=True), dict):
+        raise ReplayError(f"{config}: not a node config (not a JSON object)")
     out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     if interpreter == "micropython":
@@ -168,7 +174,7 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
     offset = 0.0                       # added after a restart of the node's clock
     last = next_tick = None
     try:
-        for body in frames_bin.read_bytes().split(b"\x00")[:-1]:
+        for body in files.read_bytes(frames_bin, "radio bytes", files.MAX_FRAMES_BIN, ReplayError).split(b"\x00")[:-1]:
             t = frame_time_s(body) if body else None
             if t is not None:
                 if last is not None and t + offset < last:

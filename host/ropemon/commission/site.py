@@ -11,13 +11,13 @@ scenarios/paper-site.toml.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ropemon.commission import tomlfields
+from ropemon.station import files
 from ropemon.station import physical as physical_section
 
 G_M_S2 = 9.81
@@ -462,9 +462,9 @@ def _key_hex(t: _Table, base: Path) -> str:
     if t.has("key_file"):
         path = base / t.string("key_file")
         try:
-            text = path.read_text().strip()
-        except OSError as e:
-            raise SiteError(f"{t.field('key_file')}: cannot read {path}: {e.strerror}") from None
+            text = files.read_text(path, "key file", files.MAX_KEY_FILE, SiteError).strip()
+        except SiteError as e:
+            raise _file_error(t.field("key_file"), e) from None
         name = f"{t.field('key_file')} ({path})"
     else:
         text = t.string("key_hex").strip()
@@ -531,10 +531,16 @@ def parse_site(doc: dict[str, Any], path: Path | str = "SITE.toml") -> Site:
     return site
 
 
+def in_file(e: Exception, path: Path | str) -> SiteError:
+    """`e` (a refusal naming a field) with the file it is in, when the message does not name it:
+    "hoist.ropes: must be an integer, got '4' (in SITE.toml's path)"."""
+    return SiteError(str(e) if str(path) in str(e) else f"{e} (in {path})")
+
+
 def load_site(path: Path | str) -> Site:
     """Read and validate SITE.toml; raise SiteError naming the field and the reason."""
     path = Path(path)
-    doc = tomlfields.load(path, SiteError)
+    doc = tomlfields.load(path, SiteError, "SITE.toml", files.MAX_SITE_TOML)
     return parse_site(doc, path)
 
 
@@ -595,18 +601,29 @@ def friction_residual(fr: dict[str, Any], name: str = "friction") -> dict[str, f
             for part in ("sliding", "presliding") if res.get(f"{part}_rms_frac") is not None}
 
 
+def _file_error(name: str, e: Exception) -> SiteError:
+    """A refusal of `ropemon.station.files` worded as the field `name`'s: "name: cannot read
+    PATH: why", "name: PATH is not valid JSON: why", "name: PATH: why"."""
+    path, reason = getattr(e, "path", None), getattr(e, "reason", None)
+    if path is None or reason is None:
+        return SiteError(f"{name}: {e}")
+    for lead, form in (("cannot read: ", "cannot read {path}: {rest}"),
+                       ("not valid JSON: ", "{path} is not valid JSON: {rest}")):
+        if reason.startswith(lead):
+            return SiteError(f"{name}: " + form.format(path=path, rest=reason[len(lead):]))
+    return SiteError(f"{name}: {path}: {reason}")
+
+
 def _read_json(path: Path | str, name: str) -> Any:
-    """A fit's JSON file (validated by the caller); `name` is the SITE.toml field naming it."""
-    path = Path(path)
+    """A fit's JSON file (validated by the caller); `name` is the SITE.toml field naming it.
+    A fit may hold NaN where a figure could not be computed (the fields used are checked)."""
     try:
-        return json.loads(path.read_text())
-    except OSError as e:
-        raise SiteError(f"{name}: cannot read {path}: {e.strerror}") from None
-    except json.JSONDecodeError as e:
-        raise SiteError(f"{name}: {path} is not valid JSON: {e}") from None
+        return files.read_json(path, "", files.MAX_FIT_JSON, SiteError, allow_nan=True)
+    except SiteError as e:
+        raise _file_error(name, e) from None
 
 
-def _read_friction(path: Path | str) -> Any:
+def read_friction(path: Path | str) -> Any:
     """friction.json as written by `ropemon fit-friction` (validated by the caller)."""
     return _read_json(path, "friction.file")
 
@@ -682,7 +699,7 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
     if friction is None:
         if site.friction_path is None:
             raise SiteError("friction.file: missing (run `ropemon fit-friction` and name its output here)")
-        friction = _read_friction(site.friction_path)
+        friction = read_friction(site.friction_path)
         name = f"friction ({site.friction_path.name})"
     # The node holds the friction lines above the highest pressure the test bed reached
     # (never extrapolates a fit beyond its data), so they are checked up to there.

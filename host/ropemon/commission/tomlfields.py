@@ -13,23 +13,18 @@ operator get the same words for the same fault. Two forms of the same reads:
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 from typing import Any
+
+from ropemon.station import files
 
 MISSING: Any = ...   # `default` of a required field
 
 
-def load(path: Path | str, error: type[Exception]) -> dict:
-    """The TOML document at `path`; `error` if the file cannot be read or is not TOML."""
-    path = Path(path)
-    try:
-        with path.open("rb") as f:
-            return tomllib.load(f)
-    except OSError as e:
-        raise error(f"{path}: cannot read: {e.strerror}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise error(f"{path}: not valid TOML: {e}") from None
+def load(path: Path | str, error: type[Exception], what: str = "", max_bytes: int = files.MAX_SITE_TOML) -> dict:
+    """The TOML document at `path`; `error` if the file cannot be read (not a regular file,
+    larger than `max_bytes`), is not TOML or nests too deeply (`ropemon.station.files`)."""
+    return files.read_toml(path, what, max_bytes, error)
 
 
 def check_number(v: Any, name: str, error: type[Exception], *, gt: float | None = None,

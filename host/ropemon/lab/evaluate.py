@@ -503,17 +503,18 @@ def scenario_path(name: str) -> Path:
     p = SCENARIO_DIR / f"{name}.toml"
     if not p.exists():
         known = sorted(q.stem for q in SCENARIO_DIR.glob("*.toml") if q.stem != "paper-site")
-        raise EvaluationError(f"scenario {name!r}: no {p.relative_to(REPO)} and no variant of that name; "
+        raise EvaluationError(f"scenario {name!r}: no {p.relative_to(REPO) if p.is_relative_to(REPO) else p} "
+                              "and no variant of that name; "
                               f"known: {', '.join(known + list(VARIANTS))}")
     return p
 
 
 def scenario_doc(name: str, work: Path) -> tuple[dict, Path]:
     """The scenario document to simulate and the path its relative names resolve against."""
-    import tomllib
+    from ropemon.station import files
 
     path = scenario_path(name)
-    doc = tomllib.loads(path.read_text())
+    doc = files.read_toml(path, "scenario", files.MAX_SCENARIO_TOML, EvaluationError)
     if variant(name) is None:
         return doc, path
     _what, change, site_edit = variant(name)
@@ -521,8 +522,9 @@ def scenario_doc(name: str, work: Path) -> tuple[dict, Path]:
     doc["name"] = name
     if site_edit is not None:
         site_path = path.parent / doc["site"]
+        site_text = files.read_text(site_path, "SITE.toml", files.MAX_SITE_TOML, EvaluationError)
         try:
-            text = site_edit(site_path.read_text())
+            text = site_edit(site_text)
         except (EvaluationError, ValueError) as e:
             raise EvaluationError(f"{site_path}: {e}") from None
         # the copy lives in `work`: its friction and compliance files must still be found

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import json
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
@@ -26,7 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ropemon.station import files
+
 NODE_EVALUATED = "node-evaluated.json"  # the commissioned config, in the scenario's run directory
+
+
+class RunDirError(ValueError):
+    """A run directory's file that cannot be read: the message names the file and the reason."""
 FRAMES = "frames.bin"
 
 
@@ -36,8 +43,12 @@ class Truth(Mapping):
 
     def __init__(self, path: Path):
         self.path = Path(path)
-        with np.load(self.path) as z:
-            self._names = tuple(z.files)
+        files.check_file(self.path, "truth", None, RunDirError)  # no FIFO, no device
+        try:
+            with np.load(self.path) as z:
+                self._names = tuple(z.files)
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+            raise RunDirError(f"{self.path}: not a truth.npz: {e}") from None
         self._arrays: dict[str, np.ndarray] = {}
         self.samples: int | None = None
 
@@ -82,7 +93,7 @@ def decode_frames(path: Path, physical: dict):
     from ropemon.station.decoder import StreamDecoder
 
     dec = StreamDecoder({int(physical["node_id"]): bytes.fromhex(physical["key_hex"])})
-    frames = [f for f in dec.feed(Path(path).read_bytes()) if f.ropes]
+    frames = [f for f in dec.feed(files.read_bytes(path, "radio bytes", files.MAX_FRAMES_BIN, RunDirError)) if f.ropes]
     frames.sort(key=lambda f: f.seq)
     return frames, dec.counts
 
@@ -116,7 +127,7 @@ class RunDir:
     @cached_property
     def meta(self) -> dict:
         """truth.json: the scenario, the hidden plant, the phases, the simulator's config."""
-        return json.loads((self.sim / "truth.json").read_text())
+        return files.read_json(self.sim / "truth.json", "truth.json", files.MAX_RUN_JSON, RunDirError, allow_nan=True)
 
     @cached_property
     def truth(self) -> Truth:
@@ -150,7 +161,7 @@ class RunDir:
         if not self.config_path.exists():
             raise FileNotFoundError(f"{self.config_path}: no commissioned config (not a run of `ropemon evaluate`, "
                                     "or its node refused the config)")
-        return json.loads(self.config_path.read_text())
+        return files.read_json(self.config_path, "commissioned config", files.MAX_NODE_JSON, RunDirError, allow_nan=True)
 
     @property
     def physical(self) -> dict:

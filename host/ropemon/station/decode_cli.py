@@ -1,8 +1,10 @@
 """`ropemon decode FILE|-`: frames of a capture (raw receiver bytes) as JSON lines.
 
 One JSON object per good frame on stdout (Frame.to_dict: node, seq and every
-payload field); the decoder counts on stderr. Exit 0 when the input was read
-(even if it held no good frame), 2 when it cannot be read or a key is invalid.
+payload field); the decoder counts on stderr. Exit 0 when frames were decoded; 1 when
+the input was read but no frame was decoded (every frame failed its MAC: the key is
+probably wrong; or no frame at all), the reason on stderr; 2 when the input cannot be
+read (not a regular file, larger than files.MAX_CAPTURE) or a key or node.json is invalid.
 Keys: --key NODE:HEX and --config node.json, both repeatable and merged
 (protocol.keys_from_options, as `ropemon monitor`); without keys authenticity is not checked.
 --accept-rewound NODE: the operator accepts a node whose boot counter went back
@@ -15,6 +17,7 @@ import json
 import os
 import sys
 
+from ropemon.station import files
 from ropemon.station.decoder import StreamDecoder
 from ropemon.station.protocol import keys_from_options
 
@@ -51,16 +54,17 @@ def run(args: argparse.Namespace) -> int:
         return 2
     dec = StreamDecoder(keys or None, accept_rewound=args.accept_rewound)
     out = sys.stdout
-    try:
-        if args.input == "-":
-            src = sys.stdin.buffer
-            close = False
-        else:
-            src = open(args.input, "rb")
-            close = True
-    except OSError as e:
-        print(f"ropemon decode: cannot read {args.input}: {e.strerror or e}", file=sys.stderr)
-        return 2
+    if args.input == "-":
+        src = sys.stdin.buffer
+        close = False
+    else:
+        try:  # a regular file only (a FIFO or /dev/zero would never end), at most MAX_CAPTURE
+            src = files.open_file(args.input, "capture", files.MAX_CAPTURE)
+        except files.FileRefused as e:
+            print(f"ropemon decode: {e}", file=sys.stderr)
+            return 2
+        close = True
+    read = 0
     try:
         while True:
             try:
@@ -70,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
                 return 2
             if not chunk:
                 break
+            read += len(chunk)
             lines = [json.dumps(f.to_dict(), separators=(",", ":")) for f in dec.feed(chunk)]
             if lines:
                 out.write("\n".join(lines) + "\n")
@@ -82,4 +87,24 @@ def run(args: argparse.Namespace) -> int:
             src.close()
     dec.finish()
     print(f"ropemon decode: {dec.summary()}", file=sys.stderr)
+    return verdict(dec.counts, read, "stdin" if args.input == "-" else args.input)
+
+
+def verdict(c, read: int, name: str) -> int:
+    """The exit status of a decode whose input was read: 1, with the reason on stderr, when
+    no frame was decoded (every frame failed its MAC: the key is probably wrong; or the input
+    held no frame); 0 otherwise, with a warning when some frames failed their MAC."""
+    if c.mac_fail and not c.frames_ok:
+        print(f"ropemon decode: {name}: all {c.mac_fail} frame(s) failed authentication (MAC) and none "
+              "passed: the key is probably wrong for the node (check --key / --config against the "
+              "node.json the node runs)", file=sys.stderr)
+        return 1
+    if c.mac_fail:
+        print(f"ropemon decode: warning: {name}: {c.mac_fail} frame(s) failed authentication (MAC): a wrong "
+              "key for one of the nodes, a node without a key, or frames not sent by a node", file=sys.stderr)
+    if not c.frames_ok:
+        why = "empty input" if not read else f"{read} bytes with no frame this host can decode"
+        print(f"ropemon decode: {name}: no frame decoded ({why}): not a capture of ropemon frames?",
+              file=sys.stderr)
+        return 1
     return 0

@@ -560,8 +560,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     store = None
     if args.db:
+        from ropemon.station import files
         from ropemon.station.store import Store, StoreError
         try:
+            files.check_sqlite(args.db, "database", StoreError, new_ok=True)  # not a FIFO, not another file
             store = Store(args.db)
         except StoreError as e:
             print(f"ropemon monitor: {e}", file=sys.stderr)

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ropemon.commission import tomlfields
+from ropemon.station import files
 from ropemon.station.alarms import AlarmSettings
 from ropemon.station.protocol import DAN_TO_N, L
 from ropemon.station.uncertainty import DEFAULTS as BAND_DEFAULTS
@@ -601,8 +602,8 @@ def load_node_json(path: Path | str, max_bytes: int = MAX_NODE_JSON_BYTES) -> tu
     node.json is a few tens of kB; /dev/zero is not read forever), not JSON, nested too
     deeply, not a node config, or a `physical` section `Physical.from_dict` refuses."""
     path = Path(path)
-    try:
-        with path.open("rb") as f:
+    try:  # a FIFO or a directory is refused unopened (ropemon.station.files); /dev/zero is read bounded
+        with files.open_file(path, "", None, PhysicalError, devices=True) as f:
             data = f.read(max_bytes + 1)
     except OSError as e:
         raise PhysicalError(f"{path}: cannot read: {e.strerror or e}") from None

@@ -9,11 +9,9 @@ from __future__ import annotations
 import binascii
 import hashlib
 import hmac
-import json
 import struct
 from dataclasses import dataclass, field
 from functools import partial
-from pathlib import Path
 from typing import NamedTuple
 
 from cobs import cobs
@@ -191,13 +189,16 @@ def parse_key(text: str) -> tuple[int, bytes]:
 
 def load_node_keys(path) -> dict[int, bytes]:
     """node id -> key from a node.json (physical.node_id, physical.key_hex). ValueError names the fault."""
+    from ropemon.station import files  # bounded: a FIFO, /dev/zero or a deep nest is refused, named
+
+    doc = files.read_json(path, "node.json", files.MAX_NODE_JSON, ValueError, allow_nan=True)
     try:
-        phys = json.loads(Path(path).read_text())["physical"]
+        phys = doc["physical"]
         return dict([parse_key(f"{int(phys['node_id'])}:{phys['key_hex']}")])
-    except OSError as e:
-        raise ValueError(f"{path}: cannot read: {e.strerror or e}") from None
-    except (KeyError, TypeError, json.JSONDecodeError) as e:
+    except (KeyError, TypeError, OverflowError) as e:
         raise ValueError(f"{path}: not a node.json with physical.node_id and physical.key_hex ({e})") from None
+    except ValueError as e:  # NaN for the node id, or a key parse_key refuses
+        raise ValueError(f"{path}: physical: {e}") from None
 
 
 def keys_from_options(keys: list[str], configs: list[str], accept_rewound: list[int] | None = None

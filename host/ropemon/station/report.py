@@ -86,8 +86,11 @@ class HoistLoad:
 
     @classmethod
     def from_site(cls, path: str | Path) -> "HoistLoad":
-        from ropemon.commission.site import load_site
-        h = load_site(path).hoist
+        from ropemon.commission.site import SiteError, in_file, load_site
+        try:
+            h = load_site(path).hoist
+        except SiteError as e:  # named with the file: --config's node.json has fields of the same names
+            raise in_file(e, path) from None
         return cls(h.cage_mass_kg, h.tail_ropes, h.tail_rope_kg_per_m, h.shaft_depth_m)
 
 
@@ -306,11 +309,17 @@ def write_report(store, out_dir: Path, area_m2: list[float], load: HoistLoad | N
 
 
 def run(args: argparse.Namespace) -> int:
+    from ropemon.station import files
     from ropemon.station.store import Store, StoreError
 
     db = Path(args.db)
-    if not db.is_file():
+    if not db.exists():
         print(f"ropemon report: {db}: no such file", file=sys.stderr)
+        return 2
+    try:  # a regular file that is an SQLite database (ropemon.station.files)
+        files.check_sqlite(db)
+    except files.FileRefused as e:
+        print(f"ropemon report: {e}", file=sys.stderr)
         return 2
     try:
         area = areas_from(args)

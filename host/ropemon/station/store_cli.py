@@ -5,6 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ropemon.station import files
 from ropemon.station.store import Store, StoreError
 
 
@@ -14,8 +15,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not Path(args.db).is_file():
+    if not Path(args.db).exists():
         print(f"ropemon export: {args.db}: no such database file", file=sys.stderr)
+        return 2
+    try:  # a regular file that is an SQLite database (ropemon.station.files)
+        files.check_sqlite(args.db)
+    except files.FileRefused as e:
+        print(f"ropemon export: {e}", file=sys.stderr)
         return 2
     try:
         with Store(args.db, readonly=True) as store:

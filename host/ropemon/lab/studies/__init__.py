@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import sys
 
 # study -> (module, one-line help)
 STUDIES = {
@@ -35,7 +36,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    return int(args._study.run(args) or 0)
+    from ropemon.lab.rundir import RunDirError
+
+    try:
+        return int(args._study.run(args) or 0)
+    except (RunDirError, OSError) as e:  # a run directory that is not one (lab/rundir.py): named, exit 2
+        what = f"{e.filename}: cannot read: {e.strerror}" if isinstance(e, OSError) and e.filename else str(e)
+        print(f"ropemon study {args.study}: {what}", file=sys.stderr)
+        return 2
 
 
 # ---------------------------------------------------------------- shared by the studies
