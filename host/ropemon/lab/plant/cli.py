@@ -48,8 +48,9 @@ def summarize(res: Result) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     try:
         sc = load_scenario(args.scenario, seed=args.seed)
-    except ScenarioError as e:
-        print(f"ropemon simulate: {args.scenario}: {e}", file=sys.stderr)
+    except ScenarioError as e:  # a field's fault, or the file's (which names it already)
+        where = "" if str(e).startswith(str(args.scenario)) else f"{args.scenario}: "
+        print(f"ropemon simulate: {where}{e}", file=sys.stderr)
         return 1
     out = Path(args.out) if args.out else Path("out") / "simulate" / sc.name
     show = not args.quiet and sc.duration_s > 5.0 and sys.stderr.isatty()

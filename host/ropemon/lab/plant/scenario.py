@@ -24,6 +24,7 @@ from ropemon.lab.plant.motion import Timeline, piecewise_linear
 from ropemon.commission.oil import Oil
 from ropemon.lab.plant.ropes import HeadRopes, TailRopes
 from ropemon.lab.plant.sensors import Fault, SensorSpec
+from ropemon.station import files
 
 
 class ScenarioError(ValueError):
@@ -31,6 +32,18 @@ class ScenarioError(ValueError):
 
 
 _MISSING = tomlfields.MISSING
+# The longest hoist scenario simulated: 6 h of hoist time (the 50-wind duty cycle of `ropemon evaluate`
+# is 1.7 h; its inputs and truth take about 1 GB). A longer one is refused, naming the field,
+# rather than running for hours or running out of memory.
+MAX_DURATION_S = 6 * 3600.0
+# ... and the most grid points (duration / step_s): the 50-wind duty cycle has 1.2 million.
+MAX_GRID_POINTS = 5_000_000
+
+
+def _check_grid(points: int, h: float, duration_s: float) -> None:
+    if points > MAX_GRID_POINTS:
+        raise ScenarioError(f"step_s: {h:g} s over the {duration_s:g} s simulated is {points} grid points, more "
+                            f"than the simulator's limit of {MAX_GRID_POINTS} (a longer step_s or a shorter scenario)")
 
 
 # The scenario's field readers: tomlfields' (the site description's), raising ScenarioError.
@@ -166,7 +179,7 @@ def plan_bounce_steps(u: Inputs, h0: float, theta: float, m_max: int) -> np.ndar
 
 def load_scenario(path: Path | str, seed: int | None = None) -> Scenario:
     path = Path(path)
-    doc = tomlfields.load(path, ScenarioError)
+    doc = tomlfields.load(path, ScenarioError, "scenario", files.MAX_SCENARIO_TOML)
     return build(doc, path, seed)
 
 
@@ -320,6 +333,7 @@ def _build_hoist(doc: dict, path: Path, site, eager: bool = True) -> Scenario:
     timeline, payload_pts, phases, temp_pts = _trip(doc, site)
     T_end = timeline.duration_s
     K = int(round(T_end / h)) + 1
+    _check_grid(K, h, T_end)
     oil, oil_hidden = _oil(pt)
     if not temp_pts:
         _temps(pt, np.zeros(1))   # validate the temperature field once
@@ -390,6 +404,9 @@ def _trip(doc: dict, site):
                                    rng_pair("rest_s", [5, 5]), rng_pair("load_s", [5, 5]))
     if pay[0] < 0:
         raise ScenarioError("duty.payload_kg: must be >= 0")
+    for key, (lo, hi) in (("rest_s", rest_r), ("load_s", load_r)):
+        if hi > MAX_DURATION_S:
+            raise ScenarioError(f"duty.{key}: high must be <= {MAX_DURATION_S:g}, got [{lo:g}, {hi:g}]")
     bottom, top = site.hoist.shaft_depth_m - 2.0, 2.0
     depth = number(dt, "start_depth_m", "duty", bottom, ge=0, le=site.hoist.shaft_depth_m)
     plist: list[dict] = []
@@ -434,12 +451,12 @@ def _phases(plist, where, depth, payload, motion, site):
         t0 = t
         if kind == "rest":
             known(ph, w, {"kind", "duration_s", "label"})
-            d = number(ph, "duration_s", w, gt=0)
+            d = number(ph, "duration_s", w, gt=0, le=MAX_DURATION_S)
             tl.rest(d)
             t += d
         elif kind == "load":
             known(ph, w, {"kind", "duration_s", "payload_kg", "label"})
-            d = number(ph, "duration_s", w, gt=0)
+            d = number(ph, "duration_s", w, gt=0, le=MAX_DURATION_S)
             new = number(ph, "payload_kg", w, ge=0)
             pay_pts += [(t, payload), (t + d, new)]
             payload = new
@@ -454,6 +471,9 @@ def _phases(plist, where, depth, payload, motion, site):
             t += tl.duration_s - before
         # else "mark": no time passes
         phases.append(Phase(str(kind), label, t0, t))
+        if t > MAX_DURATION_S:  # checked as the phases are laid out: 10000 trips are refused at once
+            raise ScenarioError(f"{where}: the phases last more than the simulator's limit of {MAX_DURATION_S:.0f} s "
+                                f"(at {w}, {t:.0f} s; fewer or shorter phases)")
     pay_pts.append((t + 1.0, payload))
     return tl, pay_pts, phases
 
@@ -474,6 +494,7 @@ def _build_bench(doc: dict, path: Path, site) -> Scenario:
     h = _step(doc, min(1e-3, 1.0 / sample_hz), sample_hz)
     duration = number(bt, "duration_s", "bench", gt=0, le=3600)
     K = int(round(duration / h)) + 1
+    _check_grid(K, h, duration)
     t = np.arange(K) * h
     if site is not None:
         area = np.array([c.area_m2 for c in site.cylinders])
