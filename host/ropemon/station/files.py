@@ -70,6 +70,14 @@ def size_text(n: float) -> str:
     return f"{int(n)} bytes"
 
 
+def _too_large(size: int, max_bytes: int) -> str:
+    """"5 GB, larger than the limit of 4 MB" (in bytes where the two would read the same)."""
+    shown = size_text(size)
+    if shown == size_text(max_bytes):
+        shown = f"{size} bytes"
+    return f"{shown}, larger than the limit of {size_text(max_bytes)}"
+
+
 def _kind(mode: int) -> str | None:
     """What a non-regular file is, for the refusal; None for a regular file."""
     if stat.S_ISREG(mode):
@@ -113,8 +121,7 @@ def check_file(path: Path | str, what: str, max_bytes: int | None,
     if not _allowed(st.st_mode, devices):
         raise _refuse(error, path, what, f"cannot read: {kind}, not a file")
     if max_bytes is not None and st.st_size > max_bytes:
-        raise _refuse(error, path, what, f"{size_text(st.st_size)}, larger than the limit of "
-                                         f"{size_text(max_bytes)}")
+        raise _refuse(error, path, what, _too_large(st.st_size, max_bytes))
     return st.st_size
 
 
@@ -134,8 +141,7 @@ def open_file(path: Path | str, what: str, max_bytes: int | None,
         if not _allowed(st.st_mode, devices):
             raise _refuse(error, path, what, f"cannot read: {kind}, not a file")
         if max_bytes is not None and st.st_size > max_bytes:
-            raise _refuse(error, path, what, f"{size_text(st.st_size)}, larger than the limit of "
-                                             f"{size_text(max_bytes)}")
+            raise _refuse(error, path, what, _too_large(st.st_size, max_bytes))
         return os.fdopen(fd, "rb")
     except BaseException:
         os.close(fd)
