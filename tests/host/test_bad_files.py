@@ -511,6 +511,16 @@ def test_evaluate_refuses_a_name_that_is_no_scenario(capsys):
         check(rc, out, err, 2, name, r"no .* and no variant of that name")
 
 
+def test_the_studies_refuse_a_bad_scenario(tmp_path, capsys):
+    deep = tmp_path / "deep.toml"
+    deep.write_text(DEEP_TOML_ARRAY)
+    rc, out, err = run_cli(["study", "observer-sensitivity", tmp_path / "fifo", "--quick", "--out", tmp_path / "o"],
+                           capsys)
+    check(rc, out, err, 2, "fifo", r"no variant of that name")
+    rc, out, err = run_cli(["study", "seed-spread", deep, "--seeds", "1", "--quick", "--out", tmp_path / "s"], capsys)
+    check(rc, out, err, 1, deep.name, r"evaluation failed.*\n.*nested deeper")
+
+
 def test_the_corpus_is_large_enough():
     n = len(list(generic_cases())) + len(list(format_cases())) + 4
     assert n >= 150, n

@@ -36,11 +36,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ropemon.lab.evaluate import EvaluationError
     from ropemon.lab.rundir import RunDirError
 
     try:
         return int(args._study.run(args) or 0)
-    except (RunDirError, OSError) as e:  # a run directory that is not one (lab/rundir.py): named, exit 2
+    except (RunDirError, EvaluationError, OSError) as e:  # a run directory that is not one, a scenario that is not
         what = f"{e.filename}: cannot read: {e.strerror}" if isinstance(e, OSError) and e.filename else str(e)
         print(f"ropemon study {args.study}: {what}", file=sys.stderr)
         return 2

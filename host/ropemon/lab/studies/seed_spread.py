@@ -93,6 +93,11 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         runs = dict(zip(seeds, pool.map(lambda s: run_seed(s, args.scenarios, args.out, args.quick), seeds)))
+    errors = [f"seed {s}: {name}: {r['error']}" for s, res in sorted(runs.items())
+              for name, r in res["scenarios"].items() if "error" in r]
+    if errors:  # a scenario that could not be evaluated (a bad scenario file, ...): said, not tabulated
+        print("ropemon study seed-spread: " + "\n  ".join(["evaluation failed:", *errors]), file=sys.stderr)
+        return 1
     print(f"## `{ESTIMATOR}` over {len(seeds)} seeds ({args.seeds})\n")
     print(table(runs, args.scenarios))
     quick = " --quick" if args.quick else ""
