@@ -4,14 +4,15 @@ The host decodes with the `cobs` package; this is the node's half.
 """
 
 
-def encode_into(src, n, dst):
-    """COBS-encode src[:n] into dst, append the 0x00 delimiter; return bytes written.
+def encode_into(src, n, dst, start=0):
+    """COBS-encode src[:n] into dst from index `start`, append the 0x00 delimiter;
+    return the index after it (bytes written when start is 0).
 
-    dst must hold n + n // 254 + 2 bytes.
+    dst must hold start + n + n // 254 + 2 bytes.
     """
-    code_at = 0
+    code_at = start
     code = 1
-    o = 1
+    o = start + 1
     for i in range(n):
         b = src[i]
         if b == 0:

@@ -1,7 +1,8 @@
 """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, xorout 0).
 
 Catalogue name CRC-16/IBM-3740; check value crc16(b"123456789") == 0x29B1.
-Same result as CPython's binascii.crc_hqx(data, 0xFFFF), which the host uses.
+Same result as CPython's binascii.crc_hqx(data, 0xFFFF). The node config's CRC
+(node.json `crc`, ropenode.config); radio frames use CRC-32 (ropenode.crc32).
 Table-driven; the table is built once at import.
 """
 import array

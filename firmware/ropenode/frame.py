@@ -1,15 +1,16 @@
-"""Frame packing: layout.py fields -> truncated HMAC-SHA256 -> CRC-16 -> COBS + 0x00.
+"""Frame packing: layout.py fields -> truncated HMAC-SHA256 -> CRC-32 -> 0x00 + COBS + 0x00.
 
 docs/protocol.md is the spec. The HMAC key blocks (key XOR ipad/opad) are
-built once per key; each frame costs two SHA-256 runs over at most 64 + 58
-bytes. Called once per frame window, never per sample.
+built once per key; each frame costs two SHA-256 runs over at most 64 + 56
+bytes, and the CRC-32 over 60 (`ropenode.crc32`: 16-bit halves, allocation-free).
+Called once per frame window, never per sample.
 """
 import hashlib
 import struct
 
 from ropenode import layout
 from ropenode.cobs import encode_into
-from ropenode.crc16 import crc16
+from ropenode.crc32 import crc32_into
 
 
 class Hmac:
@@ -60,13 +61,14 @@ class FrameWriter:
         return o + layout.TAIL_LEN
 
     def seal_into(self, n, wire):
-        """Append MAC and CRC to raw[:n], COBS-encode into wire; return bytes on the wire."""
+        """Append MAC and CRC to raw[:n], write 0x00 + COBS + 0x00 into wire (at least
+        layout.MAX_WIRE_LEN bytes); return bytes on the wire.
+
+        The leading 0x00 ends whatever the receiver heard before (noise, a cut
+        frame), so this frame is not lost with it."""
         raw = self.raw
         mac = self.hmac.digest(self.raw_mv[:n])
         raw[n:n + layout.MAC_LEN] = mac[:layout.MAC_LEN]
-        n += layout.MAC_LEN
-        c = crc16(raw, n)
-        raw[n] = c & 0xFF
-        raw[n + 1] = c >> 8
-        n += layout.CRC_LEN
-        return encode_into(raw, n, wire)
+        n = crc32_into(raw, n + layout.MAC_LEN)
+        wire[0] = 0
+        return encode_into(raw, n, wire, 1)

@@ -22,6 +22,7 @@ import struct
 import sys
 
 from ropenode import config as _config
+from ropenode import layout
 from ropenode import rsens
 from ropenode.bootseq import FrameSeq
 from ropenode.node import Node
@@ -65,7 +66,7 @@ def run_sim(config_path, rsens_path, out_path, boot_file=None):
             raise ValueError("sensor stream has %d ropes at %d Hz, config says %d at %d"
                              % (hal.ropes, hal.sample_hz, cfg.ropes, cfg.sample_hz))
         node = Node(cfg, node_id, key, seq=FrameSeq(boot_file))
-        wire = bytearray(64)
+        wire = bytearray(layout.MAX_WIRE_LEN)
         wmv = memoryview(wire)
         samples = frames = 0
         rec = hal.rec

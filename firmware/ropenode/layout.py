@@ -8,13 +8,13 @@ these constants, so the two cannot drift. Little-endian throughout.
     rope    <hhhH      mean_dan, min_dan, max_dan, raw_kpa      (once per rope)
     tail    <ihHh      depth_mm, speed_mm_s, battery_mv, oil_temp_cc
     mac     4 bytes    HMAC-SHA256(key, everything before), truncated
-    crc     <H         CRC-16/CCITT-FALSE over everything before
+    crc     <I         CRC-32 (IEEE 802.3, as binascii.crc32) over everything before
 
-then COBS-encoded and terminated by one 0x00 byte on the wire.
+then COBS-encoded, with one 0x00 byte before and one after it on the wire.
 """
 from micropython import const
 
-VERSION = const(1)
+VERSION = const(2)  # 1: CRC-16, no leading delimiter (refused by the host)
 
 KIND_DATA = const(0)     # rope payload present (N ropes)
 KIND_STATUS = const(1)   # no rope payload: the node cannot compensate (e.g. config fault)
@@ -35,13 +35,15 @@ TAIL_FIELDS = ("depth_mm", "speed_mm_s", "battery_mv", "oil_temp_cc")
 TAIL_LEN = const(10)
 
 MAC_LEN = const(4)
-CRC_LEN = const(2)
+CRC_LEN = const(4)
 
 # Bytes of a frame before COBS, for n ropes.
-FIXED_LEN = const(30)  # HEADER_LEN + TAIL_LEN + MAC_LEN + CRC_LEN
+FIXED_LEN = const(32)  # HEADER_LEN + TAIL_LEN + MAC_LEN + CRC_LEN
 
-MAX_ROPES = const(4)   # 4 ropes -> 62 bytes raw -> at most 64 bytes on the wire
-MAX_WIRE_LEN = const(64)
+MAX_ROPES = const(4)   # 4 ropes -> 64 bytes raw -> at most 67 bytes on the wire
+# 0x00 + COBS(64 raw bytes: 65) + 0x00. 10 frames/s x 67 bytes x 10 bits = 6700 bit/s,
+# inside 70 % of a 9600-baud link (docs/protocol.md, "Bandwidth").
+MAX_WIRE_LEN = const(67)
 
 # Status bits (header field `status`).
 ST_PRESSURE_FAULT = const(0x0001)     # a pressure loop is outside NAMUR NE43 (see fault_mask)

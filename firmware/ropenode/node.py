@@ -2,7 +2,7 @@
 
     node = Node(cfg, seq=FrameSeq(path))  # cfg from config.parse; None or a ConfigError = config fault
     ready = node.sample(rec)    # rec: array('H') of 2N+4 words (docs/data-formats.md)
-    n = node.frame_into(buf)    # after ready: COBS frame + 0x00 into bytearray(64)
+    n = node.frame_into(buf)    # after ready: 0x00 + COBS frame + 0x00 into bytearray(layout.MAX_WIRE_LEN)
 
 The per-sample work is one call of `kernel.step` over two int arrays (config
 `P`, state `S`; offsets in kernel.py), closing frame windows too: the viper
@@ -108,7 +108,7 @@ class Node:
         return low & 0xFFFF, ((sec >> 16) * 1000 + (low >> 16)) & 0xFFFF
 
     def frame_into(self, buf):
-        """Write the latest window's frame (COBS + 0x00) into buf; return its length.
+        """Write the latest window's frame (0x00 + COBS + 0x00) into buf; return its length.
 
         Runs once per frame (it may allocate: struct packing and SHA-256).
         """

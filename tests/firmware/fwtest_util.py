@@ -43,6 +43,20 @@ def cobs_decode(data):
     return bytes(out)
 
 
+def frame_raw(wire, n):
+    """The raw frame of the first n bytes of a node's wire buffer (0x00 + COBS + 0x00),
+    its delimiters and its CRC-32 checked (the node's own crc32_into recomputes it)."""
+    from ropenode.crc32 import crc32_into
+    assert n >= 3 and wire[0] == 0 and wire[n - 1] == 0, (n, bytes(wire[:n]))
+    for i in range(1, n - 1):
+        assert wire[i] != 0, i
+    raw = cobs_decode(bytes(wire[1:n - 1]))
+    again = bytearray(raw)
+    crc32_into(again, len(raw) - 4)
+    assert bytes(again) == raw, "CRC-32 mismatch"
+    return raw
+
+
 def unhex(s):
     import binascii
     return binascii.unhexlify(s)

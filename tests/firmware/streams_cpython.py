@@ -86,7 +86,7 @@ def run_node(node, recs: np.ndarray, per_sample: bool = True):
     rec = array.array("H", bytes(2 * recs.shape[1]))
     ten = np.zeros((k, n))
     good = np.zeros((k, n), bool)
-    buf = bytearray(64)
+    buf = bytearray(node_module("layout").MAX_WIRE_LEN)
     frames = []
     rows = recs.tolist()
     for j in range(k):

@@ -19,6 +19,8 @@ import sys
 
 import micropython
 
+from ropenode.layout import MAX_WIRE_LEN
+
 ON_MICROPYTHON = sys.implementation.name == "micropython"
 SAMPLES = 2400  # >= 1000 locked samples, 12 frame windows at the default 200/10 Hz
 
@@ -216,16 +218,51 @@ def run_hot_path(node, ropes, recs, count):
     """
     w = 2 * ropes + 4
     rec = array.array("H", bytes(2 * w))
-    buf = bytearray(64)
+    buf = bytearray(MAX_WIRE_LEN)
     lens = []
     for k in range(count):
         ready, bad = _sample_locked(node, recs, k, k + 1, w, rec)
         assert bad < 0, "node.sample allocated on record %d: %s" % (bad, list(recs[bad * w:bad * w + w]))
         if ready:
             n = node.frame_into(buf)
-            assert 0 < n <= 64 and buf[n - 1] == 0, n
+            assert 0 < n <= MAX_WIRE_LEN and buf[0] == 0 and buf[n - 1] == 0, n
             lens.append(n)
     return count, len(lens), lens
+
+
+def _crc32_locked(raw, n, rnd, frames):
+    """crc32_into over `frames` frames of n bytes (random, then all 0x00 and all 0xFF),
+    each call inside heap_lock. Returns -1, or the frame whose CRC allocated."""
+    from ropenode.crc32 import crc32_into
+    for f in range(frames + 2):
+        for j in range(n):
+            raw[j] = rnd.u16() & 0xFF if f < frames else (0, 0xFF)[f - frames]
+        micropython.heap_lock()
+        try:
+            crc32_into(raw, n)
+        except MemoryError:
+            micropython.heap_unlock()
+            return f
+        micropython.heap_unlock()
+    return -1
+
+
+def test_frame_crc32_is_allocation_free():
+    """The frame's CRC-32 (ropenode.crc32) over a 4-rope frame's 60 bytes allocates nothing:
+    under heap_lock here, and on the 32-bit wasm port (test_int32_wasm_cpython.py), where
+    a 32-bit intermediate would be a long int and allocate too. On the unix port
+    micropython.mem_total does not move either (its call frame stays off the heap)."""
+    from ropenode import layout
+    from ropenode.crc32 import crc32_into
+    raw = bytearray(layout.frame_len(layout.MAX_ROPES))
+    n = len(raw) - layout.CRC_LEN
+    bad = _crc32_locked(raw, n, Rand(99), 300)
+    assert bad < 0, "crc32_into allocated on frame %d" % bad
+    if ON_MICROPYTHON and sys.platform == "linux":
+        t0 = micropython.mem_total()
+        for _ in range(100):
+            crc32_into(raw, n)
+        assert micropython.mem_total() == t0, micropython.mem_total() - t0
 
 
 def test_inputs_cover_faults_and_rails():
@@ -257,7 +294,7 @@ def test_sample_with_frames_between_windows():
     recs = hot_path_records(ropes, chans, SAMPLES, seed=7)
     samples, frames, lens = run_hot_path(node, ropes, recs, SAMPLES)
     assert samples == SAMPLES and frames >= SAMPLES // 200
-    assert max(lens) <= 64
+    assert max(lens) <= MAX_WIRE_LEN
 
 
 def test_sample_allocation_free_with_temperature_input_and_one_rope():

@@ -23,6 +23,7 @@ import random
 
 from fwtest_util import find_file, node_doc
 
+from ropenode import layout
 from ropenode.node import K, Node
 
 ON_MICROPYTHON = sys.implementation.name == "micropython"
@@ -78,13 +79,13 @@ def _restore(saved):
 
 def _samples_and_frames(node, ropes, count):
     rec = array.array("H", [MID] * ropes + [MID] * ropes + [60000, 0xFFFF, 0, 0])
-    buf = bytearray(64)
+    buf = bytearray(layout.MAX_WIRE_LEN)
     frames = 0
     for k in range(count):
         rec[2 * ropes + 2] = (k * 10) & 0xFFFF
         if node.sample(rec):
             n = node.frame_into(buf)
-            assert 0 < n <= 64 and buf[n - 1] == 0, n
+            assert 0 < n <= layout.MAX_WIRE_LEN and buf[0] == 0 and buf[n - 1] == 0, n
             frames += 1
     return frames
 

@@ -45,7 +45,7 @@ def _bad_crc(doc: dict) -> dict:
 
 
 def _frames(wire: bytes, keys):
-    return [protocol.decode_raw(protocol.decode_wire(b), keys) for b in wire.split(b"\x00")[:-1]]
+    return [protocol.decode_raw(protocol.decode_wire(b), keys) for b in wire.split(b"\x00") if b]
 
 
 @pytest.mark.parametrize("make", [_bad_crc, _bad_field])

@@ -27,7 +27,7 @@ def compile_mpy(src: Path, arch: str, out: Path) -> subprocess.CompletedProcess:
 
 def test_firmware_sources_exist():
     names = {p.name for p in SOURCES}
-    assert {"layout.py", "crc16.py", "cobs.py"} <= names
+    assert {"layout.py", "crc16.py", "crc32.py", "cobs.py"} <= names
 
 
 @pytest.mark.parametrize("arch", ARCHS)

@@ -1,16 +1,45 @@
-"""Frame packing against the shared test vectors (tests/vectors/frames.json), CRC and COBS.
+"""Frame packing against the shared test vectors (tests/vectors/frames.json), CRC-32 and COBS.
 
 Runs under CPython and the real MicroPython: the node's own packer must give
-the vectors' raw and wire bytes exactly.
+the vectors' raw and wire bytes exactly, and its CRC-32 (ropenode.crc32, the
+reference on the node) must equal binascii.crc32 where the port has it
+(CPython always; the unix and wasm MicroPython builds here do, not every board).
 """
 import struct
 
-from fwtest_util import cobs_decode, load_json, unhex
+from fwtest_util import cobs_decode, frame_raw, load_json, unhex
 
 from ropenode import layout
 from ropenode.cobs import encode_into
-from ropenode.crc16 import crc16
+from ropenode.crc32 import crc32_into
 from ropenode.frame import FrameWriter, Hmac
+
+try:
+    from binascii import crc32 as lib_crc32
+except ImportError:  # a port without it: the check values below still hold
+    lib_crc32 = None
+
+
+def crc32_of(data):
+    """ropenode.crc32 of data, as an int (a test aid: the node never forms the 32-bit value)."""
+    buf = bytearray(data) + bytearray(4)
+    crc32_into(buf, len(data))
+    return buf[-4] | (buf[-3] << 8) | (buf[-2] << 16) | (buf[-1] << 24)
+
+
+class Rand:
+    """xorshift32, the same bytes on every port."""
+
+    def __init__(self, seed):
+        self.s = seed
+
+    def byte(self):
+        s = self.s
+        s ^= (s << 13) & 0xFFFFFFFF
+        s ^= s >> 17
+        s ^= (s << 5) & 0xFFFFFFFF
+        self.s = s
+        return s & 0xFF
 
 
 def test_good_vectors_pack_exactly():
@@ -24,12 +53,39 @@ def test_good_vectors_pack_exactly():
                    (f["time_ms"] & 0xFFFF, f["time_ms"] >> 16), f["status"],
                    f["ropes"] or None, f["depth_mm"], f["speed_mm_s"], f["battery_mv"],
                    f["oil_temp_cc"])
-        wire = bytearray(64)
+        wire = bytearray(layout.MAX_WIRE_LEN)
         m = w.seal_into(n, wire)
         raw = unhex(v["raw_hex"])
         assert bytes(w.raw[:len(raw)]) == raw, v["name"]
         assert bytes(wire[:m]) == unhex(v["wire_hex"]), v["name"]
         assert m <= layout.MAX_WIRE_LEN
+        assert crc32_of(raw[:-4]) == struct.unpack("<I", raw[-4:])[0], v["name"]
+        if lib_crc32 is not None:
+            assert lib_crc32(raw[:-4]) == struct.unpack("<I", raw[-4:])[0], v["name"]
+
+
+def test_crc32_check_value():
+    assert crc32_of(b"123456789") == 0xCBF43926  # CRC-32/ISO-HDLC's catalogue check value
+    assert crc32_of(b"") == 0
+
+
+def test_crc32_equals_binascii_crc32():
+    """Random lengths 0..300 and contents, all-0x00 and all-0xFF runs: the hand-written
+    halves give binascii.crc32 exactly (where the port has it; always under CPython)."""
+    if lib_crc32 is None:
+        return
+    rnd = Rand(2463534242)
+    cases = [bytes(64), b"\xff" * 64, bytes(range(256))]
+    for n in range(0, 301, 7):
+        cases.append(bytes(rnd.byte() for _ in range(n)))
+    for data in cases:
+        assert crc32_of(data) == lib_crc32(data), len(data)
+
+
+def test_crc32_writes_only_its_four_bytes():
+    buf = bytearray(b"\xaa" * 20)
+    assert crc32_into(buf, 9) == 13
+    assert buf[13:] == b"\xaa" * 7 and buf[:9] == b"\xaa" * 9
 
 
 def test_node_header_packs_the_same_bytes_as_the_wire_header():
@@ -54,14 +110,13 @@ def test_cobs_round_trip_and_crc_trailer():
     w = FrameWriter(7, bytes(range(16)))
     ropes = [(0, -1, 32767, 0), (-32768, 0, 0, 65535), (1, 256, 0, 0), (0, 0, 0, 0)]
     n = w.pack(layout.KIND_DATA, 0, (0, 0), (0, 0), 0, ropes, 0, 0, 0, 0)
-    wire = bytearray(64)
+    wire = bytearray(layout.MAX_WIRE_LEN)
     m = w.seal_into(n, wire)
-    assert m == layout.MAX_WIRE_LEN and wire[m - 1] == 0
-    assert all(b != 0 for b in wire[:m - 1])
-    raw = cobs_decode(bytes(wire[:m - 1]))
-    assert len(raw) == layout.frame_len(4)
-    assert crc16(raw, len(raw) - 2) == raw[-2] | (raw[-1] << 8)
-    assert raw[:len(raw) - 6] == bytes(w.raw[:n])
+    assert m == layout.MAX_WIRE_LEN and wire[0] == 0 and wire[m - 1] == 0  # 0x00 before and after
+    assert all(b != 0 for b in wire[1:m - 1])
+    raw = frame_raw(wire, m)  # checks the CRC-32 too
+    assert len(raw) == layout.frame_len(4) == 64
+    assert raw[:len(raw) - layout.MAC_LEN - layout.CRC_LEN] == bytes(w.raw[:n])
 
 
 def test_cobs_long_run_without_zeros():

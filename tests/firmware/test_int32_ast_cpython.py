@@ -186,6 +186,7 @@ def run_armed(monitor: RangeMonitor, seeds=(1, 7, 99), count=1600) -> int:
     import array
 
     import test_alloc
+    from ropenode import layout
     from ropenode.node import K
     runs = [(None, seed) for seed in seeds] + [
         (test_alloc.variant_doc(temp_fitted=True), 5), (test_alloc.variant_doc(ropes=1, temp_fitted=True), 6),
@@ -199,7 +200,7 @@ def run_armed(monitor: RangeMonitor, seeds=(1, 7, 99), count=1600) -> int:
         node.frame_seq.boot, node.frame_seq.count = 4095, (1 << 20) - 2
         w = 2 * ropes + 4
         rec = array.array("H", bytes(2 * w))
-        buf = bytearray(64)
+        buf = bytearray(layout.MAX_WIRE_LEN)
         recs = test_alloc.hot_path_records(ropes, chans, count, seed)
         if doc is not None:
             for k in range(count):
@@ -225,8 +226,31 @@ def test_hot_path_intermediates_stay_within_small_int_range():
         n = run_armed(monitor)
     assert n == 7 * 1600
     assert monitor.checked > 10 * n  # the hot path really went through instrumented arithmetic
+    assert any("crc32.py" in loc for loc in monitor.peak)  # frames were sealed under the check: CRC-32 too
     worst = max(monitor.peak.items(), key=lambda kv: kv[1])
     print(f"largest hot-path intermediate: {worst[1]} ({worst[1].bit_length()} bits) at {worst[0]}")
+
+
+def test_crc32_intermediates_stay_within_16_bits():
+    """The frame's CRC-32 (ropenode.crc32, 16-bit halves) over random frames and runs of
+    0x00 and 0xFF: binascii.crc32's value, and no intermediate reaches 2**16."""
+    import binascii
+    import random
+
+    rng = random.Random(5)
+    cases = [bytes(64), b"\xff" * 64, bytes(range(256))] + [rng.randbytes(rng.randint(0, 64)) for _ in range(2000)]
+    with instrumented_firmware() as monitor:
+        from ropenode.crc32 import crc32_into
+        monitor.armed = True
+        try:
+            for data in cases:
+                buf = bytearray(data) + bytearray(4)
+                crc32_into(buf, len(data))
+                assert int.from_bytes(buf[-4:], "little") == binascii.crc32(data)
+        finally:
+            monitor.armed = False
+    peaks = {loc: v for loc, v in monitor.peak.items() if "crc32.py" in loc}
+    assert len(peaks) >= 8 and max(peaks.values()) < 1 << 16, peaks
 
 
 def test_range_check_catches_an_overflowing_product():

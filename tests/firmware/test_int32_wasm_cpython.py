@@ -107,7 +107,41 @@ def test_hot_path_allocation_free_on_32_bit(tmp_path):
     failed = [n for n, ok, _ in results if not ok]
     assert not failed, out
     assert {"test_sample_is_allocation_free_over_1000_samples", "test_sample_with_frames_between_windows",
-            "test_heap_lock_catches_an_allocation"} <= {n for n, ok, _ in results if ok}
+            "test_heap_lock_catches_an_allocation", "test_frame_crc32_is_allocation_free"} <= {
+        n for n, ok, _ in results if ok}
+
+
+# The textbook CRC-32 with a 32-bit register: right on CPython, a long int on a 32-bit port.
+NAIVE_CRC32 = """
+import ropenode.crc32 as _c
+_T = [0] * 256
+for _i in range(256):
+    _x = _i
+    for _ in range(8):
+        _x = (_x >> 1) ^ 0xEDB88320 if _x & 1 else _x >> 1
+    _T[_i] = _x
+def crc32_into(buf, n):
+    c = 0xFFFFFFFF
+    for k in range(n):
+        c = (c >> 8) ^ _T[(c ^ buf[k]) & 0xFF]
+    c ^= 0xFFFFFFFF
+    for j in range(4):
+        buf[n + j] = (c >> (8 * j)) & 0xFF
+    return n + 4
+_c.crc32_into = crc32_into
+"""
+
+
+def test_a_32_bit_register_crc_is_caught_on_32_bit(tmp_path):
+    """Why ropenode.crc32 works in 16-bit halves: the textbook 32-bit register allocates on
+    a 32-bit port, and test_frame_crc32_is_allocation_free fails on it there."""
+    script, rm = driver_script("test_alloc", "import naive_crc32\n")
+    r = run_wasm(script, tmp_path, extra={"naive_crc32.py": NAIVE_CRC32})
+    results, finished, _ = rm._parse(r.stdout)
+    assert finished, r.stdout + r.stderr
+    verdict = {n: ok for n, ok, _ in results}
+    assert verdict["test_frame_crc32_is_allocation_free"] is False, r.stdout
+    assert "crc32_into allocated on frame 0" in r.stdout
 
 
 def test_random_streams_allocation_free_on_32_bit(tmp_path):

@@ -74,8 +74,8 @@ def compare(doc, recs, ropes, tag):
     b = N.Node(cfg, step=kernel.step)
     w = 2 * ropes + 4
     rec = array.array("H", bytes(2 * w))
-    ba = bytearray(64)
-    bb = bytearray(64)
+    ba = bytearray(T.MAX_WIRE_LEN)
+    bb = bytearray(T.MAX_WIRE_LEN)
     count = len(recs) // w
     frames = 0
     neg = 0

@@ -9,7 +9,7 @@ import os
 import random
 import struct
 
-from fwtest_util import cobs_decode, node_doc
+from fwtest_util import frame_raw, node_doc
 
 from ropenode import bootseq, layout
 from ropenode.bootseq import FrameSeq
@@ -28,9 +28,7 @@ def _rec(p=MID, x=MID, batt=60000, temp=0xFFFF, count=0, hall=0):
 
 
 def _decode(wire, n):
-    assert wire[n - 1] == 0
-    raw = cobs_decode(bytes(wire[:n - 1]))
-    assert crc16(raw, len(raw) - 2) == raw[-2] | (raw[-1] << 8)
+    raw = frame_raw(wire, n)
     h = struct.unpack_from(layout.HEADER_FMT, raw, 0)
     ropes = []
     o = layout.HEADER_LEN
@@ -42,7 +40,7 @@ def _decode(wire, n):
 
 
 def _run(node, rec, samples):
-    buf = bytearray(64)
+    buf = bytearray(layout.MAX_WIRE_LEN)
     out = []
     for _ in range(samples):
         if node.sample(rec):
@@ -65,7 +63,7 @@ def test_missing_config_sends_status_frames_and_never_crashes():
 def test_frame_time_is_node_time_modulo_2_32_after_weeks_of_running():
     # sec * 1000 passes 2**30 after 12.4 days and 2**32 after 49.7: the node forms the
     # u32 from 16-bit halves, and the wire carries node time modulo 2**32
-    buf = bytearray(64)
+    buf = bytearray(layout.MAX_WIRE_LEN)
     for cfg in (parse(node_doc()), None):
         node = Node(cfg)
         _run(node, _rec(), 20)
@@ -131,11 +129,11 @@ def _bad_docs_with_identity():
 
 def _mac_ok(node, key):
     """The next frame of `node` carries the MAC of `key` (frame.Hmac, truncated)."""
-    buf = bytearray(64)
+    buf = bytearray(layout.MAX_WIRE_LEN)
     while not node.sample(_rec()):
         pass
     n = node.frame_into(buf)
-    raw = cobs_decode(bytes(buf[:n - 1]))
+    raw = frame_raw(buf, n)
     body = len(raw) - layout.MAC_LEN - layout.CRC_LEN
     return raw[body:body + layout.MAC_LEN] == Hmac(key).digest(raw[:body])[:layout.MAC_LEN]
 
@@ -271,7 +269,7 @@ def test_depth_integrates_pulses_and_snaps_at_hall_marks():
     node = Node(parse(node_doc()))
     count = 0
     frames = []
-    buf = bytearray(64)
+    buf = bytearray(layout.MAX_WIRE_LEN)
     for k in range(600):       # 3 s down at 10 pulses/sample = 20 m/s
         count += 10
         if node.sample(_rec(count=count)):

@@ -41,7 +41,8 @@ def test_unix_port_and_cpython_write_identical_frames(tmp_path):
     assert hal_sim.run_sim(str(cfg), str(src), str(tmp_path / "cp.bin")) == (4000, 200)
     mp = (tmp_path / "mp.bin").read_bytes()
     assert mp == (tmp_path / "cp.bin").read_bytes()
-    bodies = mp.split(b"\x00")[:-1]
+    assert mp[:1] == b"\x00" and mp.count(b"\x00") == 400  # 0x00 before and after each frame
+    bodies = [b for b in mp.split(b"\x00") if b]
     assert len(bodies) == 200
     key = {1: bytes.fromhex(example_physical()["key_hex"])}
     frames = [protocol.decode_raw(protocol.decode_wire(b), keys=key) for b in bodies]
@@ -54,7 +55,7 @@ def test_missing_config_gives_status_frames(tmp_path):
     _write_rsens(src, recs)
     r = _run_mp(str(tmp_path / "none.json"), str(src), str(tmp_path / "out.bin"))
     assert r.returncode == 0 and "config-fault" in r.stderr
-    bodies = (tmp_path / "out.bin").read_bytes().split(b"\x00")[:-1]
+    bodies = [b for b in (tmp_path / "out.bin").read_bytes().split(b"\x00") if b]
     frames = [protocol.decode_raw(protocol.decode_wire(b)) for b in bodies]
     assert len(frames) == 10
     assert all(f.kind == L.KIND_STATUS and f.status & L.ST_CONFIG_FAULT for f in frames)

@@ -83,22 +83,26 @@ def damaged_streams(draw):
     return keyed, frames, streams, cuts
 
 
-def recoverable(segs, sent, strict: bool) -> set[int]:
-    """Frames whose unmodified bytes start right after a delimiter (or at the start);
-    with `strict` (keys: the default replay check) only those newer than every frame
+def recoverable(segs, sent, wires, strict: bool) -> set[int]:
+    """Frames whose whole wire bytes (0x00 + COBS + 0x00) are in the stream where their
+    segment starts: intact, or cut just before the closing 0x00 and followed by a
+    segment that starts with one (the next frame's leading delimiter completes it).
+    With `strict` (keys: the default replay check) only those newer than every frame
     of their node recovered before them in this stream: a receiver delivers in order,
     so within one stream a frame behind a newer one is a replay."""
+    data = b"".join(b for _, b, _ in segs)
     out = set()
     top: dict[int, int] = {}
-    prev_end = b"\x00"
-    for i, b, intact in segs:
-        if intact and prev_end == b"\x00":
+    off = 0
+    for i, b, _ in segs:
+        if i is not None:
+            w = wires[i]
+            whole = data[off:off + len(w)] == w and (off == 0 or data[off - 1] == 0 or w[0] == 0)
             f = sent[i]
-            if not strict or f.seq > top.get(f.node, -1):
+            if whole and (not strict or f.seq > top.get(f.node, -1)):
                 out.add(i)
                 top[f.node] = f.seq
-        if b:
-            prev_end = b[-1:]
+        off += len(b)
     return out
 
 
@@ -124,9 +128,10 @@ def test_damaged_streams_emit_only_intact_frames_each_once_after_merge(case):
                 assert f.authenticated is None
             if merger.add(name, f):
                 new.append((f.node, f.seq))
-        must |= {(sent[i].node, sent[i].seq) for i in recoverable(segs, sent, keyed)}
+        wires = [w for _, w in frames]
+        must |= {(sent[i].node, sent[i].seq) for i in recoverable(segs, sent, wires, keyed)}
         if keyed:  # each intact frame behind a newer one of its node was dropped and counted
-            stale = recoverable(segs, sent, False) - recoverable(segs, sent, True)
+            stale = recoverable(segs, sent, wires, False) - recoverable(segs, sent, wires, True)
             assert dec.counts.replayed >= len(stale)
             assert not {(sent[i].node, sent[i].seq) for i in stale} & {(f.node, f.seq) for f in got}
     assert len(new) == len(set(new)), "a frame was delivered as new twice"

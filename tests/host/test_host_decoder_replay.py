@@ -141,7 +141,8 @@ def test_exact_copies_are_duplicates_and_raise_no_alarm():
     assert [f.seq for f in got] == list(range(100, 100 + DUPLICATE_MEMORY + 10))
     c = dec.counts
     assert (c.duplicate, c.replayed, c.rewound) == (len(w), 0, 0)
-    assert c.bytes_discarded == sum(len(x) for x in w)  # the copies, dropped
+    # the copies, dropped: body and closing 0x00 (the leading 0x00 is an idle delimiter)
+    assert c.bytes_discarded == sum(len(x) - 1 for x in w)
     assert eng.update_link("pithead", c.mac_fail, c.replayed, 1.0) == []
     # The newest DUPLICATE_MEMORY frames are remembered: copies of them are still duplicates ...
     assert dec.feed(w[-DUPLICATE_MEMORY]) == [] and dec.counts.duplicate == len(w) + 1
@@ -201,7 +202,7 @@ def sim(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("bootseq")
     doc = json.loads((FIRMWARE_DIR / "node.json").read_text())
     _rsens(tmp / "rest.rsens", doc["physical"], seconds=0.5)
-    keys = {doc["node"]["node_id"]: bytes.fromhex(doc["physical"]["key_hex"])}
+    keys = {doc["node"]["node_id"]: bytes(doc["node"]["key"])}
 
     def run(out: str, *opts: str) -> bytes:
         r = subprocess.run([micropython_command(), "-m", "ropenode.sim_main", *opts,

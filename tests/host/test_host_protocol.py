@@ -1,6 +1,7 @@
 """Frame encoding/decoding, the test-vector file, and the decoder's counts per failure."""
 from __future__ import annotations
 
+import binascii
 import hashlib
 import hmac
 import importlib.util
@@ -12,8 +13,8 @@ import pytest
 from host_framegen import KEYS, frame_set
 from ropemon.station.decoder import ReplayGuard, StreamDecoder
 from ropemon.firmware import node_module
-from ropemon.station.protocol import (L, CrcError, MacError, MalformedError, Rope, crc16, decode_raw,
-                              decode_wire, encode_frame)
+from ropemon.station.protocol import (L, CRC_RESIDUE, CrcError, MacError, MalformedError, Rope, VersionError,
+                                      crc32, decode_raw, decode_wire, encode_frame)
 
 ROOT = Path(__file__).resolve().parents[2]
 VECTORS = ROOT / "tests" / "vectors" / "frames.json"
@@ -40,12 +41,14 @@ def test_good_vectors_decode_to_their_fields_and_match_the_node_code(v):
         got = [list(r) for r in f.ropes] if k == "ropes" else getattr(f, k)
         assert got == want, k
     assert f.authenticated is True
-    assert len(wire) <= L.MAX_WIRE_LEN and wire[-1] == 0 and 0 not in wire[:-1]
-    assert decode_wire(wire[:-1]) == raw
-    # Independent checks with the node's own CRC and COBS and plain hmac.
-    assert node_module("crc16").crc16(raw[:-2]) == int.from_bytes(raw[-2:], "little")
-    dst = bytearray(len(raw) + len(raw) // 254 + 2)
-    n = node_module("cobs").encode_into(raw, len(raw), dst)
+    assert len(wire) <= L.MAX_WIRE_LEN and wire[0] == wire[-1] == 0 and 0 not in wire[1:-1]
+    assert decode_wire(wire[1:-1]) == raw
+    # Independent checks with the node's own CRC and COBS, binascii and plain hmac.
+    assert binascii.crc32(raw[:-4]) == int.from_bytes(raw[-4:], "little")
+    mine = bytearray(raw)
+    assert node_module("crc32").crc32_into(mine, len(raw) - 4) == len(raw) and mine == raw
+    dst = bytearray(1 + len(raw) + len(raw) // 254 + 2)
+    n = node_module("cobs").encode_into(raw, len(raw), dst, 1)
     assert bytes(dst[:n]) == wire
     mac_at = len(raw) - L.MAC_LEN - L.CRC_LEN
     assert raw[mac_at: mac_at + L.MAC_LEN] == hmac.new(key, raw[:mac_at], hashlib.sha256).digest()[:4]
@@ -54,15 +57,66 @@ def test_good_vectors_decode_to_their_fields_and_match_the_node_code(v):
 def test_bad_vectors_land_in_their_count():
     vec = load_vectors()
     keys = {v["fields"]["node"]: bytes.fromhex(v["key_hex"]) for v in vec["good"]}
+    good = {v["name"]: v for v in vec["good"]}
     for v in vec["bad"]:
         dec = StreamDecoder(keys)
-        assert dec.feed(bytes.fromhex(v["wire_hex"])) == [], v["name"]
+        frames = dec.feed(bytes.fromhex(v["wire_hex"]))
         assert getattr(dec.counts, v["count"]) == 1, (v["name"], dec.counts)
-        assert dec.counts.frames_ok == 0
+        if "then" in v:  # junk, then a good frame: the frame's leading 0x00 ends the junk
+            assert [f.seq for f in frames] == [good[v["then"]]["fields"]["seq"]], v["name"]
+            assert dec.counts.frames_ok == 1
+        else:
+            assert frames == [] and dec.counts.frames_ok == 0, v["name"]
+        assert dec.versions == ({v["version"]: 1} if "version" in v else {}), v["name"]
+        if "version" in v:
+            assert (f"malformed: 1 frame(s) of layout version {v['version']} (this host decodes version {L.VERSION} "
+                    "only") in dec.summary()
 
 
-def test_crc16_check_value():
-    assert crc16(b"123456789") == 0x29B1
+def test_crc32_check_value_and_residue():
+    assert crc32(b"123456789") == 0xCBF43926
+    raw, _ = encode_frame(node=1, seq=5, ropes=[(1, 2, 3, 4)])
+    assert binascii.crc32(raw) == CRC_RESIDUE  # the decoders' check: one call over the whole frame
+    for i in range(len(raw)):
+        bad = bytearray(raw)
+        bad[i] ^= 0x80
+        assert binascii.crc32(bad) != CRC_RESIDUE
+
+
+def test_a_version_1_frame_is_named_not_taken():
+    """A node with the old firmware (CRC-16, 2 bytes shorter): VersionError, not CRC noise."""
+    raw, _ = encode_frame(node=1, seq=5, ropes=[(1, 2, 3, 4)], key=KEYS[1])
+    v1 = bytearray(raw[:-4])
+    v1[0] = 1
+    v1 += binascii.crc_hqx(bytes(v1), 0xFFFF).to_bytes(2, "little")
+    with pytest.raises(VersionError, match="layout version 1: this host decodes version 2 only"):
+        decode_raw(bytes(v1), KEYS)
+    status_v1 = bytearray(encode_frame(node=1, seq=6)[0][:-4])  # 30 bytes: shorter than any version 2 frame
+    status_v1[0] = 1
+    status_v1 += binascii.crc_hqx(bytes(status_v1), 0xFFFF).to_bytes(2, "little")
+    with pytest.raises(VersionError):
+        decode_raw(bytes(status_v1))
+    dec = StreamDecoder()
+    from cobs import cobs
+    assert dec.feed(b"".join(b"\x00" + cobs.encode(bytes(r)) + b"\x00" for r in (v1, status_v1))) == []
+    assert dec.counts.malformed == 2 and dec.counts.crc_fail == 0 and dec.versions == {1: 2}
+    assert "malformed: 2 frame(s) of layout version 1 (this host decodes version 2 only" in dec.summary()
+
+
+def test_junk_without_a_delimiter_does_not_cost_the_next_frame():
+    """Noise with no 0x00 in it, then a frame: the frame's leading 0x00 ends the junk."""
+    _, wire = encode_frame(node=1, seq=9, ropes=[(1, 2, 3, 4)], key=KEYS[1])
+    for junk in (b"\x55", b"\x13\x37" * 7, bytes(range(1, 256)), wire[1:30]):
+        dec = StreamDecoder(KEYS)
+        got = dec.feed(junk + wire)
+        assert [f.seq for f in got] == [9], junk
+        c = dec.counts
+        assert c.frames_ok == 1 and c.crc_fail + c.malformed == 1 and c.mac_fail == 0
+        assert c.bytes_discarded == len(junk) + 1  # the junk and the 0x00 that ended it; the frame's own: none
+    # Idle delimiters (back-to-back frames give 0x00 0x00) are neither frames nor discarded.
+    dec = StreamDecoder(KEYS)
+    assert len(dec.feed(wire + b"\x00" * 5 + encode_frame(node=1, seq=10, key=KEYS[1])[1])) == 2
+    assert dec.counts.as_dict() == dict(dec.counts.as_dict(), frames_ok=2) and dec.counts.bytes_discarded == 0
 
 
 def test_decode_raw_errors_are_specific():
@@ -80,8 +134,8 @@ def test_decode_raw_errors_are_specific():
     with pytest.raises(MacError, match="no key"):
         decode_raw(raw, {2: KEYS[2]})
     # Valid CRC, impossible length (one byte too many).
-    odd = raw[:-2] + b"\x00"
-    odd += crc16(odd).to_bytes(2, "little")
+    odd = raw[:-4] + b"\x00"
+    odd += crc32(odd).to_bytes(4, "little")
     with pytest.raises(MalformedError):
         decode_raw(odd)
     # Status frame carrying ropes is refused.
@@ -142,7 +196,8 @@ def test_finish_counts_an_unterminated_tail():
     dec = StreamDecoder()
     assert dec.feed(wire + wire[:10]) != []
     dec.finish()
-    assert dec.counts.malformed == 1 and dec.counts.bytes_discarded == 10
+    # wire[:10]: the leading 0x00 (an idle delimiter) and 9 bytes of a body never ended
+    assert dec.counts.malformed == 1 and dec.counts.bytes_discarded == 9
 
 
 def test_a_seq_restarting_at_0_is_refused_as_a_replay():

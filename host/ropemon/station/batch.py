@@ -2,11 +2,13 @@
 
 Same rules and same counts as `StreamDecoder` fed the whole file then `finish()`
 (tests/host/test_host_batch.py checks it): bodies between 0x00 delimiters are
-grouped by length; for each valid frame length the COBS code chain, the CRC and
-the field parse run as array operations over every body of that length. Bodies
-of any other length cannot be frames and go through the scalar decoder for
-classification only. MAC (hmac per frame) and the anti-replay check (order
-dependent: replayed, rewound, duplicate) run per frame, only when keys are given.
+grouped by length; for each valid frame length the COBS code chain, the CRC-32
+and the field parse run as array operations over every body of that length.
+Bodies of any other length cannot be frames of this version and go through the
+scalar decoder for classification only (a frame of layout version 1 is one of
+them: its lengths are never this version's). MAC (hmac per frame) and the
+anti-replay check (order dependent: replayed, rewound, duplicate) run per
+frame, only when keys are given.
 """
 from __future__ import annotations
 
@@ -34,19 +36,20 @@ def frame_dtype(n_ropes: int) -> np.dtype:
     for i in range(n_ropes):
         f += _fields(L.ROPE_FMT, L.ROPE_FIELDS, f"r{i}_")
     f += _fields(L.TAIL_FMT, L.TAIL_FIELDS)
-    f += [("mac", f"V{L.MAC_LEN}"), ("crc", "<u2")]
+    f += [("mac", f"V{L.MAC_LEN}"), ("crc", "<u4")]
     dt = np.dtype(f)
     assert dt.itemsize == L.frame_len(n_ropes)
     return dt
 
 
 def _crc_table() -> np.ndarray:
-    t = np.zeros(256, np.uint16)
+    """CRC-32 (IEEE, reflected poly 0xEDB88320) byte table, as binascii.crc32 uses."""
+    t = np.zeros(256, np.uint32)
     for i in range(256):
-        c = i << 8
+        c = i
         for _ in range(8):
-            c = ((c << 1) ^ 0x1021) if c & 0x8000 else (c << 1)
-        t[i] = c & 0xFFFF
+            c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
+        t[i] = c
     return t
 
 
@@ -106,11 +109,15 @@ def _cobs_decode_rows(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _crc_rows(raw: np.ndarray) -> np.ndarray:
-    crc = np.full(raw.shape[0], 0xFFFF, np.uint16)
+    """CRC-32 of each row (binascii.crc32 of each), column by column over all rows."""
+    crc = np.full(raw.shape[0], 0xFFFFFFFF, np.uint32)
+    idx = np.empty(raw.shape[0], np.uint8)
     t = _CRC_TABLE
-    for j in range(raw.shape[1]):
-        crc = ((crc << 8) & 0xFF00) ^ t[((crc >> 8) ^ raw[:, j]) & 0xFF]
-    return crc
+    for col in np.ascontiguousarray(raw.T):
+        np.bitwise_xor(crc.astype(np.uint8), col, out=idx)  # the register's low byte ^ the next byte
+        crc >>= 8
+        crc ^= t[idx]
+    return crc ^ np.uint32(0xFFFFFFFF)
 
 
 def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResult:
@@ -142,7 +149,7 @@ def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResu
         raw, ok = _cobs_decode_rows(m)
         bad = ~ok
         counts.malformed += int(bad.sum())
-        crc_ok = _crc_rows(raw[:, :-2]) == (raw[:, -2].astype(np.uint16) | (raw[:, -1].astype(np.uint16) << 8))
+        crc_ok = _crc_rows(raw) == P.CRC_RESIDUE  # CRC-32 over the frame with its CRC field
         crc_bad = ok & ~crc_ok
         counts.crc_fail += int(crc_bad.sum())
         good = ok & crc_ok

@@ -1,9 +1,13 @@
 """Streaming frame decoder: bytes in any chunking -> checked `Frame`s, with counts.
 
-Frames are COBS bodies ended by 0x00. The decoder splits on 0x00, so it
-resynchronises at the next delimiter after any damage. A body longer than the
-longest valid frame is skipped without being buffered (garbage without
-delimiters cannot grow memory). Each rejected body is counted once by cause and
+Frames are COBS bodies between 0x00 delimiters (the node sends one before and
+one after each frame). The decoder splits on 0x00, so it resynchronises at the
+next delimiter after any damage; the leading one ends any junk before a frame.
+The CRC-32 is checked before anything else in the frame (the MAC too), so radio
+noise is counted as `crc_fail` and never reaches the MAC check. A frame of
+another layout version is `malformed`, and named in the summary (`versions`).
+A body longer than the longest valid frame is skipped without being buffered
+(garbage without delimiters cannot grow memory). Each rejected body is counted once by cause and
 its bytes, delimiter included, are added to `bytes_discarded`; idle delimiters
 (empty bodies) are neither frames nor discarded bytes. The result does not
 depend on how the input is chunked.
@@ -173,11 +177,11 @@ class ReplayGuard:
 
 def frame_bytes(f: P.Frame) -> bytes:
     """The raw bytes (COBS removed) a decoded or logged frame came in: its fields,
-    its MAC as received, and the CRC over them. What `ReplayGuard` compares copies by."""
+    its MAC as received, and the CRC-32 over them. What `ReplayGuard` compares copies by."""
     body = P.HEADER.pack(f.version, f.kind, f.node, f.fault_mask, f.seq, f.time_ms, f.status)
     body += b"".join(P.ROPE.pack(*r) for r in f.ropes)
     body += P.TAIL.pack(f.depth_mm, f.speed_mm_s, f.battery_mv, f.oil_temp_cc) + f.mac
-    return body + P.CRC.pack(P.crc16(body))
+    return body + P.CRC.pack(P.crc32(body))
 
 
 class StreamDecoder:
@@ -185,13 +189,15 @@ class StreamDecoder:
 
     `accept_rewound`: see ReplayGuard."""
 
-    def __init__(self, keys: dict[int, bytes] | None = None, max_frame: int = L.MAX_WIRE_LEN,
+    def __init__(self, keys: dict[int, bytes] | None = None, max_frame: int = P.MAX_BODY_LEN + 1,
                  accept_rewound: Iterable[int] = ()):
         if max_frame < 2:
             raise ValueError("max_frame must be at least 2 bytes (body + delimiter)")
         self.keys = dict(keys) if keys else None
         self.max_body = max_frame - 1
         self.counts = DecodeCounts()
+        #: {layout version: frames} of intact frames of another version (counted in `malformed`)
+        self.versions: dict[int, int] = {}
         self.replay = ReplayGuard(accept_rewound=accept_rewound)
         self._buf = b""
         self._skipping = 0  # bytes of an overlong body skipped so far (0: not skipping)
@@ -253,7 +259,8 @@ class StreamDecoder:
         keys = self.keys
         max_body = self.max_body
         cobs_decode = cobs.decode
-        crc = binascii.crc_hqx
+        crc = binascii.crc32
+        residue = P.CRC_RESIDUE
         parse = P._parse
         ropes_in = L.ropes_in
         min_len, max_len = P.MIN_RAW_LEN, P.MAX_RAW_LEN
@@ -273,12 +280,15 @@ class StreamDecoder:
                 c.bytes_discarded += nb + 1
                 continue
             n = len(raw)
-            if n < min_len or n > max_len:
-                c.malformed += 1
-                c.bytes_discarded += nb + 1
-                continue
-            if crc(raw[:-2], 0xFFFF) != raw[-2] | (raw[-1] << 8):
-                c.crc_fail += 1
+            if n < min_len or n > max_len or crc(raw) != residue:
+                old = P.old_version(raw)
+                if old is not None:
+                    self.versions[old] = self.versions.get(old, 0) + 1
+                    c.malformed += 1
+                elif n < min_len or n > max_len:
+                    c.malformed += 1
+                else:
+                    c.crc_fail += 1
                 c.bytes_discarded += nb + 1
                 continue
             n_ropes = ropes_in(n)
@@ -290,7 +300,9 @@ class StreamDecoder:
                 c.mac_fail += 1
                 c.bytes_discarded += nb + 1
                 continue
-            except P.MalformedError:
+            except P.MalformedError as e:
+                if isinstance(e, P.VersionError):
+                    self.versions[e.version] = self.versions.get(e.version, 0) + 1
                 c.malformed += 1
                 c.bytes_discarded += nb + 1
                 continue
@@ -323,6 +335,9 @@ class StreamDecoder:
         line = (f"frames_ok={c.frames_ok} crc_fail={c.crc_fail} malformed={c.malformed} "
                 f"mac_fail={c.mac_fail} replayed={c.replayed} rewound={c.rewound} duplicate={c.duplicate} "
                 f"bytes_discarded={c.bytes_discarded}; {auth}")
+        for version, n in sorted(self.versions.items()):
+            line += (f"; malformed: {n} frame(s) of layout version {version} (this host decodes "
+                     f"version {L.VERSION} only: a node with older or newer firmware)")
         for node, (top, boot) in sorted(self.replay.rewound.items()):
             line += (f"; node {node} REFUSED: its boot counter went back from {top} to {boot} "
                      f"(a replay, or the node lost its counter: an operator must accept node {node})")

@@ -2,7 +2,10 @@
 and decoding of one frame, with a distinct exception per failure.
 
 The byte layout is firmware/ropenode/layout.py, imported here, never restated:
-raw = header + ropes + tail + mac + crc; wire = COBS(raw) + 0x00.
+raw = header + ropes + tail + mac + crc; wire = 0x00 + COBS(raw) + 0x00.
+This host decodes layout version L.VERSION only; a frame of version 1 (the
+layout before, with a CRC-16) is recognised by its own CRC and refused as
+`VersionError`, so an old node shows as such, not as radio noise.
 """
 from __future__ import annotations
 
@@ -23,11 +26,17 @@ L = node_module("layout")
 HEADER = struct.Struct(L.HEADER_FMT)
 ROPE = struct.Struct(L.ROPE_FMT)
 TAIL = struct.Struct(L.TAIL_FMT)
-CRC = struct.Struct("<H")
+CRC = struct.Struct("<I")
 MAX_RAW_LEN = L.frame_len(L.MAX_ROPES)
 MIN_RAW_LEN = L.frame_len(0)
-#: Longest COBS body between two delimiters a valid frame can have.
-MAX_BODY_LEN = L.MAX_WIRE_LEN - 1
+#: Longest COBS body between two delimiters a valid frame can have (the wire adds one 0x00 each side).
+MAX_BODY_LEN = L.MAX_WIRE_LEN - 2
+#: CRC-32 of a whole raw frame, its CRC field included, when that field is right: the
+#: standard residue of CRC-32 (IEEE). One C call over the frame, no slice, no unpack.
+CRC_RESIDUE = 0x2144DF1C
+#: Version 1 of the layout (a CRC-16/CCITT-FALSE instead of the CRC-32): raw bytes
+#: without ropes. Only to name such a frame when it comes (`old_version`).
+V1_FIXED_LEN = L.FIXED_LEN - 2
 _NO_MAC = bytes(L.MAC_LEN)
 
 # One struct per rope count: header + ropes + tail in a single unpack.
@@ -46,11 +55,19 @@ class FrameError(ValueError):
 
 
 class CrcError(FrameError):
-    """CRC-16 mismatch: bytes were corrupted on the way."""
+    """CRC-32 mismatch: bytes were corrupted on the way (or radio noise)."""
 
 
 class MalformedError(FrameError):
     """Intact CRC (or not checkable) but not a frame this host understands."""
+
+
+class VersionError(MalformedError):
+    """An intact frame of another layout version than L.VERSION (its own CRC checks)."""
+
+    def __init__(self, version: int):
+        super().__init__(f"frame of layout version {version}: this host decodes version {L.VERSION} only")
+        self.version = version
 
 
 class MacError(FrameError):
@@ -225,9 +242,21 @@ def mac_of(key: bytes, body: bytes) -> bytes:
     return hmac.digest(key, body, hashlib.sha256)[: L.MAC_LEN]
 
 
-def crc16(data: bytes | bytearray) -> int:
-    """CRC-16/CCITT-FALSE, same as ropenode.crc16."""
-    return binascii.crc_hqx(data, 0xFFFF)
+def crc32(data: bytes | bytearray) -> int:
+    """CRC-32 (IEEE 802.3), same as ropenode.crc32."""
+    return binascii.crc32(data)
+
+
+def old_version(raw: bytes) -> int | None:
+    """1 when `raw` (COBS removed) is an intact frame of layout version 1 (30 + 8 N
+    bytes, CRC-16/CCITT-FALSE), else None. Called only on a frame that failed
+    this version's length or CRC-32 check: names an old node's frames."""
+    n = len(raw)
+    if (n >= V1_FIXED_LEN and raw[0] == 1 and (n - V1_FIXED_LEN) % L.ROPE_LEN == 0
+            and n <= V1_FIXED_LEN + L.ROPE_LEN * L.MAX_ROPES
+            and binascii.crc_hqx(raw[:-2], 0xFFFF) == raw[-2] | (raw[-1] << 8)):
+        return 1
+    return None
 
 
 def encode_frame(
@@ -258,13 +287,16 @@ def encode_frame(
         body += ROPE.pack(*(r.mean_dan, r.min_dan, r.max_dan, r.raw_kpa) if isinstance(r, Rope) else r)
     body += TAIL.pack(depth_mm, speed_mm_s, battery_mv, oil_temp_cc)
     body += mac_of(key, bytes(body)) if key is not None else _NO_MAC
-    body += CRC.pack(crc16(body))
+    body += CRC.pack(crc32(body))
     raw = bytes(body)
-    return raw, cobs.encode(raw) + b"\x00"
+    return raw, b"\x00" + cobs.encode(raw) + b"\x00"
 
 
 def decode_wire(body: bytes) -> bytes:
-    """COBS body (between delimiters, without the 0x00) -> raw frame bytes."""
+    """One frame's COBS body -> raw frame bytes. The body may come with its 0x00
+    delimiters (the wire bytes of one frame): a body holds no 0x00, so they are dropped."""
+    if body[:1] == b"\x00" or body[-1:] == b"\x00":
+        body = body.strip(b"\x00")
     if len(body) > MAX_BODY_LEN:
         raise MalformedError(f"frame too long: {len(body)} bytes > {MAX_BODY_LEN}")
     try:
@@ -276,16 +308,20 @@ def decode_wire(body: bytes) -> bytes:
 def decode_raw(raw: bytes, keys: dict[int, bytes] | None = None) -> Frame:
     """Check and parse one raw frame (COBS already removed).
 
-    Raises CrcError, MalformedError or MacError. With `keys` (node -> key) the MAC
-    must match and a node without a key is refused; without keys the frame's
-    `authenticated` is None (authenticity not checked).
+    Raises CrcError, MalformedError (VersionError: a frame of another layout
+    version) or MacError; the CRC is checked before the MAC. With `keys` (node ->
+    key) the MAC must match and a node without a key is refused; without keys the
+    frame's `authenticated` is None (authenticity not checked).
     """
     n = len(raw)
-    if n < MIN_RAW_LEN:
-        raise MalformedError(f"frame too short: {n} bytes < {MIN_RAW_LEN}")
-    if n > MAX_RAW_LEN:
-        raise MalformedError(f"frame too long: {n} bytes > {MAX_RAW_LEN}")
-    if binascii.crc_hqx(raw[:-2], 0xFFFF) != raw[-2] | (raw[-1] << 8):
+    if n < MIN_RAW_LEN or n > MAX_RAW_LEN or binascii.crc32(raw) != CRC_RESIDUE:
+        old = old_version(raw)
+        if old is not None:
+            raise VersionError(old)
+        if n < MIN_RAW_LEN:
+            raise MalformedError(f"frame too short: {n} bytes < {MIN_RAW_LEN}")
+        if n > MAX_RAW_LEN:
+            raise MalformedError(f"frame too long: {n} bytes > {MAX_RAW_LEN}")
         raise CrcError("CRC mismatch")
     n_ropes = L.ropes_in(n)
     if n_ropes < 0:
@@ -298,7 +334,7 @@ def _parse(raw: bytes, n_ropes: int, keys: dict[int, bytes] | None) -> Frame:
     v = _BODY[n_ropes].unpack_from(raw)
     version, kind, node = v[0], v[1], v[2]
     if version != L.VERSION:
-        raise MalformedError(f"unknown frame version {version}")
+        raise VersionError(version)
     if kind == L.KIND_DATA:
         if n_ropes == 0:
             raise MalformedError("data frame without ropes")

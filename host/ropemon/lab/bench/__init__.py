@@ -11,7 +11,7 @@ import importlib
 import json
 import sys
 
-PARTS = ("firmware", "plant", "host")
+PARTS = ("firmware", "plant", "host", "noise")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

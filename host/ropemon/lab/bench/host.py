@@ -4,7 +4,7 @@ The capture: frames of 4 ropes (some status frames) from two nodes with one
 byte in 2000 flipped, like a deep-shaft receiver. Streaming feeds it in 4 KiB
 reads (a serial port's pace) and builds Frame objects; batch decodes the whole
 file into columns. The baseline is the obvious decoder: split on 0x00, then
-per frame cobs.decode, crc_hqx, and struct.unpack of header, each rope and tail
+per frame cobs.decode, binascii.crc32, and struct.unpack of header, each rope and tail
 into a dict. Both consume each frame and drop it, as the live chain does (store,
 alarms); a second pair keeps every frame alive, where the garbage collector's
 work dominates. Figures are medians of repeats.
@@ -59,7 +59,7 @@ def naive_decode(data: bytes, keep: list | None = None) -> int:
             raw = cobs.decode(body)
         except cobs.DecodeError:
             continue
-        if len(raw) < L.FIXED_LEN or binascii.crc_hqx(raw[:-2], 0xFFFF) != struct.unpack("<H", raw[-2:])[0]:
+        if len(raw) < L.FIXED_LEN or binascii.crc32(raw[:-4]) != struct.unpack("<I", raw[-4:])[0]:
             continue
         n = L.ropes_in(len(raw))
         if n < 0:
