@@ -62,7 +62,7 @@ def read_frames_bin(path: Path, keys: dict[int, bytes] | None = None) -> Sent:
         if not body:
             continue
         frames.append(decode_raw(decode_wire(body), keys))
-        wires.append(body + b"\x00")
+        wires.append(b"\x00" + body + b"\x00")   # as the node sends it: delimited on both sides
     return Sent(wires, frames)
 
 
