@@ -13,7 +13,7 @@ import pytest
 from ropemon.commission import compliance
 from ropemon.cli import main as ropemon
 from ropemon.firmware import node_module
-from ropemon.commission.nodejson import example_physical, make_node_json
+from ropemon.commission.nodejson import example_physical, make_node_json, seal
 from ropemon.lab.plant.output import write_rsens
 from ropemon.commission.site import SiteError, load_site, physical_from_site
 
@@ -196,7 +196,7 @@ def test_command_refuses_a_bad_file_with_exit_2(recorded, tmp_path, capsys, ph, 
     elif case == "node not json":
         node.write_text("{physical")
     elif case == "other ropes":
-        node.write_text(json.dumps({"physical": dict(ph, ropes=3)}))
+        node.write_text(json.dumps(seal({"physical": dict(ph, ropes=3)})))
     elif case == "flat wind":
         n = np.full(2000, 6e6)
         write_rsens(rsens, records(ph, [n] * 4, [n * 3e-10] * 4), HZ)
@@ -212,7 +212,7 @@ def test_a_refit_against_a_commissioned_config_names_what_moved(recorded, tmp_pa
     fit = compliance.fit(ph, synthetic(ph))
 
     def run(**took) -> tuple[int, int, str]:
-        node.write_text(json.dumps({"physical": dict(ph, **took)}))
+        node.write_text(json.dumps(seal({"physical": dict(ph, **took)})))
         out = tmp_path / "compliance.json"
         out.unlink(missing_ok=True)
         codes = [ropemon(["fit-compliance", str(node), str(rsens), "--out", str(out)] + check)

@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SCEN = ROOT / "scenarios"
 
 # docs/config.md, "physical keys": the contract with the node and the float reference
-PHYSICAL_KEYS = {"node_id", "key_hex", "ropes", "sample_hz", "frame_hz", "rated_rope_tension_N", "imbalance_frac",
+PHYSICAL_KEYS = {"ropes", "sample_hz", "frame_hz", "rated_rope_tension_N", "imbalance_frac",
                  "battery_low_V", "cylinder_area_m2", "adc_bits", "pressure_channels", "displacement_channels",
                  "speed_m_per_pulse", "hall_marks_m", "battery_V_per_count", "temperature", "oil_temp_assumed_C",
                  "velocity_cutoff_hz", "friction", "loss"}
@@ -34,7 +34,7 @@ def test_paper_site_gives_a_node_json_the_node_accepts(site_dir, capsys):
     out = site_dir / "node.json"
     assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(out)]) == 0
     doc = json.loads(out.read_text())
-    assert set(doc) == {"schema", "physical", "node", "crc"}
+    assert set(doc) == {"schema", "physical", "node", "crc", "sha256"}
     ph = doc["physical"]
     assert PHYSICAL_KEYS <= set(ph)
     cfg = node_module("config").parse(doc)  # the firmware's own check: schema, CRC, every range
@@ -208,3 +208,50 @@ def test_deviation_cover_hand_checked():
     c = deviation_cover(physical(2200.0), 40e3, 40e3)
     assert c["rated_reach"] == pytest.approx(171 / 154.5 - 1) and c["rated_reach"] > c["limit"]
     assert deviation_cover({"ropes": 4, "cylinder_area_m2": 0.008}, 40e3, 40e3) is None
+
+
+def test_node_json_is_written_readable_by_its_owner_only(site_dir, capsys):
+    """node.json holds the node's key: created with mode 0600 (never a wider mode first), also
+    over an earlier file that others could read, and the output says so."""
+    import os
+    import stat
+
+    out = site_dir / "node.json"
+    out.write_text("an earlier, world-readable file")
+    out.chmod(0o644)
+    old = os.umask(0o022)
+    try:
+        assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(out)]) == 0
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o600
+    assert f"wrote {out} (mode 0600, readable by its owner only: it holds node 1's key)" in capsys.readouterr().out
+    assert [p.name for p in site_dir.iterdir() if p.name.startswith(".")] == []  # no temporary file left
+
+
+def test_the_node_id_and_key_are_in_the_node_section_only(site_dir):
+    """One copy of the identity, the one the node reads; the host reads it there too."""
+    from ropemon.station.protocol import load_node_keys
+
+    out = site_dir / "node.json"
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    site = load_site(site_dir / "paper-site.toml")
+    assert "node_id" not in doc["physical"] and "key_hex" not in doc["physical"]
+    assert (doc["node"]["node_id"], bytes(doc["node"]["key"])) == (site.node_id, site.key)
+    assert load_node_keys(out) == {site.node_id: site.key}
+
+
+def test_a_site_with_the_simulators_plant_table_is_refused(site_dir, capsys):
+    """[plant] (the hidden hoist) belongs to the simulator's scenarios, never to SITE.toml."""
+    import tomllib
+
+    p = site_dir / "paper-site.toml"
+    p.write_text(p.read_text() + "\n[plant]\nfriction = \"paper\"\n")
+    err = refused(site_dir, capsys)
+    assert "config: error: plant: unknown field" in err
+    scenarios = [s for s in SCEN.glob("*.toml") if "rig" in tomllib.loads(s.read_text())]
+    assert len(scenarios) >= 5
+    for scenario in scenarios:  # the scenarios keep theirs; the site description has none
+        assert "plant" in tomllib.loads(scenario.read_text()), scenario
+    assert "plant" not in tomllib.loads((SCEN / "paper-site.toml").read_text())

@@ -580,7 +580,7 @@ def _run_sim_on_node(root: Path, tmp_path: Path, doc: dict, pressures_pa: list[f
     n_frames = samples // (phys["sample_hz"] // phys["frame_hz"])
     assert r.stdout.split()[-4:] == ["samples", str(samples), "frames", str(n_frames)]
 
-    dec = StreamDecoder(keys={doc["node"]["node_id"]: bytes.fromhex(phys["key_hex"])})
+    dec = StreamDecoder(keys={doc["node"]["node_id"]: bytes(doc["node"]["key"])})
     frames = dec.feed((tmp_path / "radio.bin").read_bytes())
     dec.finish()
     c = dec.counts
@@ -612,3 +612,11 @@ def test_node_side_rmtree_is_deployswaps_and_empties_a_wide_tree(tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "@@ropemon [null, null]"
     assert not tree.exists()
+
+
+def test_a_config_edited_after_ropemon_config_is_refused(tmp_path, node_json):
+    """The node never reads `physical`, but the host does: a file whose SHA-256 does not match is
+    not deployed (node and station would read different things)."""
+    bad = _edited(tmp_path, node_json, lambda d: d["physical"].update(imbalance_frac=0.2))
+    with pytest.raises(D.DeployError, match=r"edited\.json: changed after `ropemon config` wrote it"):
+        D.check_config(bad)

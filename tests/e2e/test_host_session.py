@@ -34,14 +34,14 @@ def write_node_json(path, **physical):
     that no band widens the alarms these tests are about)."""
     import json
 
-    from ropemon.commission.nodejson import example_physical
+    from ropemon.commission.nodejson import example_physical, seal
 
     ph = example_physical()
     line = {"intercept": 10.0, "slope": 0.0}
     ph.update(cylinder_area_m2=[0.0314] * 4, rated_rope_tension_N=80_000, imbalance_frac=0.10, battery_low_V=3.4,
               friction=dict(ph["friction"], Fs=line, Fc=line))
     ph.update(physical)
-    path.write_text(json.dumps({"physical": ph}))
+    path.write_text(json.dumps(seal({"physical": ph})))
 
 
 def screen(s):

@@ -86,12 +86,13 @@ def test_monitor_refuses_conflicting_keys_and_configs_of_different_hoists(tmp_pa
     import json
 
     from ropemon.cli import main
-    from ropemon.commission.nodejson import example_physical
+    from ropemon.commission.nodejson import example_physical, seal
 
     def node_json(name, node, key, area):
         p = tmp_path / name
-        p.write_text(json.dumps({"physical": dict(example_physical(), node_id=node, key_hex=key.hex(), ropes=4,
-                                                  cylinder_area_m2=[area] * 4, rated_rope_tension_N=80_000)}))
+        p.write_text(json.dumps(seal({"physical": dict(example_physical(), ropes=4, cylinder_area_m2=[area] * 4,
+                                                       rated_rope_tension_N=80_000),
+                                      "node": {"node_id": node, "key": list(key)}})))
         return str(p)
 
     a = node_json("a.json", 1, KEY, 0.0314)
@@ -132,3 +133,20 @@ def test_headless_monitor_on_a_wrong_port_alarms_as_json_lines_and_stops_on_sigt
     kinds = {r[0] for r in con.execute("SELECT kind FROM events WHERE action = 'raise'")}
     con.close()
     assert {"receiver_down", "silent"} <= kinds
+
+
+def test_monitor_refuses_a_node_json_edited_after_ropemon_config(tmp_path, capsys):
+    """The station trusts `physical` (areas, thresholds) only as `ropemon config` wrote it."""
+    import json
+
+    from ropemon.cli import main
+    from ropemon.firmware import FIRMWARE_DIR
+
+    doc = json.loads((FIRMWARE_DIR / "node.json").read_text())
+    doc["physical"]["imbalance_frac"] = 0.3   # a looser deviation alarm, by hand
+    edited = tmp_path / "node.json"
+    edited.write_text(json.dumps(doc, indent=1))
+    assert main(["monitor", "--port", "loop://", "--config", str(edited)]) == 2
+    err = capsys.readouterr().err
+    assert f"ropemon monitor: {edited}: changed after `ropemon config` wrote it" in err
+    assert "rebuild it with `ropemon config`" in err

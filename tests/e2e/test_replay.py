@@ -21,13 +21,14 @@ def rsens(path, samples=400, ropes=4, hz=200):
 
 @pytest.mark.parametrize("interp", ["micropython", "cpython"])
 def test_replay_writes_one_frame_per_window(tmp_path, capsys, interp):
-    phys = json.loads(CONFIG.read_text())["physical"]
+    doc = json.loads(CONFIG.read_text())
+    phys, nd = doc["physical"], doc["node"]
     window = phys["sample_hz"] // phys["frame_hz"]
     out = tmp_path / "f.bin"
     assert main(["replay", str(rsens(tmp_path / "s.rsens", samples=10 * window, hz=phys["sample_hz"])),
                  "--out", str(out), "--interpreter", interp]) == 0
     assert "-> 10 frames" in capsys.readouterr().out
-    sent = read_frames_bin(out, {phys["node_id"]: bytes.fromhex(phys["key_hex"])})
+    sent = read_frames_bin(out, {nd["node_id"]: bytes(nd["key"])})
     assert [f.seq for f in sent.frames] == list(range(10))
     assert all(f.kind == L.KIND_DATA and len(f.ropes) == phys["ropes"] for f in sent.frames)
 
@@ -119,7 +120,8 @@ def test_an_imbalanced_rope_raises_the_deviation_alarm_on_node_time(wind, tmp_pa
     doc = json.loads((wind / "node.json").read_text())
     doc["physical"]["cylinder_area_m2"][1] *= 1.3
     cfg = tmp_path / "imbalanced.json"
-    cfg.write_text(json.dumps(make_node_json(doc["physical"])))
+    cfg.write_text(json.dumps(make_node_json(doc["physical"], node_id=doc["node"]["node_id"],
+                                             key=bytes(doc["node"]["key"]))))
     db = tmp_path / "imb.db"
     capsys.readouterr()
     assert main(["replay", str(wind / "sensors.rsens"), "--config", str(cfg), "--db", str(db)]) == 0
@@ -142,11 +144,12 @@ def test_db_refusals_name_the_reason(wind, tmp_path, capsys):
     db.write_text("")
     assert main(["replay", s, "--config", str(wind / "node.json"), "--db", str(db)]) == 1
     assert "exists; --db writes a new log" in capsys.readouterr().err
+    from ropemon.commission.nodejson import seal
     doc = json.loads((wind / "node.json").read_text())
-    del doc["physical"]["key_hex"]
+    del doc["node"]["key"]
     cfg = tmp_path / "nokey.json"
-    cfg.write_text(json.dumps(doc))
+    cfg.write_text(json.dumps(seal(doc)))
     out = tmp_path / "n.bin"
     assert main(["replay", s, "--config", str(cfg), "--db", str(tmp_path / "n.db"), "--out", str(out)]) == 1
-    assert "physical.node_id and physical.key_hex" in capsys.readouterr().err
+    assert "nokey.json: node.key: must be 16..32 bytes" in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "n.db").exists()   # refused before the firmware ran

@@ -28,7 +28,8 @@ def test_stages_on_the_short_wind(tmp_path, capsys):
     work = tmp_path / "short-test"
     case = EV.build_case("short-test", work, 1, firmware=False, bed=EV.BED_QUICK)
     # without the firmware too, the run directory holds the commissioned config
-    assert json.loads((work / "node-evaluated.json").read_text()) == make_node_json(case.physical)
+    assert json.loads((work / "node-evaluated.json").read_text()) == make_node_json(case.physical,
+                                                                                  **RunDir(work).identity)
     rows = ol.losses(RunDir(work))
     assert [r["stage"] for r in rows] == list(ol.STAGES)
     # the node's LuGre, fitted on the test bed, driven by the plant's own piston position

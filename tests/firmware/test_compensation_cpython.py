@@ -71,12 +71,12 @@ def test_frames_match_reference_decimation_and_authenticate():
     dec = reference.decimate(ph, ref)
     _, _, frames = run_node(Node(config.parse(doc)), recs, per_sample=False)
     assert len(frames) == dec.mean_n.shape[0]
-    key = bytes.fromhex(ph["key_hex"])
+    key = bytes(doc["node"]["key"])
     tol_dan = _tolerance_n(doc) / 10 + 1  # + rounding to whole daN
     absent = 0
     for j, wire in enumerate(frames):
         assert len(wire) <= L.MAX_WIRE_LEN
-        f = protocol.decode_raw(protocol.decode_wire(wire[:-1]), keys={ph["node_id"]: key})
+        f = protocol.decode_raw(protocol.decode_wire(wire[:-1]), keys={doc["node"]["node_id"]: key})
         assert f.authenticated and f.seq == j and f.time_ms == (j + 1) * 100
         for i, r in enumerate(f.ropes):
             if np.isnan(dec.mean_n[j, i]):
@@ -470,7 +470,8 @@ def test_a_drawn_winds_stroke_starts_place_the_stopped_pistons_in_the_nodes_step
     vec = np.load(Path(__file__).resolve().parents[1] / "vectors" / "drawn-wind-stroke-end.npz")
     doc = json.loads(str(vec["node_json"]))
     recs = vec["records"]
-    ph = doc["physical"]
+    # written when `physical` still carried a copy of the node's id and key (now `node` only)
+    ph = {k: v for k, v in doc["physical"].items() if k not in ("node_id", "key_hex")}
     ref = []
     comp = reference.compensate(ph, recs, strokes=ref)
     node = Node(config.parse(doc))

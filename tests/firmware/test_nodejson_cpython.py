@@ -36,13 +36,12 @@ def test_example_reads_about_15_percent_low_at_the_pithead():
     (("friction", "Fs", "slope"), "physical.friction.Fs"),        # Fs beyond 32 kN at 26 MPa
     (("friction", "sigma0"), "physical.friction.sigma0"),          # w per step beyond 2**19
     (("cylinder_area_m2",), "physical.cylinder_area_m2"),          # tension beyond 2**19 N
-    (("key_hex",), "physical.key_hex"),
     (("velocity_cutoff_hz",), "physical.velocity_cutoff_hz"),
     (("speed_m_per_pulse",), "physical.speed_m_per_pulse"),
 ])
 def test_builder_refuses_with_the_field_named(change, field):
     ph = example_physical()
-    bad = {"Fs": 5000.0, "sigma0": 5e9, "cylinder_area_m2": [0.09] * 4, "key_hex": "abcd",
+    bad = {"Fs": 5000.0, "sigma0": 5e9, "cylinder_area_m2": [0.09] * 4,
            "velocity_cutoff_hz": 150.0, "speed_m_per_pulse": 5.0}[change[-1] if change[-1] != "slope" else "Fs"]
     d = ph
     for k in change[:-1]:
@@ -51,6 +50,39 @@ def test_builder_refuses_with_the_field_named(change, field):
     with pytest.raises(ValueError) as e:
         build_node_section(ph)
     assert str(e.value).startswith(field), str(e.value)
+
+
+def test_the_node_id_and_key_go_into_the_node_section_only():
+    """One copy of the identity: the node section's, which the node reads (and the host too)."""
+    ph = example_physical()
+    assert "node_id" not in ph and "key_hex" not in ph
+    doc = make_node_json(ph, node_id=7, key=bytes(range(20)))
+    assert (doc["node"]["node_id"], doc["node"]["key"]) == (7, list(range(20)))
+    assert "node_id" not in doc["physical"] and "key_hex" not in doc["physical"]
+    cfg = config.parse(doc)
+    assert (cfg.node_id, cfg.key) == (7, bytes(range(20)))
+    for kw, message in (({"key": bytes.fromhex("abcd")}, "key: must be 16..32 bytes, got 2"),
+                        ({"key": bytes(33)}, "key: must be 16..32 bytes, got 33"),
+                        ({"node_id": 256}, "node_id: must be an integer 0..255, got 256"),
+                        ({"node_id": True}, "node_id: must be an integer 0..255, got True")):
+        with pytest.raises(ValueError) as e:
+            build_node_section(ph, **kw)
+        assert str(e.value).startswith(message), str(e.value)
+
+
+def test_the_document_digest_covers_everything_but_itself():
+    from ropemon.station.physical import check_digest, document_digest
+    doc = make_node_json(example_physical())
+    assert doc["sha256"] == document_digest(doc) and len(doc["sha256"]) == 64
+    check_digest(json.loads(json.dumps(doc, indent=1)), "node.json")  # written and read back
+    for part, edit in (("physical", lambda d: d["physical"].update(imbalance_frac=0.11)),
+                       ("node", lambda d: d["node"].update(node_id=2)),
+                       ("crc", lambda d: d.update(crc=d["crc"] ^ 1)),
+                       ("schema", lambda d: d.update(schema=2))):
+        bad = json.loads(json.dumps(doc))
+        edit(bad)
+        with pytest.raises(ValueError, match="changed after `ropemon config` wrote it"):
+            check_digest(bad, "node.json")
 
 
 def test_every_product_bound_is_checked_by_the_node_too():

@@ -11,7 +11,7 @@ from streams_cpython import random_stream
 
 from ropemon.station import protocol
 from ropemon.firmware import FIRMWARE_DIR, node_module
-from ropemon.commission.nodeconfig import example_physical
+from ropemon.commission.nodejson import EXAMPLE_KEY, example_physical
 
 MICROPYTHON = Path(sys.executable).parent / "micropython"
 L = node_module("layout")
@@ -44,7 +44,7 @@ def test_unix_port_and_cpython_write_identical_frames(tmp_path):
     assert mp[:1] == b"\x00" and mp.count(b"\x00") == 400  # 0x00 before and after each frame
     bodies = [b for b in mp.split(b"\x00") if b]
     assert len(bodies) == 200
-    key = {1: bytes.fromhex(example_physical()["key_hex"])}
+    key = {1: EXAMPLE_KEY}
     frames = [protocol.decode_raw(protocol.decode_wire(b), keys=key) for b in bodies]
     assert [f.seq for f in frames] == list(range(200))
 

@@ -358,8 +358,8 @@ def test_stuck_on_the_evaluation_streams_through_the_firmware(tmp_path, capsys, 
     out = tmp_path / "frames.bin"
     assert main(["replay", str(tmp_path / "sensors.rsens"), "--out", str(out),
                  "--config", str(tmp_path / "node.json")]) == 0
-    phys = json.loads((tmp_path / "node.json").read_text())["physical"]
-    frames = read_frames_bin(out, {phys["node_id"]: bytes.fromhex(phys["key_hex"])}).frames
+    nd = json.loads((tmp_path / "node.json").read_text())["node"]  # the node's id and key: its section
+    frames = read_frames_bin(out, {nd["node_id"]: bytes(nd["key"])}).frames
     assert len(frames) > 1000 and all(len(f.ropes) == 4 for f in frames)
     eng = AlarmEngine()
     ev = [e for f in frames for e in eng.update(f, f.time_ms / 1000) if e.kind == "sensor_stuck"]

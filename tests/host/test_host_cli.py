@@ -17,6 +17,13 @@ def ropemon(*args, stdin: bytes | None = None) -> subprocess.CompletedProcess:
                           capture_output=True, timeout=60)
 
 
+def node_json(path: Path, node: int, key: bytes) -> Path:
+    """A node.json holding only what the key readers need: the node section's id and key, sealed."""
+    from ropemon.commission.nodejson import seal
+    path.write_text(json.dumps(seal({"schema": 1, "physical": {}, "node": {"node_id": node, "key": list(key)}})))
+    return path
+
+
 def capture(keyed: bool = False) -> tuple[bytes, list]:
     frames = frame_set(5, 40, keyed)
     data = b"\x13\x37junk\x00" + b"".join(w for _, w in frames[:20]) + b"\x01\x02\x03\x00" + \
@@ -83,16 +90,15 @@ def test_decode_with_keys_from_node_json(tmp_path):
     data, _ = capture(keyed=True)
     cfgs = []
     for node, key in KEYS.items():
-        p = tmp_path / f"node{node}.json"
-        p.write_text(json.dumps({"schema": 1, "physical": {"node_id": node, "key_hex": key.hex()}, "node": {}}))
+        p = node_json(tmp_path / f"node{node}.json", node, key)
         cfgs += ["--config", str(p)]
     r = ropemon("decode", "-", *cfgs, stdin=data)
     assert r.returncode == 0 and len(r.stdout.splitlines()) == 40 and b"MAC checked" in r.stderr
     r = ropemon("decode", "-", "--config", str(tmp_path / "none.json"), stdin=data)
     assert r.returncode == 2 and b"cannot read" in r.stderr
-    (tmp_path / "bad.json").write_text("{}")
+    node_json(tmp_path / "bad.json", 300, KEYS[1])
     r = ropemon("decode", "-", "--config", str(tmp_path / "bad.json"), stdin=data)
-    assert r.returncode == 2 and b"physical.node_id" in r.stderr
+    assert r.returncode == 2 and b"node.node_id" in r.stderr
 
 
 def test_decode_accept_rewound(tmp_path):

@@ -212,10 +212,11 @@ def test_a_seq_restarting_at_0_is_refused_as_a_replay():
 
 
 def test_keys_from_options_merges_key_and_config_options(tmp_path):
+    from ropemon.commission.nodejson import seal
     from ropemon.station.protocol import keys_from_options
 
     cfg = tmp_path / "node2.json"
-    cfg.write_text(json.dumps({"physical": {"node_id": 2, "key_hex": KEYS[2].hex()}}))
+    cfg.write_text(json.dumps(seal({"node": {"node_id": 2, "key": list(KEYS[2])}})))
     assert keys_from_options([], []) == {}
     got = keys_from_options([f"1:{KEYS[1].hex()}"], [str(cfg)])
     assert got == {1: KEYS[1], 2: KEYS[2]}

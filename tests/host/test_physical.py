@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 import docedit
+from ropemon.commission.nodejson import seal
 from ropemon.firmware import FIRMWARE_DIR
 from ropemon.station.physical import (Physical, PhysicalError, SiteFigures, alarm_settings, load_node_json,
                                       site_from_configs)
@@ -34,13 +35,9 @@ BAD = [
     ("rated_rope_tension_N", 50.0, "physical.rated_rope_tension_N: must be >= 1000"),
     ("battery_low_V", 100.0, "physical.battery_low_V: must be <= 65, got 100"),
     ("battery_low_V", -3.4, "physical.battery_low_V: must be > 0"),
-    ("node_id", 1.0, "physical.node_id: must be an integer, got 1.0"),
-    ("node_id", "1", "physical.node_id: must be an integer, got '1'"),
-    ("node_id", True, "physical.node_id: must be an integer, got True"),
-    ("node_id", 256, "physical.node_id: must be <= 255, got 256"),
-    ("key_hex", "not hex", "physical.key_hex: must be hexadecimal"),
-    ("key_hex", "00" * 8, "physical.key_hex: key must be 16..32 bytes, got 8"),
-    ("key_hex", 1234, "physical.key_hex: must be a string"),
+    # the node's id and key are the node section's only (one copy, the one the node reads)
+    ("node_id", 1, "physical.node_id: not here: the node's id is `node.node_id` only"),
+    ("key_hex", "00" * 16, "physical.key_hex: not here: the node's key is `node.key` only"),
     ("ropes", 5, "physical.ropes: must be <= 4, got 5"),        # the frame carries at most 4 (layout.MAX_ROPES)
     ("ropes", 0, "physical.ropes: must be >= 1, got 0"),
     ("ropes", 3, "physical.cylinder_area_m2: must have 3 entries"),  # every per-rope list disagrees
@@ -115,7 +112,7 @@ def test_a_bad_value_is_refused_naming_the_field_and_the_reason(field, value, me
     assert str(e.value).startswith(message), str(e.value)
 
 
-@pytest.mark.parametrize("field", ["node_id", "key_hex", "ropes", "friction", "loss", "temperature",
+@pytest.mark.parametrize("field", ["ropes", "friction", "loss", "temperature",
                                    "pressure_channels", "loss.dp_Pa", "friction.Fc.slope"])
 def test_a_missing_required_key_is_refused(field):
     with pytest.raises(PhysicalError, match=rf"^physical\.{field.replace('.', chr(92) + '.')}: missing"):
@@ -209,15 +206,62 @@ def test_node_json_reading_refuses_what_is_not_a_node_config(tmp_path):
     with pytest.raises(PhysicalError, match=r"absent\.json: cannot read"):
         load_node_json(tmp_path / "absent.json")
     nan = tmp_path / "nan.json"   # JSON's NaN extension parses; the section refuses it
-    nan.write_text(json.dumps({"physical": dict(SHIPPED, imbalance_frac=math.nan)}))
+    nan.write_text(json.dumps(seal({"physical": dict(SHIPPED, imbalance_frac=math.nan)})))
     with pytest.raises(PhysicalError, match=r"nan\.json: physical\.imbalance_frac: must be finite, got nan"):
         SiteFigures.from_node_json(nan)
 
 
 def test_the_monitor_refuses_configs_of_different_hoists(tmp_path):
     a, b = tmp_path / "a.json", tmp_path / "b.json"
-    a.write_text(json.dumps({"physical": SHIPPED}))
-    b.write_text(json.dumps({"physical": dict(SHIPPED, imbalance_frac=0.2)}))
+    a.write_text(json.dumps(seal({"physical": SHIPPED})))
+    b.write_text(json.dumps(seal({"physical": dict(SHIPPED, imbalance_frac=0.2)})))
     assert site_from_configs([str(a), str(a)]) == SiteFigures.from_node_json(a)
     with pytest.raises(ValueError, match="describe different hoists"):
         site_from_configs([str(a), str(b)])
+
+
+# ---------------------------------------------------------------- the file as `ropemon config` wrote it
+
+
+def test_a_physical_section_changed_after_config_wrote_it_is_refused(tmp_path):
+    """node.json's `sha256` covers `physical` (which the node never sees) as the node's CRC covers
+    `node`: a hand edit or a corruption is refused before anything in the file is used."""
+    from ropemon.station.protocol import load_node_keys
+
+    doc = json.loads((FIRMWARE_DIR / "node.json").read_text())
+    edited_file = tmp_path / "node.json"
+    edited_file.write_text(json.dumps(dict(doc, physical=dict(SHIPPED, imbalance_frac=0.2))))  # still valid
+    for read in (load_node_json, SiteFigures.from_node_json, lambda p: site_from_configs([str(p)]), load_node_keys):
+        with pytest.raises(PhysicalError, match=r"^\S*node\.json: changed after `ropemon config` wrote it "
+                                                 r"\(its `sha256` does not match"):
+            read(edited_file)
+    # the node section too (the host reads the node's id and key there)
+    nd = dict(doc["node"], key=[0] * 16)
+    edited_file.write_text(json.dumps(dict(doc, node=nd)))
+    with pytest.raises(PhysicalError, match="changed after `ropemon config` wrote it"):
+        load_node_keys(edited_file)
+    # without its digest: not a file `ropemon config` wrote
+    edited_file.write_text(json.dumps({k: v for k, v in doc.items() if k != "sha256"}))
+    with pytest.raises(PhysicalError, match=r"node\.json: no `sha256`: not a node\.json written by `ropemon config`"):
+        load_node_json(edited_file)
+    # layout is not content: the same document indented otherwise still loads
+    edited_file.write_text(json.dumps(doc, indent=4))
+    assert load_node_json(edited_file)[0] == Physical.from_dict(SHIPPED)
+
+
+def test_the_node_id_and_key_have_one_copy_the_node_section_which_host_and_node_read():
+    from ropemon.commission.nodejson import EXAMPLE_KEY, EXAMPLE_NODE_ID
+    from ropemon.firmware import node_module
+    from ropemon.station.physical import node_identity
+    from ropemon.station.protocol import load_node_keys
+
+    doc = json.loads((FIRMWARE_DIR / "node.json").read_text())
+    assert "node_id" not in doc["physical"] and "key_hex" not in doc["physical"]
+    cfg = node_module("config").parse(doc)
+    assert load_node_keys(FIRMWARE_DIR / "node.json") == {cfg.node_id: cfg.key} == {EXAMPLE_NODE_ID: EXAMPLE_KEY}
+    for nd, message in (({"node_id": 256, "key": [1] * 16}, r"x\.json: node\.node_id: must be an integer 0\.\.255"),
+                        ({"node_id": True, "key": [1] * 16}, r"node\.node_id: must be an integer"),
+                        ({"node_id": 1, "key": [1] * 15}, r"x\.json: node\.key: must be 16\.\.32 bytes"),
+                        ({"node_id": 1, "key": "00" * 16}, r"node\.key: must be 16\.\.32 bytes")):
+        with pytest.raises(PhysicalError, match=message):
+            node_identity({"node": nd}, "x.json")

@@ -69,7 +69,7 @@ def test_node_json_is_a_complete_node_config(short_out):
 
     doc = json.loads((short_out / "node.json").read_text())
     assert doc["schema"] == 1 and isinstance(doc["crc"], int) and doc["node"]
-    assert make_node_json(doc["physical"]) == doc
+    assert make_node_json(doc["physical"], node_id=doc["node"]["node_id"], key=bytes(doc["node"]["key"])) == doc
     meta = json.loads((short_out / "truth.json").read_text())
     assert meta["scenario"] == "short-test" and meta["sample_hz"] == 200
     assert meta["hidden"]["friction_law"] == "lugre"

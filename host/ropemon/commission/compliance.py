@@ -506,6 +506,8 @@ def run(args) -> int:
         ph = doc.get("physical") if isinstance(doc, dict) else None
         if not isinstance(ph, dict):
             raise ComplianceError(f"{args.node_json}: no physical section (a node.json from `ropemon config`)")
+        from ropemon.station.physical import check_digest  # not changed since `ropemon config` wrote it
+        check_digest(doc, args.node_json)
         try:
             ropes, hz, recs = read_rsens(args.rsens)
         except struct.error:

@@ -2,17 +2,18 @@
 
 SITE.toml -> ropemon.commission.site (validated site, `physical` section with the pipe loss
 tables, the friction fit and the optional hydraulic compliance fit) ->
-ropemon.commission.nodejson.make_node_json (fixed-point `node` section, every integer
-proved within +-2**30, schema, CRC) -> node.json. A site file, friction or
-compliance fit that cannot be used is refused with the field and the reason, exit 1.
+ropemon.commission.nodejson.make_node_json (fixed-point `node` section with the node's id
+and key, every integer proved within +-2**30, schema, CRC, SHA-256) -> node.json, written
+with mode 0600 (it holds the key). A site file, friction or compliance fit that cannot be
+used is refused with the field and the reason, exit 1.
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
+from ropemon.commission.nodejson import write_node_json
 from ropemon.commission.site import (Site, SiteError, in_file, load_site, physical_from_site, read_compliance,
                                      read_friction)
 
@@ -25,7 +26,7 @@ def node_json_from_site(site: Site, friction: dict[str, Any] | None = None,
 
     physical = physical_from_site(site, friction, compliance)
     try:
-        return make_node_json(physical)
+        return make_node_json(physical, node_id=site.node_id, key=site.key)
     except ValueError as e:
         # nodejson names the physical field; say which site input it came from.
         raise SiteError(f"{e} (node config built from {site.path})") from None
@@ -107,7 +108,7 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
                       f", noise followed over {site.noise_follow_s:g} s (SITE.toml)")
                      if site.noise_follow_s is not None else "")])
     return "\n".join([
-        f"site {site.name}: node {ph['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
+        f"site {site.name}: node {doc['node']['node_id']}, {ph['ropes']} ropes, {ph['sample_hz']} Hz sampling, "
         f"{ph['frame_hz']} Hz frames",
         f"rated rope tension {h.rated_rope_tension_N / 1e3:.1f} kN = {site.rated_pressure_MPa:.2f} MPa; "
         f"empty cage at the pithead {h.empty_load_N / 1e3:.1f} kN, cage alone {h.conveyance_weight_N / 1e3:.1f} kN: "
@@ -153,7 +154,11 @@ def run(args) -> int:
     for w in site_warnings(site, doc, friction_doc):
         print(f"config: warning: {w}", file=sys.stderr)
     out = Path(args.out)
-    out.write_text(json.dumps(doc, indent=1) + "\n")
+    try:
+        write_node_json(out, doc)
+    except OSError as e:
+        print(f"config: error: cannot write {out}: {e.strerror or e}", file=sys.stderr)
+        return 1
     print(describe(site, doc))
-    print(f"wrote {out}")
+    print(f"wrote {out} (mode 0600, readable by its owner only: it holds node {site.node_id}'s key)")
     return 0

@@ -3,7 +3,8 @@
 The pinned `mpremote` CLI is the interface to the node (run as a subprocess,
 four runs per deploy); the steps:
 
-1. check node.json with the firmware's own validator (`ropenode.config.parse`);
+1. check node.json with the firmware's own validator (`ropenode.config.parse`) and its
+   SHA-256 (`physical.check_digest`);
 2. probe: MicroPython version, .mpy version and native arch (sys.implementation._mpy),
    free flash, and the journal of an unfinished earlier swap;
 3. build on the host: the firmware packages cross-compiled with mpy-cross for that
@@ -44,6 +45,7 @@ from pathlib import Path
 
 from ropemon.firmware import FIRMWARE_DIR, install_shim, node_module
 from ropemon.commission.nodejson import node_part
+from ropemon.station.physical import check_digest
 
 install_shim()
 import deployswap  # noqa: E402  firmware/deployswap.py: the node side of the swap, one copy
@@ -287,9 +289,10 @@ def build(firmware_dir: Path, out_dir: Path, arch: str | None, as_py: bool,
     if errors:
         raise DeployError("\n".join(errors))
     hashes = {dst.relative_to(out_dir).as_posix(): _sha256(dst) for dst in outputs}
-    if config is not None:  # the node's part only (nodejson.node_part), as checked
-        (out_dir / CONFIG_NAME).write_text(json.dumps(node_part(json.loads(config.read_text())),
-                                                      separators=(",", ":")))
+    if config is not None:  # the node's part only (nodejson.node_part), as checked; it holds the key: 0600
+        data = json.dumps(node_part(json.loads(config.read_text())), separators=(",", ":")).encode()
+        with os.fdopen(os.open(out_dir / CONFIG_NAME, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), "wb") as f:
+            f.write(data)
         hashes[CONFIG_NAME] = _sha256(out_dir / CONFIG_NAME)
     return hashes
 
@@ -318,6 +321,10 @@ def check_config(path: Path) -> dict:
         config.parse(doc)
     except config.ConfigError as e:
         raise DeployError(f"config {path}: field '{e.field}': {e.reason}") from None
+    try:  # the whole file as `ropemon config` wrote it (its SHA-256): the node and the host read the same
+        check_digest(doc, f"config {path}")
+    except ValueError as e:
+        raise DeployError(str(e)) from None
     return doc
 
 

@@ -6,23 +6,34 @@ that no integer the node computes leaves +-2**30 over the declared ranges; a
 physical value that would break that raises ValueError naming the field.
 The section is read through `ropemon.station.physical.Physical`, which refuses what is not
 physical (ranges, types, list lengths); what is checked here is what the node's fixed point
-can represent. `make_node_json(physical)` adds schema and CRC; `example_physical()` is the
-documented default for the paper's field hoist, shipped as firmware/node.json
-(regenerate: `python -m ropemon.commission.nodejson > firmware/node.json`).
+can represent. `make_node_json(physical, node_id=, key=)` adds the node's identity (in the
+node section only: the one copy, which the node and the host both read), schema, CRC and
+the document's SHA-256 (`physical.document_digest`), and `write_node_json` writes it with
+mode 0600, as it holds the key. `example_physical()` is the documented default for the
+paper's field hoist, shipped as firmware/node.json with the example identity
+(EXAMPLE_NODE_ID, EXAMPLE_KEY) (regenerate: `python -m ropemon.commission.nodejson > firmware/node.json`).
 """
 from __future__ import annotations
 
 import functools
 import json
 import math
+import os
 import sys
+from pathlib import Path
 from typing import Any
 
 from ropemon.firmware import node_module
-from ropemon.station.physical import COMPLIANCE_DEFAULTS, NODE_DEFAULTS, Physical, as_physical
+from ropemon.station.physical import (COMPLIANCE_DEFAULTS, DIGEST, NODE_DEFAULTS, Physical, as_physical,
+                                      document_digest)
+from ropemon.station.protocol import KEY_LEN_MAX, KEY_LEN_MIN
 
 I30 = 1 << 30
 SCHEMA = 1
+# The identity of the shipped example (firmware/node.json), the default of the lab's and the
+# tests' configs; `ropemon config` gives the site's.
+EXAMPLE_NODE_ID = 1
+EXAMPLE_KEY = bytes.fromhex("6f1d3c0a9b2e47c58a61f0d2e3b4c5a6")
 GEXP_STEP = 1 / 32          # u step of the exp(-u^2) table
 GEXP_POINTS = 129
 
@@ -313,14 +324,19 @@ def sigma0_max(ph: dict | Physical) -> float:
     return 0.99 * (1 << 19) * 16e6 / dx_max_q8um
 
 
-def build_node_section(ph: dict | Physical) -> dict:
-    """The integer node section for physical section `ph` (raises ValueError naming the field)."""
+def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, key: bytes = EXAMPLE_KEY) -> dict:
+    """The integer node section for physical section `ph` and the node's id and key (raises
+    ValueError naming the field)."""
     p = as_physical(ph)
     pp = physical_params(p)
     n = p.ropes
     fs = p.sample_hz
     frame_hz = p.frame_hz
-    key = bytes.fromhex(p.key_hex)
+    if type(node_id) is not int or not 0 <= node_id <= 255:
+        raise ValueError(f"node_id: must be an integer 0..255, got {node_id!r}")
+    key = bytes(key)
+    if not KEY_LEN_MIN <= len(key) <= KEY_LEN_MAX:
+        raise ValueError(f"key: must be {KEY_LEN_MIN}..{KEY_LEN_MAX} bytes, got {len(key)}")
     areas = p.cylinder_area_m2
     for i, w in enumerate(pp["area_w"]):
         if not 0.5 <= w <= 1.5:
@@ -333,7 +349,7 @@ def build_node_section(ph: dict | Physical) -> dict:
     tension_limit = 1 << 19  # N: config.py TENSION_MAX_N
 
     nd: dict[str, Any] = {
-        "node_id": p.node_id,
+        "node_id": node_id,
         "key": list(key),
         "ropes": n,
         "sample_hz": fs,
@@ -551,15 +567,46 @@ def build_node_section(ph: dict | Physical) -> dict:
     return nd
 
 
-def make_node_json(physical: dict | Physical) -> dict:
-    """A complete node.json document: schema, physical, node, crc."""
-    nd = build_node_section(physical)
+def make_node_json(physical: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID,
+                   key: bytes = EXAMPLE_KEY) -> dict:
+    """A complete node.json document: schema, physical, node (with `node_id` and `key`), crc
+    (the node's check of `node`) and sha256 (the host's check of everything: `seal`). The
+    example identity is the default: `ropemon config` gives the site's."""
+    nd = build_node_section(physical, node_id=node_id, key=key)
     if isinstance(physical, Physical):
         physical = physical.to_dict()
     cfg_mod = node_module("config")
     crc16 = node_module("crc16").crc16
-    return {"schema": SCHEMA, "physical": physical, "node": nd,
-            "crc": crc16(cfg_mod.canonical(nd))}
+    return seal({"schema": SCHEMA, "physical": physical, "node": nd,
+                 "crc": crc16(cfg_mod.canonical(nd))})
+
+
+def seal(doc: dict) -> dict:
+    """`doc` with its `sha256` (re)computed over the rest (`physical.document_digest`): what
+    `load_node_json` checks before it uses anything in the file."""
+    doc[DIGEST] = document_digest(doc)
+    return doc
+
+
+def write_node_json(path: Path | str, doc: dict) -> Path:
+    """Write node.json `doc` to `path`, readable by its owner only (it holds the node's key):
+    a new file created with mode 0600 (os.open, O_CREAT | O_EXCL) beside `path`, then renamed
+    over it, so neither an earlier file's mode nor a half-written file is left behind."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    data = (json.dumps(doc, indent=1) + "\n").encode()
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o600)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return path
 
 
 def node_part(doc: dict) -> dict:
@@ -610,8 +657,6 @@ def example_physical() -> dict:
     chan_p = {"counts_4mA": 9600, "counts_20mA": 48000, "range_Pa": [0.0, 25e6]}
     chan_x = {"counts_lo": 9600, "counts_hi": 48000, "range_m": [-0.05, 0.05]}
     return {
-        "node_id": 1,
-        "key_hex": "6f1d3c0a9b2e47c58a61f0d2e3b4c5a6",
         "ropes": 4,
         "sample_hz": 200,
         "frame_hz": 10,

@@ -192,6 +192,11 @@ class Site:
     noise_follow_s: float | None = None
 
     @property
+    def key(self) -> bytes:
+        """The node's HMAC key ([node] key_hex or key_file): it goes into node.json's node section."""
+        return bytes.fromhex(self.key_hex)
+
+    @property
     def rated_pressure_MPa(self) -> float:
         """Cavity pressure at the rated rope tension (the most loaded cylinder)."""
         return max(self.hoist.rated_rope_tension_N / c.area_m2 for c in self.cylinders) / 1e6
@@ -691,7 +696,8 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
     fit-compliance`; when None it is read from the site's [compliance] file, and
     without either the node runs without a hydraulic compliance (the two keys are
     left out). The loss table dp_Pa[rope][temp][flow] is computed by ropemon.commission.losses
-    at the oil's table temperatures.
+    at the oil's table temperatures. The node's id and key are not part of it: they go into
+    the node section only (`ropemon config`, `site.node_id`, `site.key`).
     """
     from ropemon.commission import losses  # scipy/fluids only when a config is really built
 
@@ -716,8 +722,6 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
     s = site.sensors
     table = losses.loss_table(site)
     physical = {
-        "node_id": site.node_id,
-        "key_hex": site.key_hex,
         "ropes": site.hoist.ropes,
         "sample_hz": site.rates.sample_hz,
         "frame_hz": site.rates.frame_hz,

@@ -26,6 +26,7 @@ from ropemon.lab import estimators as E
 from ropemon.lab import metrics as M
 from ropemon.lab import population
 from ropemon.lab.rundir import NODE_EVALUATED, RunDir, decode_frames
+from ropemon.station.protocol import load_node_keys
 from ropemon.station.physical import Physical
 
 REPO = Path(__file__).resolve().parents[3]
@@ -736,7 +737,7 @@ def firmware_frames(physical: dict, rsens: Path, work: Path, node_json: Path | N
     _run_step("firmware (ropemon replay)", [sys.executable, "-m", "ropemon.cli", "replay", str(rsens),
                                             "--out", str(frames_bin), "--config", str(node_json)],
               timeout_s=3600)
-    frames, counts = decode_frames(frames_bin, physical)
+    frames, counts = decode_frames(frames_bin, load_node_keys(node_json))
     bad = {k: v for k, v in counts.as_dict().items() if k != "frames_ok" and v}
     if bad:
         raise EvaluationError(f"firmware frames did not decode cleanly: {bad}")
@@ -869,9 +870,9 @@ def build_case(name: str, work: Path, seed: int = 1, firmware: bool = True, bed:
     case.estimates = {n: case.estimates[n] for n in E.ESTIMATORS}
     refused = any(pr.startswith(REFUSED) for pr in problems)
     if not refused:  # the commissioned config, for the firmware and the studies (`ropemon study`)
-        from ropemon.commission.nodejson import make_node_json
+        from ropemon.commission.nodejson import make_node_json, write_node_json
 
-        (work / NODE_EVALUATED).write_text(json.dumps(make_node_json(physical), indent=1))
+        write_node_json(work / NODE_EVALUATED, make_node_json(physical, **run.identity))
     if firmware and not refused:
         case.frames = firmware_frames(physical, run.sensors_path, work)
         case.firmware_n = frame_means_n(case.frames)

@@ -30,7 +30,6 @@ Scoring of one wind (`run_wind`), from the node's frames as the host decodes the
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import re
 from dataclasses import dataclass
@@ -385,12 +384,12 @@ def baseline_case(case, wind_dir):
     from ropemon.lab import estimators as E
     from ropemon.lab import evaluate as EV
     from ropemon.commission import reference
-    from ropemon.commission.nodejson import make_node_json
+    from ropemon.commission.nodejson import make_node_json, write_node_json
 
     ph = baseline_physical(case.physical)
     node_json = wind_dir / BASELINE_NODE
-    node_json.write_text(json.dumps(make_node_json(ph), indent=1))
     run = RunDir(wind_dir)
+    write_node_json(node_json, make_node_json(ph, **run.identity))
     frames = EV.firmware_frames(ph, run.sensors_path, wind_dir, node_json, BASELINE_FRAMES)
     ref = reference.compensate(ph, run.records[: len(case.truth_n)]).tension_n
     return dataclasses.replace(case, frames=frames, firmware_n=EV.frame_means_n(frames),
@@ -556,8 +555,8 @@ def rescore_wind(run_dir, overrides: dict | None = None) -> dict:
     run = RunDir(run_dir)
     physical = run.physical
     physical.update(overrides or {})
-    frames = run.frames(physical=physical)   # a decoder per file: the two runs share their sequence numbers
-    frames_b = run.frames(BASELINE_FRAMES, physical) if (run.path / BASELINE_FRAMES).exists() else frames
+    frames = run.frames()   # a decoder per file: the two runs share their sequence numbers
+    frames_b = run.frames(BASELINE_FRAMES) if (run.path / BASELINE_FRAMES).exists() else frames
     truth = run.truth
     hz = int(physical["sample_hz"])
     w = hz // int(physical["frame_hz"])

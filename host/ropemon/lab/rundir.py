@@ -87,12 +87,12 @@ class Scoring:
     sample_hz: int
 
 
-def decode_frames(path: Path, physical: dict):
+def decode_frames(path: Path, keys: dict[int, bytes]):
     """(data frames in sequence order, the decoder's counts) of a radio byte file, decoded
-    with the node id and key of `physical`."""
+    with `keys` (node id -> key: a node.json's node section, `identity`)."""
     from ropemon.station.decoder import StreamDecoder
 
-    dec = StreamDecoder({int(physical["node_id"]): bytes.fromhex(physical["key_hex"])})
+    dec = StreamDecoder(dict(keys))
     frames = [f for f in dec.feed(files.read_bytes(path, "radio bytes", files.MAX_FRAMES_BIN, RunDirError)) if f.ropes]
     frames.sort(key=lambda f: f.seq)
     return frames, dec.counts
@@ -168,9 +168,22 @@ class RunDir:
         """The config's `physical` section, a copy the caller may change."""
         return copy.deepcopy(self.config["physical"])
 
-    def frames(self, name: str = FRAMES, physical: dict | None = None) -> list:
+    @property
+    def identity(self) -> dict:
+        """The node's id and key as `make_node_json` takes them (`node_id=`, `key=`): those of
+        the simulator's node.json (the scenario site's), which the lab's configs of this run keep."""
+        nd = json.loads((self.sim / "node.json").read_text())["node"]
+        return {"node_id": int(nd["node_id"]), "key": bytes(nd["key"])}
+
+    @property
+    def keys(self) -> dict[int, bytes]:
+        """node id -> key of the commissioned config (its node section: the copy the node reads)."""
+        nd = self.config["node"]
+        return {int(nd["node_id"]): bytes(nd["key"])}
+
+    def frames(self, name: str = FRAMES) -> list:
         """The data frames of RUN/name, in sequence order, decoded with the config's key."""
-        return decode_frames(self.path / name, physical or self.config["physical"])[0]
+        return decode_frames(self.path / name, self.keys)[0]
 
     def scoring(self, physical: dict | None = None) -> Scoring:
         """The scoring masks of the run's first `length` samples, with the rated tension and

@@ -7,7 +7,9 @@ belongs, a float where an integer does), NaN or infinity, a value outside its ph
 range, a per-rope list whose length is not `ropes`, a friction line that leaves the
 seal's physics (Fs >= Fc > 0, vs > 0, sigma2 >= 0) below the pressure it is held at.
 `to_dict()` gives the section back (`from_dict(p.to_dict()) == p`). `load_node_json`
-reads a node.json with a size limit.
+reads a node.json with a size limit and refuses one changed since `ropemon config` wrote it
+(`check_digest`: its `sha256` covers `physical` as the node's CRC covers `node`). The node's
+id and key are not here: they are `node.node_id` and `node.key` (`node_identity`).
 
 Everything that writes or reads `physical` goes through here: `ropemon config`
 (`commission.site.physical_from_site` builds one), the node section's builder
@@ -19,6 +21,8 @@ it builds the integer `node` section.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import hmac
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +31,7 @@ from typing import Any
 from ropemon.commission import tomlfields
 from ropemon.station import files
 from ropemon.station.alarms import AlarmSettings
-from ropemon.station.protocol import DAN_TO_N, L
+from ropemon.station.protocol import DAN_TO_N, KEY_LEN_MAX, KEY_LEN_MIN, L
 from ropemon.station.uncertainty import DEFAULTS as BAND_DEFAULTS
 from ropemon.station.uncertainty import BandParams, Line
 
@@ -136,7 +140,11 @@ TRACKER_SETTINGS = ("bounce_hz", "bounce_filter_damping", "creep_q_Pa2_s3", "bou
 BAND_KEYS = tuple(BAND_DEFAULTS)
 # keys that are refused with their reason (no longer used)
 RETIRED = {"pressure_cutoff_hz": "no longer used: the pressure tracker (bounce_hz, docs/config.md) "
-                                 "replaced the pressure low-pass"}
+                                 "replaced the pressure low-pass",
+           "node_id": "not here: the node's id is `node.node_id` only, the copy the node reads "
+                      "(rebuild the file with `ropemon config`)",
+           "key_hex": "not here: the node's key is `node.key` only, the copy the node reads "
+                      "(rebuild the file with `ropemon config`)"}
 
 
 # ---------------------------------------------------------------- the parts
@@ -241,8 +249,6 @@ class Physical:
     """node.json's `physical` section (docs/config.md), checked. Optional keys are None when
     the section leaves them out (`setting` gives the value the node uses)."""
 
-    node_id: int
-    key_hex: str
     ropes: int
     sample_hz: int
     frame_hz: int
@@ -479,15 +485,6 @@ def _parse(d: Any, where: str) -> Physical:
         if key in t.data:
             raise PhysicalError(f"{t.field(key)}: {why}")
     kw: dict[str, Any] = {}
-    kw["node_id"] = t.integer("node_id", lo=0, hi=255)
-    key_hex = t.string("key_hex")
-    try:
-        key_len = len(bytes.fromhex(key_hex))
-    except ValueError:
-        raise PhysicalError(f"{t.field('key_hex')}: must be hexadecimal") from None
-    if not 16 <= key_len <= 32:
-        raise PhysicalError(f"{t.field('key_hex')}: key must be 16..32 bytes, got {key_len}")
-    kw["key_hex"] = key_hex
     n = kw["ropes"] = t.integer("ropes", lo=1, hi=L.MAX_ROPES)
     fs = kw["sample_hz"] = t.integer("sample_hz", lo=1, hi=1000)
     frame_hz = kw["frame_hz"] = t.integer("frame_hz", lo=1, hi=fs)
@@ -595,12 +592,61 @@ def _parse(d: Any, where: str) -> Physical:
 # ---------------------------------------------------------------- node.json
 
 
+DIGEST = "sha256"   # node.json's digest of everything else in it (docs/config.md)
+
+
+def document_digest(doc: dict) -> str:
+    """SHA-256 (hex) of the canonical JSON of node.json's `doc` without its own `sha256`: keys
+    sorted, no spaces, ASCII, floats as Python writes them (NaN as `NaN`: what the values mean
+    is `Physical`'s to check). `ropemon config` writes it; every host reader checks it
+    (`check_digest`)."""
+    rest = {k: v for k, v in doc.items() if k != DIGEST}
+    text = json.dumps(rest, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def check_digest(doc: Any, path: Path | str) -> None:
+    """Refuse (PhysicalError naming `path`) a node.json whose `sha256` is missing or does not
+    match its contents: `physical` (which the node never sees) and `node` were changed after
+    `ropemon config` wrote them, by hand or by corruption, and are not to be trusted."""
+    if not isinstance(doc, dict):
+        raise PhysicalError(f"{path}: not a node config (not a JSON object)")
+    given = doc.get(DIGEST)
+    if not isinstance(given, str):
+        raise PhysicalError(f"{path}: no `{DIGEST}`: not a node.json written by `ropemon config` (or one written "
+                            "before node.json carried its digest): rebuild it with `ropemon config`")
+    try:
+        ok = hmac.compare_digest(document_digest(doc), given)
+    except (TypeError, ValueError, RecursionError):
+        ok = False
+    if not ok:
+        raise PhysicalError(f"{path}: changed after `ropemon config` wrote it (its `{DIGEST}` does not match "
+                            "its contents: hand-edited or corrupted): not used; rebuild it with `ropemon config` "
+                            "rather than editing it")
+
+
+def node_identity(doc: Any, path: Path | str) -> tuple[int, bytes]:
+    """(node id, key) of a node.json: its `node` section's `node_id` and `key`, the one copy,
+    which the node reads too. Call `check_digest` first. PhysicalError names the fault."""
+    nd = doc.get("node") if isinstance(doc, dict) else None
+    if not isinstance(nd, dict):
+        raise PhysicalError(f"{path}: not a node config (no `node` section)")
+    node_id, key = nd.get("node_id"), nd.get("key")
+    if type(node_id) is not int or not 0 <= node_id <= 255:
+        raise PhysicalError(f"{path}: node.node_id: must be an integer 0..255, got {node_id!r}")
+    if (not isinstance(key, list) or not KEY_LEN_MIN <= len(key) <= KEY_LEN_MAX
+            or any(type(b) is not int or not 0 <= b <= 255 for b in key)):
+        raise PhysicalError(f"{path}: node.key: must be {KEY_LEN_MIN}..{KEY_LEN_MAX} bytes (integers 0..255)")
+    return node_id, bytes(key)
+
+
 def load_node_json(path: Path | str, max_bytes: int = MAX_NODE_JSON_BYTES) -> tuple[Physical, dict]:
     """(the checked `physical` section, the whole document) of the node.json at `path`.
 
     PhysicalError names the file and the fault: unreadable, larger than `max_bytes` (a
     node.json is a few tens of kB; /dev/zero is not read forever), not JSON, nested too
-    deeply, not a node config, or a `physical` section `Physical.from_dict` refuses."""
+    deeply, not a node config, changed since `ropemon config` wrote it (`check_digest`, before
+    anything in it is used), or a `physical` section `Physical.from_dict` refuses."""
     path = Path(path)
     try:  # a FIFO or a directory is refused unopened (ropemon.station.files); /dev/zero is read bounded
         with files.open_file(path, "", None, PhysicalError, devices=True) as f:
@@ -617,6 +663,7 @@ def load_node_json(path: Path | str, max_bytes: int = MAX_NODE_JSON_BYTES) -> tu
         raise PhysicalError(f"{path}: not valid JSON: {e}") from None
     if not isinstance(doc, dict) or "physical" not in doc:
         raise PhysicalError(f"{path}: not a node config (no `physical` section)")
+    check_digest(doc, path)
     return Physical.from_dict(doc["physical"], f"{path}: physical"), doc
 
 

@@ -180,7 +180,7 @@ _ROPE_SLICES = tuple(tuple(slice(i, i + _NR) for i in range(_NH, _NH + _NR * n, 
                      for n in range(L.MAX_ROPES + 1))
 
 
-KEY_LEN_MIN, KEY_LEN_MAX = 16, 32  # docs/config.md: physical.key_hex
+KEY_LEN_MIN, KEY_LEN_MAX = 16, 32  # docs/config.md: node.key
 
 
 def parse_key(text: str) -> tuple[int, bytes]:
@@ -205,17 +205,15 @@ def parse_key(text: str) -> tuple[int, bytes]:
 
 
 def load_node_keys(path) -> dict[int, bytes]:
-    """node id -> key from a node.json (physical.node_id, physical.key_hex). ValueError names the fault."""
+    """node id -> key from a node.json: its node section's `node_id` and `key`, the copy the
+    node reads, after the file's SHA-256 is checked (`physical.check_digest`: a file changed
+    since `ropemon config` wrote it is refused). ValueError names the fault."""
     from ropemon.station import files  # bounded: a FIFO, /dev/zero or a deep nest is refused, named
+    from ropemon.station.physical import check_digest, node_identity
 
     doc = files.read_json(path, "node.json", files.MAX_NODE_JSON, ValueError, allow_nan=True)
-    try:
-        phys = doc["physical"]
-        return dict([parse_key(f"{int(phys['node_id'])}:{phys['key_hex']}")])
-    except (KeyError, TypeError, OverflowError) as e:
-        raise ValueError(f"{path}: not a node.json with physical.node_id and physical.key_hex ({e})") from None
-    except ValueError as e:  # NaN for the node id, or a key parse_key refuses
-        raise ValueError(f"{path}: physical: {e}") from None
+    check_digest(doc, path)
+    return dict([node_identity(doc, path)])
 
 
 def keys_from_options(keys: list[str], configs: list[str], accept_rewound: list[int] | None = None

@@ -106,11 +106,11 @@ def write_outputs(res: Result, out_dir: Path | str, summary: dict[str, Any]) -> 
         "scenario_doc": sc.doc, "summary": summary,
     }
     if sc.site is not None and sc.sensors is not None:
-        from ropemon.commission.nodejson import make_node_json
+        from ropemon.commission.nodejson import make_node_json, write_node_json
 
         physical, source = node_physical(res)
-        node = make_node_json(physical)
-        (out / "node.json").write_text(json.dumps(node, indent=1) + "\n")
+        node = make_node_json(physical, node_id=sc.site.node_id, key=sc.site.key)  # as `ropemon config` would
+        write_node_json(out / "node.json", node)
         written.append(out / "node.json")
         rng = np.random.default_rng(sc.seed)
         records = sensor_records(sc.sensors, physical, res.t, res.truth, rng)
