@@ -127,11 +127,26 @@ SITE = FIRMWARE_DIR.parent / "scenarios" / "paper-site.toml"
 
 @pytest.fixture(scope="module")
 def node_json(tmp_path_factory) -> Path:
-    """node.json of the paper's hoist, made by `ropemon config` as a user would."""
+    """node.json of the paper's hoist, made by `ropemon config` as a user would: with the
+    node's own key in a key file (the demo key of the example site is refused by deploy)."""
     from ropemon.cli import main
-    out = tmp_path_factory.mktemp("config") / "node.json"
-    assert main(["config", str(SITE), "--out", str(out)]) == 0
+    site = own_key_site(tmp_path_factory.mktemp("config"))
+    out = site.parent / "node.json"
+    assert main(["config", str(site), "--out", str(out)]) == 0
     return out
+
+
+def own_key_site(d: Path) -> Path:
+    """The paper's site copied to `d` with a random key of its own in `node-1.key` (mode 0600)."""
+    for name in ("paper-friction.json", "paper-compliance.json"):
+        shutil.copy(SITE.parent / name, d / name)
+    (d / "node-1.key").write_text(os.urandom(16).hex() + "\n")
+    (d / "node-1.key").chmod(0o600)
+    text = SITE.read_text()
+    assert text.count('key_hex = "00112233445566778899aabbccddeeff"') == 1
+    site = d / "paper-site.toml"
+    site.write_text(text.replace('key_hex = "00112233445566778899aabbccddeeff"', 'key_file = "node-1.key"'))
+    return site
 
 
 def _edited(tmp_path: Path, node_json: Path, edit) -> Path:
@@ -612,6 +627,38 @@ def test_node_side_rmtree_is_deployswaps_and_empties_a_wide_tree(tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "@@ropemon [null, null]"
     assert not tree.exists()
+
+
+# --- a key published with ropemon
+
+@pytest.mark.parametrize("config", ["shipped", "demo site"])
+def test_a_config_with_a_published_key_is_refused_unless_allowed(tmp_path, capsys, config):
+    """firmware/node.json's example key and the demo site's are in every copy of ropemon: a node
+    deployed with one can be forged by anyone. Refused, loudly, before anything is copied."""
+    from ropemon.cli import main
+    if config == "shipped":
+        cfg, which = FIRMWARE_DIR / "node.json", "the example key shipped in firmware/node.json"
+    else:
+        cfg, which = tmp_path / "node.json", "the demo key of scenarios/paper-site.toml"
+        assert main(["config", str(SITE), "--out", str(cfg)]) == 0
+        capsys.readouterr()
+    assert main(["deploy", "--port", "/dev/ropemon-no-such-port", "--config", str(cfg)]) == 1
+    err = capsys.readouterr().err
+    assert f"carries {which}: it is published with ropemon, so anyone can forge frames of node 1" in err
+    assert "REFUSED" in err and "--allow-example-key" in err and "port" not in err
+    # allowed for a bench: warned on stderr, then the deploy goes on (to the missing port here)
+    assert main(["deploy", "--port", "/dev/ropemon-no-such-port", "--config", str(cfg), "--allow-example-key"]) == 1
+    err = capsys.readouterr().err
+    assert f"WARNING: config {cfg} carries {which}" in err and "never on a hoist in service" in err
+    assert "ropemon-no-such-port" in err
+
+
+def test_the_published_keys_are_those_of_the_shipped_files():
+    from ropemon.commission.nodejson import EXAMPLE_KEY, PUBLISHED_KEYS
+    from ropemon.commission.site import load_site
+    shipped = json.loads((FIRMWARE_DIR / "node.json").read_text())
+    assert bytes(shipped["node"]["key"]) == EXAMPLE_KEY
+    assert set(PUBLISHED_KEYS) == {EXAMPLE_KEY, load_site(SITE).key}
 
 
 def test_a_config_edited_after_ropemon_config_is_refused(tmp_path, node_json):

@@ -15,6 +15,14 @@ KEY = bytes(range(16))
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def key_file(d: Path, key: bytes = KEY, name: str = "node1.key") -> Path:
+    """A key file as the monitor takes it (--key-file NODE:PATH): the key in hex, mode 0600."""
+    p = d / name
+    p.write_text(key.hex() if isinstance(key, bytes) else key)
+    p.chmod(0o600)
+    return p
+
+
 def wait_open(pid, paths, timeout_s=30.0):
     """Until process `pid` has every path open (pyserial flushes input on open)."""
     deadline = time.monotonic() + timeout_s
@@ -35,7 +43,7 @@ def test_monitor_logs_frames_once_and_the_alarm(tmp_path):
     db = tmp_path / "hoist.db"
     with VirtualPort("pit") as a, VirtualPort("mid") as b:
         p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "monitor", "--port", f"pithead={a.port}",
-                              "--port", f"mid-shaft={b.port}", "--db", str(db), "--key", "1:" + KEY.hex(),
+                              "--port", f"mid-shaft={b.port}", "--db", str(db), "--key-file", f"1:{key_file(tmp_path)}",
                               "--refresh-hz", "20"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
         try:
@@ -63,7 +71,7 @@ def test_monitor_accept_rewound_is_logged(tmp_path):
     db = tmp_path / "hoist.db"
     with VirtualPort("pit") as a:
         p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "monitor", "--port", f"pithead={a.port}",
-                              "--db", str(db), "--key", "1:" + KEY.hex(), "--accept-rewound", "1"],
+                              "--db", str(db), "--key-file", f"1:{key_file(tmp_path)}", "--accept-rewound", "1"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
                              env={**os.environ, "LOGNAME": "ropemon-test-operator", "USER": "ropemon-test-operator"})
         try:
@@ -82,7 +90,7 @@ def test_monitor_accept_rewound_is_logged(tmp_path):
 
 
 def test_monitor_refuses_conflicting_keys_and_configs_of_different_hoists(tmp_path, capsys):
-    """--key and --config are merged as in `ropemon decode`; contradictions are refused, not guessed."""
+    """--key-file and --config are merged as in `ropemon decode`; contradictions are refused, not guessed."""
     import json
 
     from ropemon.cli import main
@@ -97,11 +105,12 @@ def test_monitor_refuses_conflicting_keys_and_configs_of_different_hoists(tmp_pa
 
     a = node_json("a.json", 1, KEY, 0.0314)
     b = node_json("b.json", 2, bytes(range(1, 17)), 0.05)
-    assert main(["monitor", "--port", "loop://", "--config", a, "--key", "1:" + "00" * 16]) == 2
-    assert "node 1: --key 1:00" in capsys.readouterr().err
+    zeros = key_file(tmp_path, bytes(16), "zeros.key")
+    assert main(["monitor", "--port", "loop://", "--config", a, "--key-file", f"1:{zeros}"]) == 2
+    assert f"node 1: --key-file 1:{zeros}" in capsys.readouterr().err
     assert main(["monitor", "--port", "loop://", "--config", a, "--config", b]) == 2
     assert "describe different hoists" in capsys.readouterr().err
-    assert main(["monitor", "--port", "loop://", "--key", "1:zz"]) == 2
+    assert main(["monitor", "--port", "loop://", "--key-file", f"1:{key_file(tmp_path, 'zz', 'zz.key')}"]) == 2
     assert "not hex" in capsys.readouterr().err
 
 
@@ -110,7 +119,7 @@ def test_headless_monitor_on_a_wrong_port_alarms_as_json_lines_and_stops_on_sigt
     configured seconds it prints RECEIVER DOWN (with the device) and SILENT for node 1 as JSON lines."""
     import json
     p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "monitor", "--port", "/dev/ttyUSB-ropemon-none",
-                          "--key", "1:" + KEY.hex(), "--headless", "--silent-s", "1", "--db", str(tmp_path / "h.db")],
+                          "--key-file", f"1:{key_file(tmp_path)}", "--headless", "--silent-s", "1", "--db", str(tmp_path / "h.db")],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     lines = []
     try:

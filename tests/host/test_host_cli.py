@@ -17,6 +17,17 @@ def ropemon(*args, stdin: bytes | None = None) -> subprocess.CompletedProcess:
                           capture_output=True, timeout=60)
 
 
+def key_files(tmp_path: Path, keys: dict[int, bytes]) -> list[str]:
+    """--key-file NODE:PATH options for `keys`, each file holding the key in hex, mode 0600."""
+    out = []
+    for node, key in keys.items():
+        p = tmp_path / f"node{node}.key"
+        p.write_text(key.hex() if isinstance(key, bytes) else key)
+        p.chmod(0o600)
+        out.append(f"--key-file={node}:{p}")
+    return out
+
+
 def node_json(path: Path, node: int, key: bytes) -> Path:
     """A node.json holding only what the key readers need: the node section's id and key, sealed."""
     from ropemon.commission.nodejson import seal
@@ -47,16 +58,16 @@ def test_decode_file_gives_json_lines_and_counts(tmp_path):
     assert "frames_ok=40" in err and "malformed=2" in err and "NOT checked" in err
 
 
-def test_decode_stdin_with_keys():
+def test_decode_stdin_with_keys(tmp_path):
     data, want = capture(keyed=True)
-    keys = [f"--key={n}:{k.hex()}" for n, k in KEYS.items()]
+    keys = key_files(tmp_path, KEYS)
     r = ropemon("decode", "-", *keys, stdin=data)
     assert r.returncode == 0, r.stderr
     rows = [json.loads(x) for x in r.stdout.decode().splitlines()]
     assert len(rows) == 40 and all(row["authenticated"] is True for row in rows)
     assert "MAC checked" in r.stderr.decode()
     # wrong key: every frame refused, counted, and exit 1 saying the key is probably wrong
-    r = ropemon("decode", "-", f"--key=1={'00' * 16}", f"--key=2={'00' * 16}", stdin=data)
+    r = ropemon("decode", "-", *key_files(tmp_path, {1: bytes(16), 2: bytes(16)}), stdin=data)
     assert r.returncode == 1 and r.stdout == b"" and "mac_fail=40" in r.stderr.decode()
     assert b"all 40 frame(s) failed authentication" in r.stderr and b"key is probably wrong" in r.stderr
 
@@ -66,7 +77,7 @@ def test_decode_unreadable_input_fails_clearly(tmp_path):
     assert r.returncode == 2 and b"cannot read" in r.stderr and b"missing.bin" in r.stderr
     r = ropemon("decode", str(tmp_path))
     assert r.returncode == 2 and b"cannot read" in r.stderr
-    r = ropemon("decode", "-", "--key=1=zz")
+    r = ropemon("decode", "-", *key_files(tmp_path, {1: "zz"}))
     assert r.returncode == 2 and b"not hex" in r.stderr
 
 
@@ -109,7 +120,7 @@ def test_decode_accept_rewound(tmp_path):
         return encode_frame(node=1, seq=(boot << SEQ_COUNT_BITS) | k, ropes=[(1, 1, 1, 1)], key=KEYS[1])[1]
 
     data = b"".join([w(7, 0), w(7, 1), w(0, 0), w(0, 1)])  # node 1's flash was wiped after boot 7
-    keys = [f"--key=1:{KEYS[1].hex()}"]
+    keys = key_files(tmp_path, {1: KEYS[1]})
     r = ropemon("decode", "-", *keys, stdin=data)
     assert r.returncode == 0 and len(r.stdout.splitlines()) == 2
     err = r.stderr.decode()

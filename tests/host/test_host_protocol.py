@@ -215,18 +215,26 @@ def test_keys_from_options_merges_key_and_config_options(tmp_path):
     from ropemon.commission.nodejson import seal
     from ropemon.station.protocol import keys_from_options
 
+    def key_file(name: str, text: str) -> str:
+        p = tmp_path / name
+        p.write_text(text)
+        p.chmod(0o600)
+        return str(p)
+
+    k1, k2, k21, zz = (key_file(n, t) for n, t in (("k1", KEYS[1].hex()), ("k2", KEYS[2].hex()),
+                                                   ("k21", KEYS[1].hex()), ("zz", "zz")))
     cfg = tmp_path / "node2.json"
     cfg.write_text(json.dumps(seal({"node": {"node_id": 2, "key": list(KEYS[2])}})))
-    assert keys_from_options([], []) == {}
-    got = keys_from_options([f"1:{KEYS[1].hex()}"], [str(cfg)])
+    assert keys_from_options([], [], env={}) == {}
+    got = keys_from_options([f"1:{k1}"], [str(cfg)], env={})
     assert got == {1: KEYS[1], 2: KEYS[2]}
-    assert keys_from_options([f"2:{KEYS[2].hex()}"], [str(cfg)]) == {2: KEYS[2]}  # same key twice: fine
-    with pytest.raises(ValueError, match="node 2: --key 2:.* and --config .*node2.json give different keys"):
-        keys_from_options([f"2:{KEYS[1].hex()}"], [str(cfg)])
+    assert keys_from_options([f"2:{k2}"], [str(cfg)], env={}) == {2: KEYS[2]}  # same key twice: fine
+    with pytest.raises(ValueError, match="node 2: --key-file 2:.* and --config .*node2.json give different keys"):
+        keys_from_options([f"2:{k21}"], [str(cfg)], env={})
     with pytest.raises(ValueError, match="not hex"):
-        keys_from_options(["1:zz"], [])
+        keys_from_options([f"1:{zz}"], [], env={})
     with pytest.raises(ValueError, match="cannot read"):
-        keys_from_options([], [str(tmp_path / "none.json")])
+        keys_from_options([], [str(tmp_path / "none.json")], env={})
     with pytest.raises(ValueError, match="--accept-rewound needs node keys"):
-        keys_from_options([], [], accept_rewound=[1])
-    assert keys_from_options([f"1:{KEYS[1].hex()}"], [], accept_rewound=[1]) == {1: KEYS[1]}
+        keys_from_options([], [], accept_rewound=[1], env={})
+    assert keys_from_options([f"1:{k1}"], [], accept_rewound=[1], env={}) == {1: KEYS[1]}

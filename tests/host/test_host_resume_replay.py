@@ -248,9 +248,12 @@ def wait_open(pid: int, paths: list[str], timeout_s: float = 30.0) -> None:
 
 def run_monitor(db: Path, frames: list[bytes]) -> str:
     """`ropemon monitor --db` on a pty receiver, fed `frames`, ended with Ctrl-C; its stderr."""
+    key = db.parent / "node1.key"
+    key.write_text(KEYS[1].hex())
+    key.chmod(0o600)
     with VirtualPort("pit") as a:
         p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "monitor", "--port", f"pithead={a.port}",
-                              "--db", str(db), "--key", "1:" + KEYS[1].hex(), "--refresh-hz", "20"],
+                              "--db", str(db), "--key-file", f"1:{key}", "--refresh-hz", "20"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
         try:
             wait_open(p.pid, [a.port])

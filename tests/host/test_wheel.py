@@ -101,8 +101,8 @@ def test_installed_command_runs_outside_the_repo(installed):
     cap = installed["cwd"] / "capture.bin"
     cap.write_bytes(bytes.fromhex(vec["wire_hex"]))
     node = vec["fields"]["node"]
-    r = _run([ropemon, "decode", cap.name, "--key", f"{node}:{vec['key_hex']}"],
-             cwd=installed["cwd"], env=installed["env"])
+    r = _run([ropemon, "decode", cap.name], cwd=installed["cwd"],
+             env={**installed["env"], f"ROPEMON_KEY_{node}": vec["key_hex"]})
     assert r.returncode == 0, r.stderr
     (frame,) = [json.loads(line) for line in r.stdout.splitlines()]
     assert frame["authenticated"] is True

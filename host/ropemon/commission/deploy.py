@@ -4,7 +4,8 @@ The pinned `mpremote` CLI is the interface to the node (run as a subprocess,
 four runs per deploy); the steps:
 
 1. check node.json with the firmware's own validator (`ropenode.config.parse`) and its
-   SHA-256 (`physical.check_digest`);
+   SHA-256 (`physical.check_digest`); a config carrying a key published with ropemon
+   (`nodejson.PUBLISHED_KEYS`) is refused without --allow-example-key;
 2. probe: MicroPython version, .mpy version and native arch (sys.implementation._mpy),
    free flash, and the journal of an unfinished earlier swap;
 3. build on the host: the firmware packages cross-compiled with mpy-cross for that
@@ -44,7 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ropemon.firmware import FIRMWARE_DIR, install_shim, node_module
-from ropemon.commission.nodejson import node_part
+from ropemon.commission.nodejson import PUBLISHED_KEYS, node_part
 from ropemon.station.physical import check_digest
 
 install_shim()
@@ -328,6 +329,30 @@ def check_config(path: Path) -> dict:
     return doc
 
 
+def published_key(doc: dict) -> str | None:
+    """What the key of node.json `doc` is when it is one published with ropemon (the example
+    in firmware/node.json, the demo site's), else None: anyone can forge such a node's frames."""
+    try:
+        return PUBLISHED_KEYS.get(bytes(doc["node"]["key"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def check_example_key(doc: dict, path: Path, allow: bool) -> str | None:
+    """Refuse (DeployError) a config carrying a published key unless `allow`; with `allow`,
+    the loud warning to print. None for a config with its own key."""
+    which = published_key(doc)
+    if which is None:
+        return None
+    what = (f"config {path} carries {which}: it is published with ropemon, so anyone can forge "
+            f"frames of node {doc['node'].get('node_id')} and the station cannot tell them from the node's")
+    if not allow:
+        raise DeployError(f"{what}. REFUSED: give the node its own random key (SITE.toml [node] key_file, "
+                          "docs/commissioning.md) and rerun `ropemon config`; for a bench or a demo node "
+                          "only, deploy it with --allow-example-key")
+    return f"WARNING: {what}. Deployed anyway (--allow-example-key): never on a hoist in service."
+
+
 # --- the deploy
 
 def probe(mp: Mpremote) -> NodeInfo:
@@ -362,10 +387,13 @@ UNCHANGED = "; the live firmware on the node is unchanged"
 
 def deploy(port: str, firmware_dir: Path = FIRMWARE_DIR, config: Path | None = None,
            arch: str | None = None, as_py: bool = False, resume: bool = False,
-           timeout_s: float = 20.0, log: Callable[[str], None] = print) -> dict:
-    """Deploy; return what the node holds afterwards. Raises DeployError."""
+           timeout_s: float = 20.0, log: Callable[[str], None] = print, allow_example_key: bool = False) -> dict:
+    """Deploy; return what the node holds afterwards. Raises DeployError; a config with a key
+    published with ropemon is refused unless `allow_example_key` (then warned on stderr)."""
     if config is not None:
-        check_config(config)
+        warning = check_example_key(check_config(config), config, allow_example_key)
+        if warning:
+            print(f"ropemon deploy: {warning}", file=sys.stderr)
     mp = Mpremote(port, resume, timeout_s)
     info = probe(mp)
     log(f"node on {port}: MicroPython {info.version} ({info.platform}), "
@@ -440,11 +468,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="do not soft-reset the node before each mpremote step (mpremote's `resume`)")
     p.add_argument("--firmware", type=Path, default=FIRMWARE_DIR, help="firmware tree to deploy (default: this repo's firmware/, or the one an installed wheel ships)")
     p.add_argument("--timeout", type=float, default=20.0, help="seconds to wait for each mpremote step")
+    p.add_argument("--allow-example-key", action="store_true",
+                   help="deploy a config carrying a key published with ropemon (firmware/node.json's example, "
+                        "the demo site's) to a bench or demo node; refused without it")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        r = deploy(args.port, args.firmware, args.config, args.arch, args.py, args.resume, args.timeout)
+        r = deploy(args.port, args.firmware, args.config, args.arch, args.py, args.resume, args.timeout,
+                   allow_example_key=args.allow_example_key)
     except DeployError as e:
         print(f"ropemon deploy: {e}", file=sys.stderr)
         return 1

@@ -11,7 +11,8 @@ node section only: the one copy, which the node and the host both read), schema,
 the document's SHA-256 (`physical.document_digest`), and `write_node_json` writes it with
 mode 0600, as it holds the key. `example_physical()` is the documented default for the
 paper's field hoist, shipped as firmware/node.json with the example identity
-(EXAMPLE_NODE_ID, EXAMPLE_KEY) (regenerate: `python -m ropemon.commission.nodejson > firmware/node.json`).
+(EXAMPLE_NODE_ID, EXAMPLE_KEY, which `ropemon deploy` refuses without --allow-example-key)
+(regenerate: `python -m ropemon.commission.nodejson > firmware/node.json`).
 """
 from __future__ import annotations
 
@@ -31,9 +32,14 @@ from ropemon.station.protocol import KEY_LEN_MAX, KEY_LEN_MIN
 I30 = 1 << 30
 SCHEMA = 1
 # The identity of the shipped example (firmware/node.json), the default of the lab's and the
-# tests' configs; `ropemon config` gives the site's.
+# tests' configs. Published with ropemon, as is the demo key of scenarios/paper-site.toml:
+# `ropemon deploy` refuses both (PUBLISHED_KEYS) unless told --allow-example-key.
 EXAMPLE_NODE_ID = 1
 EXAMPLE_KEY = bytes.fromhex("6f1d3c0a9b2e47c58a61f0d2e3b4c5a6")
+PUBLISHED_KEYS = {
+    EXAMPLE_KEY: "the example key shipped in firmware/node.json",
+    bytes.fromhex("00112233445566778899aabbccddeeff"): "the demo key of scenarios/paper-site.toml",
+}
 GEXP_STEP = 1 / 32          # u step of the exp(-u^2) table
 GEXP_POINTS = 129
 

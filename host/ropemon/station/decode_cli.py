@@ -5,8 +5,10 @@ payload field); the decoder counts on stderr. Exit 0 when frames were decoded; 1
 the input was read but no frame was decoded (every frame failed its MAC: the key is
 probably wrong; or no frame at all), the reason on stderr; 2 when the input cannot be
 read (not a regular file, larger than files.MAX_CAPTURE) or a key or node.json is invalid.
-Keys: --key NODE:HEX and --config node.json, both repeatable and merged
-(protocol.keys_from_options, as `ropemon monitor`); without keys authenticity is not checked.
+Keys: --key-file NODE:PATH and --config node.json, both repeatable, and ROPEMON_KEY_<NODE>=HEX
+in the environment, merged (protocol.keys_from_options, as `ropemon monitor`); without keys
+authenticity is not checked. `--key NODE:HEX` is refused: a key on the command line can be
+read by every user of the computer.
 --accept-rewound NODE: the operator accepts a node whose boot counter went back
 (docs/protocol.md, "Sequence numbers and replay protection").
 """
@@ -19,20 +21,36 @@ import sys
 
 from ropemon.station import files
 from ropemon.station.decoder import StreamDecoder
-from ropemon.station.protocol import keys_from_options
+from ropemon.station.protocol import KEY_ENV_PREFIX, KEY_ON_COMMAND_LINE, keys_from_options
 
 CHUNK = 1 << 16
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="FILE|-", help="capture file of receiver bytes, or - for stdin")
-    p.add_argument("--key", action="append", default=[], metavar="NODE:HEX",
-                   help="HMAC key of a node (repeat per node); without keys authenticity is not checked")
+    add_key_arguments(p)
     p.add_argument("--config", action="append", default=[], metavar="NODE.JSON",
                    help="take the node id and key from a node.json (repeatable)")
     p.add_argument("--accept-rewound", action="append", type=node_id, default=[], metavar="NODE",
                    help="operator decision: NODE's boot counter really went back (flash wiped or replaced); "
                         "take its next authenticated frame as its new baseline (repeatable)")
+
+
+class _RefuseKey(argparse.Action):
+    """`--key NODE:HEX`: refused, saying what to use instead (the key itself is not repeated)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser.error(f"argument --key: {KEY_ON_COMMAND_LINE}")
+
+
+def add_key_arguments(p: argparse.ArgumentParser) -> None:
+    """--key-file NODE:PATH (repeatable), and --key, which is refused (`ropemon decode`, `ropemon monitor`)."""
+    p.add_argument("--key-file", action="append", default=[], metavar="NODE:PATH",
+                   help="HMAC key of a node from a file holding it in hex, readable by its owner only "
+                        f"(repeat per node; or {KEY_ENV_PREFIX}<NODE>=HEX in the environment); without keys "
+                        "authenticity is not checked")
+    p.add_argument("--key", action=_RefuseKey, metavar="NODE:HEX",
+                   help="refused: a key on the command line is visible to every user; use --key-file")
 
 
 def node_id(text: str) -> int:
@@ -48,7 +66,7 @@ def node_id(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        keys = keys_from_options(args.key, args.config, args.accept_rewound)
+        keys = keys_from_options(args.key_file, args.config, args.accept_rewound)
     except ValueError as e:
         print(f"ropemon decode: {e}", file=sys.stderr)
         return 2
@@ -96,7 +114,7 @@ def verdict(c, read: int, name: str) -> int:
     held no frame); 0 otherwise, with a warning when some frames failed their MAC."""
     if c.mac_fail and not c.frames_ok:
         print(f"ropemon decode: {name}: all {c.mac_fail} frame(s) failed authentication (MAC) and none "
-              "passed: the key is probably wrong for the node (check --key / --config against the "
+              "passed: the key is probably wrong for the node (check --key-file / --config against the "
               "node.json the node runs)", file=sys.stderr)
         return 1
     if c.mac_fail:

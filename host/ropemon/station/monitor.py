@@ -32,7 +32,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ropemon.station.alarms import ActiveAlarm, AlarmEvent
-from ropemon.station.decode_cli import node_id
+from ropemon.station.decode_cli import add_key_arguments, node_id
 from ropemon.station.link import DEFAULT_BAUDRATE, Received
 from ropemon.station.physical import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Station, StationStatus,
@@ -405,9 +405,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", help="SQLite log to append frames and alarm events to")
     p.add_argument("--config", action="append", default=[], metavar="NODE.JSON",
                    help="node.json: cylinder areas, rated tension, alarm thresholds and the node key "
-                        "(repeatable, one per node of the same hoist; merged with --key)")
-    p.add_argument("--key", action="append", default=[], metavar="NODE:HEX",
-                   help="HMAC key of a node (repeatable); without keys authenticity is not checked")
+                        "(repeatable, one per node of the same hoist; merged with --key-file)")
+    add_key_arguments(p)
     p.add_argument("--accept-rewound", action="append", type=node_id, default=[], metavar="NODE",
                    help="operator decision: NODE's boot counter really went back (flash wiped or replaced); "
                         "take its next authenticated frame as its new baseline (repeatable; logged)")
@@ -553,7 +552,7 @@ def headless_loop(station: Station, ticks_hz: float, done: Callable[[], bool] = 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        keys = keys_from_options(args.key, args.config, args.accept_rewound)
+        keys = keys_from_options(args.key_file, args.config, args.accept_rewound)
         site = site_from_configs(args.config)
     except ValueError as e:
         print(f"ropemon monitor: {e}", file=sys.stderr)

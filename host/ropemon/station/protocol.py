@@ -181,27 +181,62 @@ _ROPE_SLICES = tuple(tuple(slice(i, i + _NR) for i in range(_NH, _NH + _NR * n, 
 
 
 KEY_LEN_MIN, KEY_LEN_MAX = 16, 32  # docs/config.md: node.key
+KEY_ENV_PREFIX = "ROPEMON_KEY_"    # ROPEMON_KEY_<NODE>=HEX in the environment
+#: Why `--key NODE:HEX` is refused, and what to use instead (`ropemon decode`, `ropemon monitor`).
+KEY_ON_COMMAND_LINE = ("refused: a key on the command line can be read by every user of this computer "
+                       "(ps, /proc/PID/cmdline) and stays in the shell's history; give it as --key-file "
+                       "NODE:PATH (a file holding the key in hex, readable by its owner only), as "
+                       f"{KEY_ENV_PREFIX}<NODE>=HEX in the environment, or with --config node.json")
 
 
-def parse_key(text: str) -> tuple[int, bytes]:
-    """A command-line node key, "NODE:HEX" (or "NODE=HEX") -> (node, key). ValueError names the fault."""
-    sep = ":" if ":" in text else "="
-    node_s, found, hex_s = text.partition(sep)
-    if not found:
-        raise ValueError(f"key {text!r}: expected NODE:HEX")
+def _node_number(text: str, what: str) -> int:
     try:
-        node = int(node_s, 0)
+        node = int(text, 10)
     except ValueError:
-        raise ValueError(f"key {text!r}: node {node_s!r} is not an integer") from None
+        raise ValueError(f"{what}: node {text!r} is not an integer") from None
     if not 0 <= node <= 255:
-        raise ValueError(f"key {text!r}: node {node} outside 0..255")
+        raise ValueError(f"{what}: node {node} outside 0..255")
+    return node
+
+
+def _key_bytes(text: str, what: str) -> bytes:
+    """The key in hex `text`; ValueError names `what` (never the key itself)."""
     try:
-        key = bytes.fromhex(hex_s)
+        key = bytes.fromhex(text.strip())
     except ValueError:
-        raise ValueError(f"key {text!r}: key is not hex") from None
+        raise ValueError(f"{what}: the key is not hex") from None
     if not KEY_LEN_MIN <= len(key) <= KEY_LEN_MAX:
-        raise ValueError(f"key {text!r}: key is {len(key)} bytes, expected {KEY_LEN_MIN}..{KEY_LEN_MAX}")
-    return node, key
+        raise ValueError(f"{what}: the key is {len(key)} bytes, expected {KEY_LEN_MIN}..{KEY_LEN_MAX}")
+    return key
+
+
+def read_key_file(spec: str) -> tuple[int, bytes]:
+    """`--key-file NODE:PATH` -> (node, key): PATH holds the key in hex (as SITE.toml's
+    key_file). Refused, with the reason: a file that group or others may read or write (a key
+    must be its owner's only: chmod 600), an unreadable or oversized one, a key that is not
+    16..32 bytes of hex."""
+    import os
+    import stat
+
+    from ropemon.station import files
+
+    node_s, found, path = spec.partition(":")
+    what = f"--key-file {spec}"
+    if not found or not path:
+        raise ValueError(f"{what}: expected NODE:PATH")
+    node = _node_number(node_s, what)
+    files.check_file(path, "key file", files.MAX_KEY_FILE, ValueError)
+    mode = stat.S_IMODE(os.stat(path).st_mode)
+    if os.name == "posix" and mode & 0o077:
+        raise ValueError(f"{what}: refused: {path} has mode {mode:04o}, so group or others may read (or change) "
+                         f"the key; a key file must be its owner's only: chmod 600 {path}")
+    return node, _key_bytes(files.read_text(path, "key file", files.MAX_KEY_FILE, ValueError), what)
+
+
+def keys_from_environment(env) -> list[tuple[str, tuple[int, bytes]]]:
+    """[(variable, (node, key))] of the variables ROPEMON_KEY_<NODE>=HEX in `env`, by name."""
+    return [(name, (_node_number(name[len(KEY_ENV_PREFIX):], name), _key_bytes(value, name)))
+            for name, value in sorted(env.items()) if name.startswith(KEY_ENV_PREFIX)]
 
 
 def load_node_keys(path) -> dict[int, bytes]:
@@ -216,22 +251,27 @@ def load_node_keys(path) -> dict[int, bytes]:
     return dict([node_identity(doc, path)])
 
 
-def keys_from_options(keys: list[str], configs: list[str], accept_rewound: list[int] | None = None
-                      ) -> dict[int, bytes]:
-    """node id -> key from the repeatable command-line options `--key NODE:HEX` and
-    `--config node.json`, merged. ValueError names the fault: a bad key, a file that
-    is not a node.json, one node given two different keys (which one is right
-    cannot be guessed), or `--accept-rewound` without any key (nothing is refused then)."""
+def keys_from_options(key_files: list[str], configs: list[str], accept_rewound: list[int] | None = None,
+                      env=None) -> dict[int, bytes]:
+    """node id -> key from the repeatable command-line options `--key-file NODE:PATH` and
+    `--config node.json` and the environment's ROPEMON_KEY_<NODE>=HEX (`env`, default
+    os.environ), merged. ValueError names the fault: a bad key or key file, a file that is
+    not a node.json, one node given two different keys (which one is right cannot be
+    guessed), or `--accept-rewound` without any key (nothing is refused then)."""
+    import os
+
     out: dict[int, bytes] = {}
     sources: dict[int, str] = {}
-    given = [(f"--key {k}", parse_key(k)) for k in keys]
+    given = [(f"--key-file {k}", read_key_file(k)) for k in key_files]
+    given += keys_from_environment(os.environ if env is None else env)
     given += [(f"--config {p}", kv) for p in configs for kv in load_node_keys(p).items()]
     for source, (node, key) in given:
         if node in out and out[node] != key:
             raise ValueError(f"node {node}: {sources[node]} and {source} give different keys")
         out[node], sources[node] = key, source
     if accept_rewound and not out:
-        raise ValueError("--accept-rewound needs node keys (--key or --config): without keys no frame is refused")
+        raise ValueError(f"--accept-rewound needs node keys (--key-file, {KEY_ENV_PREFIX}<NODE> or --config): "
+                         "without keys no frame is refused")
     return out
 
 
