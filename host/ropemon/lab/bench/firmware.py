@@ -2,7 +2,7 @@
 
 One `micropython` run imports the node from .mpy files (mpy-cross -march=x64),
 builds it from firmware/node.json as `ropemon deploy` puts it on a node (its
-node part: `nodeconfig.node_part`), and in the same process times
+node part: `nodejson.node_part`), and in the same process times
 `Node.sample` (N ropes, median of repeats, time.ticks_us) against a float
 implementation of the same compensation step (NAMUR check, counts to
 pressure and position, filtered velocity, pipe-loss table, LuGre implicit
@@ -444,7 +444,7 @@ print(json.dumps(out))
 
 def _with_compliance(node_json: Path, tmp: Path) -> Path:
     """node_json's physical section with the example site's hydraulic compliance, rebuilt."""
-    from ropemon.commission.nodeconfig import make_node_json
+    from ropemon.commission.nodejson import make_node_json
 
     ph = json.loads(node_json.read_text())["physical"]
     ph = dict(ph, hydraulic_compliance_m_per_Pa=[3e-10] * int(ph["ropes"]), pressure_noise_Pa=5.2e3)
@@ -475,7 +475,7 @@ def measure(quick: bool = False, firmware_dir: Path | None = None) -> dict:
         env = dict(os.environ, MICROPYPATH=str(x64))  # .mpy only: no firmware .py on the path
 
         def run(config: Path) -> dict:
-            from ropemon.commission.nodeconfig import node_part
+            from ropemon.commission.nodejson import node_part
 
             on_node = t / f"{config.stem}-on-node.json"
             on_node.write_text(json.dumps(node_part(json.loads(config.read_text())), separators=(",", ":")))
