@@ -144,18 +144,19 @@ def test_headless_monitor_on_a_wrong_port_alarms_as_json_lines_and_stops_on_sigt
     assert {"receiver_down", "silent"} <= kinds
 
 
-def test_monitor_refuses_a_node_json_edited_after_ropemon_config(tmp_path, capsys):
+def test_monitor_refuses_a_node_json_edited_after_ropemon_config(tmp_path):
     """The station trusts `physical` (areas, thresholds) only as `ropemon config` wrote it."""
     import json
 
-    from ropemon.cli import main
     from ropemon.firmware import FIRMWARE_DIR
 
     doc = json.loads((FIRMWARE_DIR / "node.json").read_text())
     doc["physical"]["imbalance_frac"] = 0.3   # a looser deviation alarm, by hand
     edited = tmp_path / "node.json"
     edited.write_text(json.dumps(doc, indent=1))
-    assert main(["monitor", "--port", "loop://", "--config", str(edited)]) == 2
-    err = capsys.readouterr().err
-    assert f"ropemon monitor: {edited}: changed after `ropemon config` wrote it" in err
-    assert "rebuild it with `ropemon config`" in err
+    # a monitor that took the file would run until stopped: the timeout fails the test then
+    r = subprocess.run([sys.executable, "-m", "ropemon.cli", "monitor", "--port", "loop://", "--headless",
+                        "--config", str(edited)], capture_output=True, text=True, cwd=ROOT, timeout=30)
+    assert r.returncode == 2, r.stderr
+    assert f"ropemon monitor: {edited}: changed after `ropemon config` wrote it" in r.stderr
+    assert "rebuild it with `ropemon config`" in r.stderr
