@@ -1,0 +1,91 @@
+"""The station file (station.toml) and a station of several hoists built from it."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from ropemon.commission.nodejson import example_physical, make_node_json
+from ropemon.station.hoists import StationSet
+from ropemon.station.protocol import encode_frame
+from ropemon.station.stationfile import StationFileError, load_station_file
+
+KEY_N, KEY_S = bytes(range(16)), bytes(range(1, 17))
+
+
+def write(tmp_path, text: str):
+    p = tmp_path / "station.toml"
+    p.write_text(text)
+    return p
+
+
+def node_json(tmp_path, name: str, node: int, key: bytes) -> str:
+    (tmp_path / name).write_text(json.dumps(make_node_json(example_physical(), node_id=node, key=key)))
+    return name
+
+
+GOOD = """
+[station]
+name = "No. 2 shaft"
+data_dir = "data"
+silent_s = 3
+
+[[hoist]]
+id = "north"
+name = "North shaft"
+configs = ["north.json"]
+receivers = { pithead = "loop://", mid-shaft = "loop://" }
+
+[[hoist]]
+id = "south"
+configs = ["south.json"]
+receivers = { pithead = "loop://" }
+
+[web]
+port = 8099
+"""
+
+
+def test_a_station_of_two_hoists_each_with_its_own_station_alarms_and_log(tmp_path):
+    node_json(tmp_path, "north.json", 1, KEY_N)
+    node_json(tmp_path, "south.json", 1, KEY_S)       # the same node id on another hoist: its own key
+    sf = load_station_file(write(tmp_path, GOOD))
+    assert [h.id for h in sf.hoists] == ["north", "south"] and sf.hoists[1].name == "south"
+    assert sf.hoists[0].receivers == (("pithead", "loop://"), ("mid-shaft", "loop://"))
+    assert sf.web is not None and sf.web.port == 8099 and sf.web.bind == "127.0.0.1"
+    clk = [100.0]
+    s = StationSet(sf, clock=lambda: clk[0])
+    try:
+        s.step()                                      # the station starts looking
+        north, south = s.hoists["north"], s.hoists["south"]
+        north.station.feed("pithead", encode_frame(node=1, seq=5, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
+        south.station.feed("pithead", encode_frame(node=1, seq=5, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
+        assert north.station.decoders["pithead"].counts.frames_ok == 1
+        assert south.station.decoders["pithead"].counts.mac_fail == 1   # north's key is not south's
+        clk[0] = 110.0
+        north.station.feed("pithead", encode_frame(node=1, seq=6, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
+        s.step()
+        assert [a.id for a in south.alarms.engine.active() if a.present] == ["link_integrity:pithead",
+                                                                               "silent:n1"]
+        assert not [a for a in north.alarms.engine.active() if a.kind in ("silent", "link_integrity")]
+    finally:
+        s.close()
+    assert sorted(p.name for p in (tmp_path / "data").glob("*.db")) == ["north.db", "south.db"]
+
+
+@pytest.mark.parametrize("edit, message", [
+    ('id = "north"', 'id = "North Shaft"', ),
+    ('receivers = { pithead = "loop://" }', "receivers = { }"),
+    ("silent_s = 3", "silent_s = nan"),
+    ("port = 8099", 'port = "8099"'),
+    ("[web]", "[webb]"),
+    ('id = "south"', 'id = "north"'),
+])
+def test_bad_station_files_are_refused_with_the_field(tmp_path, edit, message):
+    bad = GOOD.replace(edit, message, 1)
+    assert bad != GOOD
+    with pytest.raises(StationFileError) as e:
+        load_station_file(write(tmp_path, bad))
+    field = {"North Shaft": "hoist[0].id", "receivers": "hoist[1].receivers", "nan": "station.silent_s",
+             '"8099"': "web.port", "webb": "webb", 'id = "north"': "hoist[1].id"}
+    assert any(k in message and v in str(e.value) for k, v in field.items()), str(e.value)
