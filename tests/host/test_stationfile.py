@@ -89,3 +89,32 @@ def test_bad_station_files_are_refused_with_the_field(tmp_path, edit, message):
     field = {"North Shaft": "hoist[0].id", "receivers": "hoist[1].receivers", "nan": "station.silent_s",
              '"8099"': "web.port", "webb": "webb", 'id = "north"': "hoist[1].id"}
     assert any(k in message and v in str(e.value) for k, v in field.items()), str(e.value)
+
+
+def test_ropemon_serve_runs_the_hoists_and_prints_their_alarms_with_the_hoist(tmp_path):
+    """`ropemon serve` with no faces: every hoist's station runs; a node never heard on the
+    south hoist is an alarm line naming the hoist; SIGTERM stops it cleanly."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    node_json(tmp_path, "north.json", 1, KEY_N)
+    node_json(tmp_path, "south.json", 1, KEY_S)
+    station = write(tmp_path, GOOD.replace("silent_s = 3", "silent_s = 1").replace("[web]\nport = 8099\n", ""))
+    p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "serve", str(station)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = []
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and len({(ln["hoist"], ln["id"]) for ln in lines}) < 2:
+            line = p.stdout.readline()
+            if not line:
+                break
+            lines.append(json.loads(line))
+    finally:
+        p.send_signal(signal.SIGTERM)
+        out, err = p.communicate(timeout=20)
+    assert p.returncode == 0, err
+    assert {(ln["hoist"], ln["id"]) for ln in lines if ln["event"] == "raise"} >= {("north", "silent:n1"),
+                                                                                   ("south", "silent:n1")}
