@@ -6,6 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 NODE_STAMP := node_modules/.installed
+BROWSER_STAMP := $(VENV)/.chromium
 
 .PHONY: all demo test test-host test-firmware bench evaluate clean
 
@@ -22,10 +23,30 @@ $(NODE_STAMP): package.json package-lock.json
 	npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
+# A real headless browser for tests/web: Debian's chromium and chromium-driver, driven by
+# Selenium (pinned in the `test` extra) through /usr/bin/chromedriver, so Selenium Manager
+# never downloads one. Installed with apt-get as root where missing; the lists updated only when
+# apt does not know the packages or its lists are out of date.
+BROWSER_PKGS := chromium chromium-driver
+$(BROWSER_STAMP):
+	@if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ]; then :; \
+	elif [ "$$(id -u)" != 0 ]; then \
+	  echo "make: tests/web need a headless browser: /usr/bin/chromium and /usr/bin/chromedriver are missing;" >&2; \
+	  echo "      install them as root: apt-get install $(BROWSER_PKGS)" >&2; exit 1; \
+	else \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  apt-cache show $(BROWSER_PKGS) >/dev/null 2>&1 || apt-get update -qq || exit 1; \
+	  apt-get install -y -qq $(BROWSER_PKGS) >/dev/null || \
+	    { apt-get update -qq && apt-get install -y -qq $(BROWSER_PKGS) >/dev/null; } || exit 1; \
+	  [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ] || \
+	    { echo "make: apt-get installed $(BROWSER_PKGS) but /usr/bin/chromium or /usr/bin/chromedriver is missing" >&2; exit 1; }; \
+	fi
+	@mkdir -p $(VENV) && touch $@
+
 demo: $(STAMP)
 	$(BIN)/ropemon demo
 
-test: $(STAMP) $(NODE_STAMP)
+test: $(STAMP) $(NODE_STAMP) $(BROWSER_STAMP)
 	$(BIN)/python -m pytest
 	$(BIN)/python tests/run_micropython.py
 
