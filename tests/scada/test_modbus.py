@@ -1,0 +1,158 @@
+"""The Modbus TCP face read and written by a pymodbus client: the map, the heartbeat, the ack coil."""
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("pymodbus")
+
+from pymodbus.client import ModbusTcpClient  # noqa: E402
+
+from ropemon.station import modbus as M  # noqa: E402
+from ropemon.station.faces import start_faces  # noqa: E402
+from ropemon.station.scadavalues import ALARM_KINDS  # noqa: E402
+from ropemon.station.stationfile import StationFileError  # noqa: E402
+from scada_rig import Rig, free_port  # noqa: E402
+
+
+def s16(u: int) -> int:
+    return u - 0x10000 if u & 0x8000 else u
+
+
+def s32(hi: int, lo: int) -> int:
+    u = hi << 16 | lo
+    return u - (1 << 32) if u & 0x80000000 else u
+
+
+@pytest.fixture
+def served(tmp_path):
+    made = []
+
+    def make(n_hoists: int = 2, extra: str = ""):
+        port = free_port()
+        rig = Rig(tmp_path, n_hoists, f"[modbus]\nport = {port}\n{extra}")
+        faces = start_faces(rig.stations, rig.file)
+        client = ModbusTcpClient("127.0.0.1", port=port, timeout=3)
+        assert client.connect()
+        made.append((rig, faces, client))
+        return rig, faces[0], client
+
+    yield make
+    for rig, faces, client in made:
+        client.close()
+        for f in faces:
+            f.stop()
+        rig.close()
+
+
+def read(client, address: int, count: int) -> list[int]:
+    r = client.read_holding_registers(address, count=count)
+    assert not r.isError(), r
+    return r.registers
+
+
+def block(client, h: int) -> list[int]:
+    return read(client, M.HOIST_BASE + h * M.HOIST_STRIDE, M.HOIST_STRIDE)
+
+
+def test_the_map_header_and_a_hoists_values(served):
+    rig, face, client = served(2)
+    assert read(client, 0, 7) == [M.MAP_VERSION, 2, M.HOIST_BASE, M.HOIST_STRIDE, M.MAX_NODES, M.ROPES, 0]
+    rig.step()
+    rig.feed("h1", (5000, 5100, 4900, None), depth_mm=812_345, speed_mm_s=-9500, battery_mv=11_900,
+             oil_temp_cc=2150)
+    rig.step()
+    b = block(client, 1)
+    n = M.NODE_BASE
+    assert b[M.NODES] == 1 and b[n + M.N_ID] == 1 and b[n + M.N_ROPES] == 4
+    ropes = [s16(b[n + M.ROPE_BASE + 2 * r]) for r in range(4)]
+    assert ropes == [5000, 5100, 4900, -32768]                # 0.01 kN; the absent rope is -32768
+    devs = [s16(b[n + M.ROPE_BASE + 2 * r + 1]) for r in range(4)]
+    assert devs == [0, 200, -200, -32768]                     # 0.01 %: +2 %, -2 % of the mean 5000
+    assert s32(b[n + M.N_SUM], b[n + M.N_SUM + 1]) == -(1 << 31)   # a rope absent: no sum
+    assert s32(b[n + M.N_DEPTH], b[n + M.N_DEPTH + 1]) == 812_345
+    assert s16(b[n + M.N_SPEED]) == -9500 and b[n + M.N_BATTERY] == 11_900 and s16(b[n + M.N_OIL]) == 2150
+    assert b[M.AGE] == 2 and b[n + M.N_AGE] == 2              # 0.25 s since the frame, in 0.1 s
+    assert s32(b[n + M.N_SEQ], b[n + M.N_SEQ + 1]) == 1
+    rig.feed("h1", (6000, 6000, 6000, 6000))
+    rig.step()
+    b = block(client, 1)
+    assert s32(b[n + M.N_SUM], b[n + M.N_SUM + 1]) == 24_000 and b[M.FRAMES] == 2
+    h0 = block(client, 0)
+    assert h0[n + M.N_AGE] == M.AGE_NONE and h0[M.HB] == 0   # hoist 0 never heard: no heartbeat
+
+
+def test_the_heartbeat_runs_while_the_station_vouches_and_stops_when_the_node_goes_silent(served):
+    rig, face, client = served(1)
+    silent_bit = 1 << ALARM_KINDS.index("silent")
+    beats = []
+    for _ in range(8):                          # 2 s at 4 ticks/s, a frame each tick
+        rig.feed("h0")
+        rig.step()
+        beats.append(block(client, 0)[M.HB])
+    assert beats == list(range(1, 9))
+    assert block(client, 0)[M.STATUS] & M.ST_VOUCHED
+    for _ in range(16):                         # 4 s without a frame: NODE SILENT after 2 s
+        rig.step()
+    b = block(client, 0)
+    stopped = b[M.HB]
+    assert 8 < stopped <= 8 + 9 and not b[M.STATUS] & M.ST_VOUCHED
+    assert s32(b[M.PRESENT], b[M.PRESENT + 1]) & silent_bit
+    assert s32(b[M.UNACKED], b[M.UNACKED + 1]) & silent_bit
+    for _ in range(4):
+        rig.step()
+    assert block(client, 0)[M.HB] == stopped    # still stopped: a PLC trips on it
+    for _ in range(6):                          # frames again: NODE SILENT clears after 1 s, it runs
+        rig.feed("h0")
+        rig.step()
+    assert block(client, 0)[M.HB] > stopped
+
+
+def test_read_only_unless_ack_coil(served):
+    rig, face, client = served(1)
+    r = client.write_coil(0, True)
+    assert r.isError()
+    r = client.write_register(M.HOIST_BASE, 7)
+    assert r.isError()
+    assert client.read_holding_registers(M.HOIST_BASE + M.HOIST_STRIDE, count=1).isError()   # past the map
+
+
+def test_the_ack_coil_acknowledges_the_hoists_alarms_through_the_station(served):
+    rig, face, client = served(2, "ack_coil = true\n")
+    events = []
+    rig.stations.hoists["h1"].station.add(_Events(events))
+    for _ in range(12):                         # 3 s: no frame, both hoists' nodes silent
+        rig.step()
+    silent_bit = 1 << ALARM_KINDS.index("silent")
+    assert s32(*block(client, 1)[M.UNACKED:M.UNACKED + 2]) & silent_bit
+    assert client.read_coils(0, count=2).bits[:2] == [True, True]
+    assert not client.write_coil(1, True).isError()
+    rig.step()                                  # the station carries it out at its next pump
+    assert not s32(*block(client, 1)[M.UNACKED:M.UNACKED + 2])
+    assert s32(*block(client, 1)[M.PRESENT:M.PRESENT + 2]) & silent_bit   # acknowledged, still present
+    assert s32(*block(client, 0)[M.UNACKED:M.UNACKED + 2]) & silent_bit   # the other hoist untouched
+    acks = [e for e in events if e.action == "ack"]
+    assert acks and acks[0].operator.startswith("modbus 127.0.0.1:") and acks[0].operator.endswith("(modbus)")
+
+
+def test_a_bad_modbus_table_is_refused_with_the_field(tmp_path):
+    rig = Rig(tmp_path, 1, "[modbus]\nport = 70000\n")
+    try:
+        with pytest.raises(StationFileError, match="modbus.port"):
+            start_faces(rig.stations, rig.file)
+    finally:
+        rig.close()
+    with pytest.raises(StationFileError, match="modbus.colour"):
+        M.parse({"colour": "red"})
+
+
+class _Events:
+    name = "events"
+
+    def __init__(self, out):
+        self.out = out
+
+    def __getattr__(self, name):
+        return lambda *a: None
+
+    def on_event(self, e):
+        self.out.append(e)
