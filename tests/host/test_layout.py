@@ -69,3 +69,31 @@ def test_every_module_has_a_house():
     """Only the command dispatcher and the firmware locator stay at the top."""
     top = {m.name for m in pkgutil.iter_modules(ropemon.__path__)}
     assert top == {"cli", "firmware", "station", "commission", "lab"}
+
+
+WEB_LIBRARIES = ("starlette", "uvicorn", "jinja2", "argon2", "itsdangerous", "multipart", "python_multipart",
+                 "httpx", "httpx2")
+
+
+def test_only_the_web_face_imports_its_libraries_and_only_by_name():
+    """The station's core installs without the web extra; nothing of the station outside
+    station/web/ imports it (faces.py names the module as a string), except another face
+    reading the one users file through `ropemon.station.web.auth`."""
+    loaded = _imported_by([m for m in _modules(station) if not _face(m)])
+    assert not {m for m in loaded if m.split(".")[0] in WEB_LIBRARIES}
+    root = Path(station.__file__).parent
+    found = []
+    for path in root.rglob("*.py"):
+        if path.relative_to(root).parts[0] == "web":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            shared = _face(f"ropemon.station.{path.relative_to(root).with_suffix('').parts[0]}")
+            found += [f"{path.name}: {n}" for n in names if n.startswith("ropemon.station.web")
+                      and not (shared and n.startswith("ropemon.station.web.auth"))]
+    assert not found

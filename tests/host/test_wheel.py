@@ -88,6 +88,11 @@ def test_installed_package_and_firmware_come_from_the_wheel(installed):
     assert {"main.py", "deployswap.py", "manifest.py", "node.json", "ropenode/layout.py"} <= _tree(fw)
     # every host module (pyproject.toml lists the subpackages by hand)
     assert _tree(ROOT / "host" / "ropemon", "*.py") <= _tree(where["ropemon"].parent, "*.py")
+    # and the package data: the web face's templates, script, style and vendored uPlot
+    web = ROOT / "host" / "ropemon" / "station" / "web"
+    data = {p for p in _tree(web) if not p.endswith(".py")}
+    assert "static/uplot/uPlot.iife.min.js" in data and "templates/live.html" in data
+    assert data <= _tree(where["ropemon"].parent / "station" / "web")
 
 
 def test_installed_command_runs_outside_the_repo(installed):
