@@ -15,7 +15,7 @@ all: test
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[lab,test,modbus,web]'
+	$(BIN)/pip install --quiet -e '.[lab,test,modbus,mqtt,web]'
 	touch $@
 
 # The official 32-bit MicroPython (WebAssembly port), used to prove 32-bit int safety.
@@ -43,10 +43,28 @@ $(BROWSER_STAMP):
 	fi
 	@mkdir -p $(VENV) && touch $@
 
+# An MQTT broker for tests/scada: Debian's mosquitto (the tests start their own on a free localhost
+# port with a temporary config). Installed with apt-get as root where missing, as the browser is.
+BROKER_STAMP := $(VENV)/.mosquitto
+$(BROKER_STAMP):
+	@if [ -x /usr/sbin/mosquitto ]; then :; \
+	elif [ "$$(id -u)" != 0 ]; then \
+	  echo "make: tests/scada need Mosquitto: /usr/sbin/mosquitto is missing;" >&2; \
+	  echo "      install it as root: apt-get install mosquitto" >&2; exit 1; \
+	else \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  apt-cache show mosquitto >/dev/null 2>&1 || apt-get update -qq || exit 1; \
+	  apt-get install -y -qq mosquitto >/dev/null || \
+	    { apt-get update -qq && apt-get install -y -qq mosquitto >/dev/null; } || exit 1; \
+	  [ -x /usr/sbin/mosquitto ] || \
+	    { echo "make: apt-get installed mosquitto but /usr/sbin/mosquitto is missing" >&2; exit 1; }; \
+	fi
+	@mkdir -p $(VENV) && touch $@
+
 demo: $(STAMP)
 	$(BIN)/ropemon demo
 
-test: $(STAMP) $(NODE_STAMP) $(BROWSER_STAMP)
+test: $(STAMP) $(NODE_STAMP) $(BROWSER_STAMP) $(BROKER_STAMP)
 	$(BIN)/python -m pytest
 	$(BIN)/python tests/run_micropython.py
 

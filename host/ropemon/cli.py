@@ -18,6 +18,7 @@ COMMANDS = {
     "monitor": ("ropemon.station.monitor", "live dashboard from one or more receiver serial ports"),
     "serve": ("ropemon.station.serve_cli", "run the hoists of a station file with its web and SCADA faces"),
     "user": ("ropemon.station.web.user_cli", "add, remove or list the web face's users (argon2-hashed passwords)"),
+    "fleet": ("ropemon.station.mqtt.fleet", "a fleet historian: the stations' Sparkplug B into SQL"),
     "report": ("ropemon.station.report", "per-trip summary and plots from a ropemon database"),
     "export": ("ropemon.station.store_cli", "export a ropemon database to CSV"),
     "fit-friction": ("ropemon.commission.calibrate", "fit LuGre friction parameters from test-bed data"),

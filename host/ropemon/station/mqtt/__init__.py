@@ -1,0 +1,428 @@
+"""The MQTT face: the station as a Sparkplug B edge node, each hoist a device (docs/integration.md).
+
+    [mqtt]
+    host = "broker.mine.local"
+    port = 1883                 # 8883 with TLS
+    group_id = "mine"           # Sparkplug group id
+    edge_node_id = "shaft-2"    # Sparkplug edge node id: this station
+    client_id = "ropemon-shaft-2"
+    report = "frame"            # "frame": every frame's metrics; "exception": those that moved
+    deadband = { kN = 0.5 }     # report = "exception": change needed per unit (defaults below)
+    qos = 1                     # DDATA's QoS (1: acknowledged, so store-and-forward loses nothing)
+    keepalive_s = 10
+    username = "ropemon"        # optional, with password_file (the password's only line)
+    password_file = "mqtt-password"
+    tls = false                 # true: TLS, the system's CAs or tls_ca; tls_cert/tls_key: client cert
+    buffer_max_frames = 2000000
+
+Threads: one `SparkplugValues` listener per hoist on the station's thread turns each frame
+(and each change of the alarm bits) into a record and puts it on a queue, never waiting.
+The publisher thread owns everything else: the outbox (`outbox.Outbox`, SQLite in the
+data_dir), the paho-mqtt client (a new one per connection, its NDEATH will carrying that
+connection's bdSeq), NBIRTH/DBIRTH, seq, and sending the outbox in order. A row leaves the
+outbox when the broker acknowledges it (QoS 1); a row queued before the current session's
+births goes out with is_historical.
+"""
+from __future__ import annotations
+
+import logging
+import queue
+import re
+import ssl
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as paho
+
+from ropemon.commission.tomlfields import Table
+from ropemon.station.mqtt import sparkplug as sp
+from ropemon.station.mqtt.outbox import Outbox
+from ropemon.station.scadavalues import HoistValues, NodeValues
+from ropemon.station.stationfile import StationFileError
+
+log = logging.getLogger(__name__)
+SPARKPLUG_ID = re.compile(r"^[^/+#]{1,64}$")
+DEADBANDS = {"kN": 0.5, "%": 0.1, "m": 0.1, "m/s": 0.05, "V": 0.05, "degC": 0.5}
+MAX_INFLIGHT = 200     # DDATA published and not yet acknowledged
+BATCH = 200            # outbox rows read at a time
+RETRY_S = (0.5, 5.0)   # reconnect back-off, first and longest
+
+
+class Settings:
+    def __init__(self, table: dict, base: Path, station_name: str) -> None:
+        t = Table(table, "mqtt", StationFileError)
+        self.host = t.string("host", "127.0.0.1")
+        self.port = t.integer("port", 1883, lo=1, hi=65535)
+        self.group_id = t.string("group_id")
+        self.edge_node_id = t.string("edge_node_id")
+        for key in ("group_id", "edge_node_id"):
+            if not SPARKPLUG_ID.match(getattr(self, key)):
+                raise StationFileError(f"mqtt.{key}: 1-64 characters, none of '/', '+', '#'")
+        self.client_id = t.string("client_id", f"ropemon-{self.edge_node_id}")
+        self.report = t.string("report", "frame", choices=("frame", "exception"))
+        db = t.table("deadband", {})
+        self.deadband = dict(DEADBANDS)
+        for unit in list(db.data):
+            if unit not in DEADBANDS:
+                raise StationFileError(f"{db.field(unit)}: a unit of the metrics: {', '.join(DEADBANDS)}")
+            self.deadband[unit] = db.number(unit, ge=0.0)
+        db.finish()
+        self.qos = t.integer("qos", 1, lo=0, hi=1)
+        self.keepalive_s = t.integer("keepalive_s", 10, lo=2, hi=600)
+        self.username = t.string("username", "") or None
+        pw = t.string("password_file", "")
+        self.password_file = _path(base, pw) if pw else None
+        if self.password_file is not None and self.username is None:
+            raise StationFileError("mqtt.password_file: needs mqtt.username")
+        self.tls = t.boolean("tls", False)
+        self.tls_ca = _path(base, t.string("tls_ca")) if t.has("tls_ca") else None
+        self.tls_cert = _path(base, t.string("tls_cert")) if t.has("tls_cert") else None
+        self.tls_key = _path(base, t.string("tls_key")) if t.has("tls_key") else None
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise StationFileError("mqtt.tls_cert, mqtt.tls_key: give both or neither")
+        self.buffer_max_frames = t.integer("buffer_max_frames", 2_000_000, lo=1000, hi=100_000_000)
+        t.finish()
+
+    def password(self) -> str | None:
+        if self.password_file is None:
+            return None
+        from ropemon.station import files
+        return files.read_text(self.password_file, "MQTT password file", files.MAX_KEY_FILE,
+                               StationFileError).strip()
+
+
+def _path(base: Path, text: str) -> Path:
+    p = Path(text)
+    return p if p.is_absolute() else base / p
+
+
+class SparkplugValues(HoistValues):
+    """One hoist's records for the publisher (station thread; never waits)."""
+
+    name = "mqtt"
+
+    def __init__(self, face: "MqttFace", hoist: str, nodes: list[int]) -> None:
+        super().__init__(hoist, nodes)
+        self.face = face
+        self.units = {name: unit for name, _, unit in sp.hoist_metrics(self.nodes)}
+        self.reported: dict[str, Any] = {}
+        self._alarms: tuple | None = None
+
+    def changed(self, what: str, v: NodeValues | None) -> None:
+        alarms = (self.present_bits, self.unacked_bits, self.vouched)
+        values: dict[str, Any] = {}
+        if v is not None:
+            values = sp.frame_values(v)
+            if self.face.settings.report == "exception":
+                values = self._moved(values)
+        if alarms != self._alarms:
+            self._alarms = alarms
+            values.update({"alarms/present": alarms[0], "alarms/unacknowledged": alarms[1], "vouched": alarms[2]})
+        elif self.face.settings.report == "frame" and v is not None:
+            values.update({"alarms/present": alarms[0], "alarms/unacknowledged": alarms[1], "vouched": alarms[2]})
+        if values:
+            ts = int((v.wall_s if v is not None else time.time()) * 1000)
+            self.face.queue.put((self.hoist, ts, values))
+
+    def _moved(self, values: dict[str, Any]) -> dict[str, Any]:
+        out = {}
+        band = self.face.settings.deadband
+        for name, x in values.items():
+            if name.endswith("/frame_seq"):
+                continue
+            old = self.reported.get(name, ...)
+            unit = self.units.get(name)
+            if old is ... or x is None or old is None or unit is None:
+                moved = old != x
+            else:
+                moved = abs(x - old) >= band[unit] if band[unit] > 0 else x != old
+            if moved:
+                out[name] = self.reported[name] = x
+        if out:
+            seq = next(k for k in values if k.endswith("/frame_seq"))
+            out[seq] = values[seq]
+        return out
+
+    def health(self) -> str | None:
+        return self.face.error
+
+
+class MqttFace:
+    """The publisher thread (module docstring)."""
+
+    def __init__(self, stations: Any, settings: Settings) -> None:
+        self.settings = settings
+        self.queue: "queue.SimpleQueue[tuple[str, int, dict]]" = queue.SimpleQueue()
+        self.devices = {h.id: sp.hoist_metrics(sorted(h.keys)) for h in stations.hoists.values()}
+        self.datatype = {d: {n: t for n, t, _ in m} for d, m in self.devices.items()}
+        data_dir = stations.file.data_dir
+        if data_dir is not None:
+            data_dir.mkdir(parents=True, exist_ok=True)
+        self.outbox_path = data_dir / "mqtt-outbox.db" if data_dir is not None else None
+        self.error: str | None = None            # the outbox cannot be written
+        self.connected = False
+        self.bdseq = -1
+        self.sessions = 0                        # connections that reached their births
+        self.sent = 0                            # DDATA acknowledged (or sent, QoS 0)
+        self.last_error: str | None = None       # why the last connection failed or ended
+        self._stop = threading.Event()
+        self._client: paho.Client | None = None
+        self._lost = threading.Event()
+        self._acked: deque[int] = deque()
+        self._inflight: dict[int, int] = {}
+        self._rebirth = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="mqtt", daemon=True)
+        self._ready = threading.Event()
+
+    # -- lifecycle ------------------------------------------------------------------------
+
+    def start(self) -> None:
+        self._thread.start()
+        self._ready.wait(10.0)
+        if self.error is not None:
+            raise OSError(f"[mqtt]: {self.error}")
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(15.0)
+
+    def describe(self) -> str:
+        s = self.settings
+        state = "connected" if self.connected else f"not connected ({self.last_error or 'connecting'})"
+        where = self.outbox_path or "memory"
+        return (f"MQTT Sparkplug B to {s.host}:{s.port}{' (TLS)' if s.tls else ''}: group {s.group_id}, "
+                f"edge node {s.edge_node_id}, {len(self.devices)} device(s), {s.report}; {state}; "
+                f"store-and-forward in {where}")
+
+    # -- the publisher thread ----------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            self.outbox = Outbox(self.outbox_path, self.settings.buffer_max_frames)
+        except Exception as e:  # noqa: BLE001 - reported by start()
+            self.error = f"cannot open the outbox {self.outbox_path}: {e}"
+            self._ready.set()
+            return
+        self.bdseq = self.outbox.meta("bdseq", -1)
+        self._ready.set()
+        self.last: dict[str, dict[str, tuple[int, Any]]] = {d: {} for d in self.devices}   # for DBIRTH
+        retry_at, delay = 0.0, RETRY_S[0]
+        cursor = 0                    # the newest outbox row published in this session
+        live_from = 1 << 62           # rows from this id on were queued after this session's births
+        inflight = self._inflight      # mid -> outbox row id
+        try:
+            while not self._stop.is_set():
+                self._take(timeout=0.02)
+                if self._client is not None and self._lost.is_set():
+                    self._drop_client()
+                    inflight.clear()
+                    self._acked.clear()
+                if self._client is None:
+                    if time.monotonic() >= retry_at:
+                        if self._connect():
+                            delay = RETRY_S[0]
+                            live_from = self.outbox.last_id() + 1
+                            cursor = 0
+                            self._births()
+                        else:
+                            retry_at = time.monotonic() + delay
+                            delay = min(delay * 2, RETRY_S[1])
+                    continue
+                if self._rebirth.is_set():
+                    self._rebirth.clear()
+                    self.seq = 0
+                    live_from = self.outbox.last_id() + 1
+                    self._births()
+                done = []
+                while self._acked:
+                    row = inflight.pop(self._acked.popleft(), None)
+                    if row is not None:
+                        done.append(row)
+                if done:
+                    self.outbox.delete(done)
+                    self.sent += len(done)
+                if len(inflight) < MAX_INFLIGHT:
+                    for row_id, device, ts, values in self.outbox.after(cursor, min(BATCH, MAX_INFLIGHT - len(inflight))):
+                        mid = self._data(device, ts, values, historical=row_id < live_from)
+                        if mid is None:
+                            break
+                        cursor = row_id
+                        if mid == 0:
+                            self.outbox.delete([row_id])
+                        else:
+                            inflight[mid] = row_id
+        except Exception as e:  # noqa: BLE001 - the station alarms on it (health)
+            log.exception("mqtt publisher failed")
+            self.error = f"the publisher stopped: {type(e).__name__}: {e}"
+        finally:
+            self._take(timeout=0)
+            self._close()
+
+    def _take(self, timeout: float) -> None:
+        """Queued records into the outbox, in one transaction."""
+        records = []
+        try:
+            records.append(self.queue.get(timeout=timeout) if timeout else self.queue.get_nowait())
+            while True:
+                records.append(self.queue.get_nowait())
+        except queue.Empty:
+            pass
+        if not records:
+            return
+        for device, ts, values in records:
+            last = self.last[device]
+            for k, v in values.items():
+                last[k] = (ts, v)
+        try:
+            self.outbox.add(records)
+            self.error = None
+        except Exception as e:  # noqa: BLE001 - disk full, I/O error: the station alarms on it
+            self.error = f"cannot write the outbox {self.outbox_path}: {type(e).__name__}: {e}"
+
+    # -- MQTT ---------------------------------------------------------------------------------
+
+    def _connect(self) -> bool:
+        s = self.settings
+        self.bdseq = (self.bdseq + 1) % 256
+        self.outbox.set_meta("bdseq", self.bdseq)
+        c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=s.client_id, clean_session=True,
+                        protocol=paho.MQTTv311)
+        death = sp.payload(None)
+        sp.add_metric(death, "bdSeq", sp.UINT64, self.bdseq, death.timestamp)
+        c.will_set(sp.topic(s.group_id, "NDEATH", s.edge_node_id), death.SerializeToString(), qos=1, retain=False)
+        if s.username:
+            c.username_pw_set(s.username, s.password())
+        if s.tls:
+            c.tls_set(ca_certs=str(s.tls_ca) if s.tls_ca else None,
+                      certfile=str(s.tls_cert) if s.tls_cert else None,
+                      keyfile=str(s.tls_key) if s.tls_key else None, tls_version=ssl.PROTOCOL_TLS_CLIENT)
+        c.max_inflight_messages_set(MAX_INFLIGHT)
+        up = threading.Event()
+        result: list[Any] = []
+        self._lost.clear()
+
+        def on_connect(client, userdata, flags, reason, props):
+            result.append(reason)
+            up.set()
+
+        def on_disconnect(client, userdata, flags, reason, props):
+            self.last_error = f"disconnected: {reason}"
+            self._lost.set()
+            up.set()
+
+        c.on_connect = on_connect
+        c.on_disconnect = on_disconnect
+        c.on_publish = lambda client, userdata, mid, reason, props: self._acked.append(mid)
+        c.on_message = self._on_command
+        try:
+            c.connect(s.host, s.port, keepalive=s.keepalive_s)
+        except (OSError, ValueError) as e:
+            self.last_error = f"cannot connect: {e}"
+            return False
+        c.loop_start()
+        up.wait(10.0)
+        if not result or result[0].is_failure or self._lost.is_set():
+            self.last_error = f"refused: {result[0]}" if result else (self.last_error or "no CONNACK within 10 s")
+            c.loop_stop()
+            c.disconnect()
+            return False
+        c.subscribe(sp.topic(s.group_id, "NCMD", s.edge_node_id), qos=1)
+        self._client = c
+        self.connected = True
+        self.seq = 0
+        return True
+
+    def _drop_client(self) -> None:
+        c, self._client = self._client, None
+        self.connected = False
+        if c is not None:
+            c.loop_stop()
+
+    def _on_command(self, client, userdata, msg) -> None:
+        try:
+            p = sp.decode(msg.payload)
+        except Exception:  # noqa: BLE001 - not a Sparkplug payload: ignored
+            return
+        for m in p.metrics:
+            if m.name == "Node Control/Rebirth" and sp.metric_value(m):
+                self._rebirth.set()
+
+    def _publish(self, topic: str, p: Any, qos: int) -> int | None:
+        assert self._client is not None
+        info = self._client.publish(topic, p.SerializeToString(), qos=qos, retain=False)
+        if info.rc != paho.MQTT_ERR_SUCCESS:
+            self._lost.set()
+            return None
+        return info.mid
+
+    def _next_seq(self) -> int:
+        self.seq = (self.seq + 1) % 256
+        return self.seq
+
+    def _births(self) -> None:
+        """NBIRTH (seq 0, bdSeq) and each hoist's DBIRTH with every metric, its unit and newest value."""
+        s = self.settings
+        self.seq = 0
+        nb = sp.payload(0)
+        sp.add_metric(nb, "bdSeq", sp.UINT64, self.bdseq, nb.timestamp)
+        sp.add_metric(nb, "Node Control/Rebirth", sp.BOOLEAN, False, nb.timestamp)
+        self._publish(sp.topic(s.group_id, "NBIRTH", s.edge_node_id), nb, 0)
+        for device, metrics in self.devices.items():
+            p = sp.payload(self._next_seq())
+            last = self.last[device]
+            for name, datatype, unit in metrics:
+                ts, value = last.get(name, (p.timestamp, None))
+                sp.add_metric(p, name, datatype, value, ts, unit=unit)
+            self._publish(sp.topic(s.group_id, "DBIRTH", s.edge_node_id, device), p, 0)
+        self.sessions += 1
+
+    def _data(self, device: str, ts: int, values: dict[str, Any], historical: bool) -> int | None:
+        s = self.settings
+        types = self.datatype.get(device)
+        if types is None:          # a hoist no longer in the station file: its rows are dropped
+            return 0
+        p = sp.payload(self._next_seq())
+        for name, value in values.items():
+            if name in types:
+                sp.add_metric(p, name, types[name], value, ts, historical=historical)
+        return self._publish(sp.topic(s.group_id, "DDATA", s.edge_node_id, device), p, s.qos)
+
+    def _close(self) -> None:
+        """NDEATH before a clean disconnect; what is not acknowledged stays in the outbox."""
+        c = self._client
+        if c is not None and not self._lost.is_set():
+            s = self.settings
+            death = sp.payload(None)
+            sp.add_metric(death, "bdSeq", sp.UINT64, self.bdseq, death.timestamp)
+            end, done = time.monotonic() + 3.0, []
+            while self._inflight and time.monotonic() < end and not self._lost.is_set():
+                while self._acked:    # the DDATA in flight: acknowledged rows leave the outbox
+                    row = self._inflight.pop(self._acked.popleft(), None)
+                    if row is not None:
+                        done.append(row)
+                time.sleep(0.01)
+            self.outbox.delete(done)
+            self.sent += len(done)
+            try:
+                info = c.publish(sp.topic(s.group_id, "NDEATH", s.edge_node_id), death.SerializeToString(), qos=1)
+                info.wait_for_publish(2.0)
+            except (RuntimeError, ValueError):
+                pass
+            c.disconnect()
+            c.loop_stop()
+        self._client = None
+        self.connected = False
+        if hasattr(self, "outbox"):
+            self.outbox.close()
+
+
+def start(stations: Any, table: dict) -> MqttFace:
+    """Check the [mqtt] table, add one `SparkplugValues` per hoist, start the publisher."""
+    settings = Settings(table, stations.file.path.parent, stations.file.name)
+    face = MqttFace(stations, settings)
+    stations.add_listeners(lambda h: SparkplugValues(face, h.id, sorted(h.keys)))
+    face.start()
+    return face

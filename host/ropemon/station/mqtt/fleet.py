@@ -1,0 +1,210 @@
+"""`ropemon fleet`: a fleet historian's consumer of the stations' Sparkplug B (an example, and a test).
+
+Subscribes to `spBv1.0/<group>/#` (all groups by default) with a persistent session (QoS 1,
+clean_session false, a fixed client id: what the broker queues while the consumer is away
+is delivered when it returns), decodes each payload and writes every rope's tension of
+every DDATA to a historian table:
+
+    tension(group_id, edge_node, device, node, rope, ts_ms, tension_kn, frame_seq, historical, arrival)
+
+SQLite (`--db`, default fleet.db), or PostgreSQL/TimescaleDB with `--dsn` (psycopg, not
+installed by ropemon: `pip install 'psycopg[binary]'`; on TimescaleDB the table becomes a
+hypertable on ts). A row is keyed by (group, edge node, device, node, frame_seq, rope): a
+DDATA sent twice (at-least-once: the station resends what the broker had not acknowledged)
+is stored once. DBIRTH's values repeat the newest DDATA and are not stored; births, deaths
+and gaps in seq are counted (`Fleet.stats`).
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import signal
+import sqlite3
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+TENSION = re.compile(r"^node(\d+)/rope(\d+)/tension$")
+SEQ = re.compile(r"^node(\d+)/frame_seq$")
+
+SQLITE_SCHEMA = """
+CREATE TABLE IF NOT EXISTS tension (
+    group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL, node INTEGER NOT NULL,
+    rope INTEGER NOT NULL, ts_ms INTEGER NOT NULL, tension_kn REAL, frame_seq INTEGER NOT NULL,
+    historical INTEGER NOT NULL, arrival INTEGER NOT NULL,
+    PRIMARY KEY (group_id, edge_node, device, node, frame_seq, rope));
+"""
+PG_SCHEMA = """
+CREATE TABLE IF NOT EXISTS tension (
+    group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL, node INTEGER NOT NULL,
+    rope INTEGER NOT NULL, ts TIMESTAMPTZ NOT NULL, tension_kn DOUBLE PRECISION, frame_seq BIGINT NOT NULL,
+    historical BOOLEAN NOT NULL, arrival BIGINT NOT NULL,
+    PRIMARY KEY (group_id, edge_node, device, node, frame_seq, rope, ts));
+"""
+
+
+class Historian:
+    """Where the tensions go: SQLite by default, PostgreSQL/TimescaleDB with a DSN."""
+
+    def __init__(self, db: str | Path | None = None, dsn: str | None = None) -> None:
+        self.pg = dsn is not None
+        self.arrival = 0
+        if self.pg:
+            import psycopg  # optional: pip install 'psycopg[binary]'
+            self.conn: Any = psycopg.connect(dsn, autocommit=False)
+            with self.conn.cursor() as cur:
+                cur.execute(PG_SCHEMA)
+                cur.execute("SELECT 1 FROM pg_extension WHERE extname = 'timescaledb'")
+                if cur.fetchone():
+                    cur.execute("SELECT create_hypertable('tension', 'ts', if_not_exists => TRUE)")
+                cur.execute("SELECT COALESCE(MAX(arrival), 0) FROM tension")
+                self.arrival = cur.fetchone()[0]
+            self.conn.commit()
+        else:
+            self.conn = sqlite3.connect(str(db or "fleet.db"), check_same_thread=False)
+            self.conn.executescript(SQLITE_SCHEMA)
+            self.arrival = self.conn.execute("SELECT COALESCE(MAX(arrival), 0) FROM tension").fetchone()[0]
+
+    def write(self, rows: list[tuple]) -> None:
+        """rows: (group, edge, device, node, rope, ts_ms, tension_kn, frame_seq, historical)."""
+        out = []
+        for r in rows:
+            self.arrival += 1
+            out.append((*r, self.arrival))
+        if self.pg:
+            with self.conn.cursor() as cur:
+                cur.executemany(
+                    "INSERT INTO tension VALUES (%s, %s, %s, %s, %s, to_timestamp(%s / 1000.0), %s, %s, %s, %s) "
+                    "ON CONFLICT DO NOTHING", out)
+            self.conn.commit()
+        else:
+            with self.conn:
+                self.conn.executemany("INSERT OR IGNORE INTO tension VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", out)
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+class Fleet:
+    """The consumer: paho-mqtt's network thread decodes and writes (module docstring)."""
+
+    def __init__(self, historian: Historian, host: str = "127.0.0.1", port: int = 1883, group: str = "+",
+                 client_id: str = "ropemon-fleet", username: str | None = None, password: str | None = None,
+                 tls: bool = False, tls_ca: str | None = None) -> None:
+        import paho.mqtt.client as paho
+        self.historian = historian
+        self.topic = f"spBv1.0/{group}/#"
+        self.stats = {"births": 0, "deaths": 0, "ddata": 0, "rows": 0, "seq_gaps": 0, "historical": 0}
+        self.seq: dict[tuple[str, str], int] = {}     # (group, edge) -> last seq
+        self.bdseq: dict[tuple[str, str], int] = {}
+        self.connected = threading.Event()
+        self.lock = threading.Lock()
+        c = self.client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=False,
+                                      protocol=paho.MQTTv311)
+        if username:
+            c.username_pw_set(username, password)
+        if tls:
+            c.tls_set(ca_certs=tls_ca)
+        c.reconnect_delay_set(0.2, 2.0)
+        c.on_connect = self._on_connect
+        c.on_disconnect = lambda *a: self.connected.clear()
+        c.on_message = self._on_message
+        self.host, self.port = host, port
+
+    def start(self) -> None:
+        self.client.connect_async(self.host, self.port, keepalive=10)
+        self.client.loop_start()
+
+    def stop(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+    def _on_connect(self, client, userdata, flags, reason, props) -> None:
+        if not reason.is_failure:
+            client.subscribe(self.topic, qos=1)
+            self.connected.set()
+
+    def _on_message(self, client, userdata, msg) -> None:
+        from ropemon.station.mqtt import sparkplug as sp
+        parts = msg.topic.split("/")
+        if len(parts) < 4 or parts[0] != sp.NAMESPACE:
+            return
+        group, kind, edge = parts[1], parts[2], parts[3]
+        device = parts[4] if len(parts) > 4 else None
+        try:
+            p = sp.decode(msg.payload)
+        except Exception:  # noqa: BLE001 - not Sparkplug: ignored
+            return
+        with self.lock:
+            key = (group, edge)
+            if kind in ("NBIRTH", "NDEATH"):
+                self.stats["births" if kind == "NBIRTH" else "deaths"] += 1
+                for m in p.metrics:
+                    if m.name == "bdSeq":
+                        self.bdseq[key] = sp.metric_value(m)
+                if kind == "NBIRTH":
+                    self.seq[key] = p.seq
+                return
+            if p.HasField("seq") and key in self.seq:
+                if p.seq != (self.seq[key] + 1) % 256:
+                    self.stats["seq_gaps"] += 1
+            if p.HasField("seq"):
+                self.seq[key] = p.seq
+            if kind != "DDATA" or device is None:
+                return
+            self.stats["ddata"] += 1
+            seqs = {int(SEQ.match(m.name).group(1)): sp.metric_value(m) for m in p.metrics if SEQ.match(m.name)}
+            rows = []
+            for m in p.metrics:
+                t = TENSION.match(m.name)
+                if t is None:
+                    continue
+                node, rope = int(t.group(1)), int(t.group(2))
+                if seqs.get(node) is None:
+                    continue
+                rows.append((group, edge, device, node, rope, m.timestamp, sp.metric_value(m), seqs[node],
+                             bool(m.is_historical)))
+                self.stats["historical"] += bool(m.is_historical)
+            if rows:
+                self.historian.write(rows)
+                self.stats["rows"] += len(rows)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--host", default="127.0.0.1", help="the MQTT broker (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=1883)
+    p.add_argument("--group", default="+", help="the Sparkplug group id (default: every group)")
+    p.add_argument("--client-id", default="ropemon-fleet", help="fixed: the broker keeps this consumer's session")
+    p.add_argument("--db", default="fleet.db", help="SQLite historian (default fleet.db)")
+    p.add_argument("--dsn", help="PostgreSQL/TimescaleDB instead of SQLite (needs psycopg)")
+    p.add_argument("--username")
+    p.add_argument("--password-file", help="a file whose only line is the password")
+    p.add_argument("--tls", action="store_true")
+    p.add_argument("--tls-ca", help="CA certificate file (default: the system's)")
+    p.add_argument("--seconds", type=float, default=None, help="stop after this long (default: until Ctrl-C)")
+
+
+def run(args: argparse.Namespace) -> int:
+    password = Path(args.password_file).read_text().strip() if args.password_file else None
+    try:
+        historian = Historian(args.db, args.dsn)
+    except ImportError:
+        print("ropemon fleet: --dsn needs psycopg: pip install 'psycopg[binary]'", file=sys.stderr)
+        return 2
+    fleet = Fleet(historian, args.host, args.port, args.group, args.client_id, args.username, password,
+                  args.tls, args.tls_ca)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    fleet.start()
+    print(f"ropemon fleet: {fleet.topic} on {args.host}:{args.port} -> {args.dsn and 'PostgreSQL' or args.db}",
+          file=sys.stderr)
+    end = None if args.seconds is None else time.monotonic() + args.seconds
+    while not stop.is_set() and (end is None or time.monotonic() < end):
+        stop.wait(1.0)
+    fleet.stop()
+    historian.close()
+    print(f"ropemon fleet: {fleet.stats}", file=sys.stderr)
+    return 0

@@ -1,0 +1,73 @@
+"""The MQTT face's store-and-forward buffer: every DDATA's values, on disk, until the broker
+has acknowledged them (SQLite: `<data_dir>/mqtt-outbox.db`; in memory without a data_dir).
+
+Used by the publisher thread only. Rows are kept in the order they were queued (their id);
+past `max_rows` the oldest are dropped and counted. `meta` keeps the edge node's bdSeq
+across restarts.
+"""
+from __future__ import annotations
+
+import json
+import sqlite3
+from pathlib import Path
+from typing import Any, Iterable
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS outbox (id INTEGER PRIMARY KEY AUTOINCREMENT, device TEXT NOT NULL,
+                                   ts_ms INTEGER NOT NULL, body TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL);
+"""
+
+
+class Outbox:
+    def __init__(self, path: Path | None, max_rows: int) -> None:
+        self.path = path
+        self.max_rows = max_rows
+        self.db = sqlite3.connect(str(path) if path is not None else ":memory:", isolation_level=None)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=NORMAL")
+        self.db.executescript(SCHEMA)
+        self.dropped = 0
+        self.rows = self.db.execute("SELECT COUNT(*) FROM outbox").fetchone()[0]
+
+    def add(self, records: Iterable[tuple[str, int, dict[str, Any]]]) -> int:
+        rows = [(dev, ts, json.dumps(values, separators=(",", ":"))) for dev, ts, values in records]
+        if not rows:
+            return 0
+        with self.db:   # one transaction
+            self.db.execute("BEGIN")
+            self.db.executemany("INSERT INTO outbox (device, ts_ms, body) VALUES (?, ?, ?)", rows)
+            self.rows += len(rows)
+            if self.rows > self.max_rows:
+                over = self.rows - self.max_rows
+                self.db.execute("DELETE FROM outbox WHERE id IN (SELECT id FROM outbox ORDER BY id LIMIT ?)", (over,))
+                self.dropped += over
+                self.rows -= over
+        return len(rows)
+
+    def after(self, row_id: int, limit: int) -> list[tuple[int, str, int, dict[str, Any]]]:
+        cur = self.db.execute("SELECT id, device, ts_ms, body FROM outbox WHERE id > ? ORDER BY id LIMIT ?",
+                              (row_id, limit))
+        return [(i, d, t, json.loads(b)) for i, d, t, b in cur]
+
+    def delete(self, ids: list[int]) -> None:
+        if ids:
+            with self.db:
+                self.db.execute("BEGIN")
+                self.db.executemany("DELETE FROM outbox WHERE id = ?", [(i,) for i in ids])
+            self.rows -= len(ids)
+
+    def last_id(self) -> int:
+        """The id of the newest row ever queued (0: none)."""
+        row = self.db.execute("SELECT seq FROM sqlite_sequence WHERE name = 'outbox'").fetchone()
+        return row[0] if row else 0
+
+    def meta(self, key: str, default: int) -> int:
+        row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return row[0] if row else default
+
+    def set_meta(self, key: str, value: int) -> None:
+        self.db.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
+
+    def close(self) -> None:
+        self.db.close()
