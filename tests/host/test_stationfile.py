@@ -78,6 +78,7 @@ def test_a_station_of_two_hoists_each_with_its_own_station_alarms_and_log(tmp_pa
     ('receivers = { pithead = "loop://" }', "receivers = { }"),
     ("silent_s = 3", "silent_s = nan"),
     ("port = 8099", 'port = "8099"'),
+    ('id = "south"', 'id = "south"\nshaft_m = -3'),
     ("[web]", "[webb]"),
     ('id = "south"', 'id = "north"'),
 ])
@@ -87,7 +88,7 @@ def test_bad_station_files_are_refused_with_the_field(tmp_path, edit, message):
     with pytest.raises(StationFileError) as e:
         load_station_file(write(tmp_path, bad))
     field = {"North Shaft": "hoist[0].id", "receivers": "hoist[1].receivers", "nan": "station.silent_s",
-             '"8099"': "web.port", "webb": "webb", 'id = "north"': "hoist[1].id"}
+             '"8099"': "web.port", "webb": "webb", 'id = "north"': "hoist[1].id", "shaft_m": "hoist[1].shaft_m"}
     assert any(k in message and v in str(e.value) for k, v in field.items()), str(e.value)
 
 
@@ -118,3 +119,22 @@ def test_ropemon_serve_runs_the_hoists_and_prints_their_alarms_with_the_hoist(tm
     assert p.returncode == 0, err
     assert {(ln["hoist"], ln["id"]) for ln in lines if ln["event"] == "raise"} >= {("north", "silent:n1"),
                                                                                    ("south", "silent:n1")}
+
+
+def test_a_station_set_takes_other_receivers_for_a_hoist(tmp_path):
+    """The demo points a hoist at its virtual ports instead of the station file's adapters."""
+    node_json(tmp_path, "north.json", 1, KEY_N)
+    node_json(tmp_path, "south.json", 1, KEY_S)
+    sf = load_station_file(write(tmp_path, GOOD.replace('data_dir = "data"\n', "").replace(
+        'id = "south"', 'id = "south"\nshaft_m = 806')))
+    assert sf.hoist("south").shaft_m == 806.0 and sf.hoist("north").shaft_m is None
+    s = StationSet(sf, receivers={"south": [("radio", "loop://")]})
+    try:
+        assert s.hoists["south"].spec.receivers == (("radio", "loop://"),)
+        assert s.hoists["north"].spec.receivers == sf.hoists[0].receivers
+        s.start()
+        assert sorted(s.hoists["south"].station.hub.receivers) == ["radio"]
+    finally:
+        s.close()
+    with pytest.raises(ValueError, match="west"):
+        StationSet(sf, receivers={"west": [("radio", "loop://")]})

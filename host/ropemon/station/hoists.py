@@ -39,10 +39,21 @@ class Hoist:
 class StationSet:
     """The hoists of a station file, each with its own `Station` (module docstring)."""
 
-    def __init__(self, sf: StationFile, clock: Callable[[], float] = time.time, open_stores: bool = True) -> None:
+    def __init__(self, sf: StationFile, clock: Callable[[], float] = time.time, open_stores: bool = True,
+                 receivers: dict[str, list[tuple[str, str]]] | None = None) -> None:
+        """`receivers` replaces the receivers of the hoists it names ({hoist id: [(name, pyserial
+        URL)]}): the demo's virtual ports instead of the station file's adapters."""
         self.file = sf
         self.clock = clock
         self.hoists: dict[str, Hoist] = {}
+        unknown = set(receivers or {}) - {h.id for h in sf.hoists}
+        if unknown:
+            raise ValueError(f"receivers given for hoists the station file does not have: {', '.join(sorted(unknown))}")
+        if receivers:
+            sf = dataclasses.replace(sf, hoists=tuple(
+                dataclasses.replace(h, receivers=tuple(receivers[h.id])) if h.id in receivers else h
+                for h in sf.hoists))
+            self.file = sf
         self._stop = threading.Event()
         try:
             for h in sf.hoists:

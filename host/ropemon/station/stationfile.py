@@ -13,6 +13,7 @@
     receivers = { pithead = "/dev/serial/by-id/usb-FTDI-pithead", mid-shaft = "socket://gw:4001" }
     baud = 115200
     rs485 = false
+    shaft_m = 806.0                 # optional: the shaft's depth (web page's shaft diagram)
 
     [web]                           # optional: `ropemon serve` (docs/web.md)
     bind = "127.0.0.1"
@@ -51,6 +52,7 @@ class HoistFile:
     receivers: tuple[tuple[str, str], ...]   # (name, pyserial URL), in the order given
     baud: int = 115200
     rs485: bool = False
+    shaft_m: float | None = None             # depth of the shaft (the web page's shaft diagram, trip rests)
 
 
 @dataclass(frozen=True)
@@ -145,7 +147,8 @@ def _hoist(t: Table, base: Path) -> HoistFile:
     if not receivers:
         raise StationFileError(f"{t.field('receivers')}: at least one receiver is needed")
     h = HoistFile(hid, t.string("name", hid), tuple(_path(base, c) for c in configs), tuple(receivers),
-                  t.integer("baud", 115200, lo=1200, hi=4_000_000), t.boolean("rs485", False))
+                  t.integer("baud", 115200, lo=1200, hi=4_000_000), t.boolean("rs485", False),
+                  t.number("shaft_m", gt=0.0, le=5000.0) if t.has("shaft_m") else None)
     t.finish()
     return h
 

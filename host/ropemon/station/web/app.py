@@ -600,6 +600,7 @@ def build_app(ctx: Context, secret: str, https_only: bool = False) -> Starlette:
     h = "/hoist/{hoist:str}"
     routes = [
         Route("/", overview),
+        Route("/favicon.ico", lambda request: Response(status_code=204)),
         Route("/login", login_form, methods=["GET"]),
         Route("/login", login, methods=["POST"]),
         Route("/logout", logout, methods=["POST"]),
