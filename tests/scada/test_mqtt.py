@@ -201,3 +201,32 @@ def test_n_stations_arrive_complete_and_in_order_across_a_broker_kill(tmp_path, 
             assert not any(hist_flags[s] for s in range(101, 131))   # phase C: live
     assert fleet.stats["births"] == 6 and fleet.stats["historical"] >= 3 * 2 * 60 * 4
     hist.close()
+
+
+def test_ropemon_serve_starts_the_modbus_and_mqtt_faces_and_stops_them_cleanly(tmp_path, broker):
+    """The faces come up through `ropemon serve` (station/faces.py), as for the demo."""
+    import signal
+    import subprocess
+    import sys
+
+    from pymodbus.client import ModbusTcpClient
+
+    from scada_rig import free_port, write_station
+    spy = Spy(broker.port)
+    port = free_port()
+    path = write_station(tmp_path, 2, f"[modbus]\nport = {port}\n\n" + mqtt_table(broker.port))
+    proc = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "serve", str(path), "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait(lambda: len(spy.kinds("DBIRTH")) == 2, 30, "births from ropemon serve")
+        client = ModbusTcpClient("127.0.0.1", port=port, timeout=3)
+        wait(client.connect, 10, "the Modbus server")
+        assert client.read_holding_registers(0, count=2).registers == [1, 2]
+        client.close()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "Modbus TCP on 127.0.0.1:" in err and "MQTT Sparkplug B to 127.0.0.1:" in err
+    wait(lambda: spy.kinds("NDEATH"), 10, "NDEATH at the clean stop")
+    spy.close()

@@ -11,7 +11,7 @@ import importlib
 import json
 import sys
 
-PARTS = ("firmware", "plant", "host", "noise")
+PARTS = ("firmware", "plant", "host", "noise", "mqtt", "modbus")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
