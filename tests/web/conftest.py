@@ -2,6 +2,9 @@
 
 Fixtures:
     browser     one headless chromium per test module (a fresh profile each)
+    station     per test module: `ropemon serve` with [web] on a free localhost port, hoists north
+                and south fed by simulated winds through pty receivers (`ropemon.lab.webstation`),
+                an operator olga in the users file (made with the web face's `add_user`)
     artefacts   out/test-artefacts/ (gitignored): the screenshots the tests save (listed at the end)
 """
 from __future__ import annotations
@@ -9,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from webrig import ARTEFACTS, SAVED, new_browser, quit_browser
+from webrig import ARTEFACTS, OPERATOR, SAVED, SHORT_WIND, new_browser, quit_browser
 
 
 @pytest.fixture(scope="module")
@@ -20,6 +23,19 @@ def browser():
         yield driver
     finally:
         quit_browser(driver)
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    from ropemon.lab.webstation import WebStation
+
+    ws = WebStation(tmp_path_factory.mktemp("station"), hoists=2, users={OPERATOR[0]: ("operator", OPERATOR[1])},
+                    wind=SHORT_WIND)
+    try:
+        ws.start()
+        yield ws
+    finally:
+        ws.stop()
 
 
 @pytest.fixture(scope="session")

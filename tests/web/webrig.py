@@ -26,6 +26,13 @@ CHROMIUM_FLAGS = (
     "--mute-audio",
 )
 
+#: the operator the station's users file has: name, password
+OPERATOR = ("olga", "hoist-room 2")
+
+#: A short shaft, so that a whole trip (rest, wind, rest) is in the log within ~20 s.
+SHORT_WIND = {"shaft_m": 30.0, "v_max": 5.0, "accel": 2.5, "rest_s": 6.0, "payload_n": 60_000.0}
+
+
 #: screenshots saved in this run (name, path): conftest lists them in the summary
 SAVED: list[tuple[str, Path]] = []
 
@@ -69,3 +76,37 @@ def save_screenshot(driver, name: str) -> Path:
     assert path.stat().st_size > 1000, f"{path}: {path.stat().st_size} bytes, not a page"
     SAVED.append((name, path))
     return path
+
+
+#: Resolves with the page's epoch time in ms (performance.timeOrigin + performance.now()) at the
+#: first DOM change after which `document.querySelector(css)` finds something (or, with `gone`,
+#: finds nothing); null on timeout. No eval: the page's CSP has no 'unsafe-eval'.
+_WAIT_JS = """
+const css = arguments[0], gone = arguments[1], timeoutMs = arguments[2], done = arguments[arguments.length - 1];
+const now = () => performance.timeOrigin + performance.now();
+const ok = () => gone ? !document.querySelector(css) : !!document.querySelector(css);
+if (ok()) { done(now()); return; }
+let finished = false;
+const obs = new MutationObserver(() => {
+  if (!finished && ok()) { finished = true; obs.disconnect(); clearTimeout(timer); done(now()); }
+});
+obs.observe(document, {subtree: true, childList: true, attributes: true, characterData: true});
+const timer = setTimeout(() => { if (!finished) { finished = true; obs.disconnect(); done(null); } }, timeoutMs);
+"""
+
+
+def wait_for(driver, css: str, timeout_s: float = 10.0, gone: bool = False) -> float:
+    """Wait until `css` matches an element in the page (or none, with `gone`); return the time it
+    did as the page's epoch seconds (comparable with time.time()); AssertionError on timeout."""
+    driver.set_script_timeout(timeout_s + 5)
+    t = driver.execute_async_script(_WAIT_JS, css, gone, int(timeout_s * 1000))
+    assert t is not None, f"after {timeout_s} s the page {'still has' if gone else 'has no'} {css!r}"
+    return t / 1000.0
+
+
+def js_fixed(x: float, digits: int) -> str:
+    """JavaScript's Number(x).toFixed(digits) for x >= 0 (ties of the exact binary value go up)."""
+    from decimal import ROUND_HALF_UP, Decimal
+
+    q = Decimal(1).scaleb(-digits)
+    return str(Decimal(x).quantize(q, rounding=ROUND_HALF_UP))
