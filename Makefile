@@ -15,7 +15,7 @@ all: test
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[lab,test,modbus,mqtt,web]'
+	$(BIN)/pip install --quiet -e '.[lab,test,modbus,opcua,mqtt,web]'
 	touch $@
 
 # The official 32-bit MicroPython (WebAssembly port), used to prove 32-bit int safety.

