@@ -61,8 +61,10 @@ $(BROKER_STAMP):
 	fi
 	@mkdir -p $(VENV) && touch $@
 
+# The simulated wind through a station with its web face: the URL is printed; in a terminal the
+# station keeps serving after the wind until Ctrl-C (a headless run stops at the end).
 demo: $(STAMP)
-	$(BIN)/ropemon demo
+	$(BIN)/ropemon demo --serve
 
 test: $(STAMP) $(NODE_STAMP) $(BROWSER_STAMP) $(BROKER_STAMP)
 	$(BIN)/python -m pytest

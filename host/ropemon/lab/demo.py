@@ -281,6 +281,232 @@ def play_to_host(deliveries: dict[str, list[radio.Delivery]], host: DemoHost, sp
             vp.close()
 
 
+# -- the demo through a station file (`--station`, `--serve`): the hoist room's StationSet and its faces --
+
+
+DEMO_HOIST = "demo"
+DEMO_OPERATOR = "demo"
+
+
+def _free_port(preferred: int = 8080) -> int:
+    import socket
+    for port in (preferred, 0):
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(s.getsockname()[1])
+    raise OSError("no free port on 127.0.0.1")
+
+
+def write_demo_station(out: Path, node_json: Path, shaft_m: float, port: int | None) -> tuple[Path, str]:
+    """OUT/station.toml: one hoist (the simulated one), its log in OUT, the web face on localhost,
+    and OUT/users.toml with one operator whose password is new each run (returned)."""
+    import secrets
+
+    try:
+        from ropemon.station.web.auth import add_user
+    except ImportError as e:
+        raise RuntimeError(f"--serve needs the web face's libraries: pip install 'ropemon[web]' ({e})") from None
+    users = out / "users.toml"
+    users.unlink(missing_ok=True)
+    password = secrets.token_urlsafe(9)
+    add_user(users, DEMO_OPERATOR, "operator", password)
+    path = out / "station.toml"
+    path.write_text(f"""# written by ropemon demo: the simulated hoist as a station (docs/web.md)
+[station]
+name = "ropemon demo"
+data_dir = "."
+
+[[hoist]]
+id = "{DEMO_HOIST}"
+name = "Simulated hoist"
+configs = ["{node_json.resolve().relative_to(out.resolve()).as_posix()}"]
+receivers = {{ pithead = "set by ropemon demo" }}
+shaft_m = {max(shaft_m, 1.0):.1f}
+
+[web]
+bind = "127.0.0.1"
+port = {port or _free_port()}
+view_without_login = true
+users = "users.toml"
+secret = "web-secret"
+""")
+    return path, password
+
+
+class _AllHoists:
+    """What `monitor.live_loop` drives: every hoist of the StationSet; keys act on the first."""
+
+    def __init__(self, stations: Any, hoist: str) -> None:
+        self.stations, self.hoist = stations, hoist
+
+    def pump(self) -> int:
+        self.stations.step()
+        return 0
+
+    def tick(self) -> None:
+        pass
+
+    def clock(self) -> float:
+        return self.stations.clock()
+
+    def submit(self, command: Any) -> None:
+        self.stations.submit(self.hoist, command)
+
+
+def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: Any, shaft_m: float,
+                    deliveries: dict[str, list[radio.Delivery]], speed: float, clock: DemoClock, headless: bool,
+                    step: Callable[[str], float], wind_s: float):
+    """The wind through a station file's StationSet (the demo's own, or --station's first hoist),
+    with its faces when serving. Returns (DemoHost, bytes written per receiver, the first hoist's
+    log or None, finish) where finish() keeps serving until Ctrl-C (--serve in a terminal, unless
+    the operator quit) and then closes everything; None after a refusal it printed."""
+    import dataclasses
+    import signal
+    import threading
+
+    from rich.console import Console, Group
+    from rich.text import Text
+
+    from ropemon.lab.vserial import Player, VirtualPort
+    from ropemon.station.faces import FaceError, start_faces
+    from ropemon.station.hoists import StationSet
+    from ropemon.station.monitor import MonitorView, live_loop
+    from ropemon.station.stationfile import load_station_file
+
+    password = None
+    if args.station:
+        sf = load_station_file(args.station)
+    else:
+        path, password = write_demo_station(out, node_json, shaft_m, args.port)
+        sf = load_station_file(path)
+    first = sf.hoists[0]
+    demo_keys = load_node_keys(node_json)
+    have: dict[int, bytes] = {}
+    for c in first.configs:
+        have.update(load_node_keys(c))
+    if any(have.get(n) != k for n, k in demo_keys.items()):
+        step(f"  hoist {first.id}: its node configs do not hold the simulated node's key: it uses {node_json}")
+        sf = dataclasses.replace(sf, hoists=(dataclasses.replace(first, configs=(node_json,)),) + sf.hoists[1:])
+    db = sf.data_dir / f"{first.id}.db" if sf.data_dir is not None else None
+    if db is not None and not args.station:          # the demo's own log: a new one each run
+        for p in (db, Path(str(db) + "-wal"), Path(str(db) + "-shm")):
+            p.unlink(missing_ok=True)
+    elif db is not None and db.exists():
+        from ropemon.station.store import Store
+        with Store(db, readonly=True) as st:
+            logged = set(st.last_seqs()) & set(demo_keys)
+        if logged:
+            print(f"ropemon demo: {db} already holds frames of node {sorted(logged)[0]}: the demo's frames would be "
+                  "refused as replays; remove that log or give the station another data_dir", file=sys.stderr)
+            return None
+    ports = {name: VirtualPort(name) for name in deliveries}
+    stations: Any = None
+    faces: list = []
+    players: list = []
+
+    def close() -> None:
+        for p in players:
+            p.stop()
+        for f in faces:
+            f.stop()
+        if stations is not None:
+            stations.close()
+        for vp in ports.values():
+            vp.close()
+
+    try:
+        stations = StationSet(sf, clock=clock, receivers={first.id: [(n, vp.port) for n, vp in ports.items()]})
+        for h in stations.hoists.values():
+            h.station.hub.clock = clock               # rx times on the demo's clock too
+        h0 = stations.hoists[first.id]
+        kept = FrameKeeper()
+        view = None if headless else MonitorView(site)
+        stations.add_listeners(lambda h: kept if h.id == first.id else None)
+        if view is not None:
+            stations.add_listeners(lambda h: view if h.id == first.id else None)
+        if args.serve:
+            try:
+                faces = start_faces(stations, sf)
+            except FaceError as e:
+                raise RuntimeError(str(e)) from None
+        urls = [u for u in (getattr(f, "url", None) for f in faces) if u]
+        for f in faces:
+            step(f"  {f.describe()}")
+        if password is not None and urls:
+            step(f"  web: log in as {DEMO_OPERATOR} / {password} to acknowledge and shelve (a new password each run)")
+        stations.start()
+        session = h0.station
+        readers = list(session.hub.receivers.values())
+        deadline = time.monotonic() + 10.0
+        while not all(r.connected for r in readers):   # pyserial flushes input on open: write only after
+            if time.monotonic() > deadline:
+                raise RuntimeError("the station could not open the virtual ports: "
+                                   + "; ".join(r.last_error or r.name for r in readers if not r.connected))
+            time.sleep(0.01)
+        first_t = min((d[0].t_s for d in deliveries.values() if d), default=0.0)
+        t_play = time.monotonic()
+        for name, vp in ports.items():
+            p = Player(vp, [(first_t, b"")] + [(d.t_s, d.data) for d in deliveries[name]], speed, t0=t_play)
+            p.start()
+            players.append(p)
+        total = sum(len(d.data) for v in deliveries.values() for d in v)
+        step(f"  playing {wind_s:.0f} s of frames at {speed:g}x real time (about {wind_s / speed:.0f} s)"
+             + (f"; the web page: {urls[0]}" if urls else ""))
+        quiet_since: list[float] = []
+
+        def done() -> bool:
+            if any(p.is_alive() for p in players):
+                return False
+            if sum(r.bytes_read for r in session.hub.receivers.values()) >= total:
+                return True
+            if not quiet_since:
+                quiet_since.append(time.monotonic())
+            return time.monotonic() - quiet_since[0] > 1.0
+
+        quit_early = False
+        if view is not None:
+            base_render = view.render
+            head = Text(f" web: {urls[0]}  (the station keeps serving after the wind until Ctrl-C)" if urls else "",
+                        style="bold cyan")
+            view.render = lambda now: Group(head, base_render(now)) if urls else base_render(now)  # type: ignore
+            console = Console()
+            live_loop(_AllHoists(stations, first.id), view, console, 4.0, done)
+            quit_early = not done()
+            console.print(view.render(stations.clock()))
+        while not quit_early and not done():
+            stations.step()
+            time.sleep(1.0 / sf.tick_hz)
+        for p in players:
+            p.stop()
+            p.join(2.0)
+            if p.error is not None:
+                raise RuntimeError(f"playing receiver {p.port.name} failed: {p.error}")
+        stations.step()
+        if h0.store is not None:
+            h0.store.commit()
+        written = {p.port.name: p.written for p in players}
+        host = DemoHost(session, h0.alarms, kept, h0.store, view)
+    except BaseException:
+        close()
+        raise
+
+    def finish() -> None:
+        try:
+            if args.serve and faces and not headless and not quit_early:
+                stop = threading.Event()
+                for sig in (signal.SIGTERM, signal.SIGINT):
+                    signal.signal(sig, lambda *_: stop.set())
+                print(f"[demo] the station keeps serving {urls[0] if urls else ''} until Ctrl-C", flush=True)
+                stations.run(stop.is_set)
+        finally:
+            close()
+
+    return host, written, db, finish
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--headless", action="store_true", help="no live monitor: print the summary only")
     p.add_argument("--scenario", default="paper-field-trip", help="simulator scenario (default paper-field-trip)")
@@ -291,6 +517,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interpreter", choices=("micropython", "cpython"), default="micropython",
                    help="where the node firmware runs (default: the real micropython unix port)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--serve", action="store_true",
+                   help="play the wind in real time through a station with its web face (the station file's "
+                        "faces with --station; else one written to OUT/station.toml) and keep serving after "
+                        "it until Ctrl-C (a headless run stops at the end)")
+    p.add_argument("--station", metavar="STATION.toml",
+                   help="play the wind through this station file's first hoist: its receivers become the "
+                        "demo's virtual ports (and its node config the simulated node's, if it is another)")
+    p.add_argument("--port", type=int, default=None,
+                   help="the web face's port of the station the demo writes (default 8080, or a free one)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -302,7 +537,8 @@ def run(args: argparse.Namespace) -> int:
     from ropemon.station.store import Store
 
     headless = args.headless or args.json or not sys.stdout.isatty()
-    speed = args.speed or (20.0 if headless else 4.0)
+    station_mode = bool(args.serve or args.station)
+    speed = args.speed or (20.0 if headless else (1.0 if args.serve else 4.0))
     out = Path(args.out)
     sim_dir = out / "sim"
     out.mkdir(parents=True, exist_ok=True)
@@ -344,39 +580,58 @@ def run(args: argparse.Namespace) -> int:
     params = radio.RadioParams(shaft_m=max(shaft_m, 1.0))
     result = radio.transmit(zip(t_frames, depth_at(truth, t_truth, t_frames), sent.wires), rx, params, args.seed)
 
-    db = out / "ropemon.db"
-    for p in (db, Path(str(db) + "-wal"), Path(str(db) + "-shm")):
-        p.unlink(missing_ok=True)
-    store = Store(db)
-    clock = DemoClock(speed)
-    view = None if headless else MonitorView(site)
-    host = demo_host(keys, alarm_settings(site), clock, store, view)
     wind_s = t_frames[-1] - t_frames[0] if len(t_frames) else 0.0
-    t = step(f"  playing {wind_s:.0f} s of frames at {speed:g}x real time (about {wind_s / speed:.0f} s)")
-    try:
-        written = play_to_host(result.deliveries, host, speed, clock,
-                               None if headless else Console())
-    finally:
-        store.close()
-    step(f"  host done in {time.monotonic() - t:.1f} s")
-
-    acc = accuracy(host.kept.frames, truth, t_truth, site.cylinder_area_m2,
-                   site.rated_rope_tension_n or 1.0, 1.0 / phys["frame_hz"])
-    plot = plot_demo(acc, out / "demo.png") if acc.get("frames") else None
-    summary = summarize(sent, result, host, acc, written)
-    summary["files"] = {"database": str(db), "plot": str(plot) if plot else None, "frames": str(frames_bin),
-                        "config": str(node_json), "report": str(out / "report"),
-                        "site": json.loads((sim_dir / "truth.json").read_text()).get("site_file")}
-    summary["replay"] = rep
-    report_text = trip_report(db, out / "report", site, sim_dir, payload_at(truth["payload_kg"], t_truth))
-    if args.json:
-        json.dump(summary, sys.stdout, indent=1, default=float)
-        print()
+    clock = DemoClock(speed)
+    if station_mode:
+        try:
+            played = play_to_station(args, out, node_json, site, shaft_m, result.deliveries, speed, clock,
+                                     headless, step, wind_s)
+        except (ValueError, OSError, RuntimeError) as e:
+            print(f"ropemon demo: {e}", file=sys.stderr)
+            return 2
+        if played is None:
+            return 2
+        host, written, db, keep_serving = played
+        step("  the wind is played")
     else:
-        print(format_summary(summary))
-        print()
-        print(report_text)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+        db = out / "ropemon.db"
+        for p in (db, Path(str(db) + "-wal"), Path(str(db) + "-shm")):
+            p.unlink(missing_ok=True)
+        store = Store(db)
+        view = None if headless else MonitorView(site)
+        host = demo_host(keys, alarm_settings(site), clock, store, view)
+        t = step(f"  playing {wind_s:.0f} s of frames at {speed:g}x real time (about {wind_s / speed:.0f} s)")
+        try:
+            written = play_to_host(result.deliveries, host, speed, clock,
+                                   None if headless else Console())
+        finally:
+            store.close()
+        step(f"  host done in {time.monotonic() - t:.1f} s")
+        keep_serving = None
+
+    try:
+        acc = accuracy(host.kept.frames, truth, t_truth, site.cylinder_area_m2,
+                       site.rated_rope_tension_n or 1.0, 1.0 / phys["frame_hz"])
+        plot = plot_demo(acc, out / "demo.png") if acc.get("frames") else None
+        summary = summarize(sent, result, host, acc, written)
+        summary["files"] = {"database": str(db) if db else None, "plot": str(plot) if plot else None,
+                            "frames": str(frames_bin), "config": str(node_json), "report": str(out / "report"),
+                            "site": json.loads((sim_dir / "truth.json").read_text()).get("site_file")}
+        summary["replay"] = rep
+        report_text = (trip_report(db, out / "report", site, sim_dir, payload_at(truth["payload_kg"], t_truth))
+                       if db is not None else "no trip report: the station keeps no log (station.data_dir)")
+        if args.json:
+            json.dump(summary, sys.stdout, indent=1, default=float)
+            print()
+        else:
+            print(format_summary(summary))
+            print()
+            print(report_text)
+        (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    finally:
+        if keep_serving is not None:
+            sys.stdout.flush()
+            keep_serving()          # serving until Ctrl-C (--serve in a terminal), then closes the station
     return 0 if summary["host"]["foreign_frames"] == 0 else 1
 
 
@@ -476,7 +731,7 @@ def trip_report(db: Path, out_dir: Path, site, sim_dir: Path, payload_kg) -> str
     from ropemon.station.store import Store
 
     load = hoist_load_from_truth(sim_dir)
-    with Store(db) as st:
+    with Store(db, readonly=True) as st:
         text, _ = write_report(st, out_dir, site.cylinder_area_m2, load, payload_kg,
                                shaft_m=load.shaft_m if load else None)
     return text

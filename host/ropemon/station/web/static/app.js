@@ -422,7 +422,7 @@
     const width = Math.max(300, el.clientWidth || 600);
     const o = Object.assign({
       width: width, height: (opts && opts.height) || 200, series: series,
-      scales: { x: { time: !(opts && opts.seconds) } },
+      scales: { x: { time: !(opts && opts.seconds) }, y: { dir: opts && opts.down ? -1 : 1 } },
       axes: [{ stroke: "#bbb", grid: { stroke: "#333" } }, { stroke: "#bbb", grid: { stroke: "#333" }, label: (opts && opts.ylabel) || "kN" }],
       cursor: { drag: { x: true, y: false } },
       legend: { live: true },
@@ -575,7 +575,7 @@
         }] },
       });
       if (depth) {
-        ud = makeChart(depthEl, [{}, { label: "depth m", stroke: "#aaa", width: 1 }], [t, depth], { height: 120, ylabel: "m" });
+        ud = makeChart(depthEl, [{}, { label: "depth m", stroke: "#aaa", width: 1 }], [t, depth], { height: 120, ylabel: "m", down: true });
       }
       liveData = isLive ? data : null;
     }
@@ -640,7 +640,7 @@
       for (let i = 0; i < n; i++) series.push({ label: "rope " + (i + 1) + " comp", stroke: COLORS[i % COLORS.length], width: 1.5 });
       for (let i = 0; i < n; i++) series.push({ label: "rope " + (i + 1) + " raw", stroke: COLORS[i % COLORS.length], width: 1, dash: [6, 4] });
       makeChart(el, series, [j.t].concat(j.comp, j.raw), { height: 340, seconds: true });
-      makeChart($("#trip-depth"), [{}, { label: "depth m", stroke: "#aaa", width: 1 }], [j.t, j.depth_m], { height: 120, seconds: true, ylabel: "m" });
+      makeChart($("#trip-depth"), [{}, { label: "depth m", stroke: "#aaa", width: 1 }], [j.t, j.depth_m], { height: 120, seconds: true, ylabel: "m", down: true });
     }).catch(() => { el.textContent = "the chart could not be read"; });
   }
 
