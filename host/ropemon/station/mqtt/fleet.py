@@ -107,7 +107,7 @@ class Fleet:
             c.username_pw_set(username, password)
         if tls:
             c.tls_set(ca_certs=tls_ca)
-        c.reconnect_delay_set(0.2, 2.0)
+        c.reconnect_delay_set(1, 2)
         c.on_connect = self._on_connect
         c.on_disconnect = lambda *a: self.connected.clear()
         c.on_message = self._on_message
