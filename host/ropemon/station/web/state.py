@@ -290,15 +290,24 @@ class WebListener(Listener):
     def snapshot(self, trend: bool = True) -> dict:
         """Everything the live page shows, as plain JSON-able data (a copy)."""
         with self._lock:
-            out = {
-                "hoist": self.hoist_id, "name": self.hoist_name, "site": dict(self.site), "now": self.now,
-                "nodes": {str(n): v for n, v in sorted(self.nodes.items())},
-                "alarms": json.loads(dumps(self.alarms)), "status": json.loads(dumps(self.status)),
-                "events": list(self.events)[-50:], "stopped": self.stopped,
-            }
-            if trend:
-                out["trend"] = {str(n): self._trend_columns(tr) for n, tr in sorted(self.trend.items())}
-            return out
+            return self._snapshot(self._copy(trend))
+
+    def _copy(self, trend: bool) -> tuple:
+        """What a snapshot needs, copied under the lock (the views it holds are replaced, never
+        changed, on the station's thread): quick, so the station never waits long."""
+        return (self.now, dict(self.nodes), self.alarms, self.status, list(self.events)[-50:], self.stopped,
+                {n: list(tr) for n, tr in self.trend.items()} if trend else None)
+
+    def _snapshot(self, copied: tuple) -> dict:
+        now, nodes, alarms, status, events, stopped, trend = copied
+        out = {
+            "hoist": self.hoist_id, "name": self.hoist_name, "site": dict(self.site), "now": now,
+            "nodes": {str(n): v for n, v in sorted(nodes.items())},
+            "alarms": alarms, "status": status, "events": events, "stopped": stopped,
+        }
+        if trend is not None:
+            out["trend"] = {str(n): self._trend_columns(tr) for n, tr in sorted(trend.items())}
+        return out
 
     def summary(self) -> dict:
         """One hoist on the overview page."""
@@ -324,14 +333,15 @@ class WebListener(Listener):
             return {int(n) for n in self.status.get("refused", {})}
 
     def subscribe(self, sub: Subscriber) -> str:
-        """Register `sub` for deltas; returns the snapshot (JSON) they follow, atomically."""
+        """Register `sub` for deltas; returns the snapshot (JSON) they follow: copied under the
+        lock with the registration (no delta lost or doubled), serialised after it."""
         with self._lock:
-            snap = dumps(self.snapshot())
+            copied = self._copy(True)
             if self.stopped:
                 sub.close()
             else:
                 self._subs.add(sub)
-            return snap
+        return dumps(self._snapshot(copied))
 
     def subscribe_summary(self, sub: Subscriber) -> str:
         with self._lock:
