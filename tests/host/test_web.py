@@ -538,3 +538,40 @@ def test_ropemon_user_add_reads_the_password_from_stdin_and_refuses_a_short_one(
     r = run(["list", str(p)], "")
     assert r.stdout.split() == ["olga", "operator"]
     assert run(["remove", str(p), "olga"], "").returncode == 0 and load_users(p) == {}
+
+
+def test_the_face_serves_over_http_and_says_where_and_refuses_a_busy_port(tmp_path):
+    """`start` (the faces contract): uvicorn in its own thread on the configured address."""
+    import dataclasses
+    import socket
+    import urllib.request
+
+    from ropemon.station.web import server
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    node_json(tmp_path, "north.json", 1, KEY_N)
+    node_json(tmp_path, "south.json", 1, KEY_S)
+    (tmp_path / "station.toml").write_text(STATION.replace('users = "users.toml"\n', "") + f"port = {port}\n")
+    sf = load_station_file(tmp_path / "station.toml")
+    stations = StationSet(sf)
+    face = server.start(stations, sf.web)
+    try:
+        assert face.describe().startswith(f"web: http://127.0.0.1:{port}/ (2 hoists; view without login; no users")
+        stations.step()
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/hoist/north", timeout=10) as r:
+            assert r.status == 200 and b'id="conn"' in r.read()
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/hoist/north/stream", timeout=10) as r:
+            assert r.headers["content-type"].startswith("text/event-stream")
+            assert r.readline() == b"retry: 2000\n" and r.readline() == b"event: snapshot\n"
+        other = StationSet(sf)
+        try:
+            with pytest.raises(WebError, match=f"cannot listen on 127.0.0.1:{port}"):
+                server.start(other, dataclasses.replace(sf.web, secret=None))
+        finally:
+            other.close()
+    finally:
+        face.stop()
+        stations.close()
+    assert not face.thread.is_alive()

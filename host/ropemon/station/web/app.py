@@ -36,7 +36,7 @@ from starlette.middleware.sessions import SessionMiddleware
 from starlette.requests import Request
 from starlette.responses import (JSONResponse, PlainTextResponse, RedirectResponse, Response,
                                  StreamingResponse)
-from starlette.routing import Mount, Route
+from starlette.routing import BaseRoute, Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.templating import Jinja2Templates
 
@@ -156,6 +156,11 @@ def _field(form: FormData, name: str, required: bool = True) -> str:
     if len(v) > MAX_FORM_FIELD:
         raise Refused(name, f"longer than {MAX_FORM_FIELD} characters")
     return v.strip()
+
+
+def _text(form: FormData, name: str) -> str | None:
+    v = form.get(name)
+    return v if isinstance(v, str) else None
 
 
 def _alarm(form: FormData, lst: WebListener, allow_all: bool = False) -> str:
@@ -471,12 +476,14 @@ def _safe_next(nxt: str) -> str:
 
 async def login(request: Request) -> Response:
     form = await request.form()
-    if not csrf_ok(request.session, form.get("csrf") if isinstance(form.get("csrf"), str) else None):
+    if not csrf_ok(request.session, _text(form, "csrf")):
         return PlainTextResponse("csrf: missing or wrong token (reload the login page)", 403)
     name = form.get("name")
     pw = form.get("password")
     nxt = _safe_next(str(form.get("next") or "/"))
     c = _ctx(request)
+    user: User | None
+    why: str | None
     if not isinstance(name, str) or not isinstance(pw, str) or not name or not pw \
             or len(name) > 64 or len(pw) > 1024:
         user, why = None, "give a name and a password"
@@ -493,7 +500,7 @@ async def login(request: Request) -> Response:
 
 async def logout(request: Request) -> Response:
     form = await request.form()
-    if not csrf_ok(request.session, form.get("csrf") if isinstance(form.get("csrf"), str) else None):
+    if not csrf_ok(request.session, _text(form, "csrf")):
         return PlainTextResponse("csrf: missing or wrong token", 403)
     request.session.clear()
     return RedirectResponse("/", status_code=303)
@@ -512,8 +519,8 @@ def _act(action: str) -> Any:
                 return JSONResponse({"ok": False, "error": "log in as an operator to act"}, 401)
             return RedirectResponse(f"/login?next={quote('/hoist/' + lst.hoist_id)}", status_code=303)
         form = await request.form()
-        token = request.headers.get("x-csrf-token") or form.get("csrf")
-        if not csrf_ok(request.session, token if isinstance(token, str) else None):
+        token = request.headers.get("x-csrf-token") or _text(form, "csrf")
+        if not csrf_ok(request.session, token):
             return JSONResponse({"ok": False, "field": "csrf", "error": "missing or wrong CSRF token (reload the page)"},
                                 403)
         if not user.may(action):
@@ -598,7 +605,7 @@ class SecurityHeaders:
 
 def build_app(ctx: Context, secret: str, https_only: bool = False) -> Starlette:
     h = "/hoist/{hoist:str}"
-    routes = [
+    routes: list[BaseRoute] = [
         Route("/", overview),
         Route("/favicon.ico", lambda request: Response(status_code=204)),
         Route("/login", login_form, methods=["GET"]),
