@@ -479,6 +479,11 @@ def test_history_trips_and_csv_from_the_log(site):
     c = site.client
     h = c.get("/hoist/north/history.json", params={"node": 1, "hours": 1}).json()
     assert h["frames"] == 220 and len(h["ropes"]) == 4 and h["ropes"][0][0] == pytest.approx(50.0, abs=0.01)
+    site.now += 600                                        # ten minutes without a frame, then one
+    site.frame(depth_mm=12_000)
+    site.stations.hoists["north"].store.commit()
+    g = c.get("/hoist/north/history.json", params={"node": 1, "hours": 1}).json()
+    assert g["frames"] == 221 and g["ropes"][0][-2] is None and g["ropes"][0][-1] == pytest.approx(50.0)
     assert c.get("/hoist/north/history.json", params={"node": 1, "hours": "-1"}).status_code == 400
     assert c.get("/hoist/north/history.json", params={"node": "x"}).json()["field"] == "node"
     page = c.get("/hoist/north/trips").text

@@ -94,21 +94,29 @@ def history(st: Store, node: int, t0: float, t1: float, max_points: int = MAX_PO
         "SELECT CAST((rx_time - ?) / ? AS INTEGER) AS b, avg(rx_time), avg(depth_mm), count(*) FROM frames "
         "WHERE node = ? AND rx_time >= ? AND rx_time <= ? GROUP BY b ORDER BY b",
         (t0, bucket, node, t0, t1)).fetchall()
-    index = {b: k for k, (b, *_rest) in enumerate(frames)}
+    # a bucket without frames between two with frames: a gap (None), so the chart does not bridge it
+    gap_s = max(3 * bucket, 2.0)
+    points: list[tuple[Any, ...]] = []
+    for k, r in enumerate(frames):
+        if k and r[1] - frames[k - 1][1] > gap_s:
+            points.append((None, (r[1] + frames[k - 1][1]) / 2, None, 0))
+        points.append(r)
+    index: dict[Any, int] = {p[0]: k for k, p in enumerate(points) if p[0] is not None}
     n_ropes = max((r[1] for r in rows), default=-1) + 1
-    mean = [[None] * len(frames) for _ in range(n_ropes)]
-    lo = [[None] * len(frames) for _ in range(n_ropes)]
-    hi = [[None] * len(frames) for _ in range(n_ropes)]
+    mean: list[list[float | None]] = [[None] * len(points) for _ in range(n_ropes)]
+    lo: list[list[float | None]] = [[None] * len(points) for _ in range(n_ropes)]
+    hi: list[list[float | None]] = [[None] * len(points) for _ in range(n_ropes)]
     for b, rope, m, mn, mx in rows:
-        k = index.get(b)
-        if k is None:
+        at = index.get(b)
+        if at is None:
             continue
-        mean[rope][k] = _f(m * DAN_TO_N / 1000)
-        lo[rope][k] = _f(mn * DAN_TO_N / 1000)
-        hi[rope][k] = _f(mx * DAN_TO_N / 1000)
+        mean[rope][at] = _f(m * DAN_TO_N / 1000)
+        lo[rope][at] = _f(mn * DAN_TO_N / 1000)
+        hi[rope][at] = _f(mx * DAN_TO_N / 1000)
     return {"node": node, "t0": t0, "t1": t1, "bucket_s": bucket,
-            "t": [_f(r[1], 3) for r in frames], "depth_m": [_f(r[2] / 1000) for r in frames],
-            "frames": sum(r[3] for r in frames),
+            "t": [_f(p[1], 3) for p in points],
+            "depth_m": [None if p[2] is None else _f(p[2] / 1000) for p in points],
+            "frames": sum(p[3] for p in points),
             "ropes": mean, "min": lo, "max": hi}
 
 
