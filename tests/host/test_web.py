@@ -158,6 +158,9 @@ def test_pages_render_for_a_station_fed_frames(site):
     assert snap["nodes"]["1"]["ropes"][0]["comp_kN"] == pytest.approx(50.0, abs=0.01)
     assert snap["nodes"]["1"]["sum_kN"] == pytest.approx(200.0, abs=0.05)
     assert len(snap["trend"]["1"]["t"]) == 5
+    site.frame(dt=10.0)                                     # ten seconds without a frame: a gap in the trend
+    tr = c.get("/hoist/north/snapshot.json").json()["trend"]["1"]
+    assert len(tr["t"]) == 7 and tr["ropes"][0][5] is None and tr["ropes"][0][6] == pytest.approx(50.0)
     r = c.get("/static/app.js")
     assert r.status_code == 200 and "EventSource" in r.text
     assert "default-src 'self'" in r.headers["content-security-policy"]

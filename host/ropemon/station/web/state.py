@@ -361,10 +361,16 @@ class WebListener(Listener):
 
     # -- internals (under the lock) ------------------------------------------------------
 
-    def _trend_columns(self, tr: deque) -> dict:
+    def _trend_columns(self, tr: list | deque) -> dict:
+        """Columns for the chart; frames more than STALE_S apart get a gap (None) between them."""
         n = max((len(v) for _, v in tr), default=0)
-        return {"t": [round(t, 2) for t, _ in tr],
-                "ropes": [[v[i] if i < len(v) else None for _, v in tr] for i in range(n)]}
+        pts: list[tuple[float, list]] = []
+        for t, v in tr:
+            if pts and t - pts[-1][0] > STALE_S:
+                pts.append(((t + pts[-1][0]) / 2, []))
+            pts.append((t, v))
+        return {"t": [round(t, 2) for t, _ in pts],
+                "ropes": [[v[i] if i < len(v) else None for _, v in pts] for i in range(n)]}
 
     def _broadcast(self, event: str, data: str) -> None:
         gone = []

@@ -457,6 +457,11 @@
     const c = live.charts[v.node];
     if (!c) { if (!v.status_only) liveTrend(v.node, { t: [v.t], ropes: v.ropes.map((r) => [r.comp_kN]) }); return; }
     if (v.ropes.length !== c.ropes) return;
+    const last = c.data[0].length ? c.data[0][c.data[0].length - 1] : null;
+    if (last !== null && v.t - last > STALE_S) {           // frames missed: a gap, not a line across it
+      c.data[0].push((v.t + last) / 2);
+      v.ropes.forEach((r, i) => c.data[i + 1].push(null));
+    }
     c.data[0].push(v.t);
     v.ropes.forEach((r, i) => c.data[i + 1].push(r.comp_kN));
     const cut = v.t - 600;
