@@ -3,6 +3,7 @@ temporary config, for the MQTT tests: start, kill (SIGKILL) and restart on the s
 Sessions persist across a restart (autosave every second), as a site's broker would."""
 from __future__ import annotations
 
+import getpass
 import shutil
 import signal
 import socket
@@ -29,6 +30,8 @@ class Broker:
             f"listener {self.port} 127.0.0.1\nallow_anonymous true\n"
             f"persistence true\npersistence_location {self.dir}/\nautosave_interval 1\n"
             "max_queued_messages 0\nmax_inflight_messages 0\n"
+            # started as root, mosquitto switches to this user: keep the one that owns the temp dir
+            f"user {getpass.getuser()}\n"
             f"log_dest file {self.dir}/mosquitto.log\n")
         self.proc: subprocess.Popen | None = None
         self.start()
@@ -46,6 +49,11 @@ class Broker:
                     raise RuntimeError(f"mosquitto exited: {(self.dir / 'mosquitto.log').read_text()[-2000:]}")
                 time.sleep(0.05)
         raise RuntimeError("mosquitto did not listen within 10 s")
+
+    def saves(self) -> int:
+        """How many times the broker has saved its sessions to disk (its log's count)."""
+        log = self.dir / "mosquitto.log"
+        return log.read_text(errors="replace").count("Saving in-memory database") if log.exists() else 0
 
     def kill(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
