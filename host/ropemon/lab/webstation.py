@@ -4,7 +4,8 @@
 hoist with its own key, station.toml with a [web] table on a free localhost port, a users
 file made with `ropemon.station.web.auth.add_user`), opens one pty pair per hoist as its
 receiver (`lab.vserial.VirtualPort`: the station opens the pty as it would open an RS485
-adapter), and runs `ropemon serve station.toml` as a subprocess. A feeder thread writes each
+adapter), and runs `ropemon serve station.toml` as a subprocess (or, with `server`, another
+command on the same ptys: the web benchmark's baseline). A feeder thread writes each
 hoist's next frame every 1/frame_hz s and remembers when it was written (`sent`): that moment
 is the frame's arrival at the station.
 
@@ -28,6 +29,7 @@ import time
 import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from ropemon.station.protocol import DAN_TO_N, encode_frame
 
@@ -82,6 +84,10 @@ class Wind:
         self.t_trip = 2 * t_ramp + (shaft_m - 2 * d_ramp) / v_max
         self.t_ramp, self.d_ramp = t_ramp, d_ramp
 
+    def adjust(self, seq: int, dan: list[int]) -> list[int]:
+        """The ropes' tensions (daN) of frame `seq` as sent: a subclass may mark them."""
+        return dan
+
     def deviate(self, rope: int, frac: float) -> None:
         """Rope `rope` (from 0) reads `frac` above (or below) its share from the next frame on; 0 ends it."""
         if frac:
@@ -115,13 +121,12 @@ class Wind:
         loaded = v > 0 or (v == 0 and depth > self.shaft_m / 2)
         hanging = self.cage_n + (self.payload_n if loaded else 0.0) + self.ropes * self.rope_n_per_m * depth
         share = hanging * (1 + a / G) / self.ropes
-        dan = []
+        newtons = [share * self.offsets[i] * (1 + self.forced.get(i, 0.0)) + self.rng.gauss(0.0, 60.0)
+                   for i in range(self.ropes)]
+        dan = self.adjust(self.seq + 1, [int(round(n / DAN_TO_N)) for n in newtons])
         ropes = []
-        for i in range(self.ropes):
-            n = share * self.offsets[i] * (1 + self.forced.get(i, 0.0)) + self.rng.gauss(0.0, 60.0)
-            d = int(round(n / DAN_TO_N))
-            dan.append(d)
-            kpa = int(round(n * 1.16 / 7.854e-3 / 1000))     # the raw pressure: the seal holds ~16 % back
+        for d in dan:
+            kpa = int(round(d * DAN_TO_N * 1.16 / 7.854e-3 / 1000))     # the raw pressure: the seal holds ~16 % back
             ropes.append((d, d - self.rng.randint(5, 40), d + self.rng.randint(5, 40), min(kpa, 65_000)))
         self.seq += 1
         depth_mm, speed_mm_s = int(round(depth * 1000)), int(round(v * 1000))
@@ -145,7 +150,8 @@ class WebStation:
     def __init__(self, folder: Path, hoists: int = 1, users: dict[str, tuple[str, str]] | None = None,
                  frame_hz: float = 10.0, tick_hz: float | None = None, silent_s: float = 3.0,
                  view_without_login: bool = True, data_dir: bool = True, seed: int = 1,
-                 extra_station: str = "", wind: dict | None = None) -> None:
+                 extra_station: str = "", wind: dict | None = None, wind_class: type | None = None,
+                 server: Callable[["WebStation"], list[str]] | None = None) -> None:
         from ropemon.lab.vserial import VirtualPort
 
         self.folder = Path(folder)
@@ -174,7 +180,7 @@ class WebStation:
             cfg.write_text(json.dumps(make_node_json(physical(), node_id=1, key=key)))
             os.chmod(cfg, 0o600)
             vp = VirtualPort(hid)
-            self.rigs[hid] = HoistRig(hid, Wind(1, key, seed=seed * 100 + i, frame_hz=frame_hz, **(wind or {})), vp)
+            self.rigs[hid] = HoistRig(hid, (wind_class or Wind)(1, key, seed=seed * 100 + i, frame_hz=frame_hz, **(wind or {})), vp)
             lines += ["", "[[hoist]]", f'id = "{hid}"', f'name = "{hid.capitalize()} shaft"',
                       f'configs = ["{cfg.name}"]', f'receivers = {{ pithead = "{vp.port}" }}']
         lines += ["", "[web]", 'bind = "127.0.0.1"', f"port = {self.port}",
@@ -189,14 +195,16 @@ class WebStation:
         self.station_toml = self.folder / "station.toml"
         self.station_toml.write_text("\n".join(lines) + "\n" + extra_station)
         self.log = open(self.folder / "serve.log", "w+b")
+        self.server = server
 
     # -- the station process -------------------------------------------------------------
 
     def start(self, timeout_s: float = 20.0) -> "WebStation":
         """Start `ropemon serve` and the feeder; return once the web face answers."""
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "serve", str(self.station_toml)],
-                                     stdout=self.log, stderr=subprocess.STDOUT, env=env, cwd=self.folder)
+        cmd = self.server(self) if self.server is not None else \
+            [sys.executable, "-m", "ropemon.cli", "serve", str(self.station_toml)]
+        self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.STDOUT, env=env, cwd=self.folder)
         self._thread = threading.Thread(target=self._feed, name="wind feeder", daemon=True)
         self._thread.start()
         deadline = time.monotonic() + timeout_s

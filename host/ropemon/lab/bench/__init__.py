@@ -11,7 +11,7 @@ import importlib
 import json
 import sys
 
-PARTS = ("firmware", "plant", "host", "noise", "opcua", "mqtt", "modbus")
+PARTS = ("firmware", "plant", "host", "noise", "opcua", "mqtt", "modbus", "web")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
