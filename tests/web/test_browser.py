@@ -77,9 +77,10 @@ def test_the_live_page_shows_the_tensions_of_the_frames_within_a_frame(browser, 
         behind.append(len(newer))
         time.sleep(0.13)
     print(f"live page: the shown frame was {behind} frames behind the newest fed")
-    # the station pumps its queue every 1/tick_hz (0.25 s: 2.5 frames), and one frame may be on its
-    # way to the page when it is read: never more than that behind
-    assert max(behind) <= math.ceil(0.25 / period) + 1, behind
+    # the station hands its queued frames on once per step of its loop (every 1/tick_hz = 0.25 s:
+    # 2.5 frames, and the step's own time), and one frame may be on its way to the page when it is
+    # read (docs/benchmarks.md, "Web": arrival -> listener p99 0.30 s): never more than that behind
+    assert max(behind) <= math.ceil(0.25 / period) + 2, behind
     station.pause_all()                       # the wind holds: the page shows the last frame, exactly
     try:
         last = station.last(HOIST)
