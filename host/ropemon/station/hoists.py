@@ -55,6 +55,7 @@ class StationSet:
                 for h in sf.hoists))
             self.file = sf
         self._stop = threading.Event()
+        self._wake = threading.Event()     # frames or commands queued for a hoist's station
         try:
             for h in sf.hoists:
                 self.hoists[h.id] = self._build(h, open_stores)
@@ -107,14 +108,26 @@ class StationSet:
             h.station.tick()
 
     def run(self, done: Callable[[], bool] = lambda: False) -> None:
-        """Step every 1/tick_hz s until `stop()` or `done()`."""
+        """Until `stop()` or `done()`: hand frames and commands on as soon as a receiver or a
+        face queues them, and tick every hoist every 1/tick_hz s (alarm timing, status)."""
         period = 1.0 / self.file.tick_hz
+        wake = self._wake
+        for h in self.hoists.values():
+            h.station.hub.wake = wake
+        next_tick = time.monotonic()
         while not self._stop.is_set() and not done():
-            self.step()
-            self._stop.wait(period)
+            wake.clear()
+            if time.monotonic() >= next_tick:
+                self.step()
+                next_tick = max(next_tick + period, time.monotonic() - period)
+            else:
+                for h in self.hoists.values():
+                    h.station.pump()
+            wake.wait(max(0.0, next_tick - time.monotonic()))
 
     def stop(self) -> None:
         self._stop.set()
+        self._wake.set()
 
     def submit(self, hoist_id: str, command: Command) -> None:
         """An operator command for one hoist, from any thread (KeyError: no such hoist)."""

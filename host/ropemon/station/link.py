@@ -200,6 +200,7 @@ class FrameHub:
         self._rewound: dict[str, dict[int, tuple[int, int]]] = {}
         self._counts: dict[str, DecodeCounts] = {}
         self._top: dict[int, int] = {}                   # node -> newest seq taken from any receiver
+        self.wake: threading.Event | None = None         # set when frames are queued (the consumer waits on it)
         self._seed: tuple[dict[int, int], dict[int, list[Frame]]] = ({}, {})
 
     def seed(self, last: Mapping[int, int], recent: Mapping[int, Iterable[Frame]] | None = None) -> None:
@@ -245,6 +246,8 @@ class FrameHub:
                 self._counts[name] = replace(dec.counts)
                 if dec.replay.rewound != self._rewound[name]:
                     self._rewound[name] = dict(dec.replay.rewound)
+            if frames and self.wake is not None:
+                self.wake.set()
         return on_bytes
 
     def _current(self, f: Frame, rebased_from: int | None) -> bool:

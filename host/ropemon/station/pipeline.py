@@ -210,6 +210,8 @@ class Station:
     def submit(self, command: Command) -> None:
         """An operator action, from any thread; carried out at the next `pump`."""
         self._commands.put(command)
+        if self.hub.wake is not None:
+            self.hub.wake.set()
 
     def resumed_text(self) -> str | None:
         """One line saying where the replay protection resumed from (None: nothing logged before)."""
