@@ -47,8 +47,9 @@ def _rmtree(p):
 
 
 def _replace(src, dst):
-    """Rename src over dst. A file over a file is one atomic rename (POSIX, littlefs);
-    FAT refuses to rename over an existing file: remove it first there."""
+    """Rename src over dst. A file over a file is one atomic rename on POSIX and littlefs;
+    MicroPython's VfsFat removes dst itself inside that rename (FAT cannot do it atomically);
+    a filesystem that refuses takes the remove-then-rename below."""
     if _kind(dst):
         _rmtree(dst)
     try:
