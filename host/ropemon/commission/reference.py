@@ -232,6 +232,13 @@ class PressureTracker:
             self.a1, self.a2 = tr["a1_q14"] / 16384, tr["a2_q14"] / 16384
             self.k = (k[0] / 16384, k[1] / (1 << (14 + tr["v_shift"])),
                       k[2] / (1 << (14 + tr["b_shift"])), k[3] / (1 << (14 + tr["b_shift"])))
+            # the node's clamps (kernel.py), in Pa: the innovation, c and v within +-2**28 of
+            # their units (c in kPa/2048, v 2**v_shift finer), the bounce b within +-2**26 of
+            # its (2**b_shift finer than c)
+            unit = 1000.0 / 2048
+            self.lim_c = (1 << 28) * unit
+            self.lim_v = (1 << 28) * unit / (1 << tr["v_shift"])
+            self.lim_b = (1 << 26) * unit / (1 << tr["b_shift"])
 
     def step(self, y: float | None) -> float:
         """The estimate p_l after the median `y` (Pa; None: no healthy channel)."""
@@ -246,13 +253,17 @@ class PressureTracker:
         else:
             c = self.c + self.v
             b0, self.b1 = self.a1 * self.b0 - self.a2 * self.b1, self.b0
-            e = y - c - b0
+            e = _clamp(y - c - b0, self.lim_c)  # a step beyond any pressure (131 MPa)
             k0, kv, k2, k3 = self.k
-            self.c = c + k0 * e
-            self.v += kv * e
-            self.b0 = b0 + k2 * e
-            self.b1 += k3 * e
+            self.c = _clamp(c + k0 * e, self.lim_c)
+            self.v = _clamp(self.v + kv * e, self.lim_v)
+            self.b0 = _clamp(b0 + k2 * e, self.lim_b)
+            self.b1 = _clamp(self.b1 + k3 * e, self.lim_b)
         return min(max(self.c + self.b0, -P_L_MAX_PA), P_L_MAX_PA)
+
+
+def _clamp(v: float, lim: float) -> float:
+    return lim if v > lim else (-lim if v < -lim else v)
 
 
 P_L_MAX_PA = 1e8  # p_l is held within +-100 MPa, as the node holds it (kernel.py)
