@@ -94,10 +94,15 @@ test: $(STAMP) $(NODE_STAMP) $(BROWSER_STAMP) $(BROKER_STAMP) $(MPY32_STAMP)
 	$(BIN)/python -m pytest
 	$(BIN)/python tests/run_micropython.py
 
-bench: $(STAMP)
+bench: $(STAMP) $(BROWSER_STAMP) $(BROKER_STAMP)
 	$(BIN)/ropemon bench firmware
 	$(BIN)/ropemon bench plant
 	$(BIN)/ropemon bench host
+	$(BIN)/ropemon bench noise
+	$(BIN)/ropemon bench web
+	$(BIN)/ropemon bench opcua
+	$(BIN)/ropemon bench modbus
+	$(BIN)/ropemon bench mqtt
 
 # The named scenarios, then the population of drawn hoists on the scoring seeds; their tables
 # go to docs/evaluation/ (generated: each file's first line names the command that made it).
