@@ -46,6 +46,7 @@ from pathlib import Path
 
 from ropemon.firmware import FIRMWARE_DIR, install_shim, node_module
 from ropemon.commission.nodejson import PUBLISHED_KEYS, node_part
+from ropemon.station import files
 from ropemon.station.physical import check_digest
 
 install_shim()
@@ -292,8 +293,7 @@ def build(firmware_dir: Path, out_dir: Path, arch: str | None, as_py: bool,
     hashes = {dst.relative_to(out_dir).as_posix(): _sha256(dst) for dst in outputs}
     if config is not None:  # the node's part only (nodejson.node_part), as checked; it holds the key: 0600
         data = json.dumps(node_part(json.loads(config.read_text())), separators=(",", ":")).encode()
-        with os.fdopen(os.open(out_dir / CONFIG_NAME, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), "wb") as f:
-            f.write(data)
+        files.write_private(out_dir / CONFIG_NAME, data)
         hashes[CONFIG_NAME] = _sha256(out_dir / CONFIG_NAME)
     return hashes
 

@@ -19,12 +19,12 @@ from __future__ import annotations
 import functools
 import json
 import math
-import os
 import sys
 from pathlib import Path
 from typing import Any
 
 from ropemon.firmware import node_module
+from ropemon.station import files
 from ropemon.station.physical import (COMPLIANCE_DEFAULTS, DIGEST, NODE_DEFAULTS, Physical, as_physical,
                                       document_digest)
 from ropemon.station.protocol import KEY_LEN_MAX, KEY_LEN_MIN
@@ -595,24 +595,9 @@ def seal(doc: dict) -> dict:
 
 
 def write_node_json(path: Path | str, doc: dict) -> Path:
-    """Write node.json `doc` to `path`, readable by its owner only (it holds the node's key):
-    a new file created with mode 0600 (os.open, O_CREAT | O_EXCL) beside `path`, then renamed
-    over it, so neither an earlier file's mode nor a half-written file is left behind."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    data = (json.dumps(doc, indent=1) + "\n").encode()
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o600)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    return path
+    """Write node.json `doc` to `path`, readable by its owner only (it holds the node's key;
+    `files.write_private`)."""
+    return files.write_private(path, (json.dumps(doc, indent=1) + "\n").encode())
 
 
 def node_part(doc: dict) -> dict:

@@ -300,3 +300,26 @@ def check_sqlite(path: Path | str, what: str = "database", error: type[Exception
     if head != SQLITE_MAGIC:
         raise _refuse(error, path, what, "not an SQLite database, so not a ropemon database")
     return Path(path)
+
+
+def write_private(path: Path | str, data: bytes) -> Path:
+    """Write `data` to `path`, readable by its owner only (a key, a password hash, a secret): a
+    new file created with mode 0600 from its first byte (O_CREAT | O_EXCL) beside `path`,
+    synced, then renamed over it, so neither an earlier file's mode nor a half-written file is
+    left behind."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o600)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return path

@@ -27,7 +27,6 @@ import contextvars
 import datetime
 import logging
 import math
-import os
 import socket
 import threading
 import time
@@ -39,6 +38,7 @@ from typing import Any
 from urllib.parse import urlparse
 
 from ropemon.commission.tomlfields import Table
+from ropemon.station import files
 from ropemon.station.alarms import ActiveAlarm, AlarmEvent
 from ropemon.station.link import Received
 from ropemon.station.pipeline import Acknowledge, AlarmState, Listener, StationStatus
@@ -835,11 +835,7 @@ def ensure_certificate(folder: Path, host: str) -> tuple[Path, Path]:
     c = generate_self_signed_app_certificate(pk, "ropemon station", {"organizationName": "ropemon"}, names,
                                              extended=[ExtendedKeyUsageOID.SERVER_AUTH,
                                                        ExtendedKeyUsageOID.CLIENT_AUTH], days=CERT_DAYS)
-    tmp = key.with_suffix(".tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(dump_private_key_as_pem(pk))
-    os.replace(tmp, key)
+    files.write_private(key, dump_private_key_as_pem(pk))
     cert.write_bytes(c.public_bytes(Encoding.DER))
     return cert, key
 

@@ -29,7 +29,6 @@ import os
 import re
 import secrets
 import stat
-import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -145,21 +144,7 @@ def save_users(path: Path | str, users: dict[str, User]) -> None:
     for name in sorted(users):
         u = users[name]
         lines += [f"[user.{check_name(u.name)}]", f"role = {_quote(u.role)}", f"password = {_quote(u.password)}", ""]
-    text = "\n".join(lines)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")   # mkstemp: mode 0600
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o600)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    files.write_private(path, "\n".join(lines).encode())
 
 
 def add_user(path: Path | str, name: str, role: str, password: str, ph: PasswordHasher | None = None) -> User:
