@@ -7,19 +7,13 @@ timing (NODE SILENT after silent_s) is exact.
 from __future__ import annotations
 
 import json
-import socket
 from pathlib import Path
 
+from ropemon.lab.localnet import free_port  # noqa: F401  (the SCADA tests' ports)
 from ropemon.commission.nodejson import example_physical, make_node_json
 from ropemon.station.hoists import StationSet
 from ropemon.station.protocol import encode_frame
 from ropemon.station.stationfile import load_station_file
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def key_of(i: int) -> bytes:

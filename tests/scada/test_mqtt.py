@@ -13,7 +13,7 @@ pytest.importorskip("paho.mqtt")
 
 import paho.mqtt.client as paho  # noqa: E402
 
-from broker import Broker, available  # noqa: E402
+from ropemon.lab.localnet import Broker, available  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.mqtt import sparkplug as sp  # noqa: E402
 from ropemon.station.mqtt.fleet import Fleet, Historian  # noqa: E402

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import socket
 import stat
 import time
 from pathlib import Path
@@ -19,6 +18,7 @@ from asyncua.crypto.cert_gen import setup_self_signed_certificate  # noqa: E402
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256  # noqa: E402
 from cryptography.x509.oid import ExtendedKeyUsageOID  # noqa: E402
 
+from ropemon.lab.localnet import free_port
 from ropemon.commission.nodejson import example_physical, make_node_json  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.hoists import StationSet  # noqa: E402
@@ -30,12 +30,6 @@ from ropemon.station.web.auth import add_user  # noqa: E402
 
 KEY = bytes(range(16))
 CLIENT_URI = "urn:ropemon:test-client"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")

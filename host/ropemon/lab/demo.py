@@ -24,6 +24,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ropemon.lab import radio
+from ropemon.lab.localnet import free_port
 from ropemon.firmware import FIRMWARE_DIR
 from ropemon.station.alarms import AlarmSettings
 from ropemon.station.link import Received
@@ -288,18 +289,6 @@ DEMO_HOIST = "demo"
 DEMO_OPERATOR = "demo"
 
 
-def _free_port(preferred: int = 8080) -> int:
-    import socket
-    for port in (preferred, 0):
-        with socket.socket() as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return int(s.getsockname()[1])
-    raise OSError("no free port on 127.0.0.1")
-
-
 def write_demo_station(out: Path, node_json: Path, shaft_m: float, port: int | None) -> tuple[Path, str]:
     """OUT/station.toml: one hoist (the simulated one), its log in OUT, the web face on localhost,
     and OUT/users.toml with one operator whose password is new each run (returned)."""
@@ -328,7 +317,7 @@ shaft_m = {max(shaft_m, 1.0):.1f}
 
 [web]
 bind = "127.0.0.1"
-port = {port or _free_port()}
+port = {port or free_port()}
 view_without_login = true
 users = "users.toml"
 secret = "web-secret"

@@ -21,7 +21,6 @@ import math
 import os
 import random
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -31,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from ropemon.lab.localnet import free_port  # noqa: F401  (the web tests' ports too)
 from ropemon.station.protocol import DAN_TO_N, encode_frame
 
 G = 9.81
@@ -46,12 +46,6 @@ def physical() -> dict:
     for k in ("Fs", "Fc"):
         p["friction"][k] = {n: v / 10 for n, v in p["friction"][k].items()}
     return p
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass

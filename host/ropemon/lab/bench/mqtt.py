@@ -13,7 +13,8 @@ import statistics
 import time
 from typing import Any
 
-from ropemon.lab.bench.scada import FRAME_HZ, HOISTS, Mosquitto, in_process, percentile, run_station
+from ropemon.lab.bench.scada import FRAME_HZ, HOISTS, in_process, percentile, run_station
+from ropemon.lab.localnet import Broker
 
 
 def _subscriber(port: int, timeout_s: float, out: Any) -> None:
@@ -49,7 +50,7 @@ def _subscriber(port: int, timeout_s: float, out: Any) -> None:
 
 def measure(quick: bool = False) -> dict:
     seconds, repeats = (4.0, 1) if quick else (15.0, 3)
-    broker = Mosquitto()
+    broker = Broker()
     runs: list[dict[str, Any]] = []
     try:
         for _ in range(repeats):

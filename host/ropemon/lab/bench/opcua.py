@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ropemon.lab.localnet import free_port
+
 HOISTS, CLIENTS, RATE_HZ, ROPES = 8, 5, 10.0, 4
 KEY = bytes(range(16))
 USER, PASSWORD = "bench", "bench-password-1"
@@ -106,13 +108,6 @@ def _write_station(d: Path, port: int) -> Path:
     return p
 
 
-def _free_port() -> int:
-    import socket
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _frame_bytes(i: int) -> bytes:
     from ropemon.station.protocol import encode_frame
     t = _tension(i)
@@ -129,7 +124,7 @@ def _run(mode: str, d: Path, client_cert: tuple[str, str], seconds: float, rep: 
     from ropemon.station.opcua import CERT_FILE
     from ropemon.station.stationfile import load_station_file
 
-    port = _free_port()
+    port = free_port()
     run_dir = d / f"{mode}-{rep}"     # a fresh log each run (a reused one would refuse the frames as replays)
     run_dir.mkdir()
     for f in ("node.json", "users.toml"):

@@ -12,24 +12,16 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
-import shutil
-import signal
-import socket
-import subprocess
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
+from ropemon.lab.localnet import free_port  # noqa: F401  (the benches' ports)
+
 HOISTS = 8
 FRAME_HZ = 10.0
 TICK_HZ = 4.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _key(i: int) -> bytes:
@@ -94,33 +86,6 @@ def run_station(faces: str, seconds: float, ready: Any = None) -> dict[str, floa
             stations.close()
     cpu = (c1.user - c0.user) + (c1.system - c0.system)
     return {"cpu_pct": 100.0 * cpu / wall, "frames": frames, "wall_s": wall}
-
-
-class Mosquitto:
-    """Debian's mosquitto on a free localhost port (a temporary config), for the bench."""
-
-    def __init__(self) -> None:
-        exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-        if not Path(exe).exists():
-            raise SystemExit("ropemon bench mqtt needs Mosquitto: apt-get install mosquitto (make test installs it)")
-        self.dir = Path(tempfile.mkdtemp(prefix="ropemon-mosquitto-"))
-        self.port = free_port()
-        conf = self.dir / "mosquitto.conf"
-        conf.write_text(f"listener {self.port} 127.0.0.1\nallow_anonymous true\nmax_queued_messages 0\n")
-        self.proc = subprocess.Popen([exe, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        end = time.monotonic() + 10
-        while time.monotonic() < end:
-            try:
-                socket.create_connection(("127.0.0.1", self.port), timeout=0.2).close()
-                return
-            except OSError:
-                time.sleep(0.05)
-        raise RuntimeError("mosquitto did not start")
-
-    def close(self) -> None:
-        self.proc.send_signal(signal.SIGTERM)
-        self.proc.wait(5)
-        shutil.rmtree(self.dir, ignore_errors=True)
 
 
 def in_process(target: Any, *args: Any) -> tuple[Any, Any]:

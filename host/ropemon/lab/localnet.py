@@ -1,6 +1,6 @@
-"""Mosquitto (Debian's package, installed by `make test`) on a free localhost port with a
-temporary config, for the MQTT tests: start, kill (SIGKILL) and restart on the same port.
-Sessions persist across a restart (autosave every second), as a site's broker would."""
+"""Local network helpers for the tests and benchmarks: a free localhost port, and Debian's
+Mosquitto on one (a temporary config; start, SIGKILL and restart on the same port, with its
+sessions saved every second, as a site's broker would)."""
 from __future__ import annotations
 
 import getpass
@@ -8,21 +8,40 @@ import shutil
 import signal
 import socket
 import subprocess
+import tempfile
 import time
 from pathlib import Path
-
-from scada_rig import free_port
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 
 
+def free_port(preferred: int = 0) -> int:
+    """A TCP port free on 127.0.0.1 now: `preferred` if it is, else one the system picks."""
+    for port in dict.fromkeys((preferred, 0)):
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(s.getsockname()[1])
+    raise OSError("no free port on 127.0.0.1")
+
+
 def available() -> bool:
+    """Whether Mosquitto is installed."""
     return Path(MOSQUITTO).exists()
 
 
 class Broker:
-    def __init__(self, tmp: Path) -> None:
-        self.dir = tmp / "mosquitto"
+    """Mosquitto on a free localhost port, its config and sessions in `tmp`/mosquitto (a new
+    temporary folder when `tmp` is None, removed by `close`)."""
+
+    def __init__(self, tmp: Path | None = None) -> None:
+        if not available():
+            raise RuntimeError("Mosquitto is missing: apt-get install mosquitto (make test installs it)")
+        self._own = tmp is None
+        base = Path(tempfile.mkdtemp(prefix="ropemon-broker-")) if tmp is None else tmp
+        self.dir = base / "mosquitto"
         self.dir.mkdir(exist_ok=True)
         self.port = free_port()
         self.conf = self.dir / "mosquitto.conf"
@@ -73,3 +92,5 @@ class Broker:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
         self.proc = None
+        if self._own:
+            shutil.rmtree(self.dir.parent, ignore_errors=True)
