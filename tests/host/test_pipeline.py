@@ -245,7 +245,6 @@ def test_the_nodes_own_imbalance_bit_is_alarmed():
 def test_an_old_frame_replayed_into_the_other_receiver_is_refused_and_counted():
     """Pithead heard seq 0-99, mid-shaft 100-6000 (the cage stood at the bottom); copies of
     1000-1004 sent into pithead are replays, not current data, although pithead never had them."""
-    from ropemon.station.pipeline import StoreListener  # noqa: F401  (the same station as the monitor's)
     log: list = []
     clk = [0.0]
     alarms = AlarmListener(AlarmSettings())

@@ -226,8 +226,8 @@ def steady_levels(rec: Record, runs: list[tuple[int, int]]) -> list[Level]:
         else:
             groups[-1].append(row)
     levels = []
-    for g in groups:
-        a = np.array(g)
+    for group in groups:
+        a = np.array(group)
         levels.append(Level(pressure_MPa=float(np.median(a[:, 0])), v=a[:, 1], F=a[:, 2]))
     if len(levels) < MIN_LEVELS:
         found = ", ".join(f"{lv.pressure_MPa:.2f}" for lv in levels)

@@ -191,7 +191,6 @@ def fit(ph: dict, records: np.ndarray) -> ComplianceFit:
         chans.append((_blocks(p, ok, b), _blocks(x, ok, b)))
     P = np.array([c[0] for c in chans])
     X = np.array([c[1] for c in chans])
-    var_dp = [2 * s ** 2 / b for s in noise]  # the pressure noise in an increment of block means
     var_p = [s ** 2 / b for s in noise]  # the pressure noise left in a block mean
     areas = _areas(ph, n)
     k = _first_k(P, X, areas, var_p)

@@ -567,7 +567,7 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
     # Last line of defence: the node's own validator must accept what we built.
     cfg_mod = node_module("config")
     try:
-        cfg = cfg_mod.parse_node(nd)
+        cfg_mod.parse_node(nd)
     except cfg_mod.ConfigError as e:
         raise ValueError(f"built {e.field}: {e.reason}") from None
     return nd

@@ -12,7 +12,8 @@ import statistics
 import time
 from typing import Any
 
-from ropemon.lab.bench.scada import FRAME_HZ, HOISTS, free_port, in_process, percentile, run_station
+from ropemon.lab.bench.scada import FRAME_HZ, HOISTS, in_process, percentile, run_station
+from ropemon.lab.localnet import free_port
 
 
 def _poller(port: int, seconds: float, out: Any) -> None:

@@ -17,8 +17,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ropemon.lab.localnet import free_port  # noqa: F401  (the benches' ports)
-
 HOISTS = 8
 FRAME_HZ = 10.0
 TICK_HZ = 4.0
