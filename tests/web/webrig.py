@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -97,11 +98,28 @@ const timer = setTimeout(() => { if (!finished) { finished = true; obs.disconnec
 
 def wait_for(driver, css: str, timeout_s: float = 10.0, gone: bool = False) -> float:
     """Wait until `css` matches an element in the page (or none, with `gone`); return the time it
-    did as the page's epoch seconds (comparable with time.time()); AssertionError on timeout."""
-    driver.set_script_timeout(timeout_s + 5)
-    t = driver.execute_async_script(_WAIT_JS, css, gone, int(timeout_s * 1000))
-    assert t is not None, f"after {timeout_s} s the page {'still has' if gone else 'has no'} {css!r}"
-    return t / 1000.0
+    did as the page's epoch seconds (comparable with time.time()); AssertionError on timeout.
+
+    Watched in slices of at most a second: a click that loads another page (a form post)
+    ends the script of the page it ran in, so each slice starts again on whatever page is
+    there now."""
+    from selenium.common.exceptions import WebDriverException
+
+    end = time.monotonic() + timeout_s
+    while True:
+        left = end - time.monotonic()
+        if left <= 0:
+            break
+        chunk = min(left, 1.0)
+        driver.set_script_timeout(chunk + 5)
+        try:
+            t = driver.execute_async_script(_WAIT_JS, css, gone, int(chunk * 1000))
+        except WebDriverException:   # the page was replaced while the script watched it
+            time.sleep(0.05)
+            continue
+        if t is not None:
+            return t / 1000.0
+    raise AssertionError(f"after {timeout_s} s the page {'still has' if gone else 'has no'} {css!r}")
 
 
 def js_fixed(x: float, digits: int) -> str:
