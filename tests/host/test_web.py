@@ -261,6 +261,7 @@ def test_an_operator_acknowledges_and_the_log_says_who(site, tmp_path):
     token = site.login("olga")
     page = site.client.get("/hoist/north").text
     assert f'data-alarm-id="{aid}"' in page and 'class="ack"' in page and 'id="ack-all"' in page
+    assert 'id="ack-all-form">' in page                  # shown while an alarm awaits acknowledgement
     r = site.client.post("/hoist/north/ack", data={"csrf": token, "alarm": aid}, headers={"X-Requested-With": "fetch"})
     assert r.status_code == 200 and r.json()["ok"], r.text
     site.stations.step()                                  # the station's thread carries it out
@@ -280,7 +281,9 @@ def test_a_form_post_acknowledges_all_and_redirects_back(site):
     assert r.status_code == 303 and r.headers["location"] == "/hoist/north"
     site.stations.step()
     assert not [a for a in site.stations.hoists["north"].alarms.engine.active() if a.latched]
-    assert "acknowledged all alarms" in site.client.get("/hoist/north").text
+    page = site.client.get("/hoist/north").text
+    assert "acknowledged all alarms" in page
+    assert 'id="ack-all-form" hidden' in page          # nothing left to acknowledge: no button
 
 
 def test_a_viewer_cannot_acknowledge(site):

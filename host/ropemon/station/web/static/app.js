@@ -331,6 +331,8 @@
     $("#no-alarms").hidden = al.active.length > 0;
     setText($("#alarm-summary"), al.active.length ? al.active.length + " active, " + unacked + " not acknowledged" : "");
     $("#alarms-panel").dataset.unacked = unacked;
+    const ackAll = $("#ack-all-form");
+    if (ackAll) ackAll.hidden = unacked === 0;
     $("#alarms-panel").classList.toggle("alarming", al.active.some((a) => !a.warning));
     // hidden: shelved, out of service, suppressed
     const hb = $("#hidden-rows");
