@@ -356,7 +356,8 @@ def test_accept_rewound_only_for_a_refused_node(site):
     assert r.status_code == 400 and r.json()["field"] == "node"
 
 
-def test_login_is_refused_with_a_wrong_password_and_throttled(site):
+def test_login_is_refused_with_a_wrong_password_and_throttled(site, caplog):
+    caplog.set_level("INFO", logger="ropemon.web.audit")
     c = site.client
     token = csrf_of(c.get("/login").text)
     for _ in range(auth.LOGIN_FAILS):
@@ -366,6 +367,17 @@ def test_login_is_refused_with_a_wrong_password_and_throttled(site):
     assert r.status_code == 401 and "too many failed logins" in r.text
     r = c.post("/login", data={"csrf": token, "name": "nobody", "password": "whatever it is"})
     assert r.status_code == 401
+    refused = [r.getMessage() for r in caplog.records if r.name == "ropemon.web.audit"]
+    assert len(refused) == auth.LOGIN_FAILS + 2 and all(m.startswith("login refused: ") for m in refused)
+    assert "'olga' from testclient: too many failed logins" in refused[-2] and "'nobody'" in refused[-1]
+
+
+def test_logins_and_logouts_are_in_the_audit_log(site, caplog):
+    caplog.set_level("INFO", logger="ropemon.web.audit")
+    token = site.login("olga")
+    site.client.post("/logout", data={"csrf": token}, follow_redirects=False)
+    assert [r.getMessage() for r in caplog.records if r.name == "ropemon.web.audit"] == [
+        "login: olga (operator) from testclient", "logout: olga from testclient"]
 
 
 def test_viewing_can_need_a_login(tmp_path):

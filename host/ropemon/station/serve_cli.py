@@ -9,6 +9,7 @@ everything committed.
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
 import sys
 import threading
@@ -62,6 +63,12 @@ def run(args: argparse.Namespace) -> int:
     except (StationFileError, StoreError, ValueError, OSError) as e:
         print(f"ropemon serve: {e}", file=sys.stderr)
         return 2
+    log = logging.getLogger("ropemon")     # the faces' messages and the web's logins, on stderr
+    if not log.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("ropemon serve: %(levelname)s %(name)s: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
     faces = []
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import datetime
+import logging
 import math
 import re
 import time
@@ -47,6 +48,8 @@ from ropemon.station.store import StoreError
 from ropemon.station.web import logread
 from ropemon.station.web.auth import User, Users, csrf_ok, csrf_token
 from ropemon.station.web.state import STALE_S, Subscriber, WebListener, dumps
+
+audit = logging.getLogger("ropemon.web.audit")   # logins and logouts (`ropemon serve` prints it)
 
 HERE = Path(__file__).parent
 KEEPALIVE_S = 15.0         # an SSE comment this often keeps proxies and the browser's watchdog content
@@ -489,9 +492,12 @@ async def login(request: Request) -> Response:
         user, why = None, "give a name and a password"
     else:
         user, why = await asyncio.get_running_loop().run_in_executor(None, c.users.login, name, pw)
+    where = request.client.host if request.client else "?"
     if user is None:
+        audit.warning("login refused: %r from %s: %s", name[:64] if isinstance(name, str) else None, where, why)
         return _page(request, "login.html", {"next": nxt, "error": why, "title": "log in", "page": "login",
                                              "no_users": not c.users.all()}, status=401)
+    audit.info("login: %s (%s) from %s", user.name, user.role, where)
     request.session.clear()                 # a new session for the user (no fixation)
     request.session["user"] = user.name
     csrf_token(request.session)
@@ -502,6 +508,8 @@ async def logout(request: Request) -> Response:
     form = await request.form()
     if not csrf_ok(request.session, _text(form, "csrf")):
         return PlainTextResponse("csrf: missing or wrong token", 403)
+    if request.session.get("user"):
+        audit.info("logout: %s from %s", request.session["user"], request.client.host if request.client else "?")
     request.session.clear()
     return RedirectResponse("/", status_code=303)
 
