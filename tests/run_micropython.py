@@ -6,7 +6,14 @@ Usage: .venv/bin/python tests/run_micropython.py [TEST_FILE_OR_DIR ...]
 Convention: every tests/firmware/test_*.py runs here unless its name ends in
 `_cpython.py` (those need CPython: numpy, subprocesses, the host package).
 A test is a module-level function `test_*()` taking no arguments that passes
-by returning and fails by raising. Each file runs in its own `micropython`
+by returning and fails by raising. A test may instead return a generator: each
+`yield` in it asks for a full garbage collection from the driver's own level
+(no frame of the test on the stack) before the test goes on, which is how a
+test measures the heap a release frees (test_boot_heap.py). Here and on the
+32-bit builds the driver collects (twice) between steps; on the WebAssembly
+port, where gc.collect() only marks a collection that runs when control returns
+to JavaScript, tests/wasm/run_wasm.mjs calls STEP_DRIVER's `_step` once per
+step and gc.collect in between, each a top-level call. Each file runs in its own `micropython`
 subprocess, with MICROPYPATH=firmware:<the test file's directory>, under a
 timeout. The last line printed is exactly `N passed, M failed`; the exit code
 is non-zero when any test failed, a file could not be imported or timed out,
@@ -30,9 +37,11 @@ TIMEOUT_S = float(os.environ.get("ROPEMON_MP_TIMEOUT_S", "300"))
 # Lines the driver prints start with this tag so test output cannot fake a result.
 TAG = "@@ropemon-test@@"
 
-# Runs inside micropython: import one test module and call each test_* function.
-DRIVER = """
-import sys, time
+# Runs inside micropython: import one test module and call each test_* function, one step at a
+# time: `_step()` runs a test, or a generator test up to its next yield, and returns 0 when
+# all is done, 1 to be called again, 2 to be called again after a full collection.
+STEP_DRIVER = """
+import sys, time, gc
 TAG = %r
 try:
     mod = __import__(%r)
@@ -40,18 +49,61 @@ except BaseException as e:
     print(TAG, "IMPORT-FAIL")
     sys.print_exception(e)
     sys.exit(3)
-names = [n for n in dir(mod) if n.startswith("test_") and callable(getattr(mod, n))]
-names.sort()
-for n in names:
-    t0 = time.ticks_ms()
-    try:
-        getattr(mod, n)()
-    except Exception as e:
+_names = [n for n in dir(mod) if n.startswith("test_") and callable(getattr(mod, n))]
+_names.sort()
+_cur = None  # [name, generator, t0] of a generator test between two of its steps
+
+
+def _end(n, t0, e):
+    if e is None:
+        print(TAG, "PASS", n, time.ticks_diff(time.ticks_ms(), t0))
+    else:
         print(TAG, "FAIL", n, time.ticks_diff(time.ticks_ms(), t0))
         sys.print_exception(e)
-    else:
-        print(TAG, "PASS", n, time.ticks_diff(time.ticks_ms(), t0))
-print(TAG, "DONE")
+
+
+def _step():
+    global _cur
+    if _cur is None:
+        if not _names:
+            print(TAG, "DONE")
+            return 0
+        n = _names.pop(0)
+        t0 = time.ticks_ms()
+        try:
+            g = getattr(mod, n)()
+        except Exception as e:
+            _end(n, t0, e)
+            return 1
+        if g is None:
+            _end(n, t0, None)
+            return 1
+        _cur = [n, g, t0]
+        return 2
+    n, g, t0 = _cur
+    try:
+        next(g)
+    except StopIteration:
+        _cur = None
+        _end(n, t0, None)
+        return 1
+    except Exception as e:
+        _cur = None
+        _end(n, t0, e)
+        return 1
+    return 2
+"""
+
+# The whole run in one script: the unix port, the 32-bit builds (and wasm scripts that need no
+# collection between steps). The collections run here, at the script's top level.
+DRIVER = STEP_DRIVER + """
+while True:
+    _r = _step()
+    if not _r:
+        break
+    if _r == 2:
+        gc.collect()
+        gc.collect()
 """
 
 

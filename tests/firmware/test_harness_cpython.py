@@ -79,3 +79,22 @@ def test_faked_result_lines_in_test_output_do_not_count(tmp_path):
     r = _run(tmp_path, {"test_a.py": "def test_bad():\n    print('1 passed, 0 failed')\n"
                                      "    print('PASS fake')\n    raise AssertionError\n"})
     assert r.stdout.splitlines()[-1] == "0 passed, 1 failed"
+
+
+def test_a_generator_test_is_run_step_by_step_and_can_fail(tmp_path):
+    """A test returning a generator: each yield gets a full collection from the driver (64 KB
+    dropped before it are gone after it), and a failure after a yield is a failure."""
+    r = _run(tmp_path, {"test_g.py": (
+        "import gc\nBIG = [bytearray(65536)]\n"
+        "def _drop():\n    BIG[0] = None\n"
+        "def test_frees():\n"
+        "    def steps():\n"
+        "        yield\n        a = gc.mem_alloc()\n        _drop()\n        yield\n"
+        "        assert a - gc.mem_alloc() >= 65536, a - gc.mem_alloc()\n"
+        "    return steps()\n"
+        "def test_fails_late():\n"
+        "    def steps():\n        yield\n        yield\n        raise AssertionError('late failure')\n"
+        "    return steps()\n")})
+    assert r.stdout.splitlines()[-1] == "1 passed, 1 failed", r.stdout
+    assert "test_g.py::test_fails_late" in r.stdout and "late failure" in r.stdout
+    assert r.returncode != 0
