@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd"
 
 
 def free_port(preferred: int = 0) -> int:
@@ -34,9 +35,14 @@ def available() -> bool:
 
 class Broker:
     """Mosquitto on a free localhost port, its config and sessions in `tmp`/mosquitto (a new
-    temporary folder when `tmp` is None, removed by `close`)."""
+    temporary folder when `tmp` is None, removed by `close`).
 
-    def __init__(self, tmp: Path | None = None) -> None:
+    `users` ({name: password}): only they may connect (a password file made with
+    mosquitto_passwd; anonymous clients refused). `tls` (CA, server certificate, server key
+    files, PEM): the port is a TLS listener."""
+
+    def __init__(self, tmp: Path | None = None, *, users: dict[str, str] | None = None,
+                 tls: tuple[Path, Path, Path] | None = None) -> None:
         if not available():
             raise RuntimeError("Mosquitto is missing: apt-get install mosquitto (make test installs it)")
         self._own = tmp is None
@@ -45,8 +51,21 @@ class Broker:
         self.dir.mkdir(exist_ok=True)
         self.port = free_port()
         self.conf = self.dir / "mosquitto.conf"
+        access = "allow_anonymous true\n"
+        if users is not None:
+            if not Path(MOSQUITTO_PASSWD).exists():
+                raise RuntimeError(f"{MOSQUITTO_PASSWD} is missing (Debian's mosquitto package has it)")
+            pw = self.dir / "passwords"
+            pw.write_text("")
+            for name, password in users.items():
+                subprocess.run([MOSQUITTO_PASSWD, "-b", str(pw), name, password], check=True,
+                               capture_output=True)
+            access = f"allow_anonymous false\npassword_file {pw}\n"
+        if tls is not None:
+            ca, cert, key = tls
+            access += f"cafile {ca}\ncertfile {cert}\nkeyfile {key}\n"
         self.conf.write_text(
-            f"listener {self.port} 127.0.0.1\nallow_anonymous true\n"
+            f"listener {self.port} 127.0.0.1\n{access}"
             f"persistence true\npersistence_location {self.dir}/\nautosave_interval 1\n"
             "max_queued_messages 0\nmax_inflight_messages 0\n"
             # started as root, mosquitto switches to this user: keep the one that owns the temp dir
