@@ -13,10 +13,18 @@ hypertable on ts). A row is keyed by (group, edge node, device, node, frame_seq,
 DDATA sent twice (at-least-once: the station resends what the broker had not acknowledged)
 is stored once. DBIRTH's values repeat the newest DDATA and are not stored; births, deaths
 and gaps in seq are counted (`Fleet.stats`).
+
+Threads: paho's network thread only queues each message; a writer thread takes everything
+queued, decodes it, writes its rows in one transaction (a group commit: one per message at a
+low rate, many messages per commit under load) and only then acknowledges those messages
+(PUBACK, in arrival order; paho's manual ack). Decoding in the writer keeps the network thread
+idle, so the writer seldom waits for the GIL between SQLite's steps. A message whose rows are not committed is
+not acknowledged, so the broker delivers it again (to this session, after a reconnect).
 """
 from __future__ import annotations
 
 import argparse
+import queue
 import re
 import signal
 import sqlite3
@@ -64,6 +72,7 @@ class Historian:
             self.conn.commit()
         else:
             self.conn = sqlite3.connect(str(db or "fleet.db"), check_same_thread=False)
+            self.conn.execute("PRAGMA journal_mode=WAL")   # readers go on while a batch commits
             self.conn.executescript(SQLITE_SCHEMA)
             self.arrival = self.conn.execute("SELECT COALESCE(MAX(arrival), 0) FROM tension").fetchone()[0]
 
@@ -87,8 +96,12 @@ class Historian:
         self.conn.close()
 
 
+MAX_BATCH_ROWS = 20_000    # rows per transaction at most (the writer takes what is queued, up to this)
+
+
 class Fleet:
-    """The consumer: paho-mqtt's network thread decodes and writes (module docstring)."""
+    """The consumer: paho-mqtt's network thread decodes, a writer thread commits then acknowledges
+    (module docstring)."""
 
     def __init__(self, historian: Historian, host: str = "127.0.0.1", port: int = 1883, group: str = "+",
                  client_id: str = "ropemon-fleet", username: str | None = None, password: str | None = None,
@@ -96,47 +109,77 @@ class Fleet:
         import paho.mqtt.client as paho
         self.historian = historian
         self.topic = f"spBv1.0/{group}/#"
-        self.stats = {"births": 0, "deaths": 0, "ddata": 0, "rows": 0, "seq_gaps": 0, "historical": 0}
+        self.stats = {"births": 0, "deaths": 0, "ddata": 0, "rows": 0, "seq_gaps": 0, "historical": 0,
+                      "commits": 0}
         self.seq: dict[tuple[str, str], int] = {}     # (group, edge) -> last seq
         self.bdseq: dict[tuple[str, str], int] = {}
         self.connected = threading.Event()
         self.lock = threading.Lock()
+        self.error: str | None = None                  # the historian cannot be written (the writer retries)
+        self._names: dict[str, tuple[str, int, int] | None] = {}   # metric name -> ("t"|"s", node, rope)
+        self._queue: "queue.SimpleQueue[tuple[int, int, int, str, bytes]]" = queue.SimpleQueue()
+        self._session = 0             # +1 at each connect and disconnect: an old connection's mids are not acked
+        self._ack_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._writer = threading.Thread(target=self._write_loop, name="fleet-writer", daemon=True)
         c = self.client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=False,
-                                      protocol=paho.MQTTv311)
+                                      protocol=paho.MQTTv311, manual_ack=True)
         if username:
             c.username_pw_set(username, password)
         if tls:
             c.tls_set(ca_certs=tls_ca)
         c.reconnect_delay_set(1, 2)
         c.on_connect = self._on_connect
-        c.on_disconnect = lambda *a: self.connected.clear()
+        c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
         self.host, self.port = host, port
 
     def start(self) -> None:
+        self._writer.start()
         self.client.connect_async(self.host, self.port, keepalive=10)
         self.client.loop_start()
 
     def stop(self) -> None:
+        """Disconnect, then commit what was received (not acknowledged: the broker sends it again)."""
         self.client.disconnect()
         self.client.loop_stop()
+        self._stop.set()
+        self._writer.join(30.0)
 
     def _on_connect(self, client, userdata, flags, reason, props) -> None:
         if not reason.is_failure:
+            with self._ack_lock:
+                self._session += 1
             client.subscribe(self.topic, qos=1)
             self.connected.set()
 
+    def _on_disconnect(self, *args: Any) -> None:
+        with self._ack_lock:
+            self._session += 1
+        self.connected.clear()
+
     def _on_message(self, client, userdata, msg) -> None:
+        self._queue.put((self._session, msg.mid, msg.qos, msg.topic, msg.payload))
+
+    def _name(self, name: str) -> tuple[str, int, int] | None:
+        t = TENSION.match(name)
+        if t is not None:
+            return ("t", int(t.group(1)), int(t.group(2)))
+        s = SEQ.match(name)
+        return ("s", int(s.group(1)), 0) if s is not None else None
+
+    def rows_of(self, topic: str, payload: bytes) -> list[tuple]:
+        """One message's historian rows (none for births, deaths and what is not Sparkplug)."""
         from ropemon.station.mqtt import sparkplug as sp
-        parts = msg.topic.split("/")
+        parts = topic.split("/")
         if len(parts) < 4 or parts[0] != sp.NAMESPACE:
-            return
+            return []
         group, kind, edge = parts[1], parts[2], parts[3]
         device = parts[4] if len(parts) > 4 else None
         try:
-            p = sp.decode(msg.payload)
+            p = sp.decode(payload)
         except Exception:  # noqa: BLE001 - not Sparkplug: ignored
-            return
+            return []
         with self.lock:
             key = (group, edge)
             if kind in ("NBIRTH", "NDEATH"):
@@ -146,30 +189,76 @@ class Fleet:
                         self.bdseq[key] = sp.metric_value(m)
                 if kind == "NBIRTH":
                     self.seq[key] = p.seq
-                return
+                return []
             if p.HasField("seq") and key in self.seq:
                 if p.seq != (self.seq[key] + 1) % 256:
                     self.stats["seq_gaps"] += 1
             if p.HasField("seq"):
                 self.seq[key] = p.seq
             if kind != "DDATA" or device is None:
-                return
+                return []
             self.stats["ddata"] += 1
-            seqs = {int(SEQ.match(m.name).group(1)): sp.metric_value(m) for m in p.metrics if SEQ.match(m.name)}
-            rows = []
+            seqs: dict[int, Any] = {}
+            tensions = []
+            names = self._names
             for m in p.metrics:
-                t = TENSION.match(m.name)
-                if t is None:
+                what = names.get(m.name, ...)
+                if what is ...:
+                    what = names[m.name] = self._name(m.name) if len(names) < 100_000 else None
+                if what is None:
                     continue
-                node, rope = int(t.group(1)), int(t.group(2))
+                if what[0] == "s":
+                    seqs[what[1]] = sp.metric_value(m)
+                else:
+                    tensions.append((what[1], what[2], m))
+            rows = []
+            for node, rope, m in tensions:
                 if seqs.get(node) is None:
                     continue
                 rows.append((group, edge, device, node, rope, m.timestamp, sp.metric_value(m), seqs[node],
                              bool(m.is_historical)))
                 self.stats["historical"] += bool(m.is_historical)
+            return rows
+
+    def _write_loop(self) -> None:
+        """Take what is queued, commit it in one transaction, then acknowledge it (module docstring)."""
+        pending: list[tuple[int, int, int]] = []       # (session, mid, qos) to acknowledge
+        rows: list[tuple] = []
+        while True:
+            if not pending:
+                try:
+                    item = self._queue.get(timeout=0.2)
+                except queue.Empty:
+                    if self._stop.is_set():
+                        return
+                    continue
+                try:
+                    while True:
+                        session, mid, qos, topic, payload = item
+                        pending.append((session, mid, qos))
+                        rows += self.rows_of(topic, payload)
+                        if len(rows) >= MAX_BATCH_ROWS:
+                            break
+                        item = self._queue.get_nowait()
+                except queue.Empty:
+                    pass
             if rows:
-                self.historian.write(rows)
-                self.stats["rows"] += len(rows)
+                try:
+                    self.historian.write(rows)
+                except Exception as e:  # noqa: BLE001 - not acknowledged: tried again
+                    self.error = f"cannot write the historian: {type(e).__name__}: {e}"
+                    if self._stop.wait(1.0):
+                        return
+                    continue
+                self.error = None
+                with self.lock:
+                    self.stats["rows"] += len(rows)
+                    self.stats["commits"] += 1
+            with self._ack_lock:
+                for session, mid, qos in pending:
+                    if qos and session == self._session:
+                        self.client.ack(mid, qos)
+            pending, rows = [], []
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
