@@ -1,16 +1,18 @@
-"""Board HAL for the reference cage node: ESP32 + four ADS1115 ADCs + radio on a UART.
+"""Board HAL of a cage node: the board table's buses, the sample loop, the radio.
 
-Wiring (docs/model.md, "Reference hardware"):
-    I2C0  SCL GPIO22, SDA GPIO21, 400 kHz; ADS1115 at 0x48, 0x49, 0x4A, 0x4B
-          chip i: AIN0 = pressure loop of rope i, AIN1 = displacement loop of rope i;
-          chip 0 AIN2 = battery divider, chip 1 AIN2 = oil temperature loop (if fitted:
-          config temperature.fitted; read only then, else the word is 0xFFFF)
-          each 4-20 mA loop across a 150 ohm 0.1 % shunt: 4 mA = 0.6 V, PGA +-4.096 V
-    speed encoder  pulses GPIO25, direction GPIO26 -> machine.Counter (up/down)
-    Hall pair      GPIO32 (sensor A), GPIO33 (sensor B), low = over a mark
-    radio          UART1 TX GPIO17, RX GPIO16, 9600 8N1
-Stream counts are ADS1115 codes (0..32767 for 0..4.096 V) times 2, so the
-words match the 16-bit .rsens format (4 mA = 9600, 20 mA = 48000 counts).
+    hal_board.run("/node.json")                   # main.py: the board of boards.BOARD
+    hal_board.run("/node.json", board="esp32s3-devkitc")
+    hal_board.bench()                             # bring-up at the REPL (docs/hardware.md)
+
+Pins and buses come from one table (ropenode.boards; the reference board and
+its wiring: docs/hardware.md), so another board is a new table, not a new
+HAL. `Board` builds the machine objects the table names unless they are
+given (constructor injection: tests pass a fake I2C bus, UART and pins). The
+ADS1115 front end (ropenode.frontend, ropenode.ads1115) fills the record:
+stream counts are ADS1115 codes times 2, so the words match the 16-bit .rsens
+format (reference board: 4 mA = 9600, 20 mA = 48000 counts); a loop that
+cannot be read (bus error, conversion not ready) reads 0, a NAMUR fault of
+that rope's sample, never a crash.
 
 A Timer fires at sample_hz; its callback only sets a flag (and counts a
 missed tick when the flag is still set). The main loop does the I2C reads into
@@ -21,7 +23,6 @@ The frame seq continues across resets through the boot counter in /bootcount
 the first seconds after boot also go to /wind.rsens (ropenode.rsens), for the
 compliance fit of a commissioning wind.
 """
-import array
 import gc
 import time
 
@@ -35,56 +36,57 @@ from ropenode.bootseq import FrameSeq
 BOOT_FILE = "/bootcount"
 _frame_seq = None  # one per boot: a restarted run() (main.py) continues it, no extra flash write
 
-_ADS_ADDRS = (0x48, 0x49, 0x4A, 0x4B)
-_REG_CONV = const(0)
-_REG_CONFIG = const(1)
-# OS=1 start, PGA +-4.096 V (001), single shot, 860 SPS (111), comparator off (11)
-_CFG_BASE = const(0x8000 | 0x0200 | 0x0100 | 0x00E0 | 0x0003)
-_SHUNT_OHM = const(150)         # each 4-20 mA loop's shunt to ground: 4 mA = 0.6 V, 20 mA = 3.0 V
-_WORD_SHIFT = const(1)          # stream word = ADS1115 code << 1 (0..32767 -> 0..65534)
-_CONV_US = const(1300)          # one 860 SPS conversion plus margin
-_AUX_EVERY = const(20)          # battery and temperature: one sample in 20
 _WDT_MS = const(2000)
 _HEALTHY_MS = const(500)        # fed only if a sample was processed this recently
 _COUNT_MAX = const(0x3FFFFFFF)  # diagnostic counters saturate here: stay small ints, never allocate
 
 
-def _cfg_bytes(ain):
-    c = _CFG_BASE | ((4 + ain) << 12)  # MUX 1xx: AINx against GND
-    return bytes(((c >> 8) & 0xFF, c & 0xFF))
-
-
 class Board:
-    """Owns the peripherals; `run_forever` is the node's main loop."""
+    """Owns the peripherals; `run_forever` is the node's main loop.
 
-    def __init__(self, node, ropes, sample_hz, temp_fitted=False):
+    `table`: a board table (default boards.get()); `i2c`, `uart`, `rdy`, `counter`,
+    `hall` (a pair of pins): given ones are used as they are, the others are built
+    from the table with machine."""
+
+    def __init__(self, node, ropes, sample_hz, temp_fitted=False, table=None, i2c=None, uart=None,
+                 rdy=None, counter=None, hall=None):
+        # imported here, not at the top: main.py imports this module before the boot
+        # parses node.json, and the boot peak of the heap must not hold them too
+        from ropenode import boards
+        from ropenode.frontend import FrontEnd
+
+        t = boards.get() if table is None else table
+        self.table = t
         self.node = node
         self.ropes = ropes
         self.sample_hz = sample_hz
         self.temp_fitted = temp_fitted
-        self.i2c = I2C(0, scl=Pin(22), sda=Pin(21), freq=400_000)
-        self.uart = UART(1, baudrate=9600, tx=Pin(17), rx=Pin(16))
-        self.counter = Counter(0, Pin(25, Pin.IN), direction=Pin(26, Pin.IN))
-        self.hall_a = Pin(32, Pin.IN, Pin.PULL_UP)
-        self.hall_b = Pin(33, Pin.IN, Pin.PULL_UP)
-        self.cfg_ain = [_cfg_bytes(a) for a in range(4)]
-        self.conv = bytearray(2)
-        self.rec = array.array("H", [0] * (2 * ropes + 4))
-        self.rec[2 * ropes + 1] = 0xFFFF  # the temperature word when no input is fitted
+        if i2c is None:
+            bus, scl, sda, hz = t["i2c"]
+            i2c = I2C(bus, scl=Pin(scl), sda=Pin(sda), freq=hz)
+        if uart is None:
+            uid, tx, rx, baud = t["radio"]
+            uart = UART(uid, baudrate=baud, bits=8, parity=None, stop=1, tx=Pin(tx), rx=Pin(rx))
+        if rdy is None and t["rdy"] is not None:
+            rdy = Pin(t["rdy"], Pin.IN, Pin.PULL_UP)
+        if counter is None:
+            cid, pulses, direction = t["encoder"]
+            counter = Counter(cid, Pin(pulses, Pin.IN), direction=Pin(direction, Pin.IN))
+        if hall is None:
+            hall = (Pin(t["hall"][0], Pin.IN, Pin.PULL_UP), Pin(t["hall"][1], Pin.IN, Pin.PULL_UP))
+        self.i2c = i2c
+        self.uart = uart
+        self.fe = FrontEnd(t, i2c, ropes, temp_fitted, rdy, counter, hall[0], hall[1])
+        self.fe.init()
+        self.rec = self.fe.rec
         self.wire = bytearray(layout.MAX_WIRE_LEN)
         self.wire_mv = memoryview(self.wire)
         self.tick = False
         self.missed = 0
-        self.k = 0                # sample index modulo _AUX_EVERY
         self.last_ok_ms = time.ticks_ms()
-        self.i2c_errors = 0
-        self.timer = Timer(0)
+        self.timer: Timer | None = None
         self.wdt: WDT | None = None
         self.recorder: rsens.Writer | None = None  # an armed recording (_recorder)
-
-    def _bus_error(self):
-        if self.i2c_errors < _COUNT_MAX:
-            self.i2c_errors += 1
 
     def _on_timer(self, _t):
         # Interrupt context: no allocation, no I2C. Only flags. (missed is cleared every loop.)
@@ -92,62 +94,16 @@ class Board:
             self.missed += 1
         self.tick = True
 
-    def _start(self, chip, ain):
-        self.i2c.writeto_mem(_ADS_ADDRS[chip], _REG_CONFIG, self.cfg_ain[ain])
-
-    def _read(self, chip):
-        """The chip's last conversion as stream counts (0..65534); 0 on a bus error."""
-        try:
-            self.i2c.readfrom_mem_into(_ADS_ADDRS[chip], _REG_CONV, self.conv)
-        except OSError:
-            self._bus_error()
-            return 0  # reads as a failed loop (below 3.6 mA): flagged, never a tension
-        v = (self.conv[0] << 8) | self.conv[1]
-        if v & 0x8000:
-            return 0
-        return v << _WORD_SHIFT
-
-    def _convert(self, ain, words, first):
-        """One conversion of input `ain` on every rope's chip, in parallel."""
-        n = self.ropes
-        for i in range(n):
-            try:
-                self._start(i, ain)
-            except OSError:
-                self._bus_error()
-        time.sleep_us(_CONV_US)
-        for i in range(n):
-            words[first + i] = self._read(i)
-
     def acquire(self):
-        """Fill self.rec with one record in the .rsens word order."""
-        n = self.ropes
-        rec = self.rec
-        self._convert(0, rec, 0)      # pressures
-        self._convert(1, rec, n)      # displacements
-        if self.k == 0:  # slow inputs: battery, temperature (if fitted)
-            temp = self.temp_fitted
-            try:
-                self._start(0, 2)
-                if temp:
-                    self._start(1, 2)
-            except OSError:
-                self._bus_error()
-            time.sleep_us(_CONV_US)
-            rec[2 * n] = self._read(0)
-            if temp:
-                rec[2 * n + 1] = self._read(1)
-        rec[2 * n + 2] = self.counter.value() & 0xFFFF
-        # Hall sensors pull low over a mark
-        rec[2 * n + 3] = (0 if self.hall_a.value() else 1) | (0 if self.hall_b.value() else 2)
-        k = self.k + 1  # wrapped: a count of all samples would pass 2**30 (62 days) and allocate
-        self.k = 0 if k >= _AUX_EVERY else k
+        """Fill self.rec with one record in the .rsens word order (ropenode.frontend)."""
+        self.fe.acquire()
 
     def run_forever(self):
         node = self.node
         if machine.reset_cause() == machine.WDT_RESET:
             node.sticky_status |= layout.ST_WATCHDOG_RESET
         self.wdt = WDT(timeout=_WDT_MS)
+        self.timer = Timer(0)
         self.timer.init(mode=Timer.PERIODIC, freq=self.sample_hz, callback=self._on_timer)
         while True:
             if not self.tick:
@@ -233,16 +189,19 @@ def _boot(config_path):
     return node, cfg.ropes, cfg.sample_hz, cfg.fitted == 1
 
 
-def run(config_path="/node.json", boot_file=BOOT_FILE):
-    """Boot: load and validate the config, then sample forever (status frames if invalid)."""
+def run(config_path="/node.json", boot_file=BOOT_FILE, board=None):
+    """Boot: load and validate the config, then sample forever (status frames if invalid).
+    `board`: a name in ropenode.boards (default boards.BOARD)."""
     global _frame_seq
     if _frame_seq is None:
         _frame_seq = FrameSeq(boot_file)
     node, ropes, sample_hz, fitted = _boot(config_path)
     gc.collect()  # frees the Config and the build's garbage: nothing refers to them now
-    board = Board(node, ropes, sample_hz, fitted)
-    board.recorder = _recorder(ropes, sample_hz)
-    board.run_forever()
+    from ropenode import boards
+
+    hal = Board(node, ropes, sample_hz, fitted, boards.get(board))
+    hal.recorder = _recorder(ropes, sample_hz)
+    hal.run_forever()
 
 
 def _recorder(ropes, sample_hz, root="/"):
@@ -261,3 +220,36 @@ def _recorder(ropes, sample_hz, root="/"):
         return None
     print("ropenode: recording", seconds, "s of samples to", root + rsens.RECORD_FILE)
     return rsens.Writer(f, ropes, sample_hz, seconds * sample_hz)
+
+
+def bench(board=None, ropes=4, temp_fitted=False, records=3):
+    """Bring-up at the REPL (docs/hardware.md): the I2C scan against the table, then
+    `records` records: each loop's stream word, current (uA) and NAMUR state, the
+    battery (mV), encoder and Hall words, and how long one record took (it must stay
+    well inside 1 / sample_hz). Not for the sample loop: it allocates."""
+    from ropenode import boards
+
+    t = boards.get(board)
+    b = Board(None, ropes, 200, temp_fitted, t)
+    found = b.i2c.scan()
+    print("I2C: found", [hex(a) for a in found], "- table", [hex(a) for a in t["ads"]],
+          "OK" if all(a in found for a in t["ads"]) else "MISSING")
+    fe = b.fe
+    fs, shunt = t["fs_mv"], t["shunt_ohm"]
+    state = ("ok", "LOW (<3.6 mA)", "HIGH (>21 mA)")
+    for _ in range(records):
+        fe.k = 0  # every record reads the battery (and temperature) too
+        t0 = time.ticks_us()
+        fe.acquire()
+        us = time.ticks_diff(time.ticks_us(), t0)
+        rec = fe.rec
+        for i in range(2 * ropes):
+            ua = boards.loop_ua(rec[i], fs, shunt)
+            print("%s %d: word %5d  %2d.%03d mA  %s" % ("pressure" if i < ropes else "displacement",
+                  i % ropes + 1, rec[i], ua // 1000, ua % 1000, state[boards.loop_state(rec[i], fs, shunt)]))
+        from ropenode.ads1115 import code_uv
+        mv = code_uv(rec[2 * ropes] >> boards.WORD_SHIFT, fs) * t["battery_div"] // 1000
+        print("battery: word %d  %d mV; temperature word %d; encoder %d; hall %d"
+              % (rec[2 * ropes], mv, rec[2 * ropes + 1], rec[2 * ropes + 2], rec[2 * ropes + 3]))
+        print("record: %d us (1/sample_hz: 5000 us at 200 Hz); bus errors %d, timeouts %d, rdy timeouts %d"
+              % (us, fe.bus_errors, fe.timeouts, fe.rdy_timeouts))

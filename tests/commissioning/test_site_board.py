@@ -1,11 +1,12 @@
 """The example site is the reference board as wired: scenarios/paper-site.toml, built into a
 node config by `ropemon config`, reads its 4-20 mA loops at the stream words the board HAL
-(firmware/ropenode/hal_board.py) produces for 4, 20, 3.6 and 21 mA.
+(firmware/ropenode/hal_board.py, its front end and ADS1115 driver) produces for 4, 20, 3.6
+and 21 mA.
 
-The HAL's figures come from the HAL itself: the shunt (`_SHUNT_OHM`), the ADS1115 gain from
-the PGA field of its config word (`_CFG_BASE`, the datasheet's full scales), and the code ->
-stream word step by running `Board._read` on a fake I2C bus. Nothing of the board is restated
-here.
+The board's figures come from the firmware itself: the shunt from the reference board's
+table (ropenode.boards), the ADS1115 gain from the PGA field of the config word the driver
+writes on the bus (the datasheet's full scales), and the code -> stream word step by
+running the HAL's acquisition on a fake I2C bus. Nothing of the board is restated here.
 """
 from __future__ import annotations
 
@@ -26,18 +27,23 @@ SCEN = Path(__file__).resolve().parents[2] / "scenarios"
 PGA_FULL_SCALE_V = {0: 6.144, 1: 4.096, 2: 2.048, 3: 1.024, 4: 0.512, 5: 0.256, 6: 0.256, 7: 0.256}
 
 
-class _OneCodeI2C:
-    """Every ADS1115 on the bus returns `code` from its conversion register."""
-    code = 0
+class _LoopI2C:
+    """Every ADS1115 on the bus sees `volts` on each input: a conversion started by a config
+    write (OS = 1) gives the code of that voltage at the PGA the write selects."""
+    volts = 0.0
 
-    def __init__(self, *a, **k):
-        pass
+    def __init__(self):
+        self.code = 0
 
     def writeto_mem(self, addr, reg, data):
-        pass
+        word = (data[0] << 8) | data[1]
+        if reg == 1 and word & 0x8000:
+            lsb = PGA_FULL_SCALE_V[(word >> 9) & 7] / 32768
+            self.code = min(round(self.volts / lsb), 0x7FFF)
 
     def readfrom_mem_into(self, addr, reg, buf):
-        buf[0], buf[1] = (self.code >> 8) & 0xFF, self.code & 0xFF
+        v = 0x8000 if reg == 1 else self.code  # config: OS = 1, the conversion is done
+        buf[0], buf[1] = (v >> 8) & 0xFF, v & 0xFF
 
 
 class _Any:
@@ -46,28 +52,39 @@ class _Any:
     def __init__(self, *a, **k):
         pass
 
+    def value(self):
+        return 1
+
 
 @pytest.fixture
 def hal_board(monkeypatch):
     install_shim()
     machine = types.ModuleType("machine")
-    for name in ("UART", "WDT", "Counter", "Pin", "Timer"):
+    for name in ("UART", "WDT", "Counter", "Pin", "Timer", "I2C"):
         setattr(machine, name, _Any)
-    machine.I2C = _OneCodeI2C
     monkeypatch.setitem(sys.modules, "machine", machine)
     monkeypatch.delitem(sys.modules, "ropenode.hal_board", raising=False)
     mod = importlib.import_module("ropenode.hal_board")
-    monkeypatch.setattr(mod, "time", types.SimpleNamespace(ticks_ms=lambda: 0))
+    from ropenode import ads1115, frontend
+    clock = types.SimpleNamespace(ticks_ms=lambda: 0, ticks_us=lambda: 0, sleep_us=lambda us: None,
+                                  ticks_diff=lambda a, b: a - b)
+    for m in (mod, ads1115, frontend):
+        monkeypatch.setattr(m, "time", clock)
     yield mod
     sys.modules.pop("ropenode.hal_board", None)
 
 
 def _board_word(mod, ma: float) -> int:
-    """The stream word the reference board produces for a loop current of `ma`."""
-    volts_per_code = PGA_FULL_SCALE_V[(mod._CFG_BASE >> 9) & 7] / 32768
-    board = mod.Board(None, 1, 200)
-    board.i2c.code = min(round(ma / 1000 * mod._SHUNT_OHM / volts_per_code), 0x7FFF)
-    return board._read(0)
+    """The stream word the reference board produces for a loop current of `ma` (rope 1's
+    pressure word of one acquired record)."""
+    from ropenode import boards
+
+    table = boards.get()  # the board main.py runs (boards.BOARD)
+    bus = _LoopI2C()
+    bus.volts = ma / 1000 * table["shunt_ohm"]
+    board = mod.Board(None, 1, 200, False, table, i2c=bus)
+    board.acquire()
+    return board.rec[0]
 
 
 @pytest.fixture

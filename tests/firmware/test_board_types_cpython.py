@@ -139,8 +139,9 @@ MUTATIONS = (
     ("time.sleep_us(", "time.sleep_usec("),
     ("WDT(timeout=", "WDT(timeout_ms="),
     ("Timer.PERIODIC", "Timer.PERIODICAL"),
-    ("baudrate=9600", "baud=9600"),
+    ("baudrate=", "baud="),
     ("Pin.PULL_UP", "Pin.PULLUP"),
+    ("I2C(bus, scl=", "I2C(bus, scll="),
 )
 
 

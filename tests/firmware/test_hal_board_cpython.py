@@ -1,10 +1,13 @@
 """The board HAL's acquisition logic under CPython, with fake `machine` peripherals.
 
-Checks what the ESP32 cannot show in a test run: the temperature word is read
-only when a temperature input is fitted (else 0xFFFF, docs/data-formats.md),
-the slow-input counter wraps instead of growing past 2**30, the bus-error
-counter saturates, and an armed recording takes the records the node samples
-(and stops, without stopping the node, when the flash fails).
+Checks what the ESP32 cannot show in a test run: the machine objects are
+built from the board table (ropenode.boards) unless injected, the temperature
+word is read only when a temperature input is fitted (else 0xFFFF,
+docs/data-formats.md), the slow-input counter wraps instead of growing past
+2**30, the bus-error counter saturates, and an armed recording takes the
+records the node samples (and stops, without stopping the node, when the
+flash fails). The ADS1115 driver and the front end in detail:
+test_ads1115_cpython.py.
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ class FakeI2C:
     """ADS1115s that convert the input last started: code = 1000 * chip + 100 * ain."""
 
     def __init__(self, *a, **k):
+        self.made = (a, k)
         self.ain = {}
         self.started = set()  # (address, ain) of every conversion started
         self.fail = False
@@ -30,47 +34,87 @@ class FakeI2C:
     def writeto_mem(self, addr, reg, data):
         if self.fail:
             raise OSError(19)
-        self.ain[addr] = ((data[0] << 8) >> 12) & 3
-        self.started.add((addr, self.ain[addr]))
+        if reg == 1 and data[0] & 0x80:  # config, OS = 1: a conversion starts
+            self.ain[addr] = (data[0] >> 4) & 3
+            self.started.add((addr, self.ain[addr]))
 
     def readfrom_mem_into(self, addr, reg, buf):
         if self.fail:
             raise OSError(19)
-        v = 1000 * ADDRS.index(addr) + 100 * self.ain.get(addr, 0)
+        v = 0x8000 if reg == 1 else 1000 * ADDRS.index(addr) + 100 * self.ain.get(addr, 0)
         buf[0], buf[1] = v >> 8, v & 0xFF
 
 
-class _Any:
-    IN = PULL_UP = PERIODIC = 0
+MADE = []  # (class name, args, kwargs) of every fake machine object built
 
-    def __init__(self, *a, **k):
-        pass
 
-    def value(self):
-        return 1
+def _fake(name):
+    class Fake:
+        IN = PULL_UP = PERIODIC = 0
 
-    def write(self, data):  # the radio UART
-        return len(data)
+        def __init__(self, *a, **k):
+            self.a = a
+            MADE.append((name, a, k))
+
+        def value(self):
+            return 1
+
+        def write(self, data):  # the radio UART
+            return len(data)
+
+    Fake.__name__ = name
+    return Fake
 
 
 @pytest.fixture
 def hal_board(monkeypatch):
     install_shim()
+    MADE.clear()
     machine = types.ModuleType("machine")
     for name in ("UART", "WDT", "Counter", "Pin", "Timer"):
-        setattr(machine, name, _Any)
+        setattr(machine, name, _fake(name))
     machine.I2C = FakeI2C
     monkeypatch.setitem(sys.modules, "machine", machine)
     monkeypatch.delitem(sys.modules, "ropenode.hal_board", raising=False)
     mod = importlib.import_module("ropenode.hal_board")
-    monkeypatch.setattr(mod, "time", types.SimpleNamespace(sleep_us=lambda us: None, ticks_ms=lambda: 0,
-                                                           ticks_diff=lambda a, b: a - b))
+    clock = types.SimpleNamespace(sleep_us=lambda us: None, ticks_ms=lambda: 0, ticks_us=lambda: 0,
+                                  ticks_diff=lambda a, b: a - b)
+    from ropenode import ads1115, frontend
+    for m in (mod, ads1115, frontend):
+        monkeypatch.setattr(m, "time", clock)
     yield mod
     sys.modules.pop("ropenode.hal_board", None)
 
 
 def _board(mod, ropes, fitted):
     return mod.Board(None, ropes, 200, fitted)
+
+
+@pytest.mark.parametrize("name", ["esp32-devkitc", "esp32s3-devkitc"])
+def test_buses_and_pins_come_from_the_board_table(hal_board, name):
+    from ropenode import boards
+
+    t = boards.get(name)
+    b = hal_board.Board(None, 4, 200, False, t)
+    pins = {m[1][0] for m in MADE if m[0] == "Pin"}
+    assert pins == {t["i2c"][1], t["i2c"][2], t["rdy"], *t["encoder"][1:], *t["hall"], t["radio"][1], t["radio"][2]}
+    (bus,), kw = b.i2c.made
+    assert bus == t["i2c"][0] and kw["freq"] == t["i2c"][3] and kw["scl"].a[0] == t["i2c"][1]
+    uart = [m for m in MADE if m[0] == "UART"]
+    assert len(uart) == 1 and uart[0][1] == (t["radio"][0],)
+    assert {k: uart[0][2][k] for k in ("baudrate", "bits", "parity", "stop")} == dict(
+        baudrate=t["radio"][3], bits=8, parity=None, stop=1)
+    assert [m[1][0] for m in MADE if m[0] == "Counter"] == [t["encoder"][0]]
+    assert [f.address for f in b.fe.ads] == list(t["ads"])
+
+
+def test_injected_buses_are_used_as_given(hal_board):
+    from ropenode import boards
+
+    i2c, uart = FakeI2C(), object()
+    b = hal_board.Board(None, 2, 200, False, boards.get(), i2c=i2c, uart=uart)
+    assert b.i2c is i2c and b.uart is uart and b.fe.ads[0].i2c is i2c
+    assert not [m for m in MADE if m[0] == "UART"]
 
 
 @pytest.mark.parametrize("ropes", [1, 4])
@@ -94,24 +138,26 @@ def test_aux_counter_wraps_and_slow_inputs_are_read_one_sample_in_20(hal_board):
         b.rec[4] = 0
         b.acquire()
         aux += b.rec[4] != 0
-        assert 0 <= b.k < 20
+        assert 0 <= b.fe.k < 20
     assert aux == 50
-    b.k = 19
+    b.fe.k = 19
     b.rec[4] = 0
     b.acquire()
-    assert b.k == 0 and b.rec[4] == 0
+    assert b.fe.k == 0 and b.rec[4] == 0
     b.acquire()
-    assert b.k == 1 and b.rec[4] == 400
+    assert b.fe.k == 1 and b.rec[4] == 400
 
 
 def test_bus_errors_read_as_failed_loops_and_the_count_saturates(hal_board):
+    from ropenode import frontend
+
     b = _board(hal_board, 2, False)
     b.i2c.fail = True
     b.acquire()
-    assert list(b.rec[:4]) == [0, 0, 0, 0] and b.i2c_errors > 0
-    b.i2c_errors = hal_board._COUNT_MAX - 1
+    assert list(b.rec[:4]) == [0, 0, 0, 0] and b.fe.bus_errors > 0
+    b.fe.bus_errors = frontend.COUNT_MAX - 1
     b.acquire()
-    assert b.i2c_errors == hal_board._COUNT_MAX
+    assert b.fe.bus_errors == frontend.COUNT_MAX
 
 
 def test_an_armed_recording_takes_the_records_the_node_samples(hal_board, tmp_path):
