@@ -277,3 +277,136 @@ def _utc(t):
 def test_the_table_is_refused_with_the_field_named(table, field):
     with pytest.raises(StationFileError, match=field.replace("[", r"\[").replace("]", r"\]")):
         parse_table(table, Path("."))
+
+
+SHELVE = ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_TimedShelve)
+SHELVE2 = ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_TimedShelve2)
+ONE_SHOT = ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_OneShotShelve)
+UNSHELVE = ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_Unshelve)
+
+
+def _log_events(rig, action, alarm):
+    h = rig["stations"].hoists["north"]
+    h.store.commit()
+    with Store(h.db_path, readonly=True) as s:
+        return [e for e in s.events() if e["action"] == action and e["alarm"] == alarm]
+
+
+def test_shelving_methods_become_the_stations_shelve_and_unshelve_with_the_user(rig, client_cert):
+    aid = "deviation:n1:r1"
+
+    async def go():
+        c = await connect(rig, client_cert)
+        try:
+            events = []
+
+            class Handler:
+                def event_notification(self, event):
+                    events.append(event)
+            sub = await c.create_subscription(50, Handler())
+            await sub.subscribe_alarms_and_conditions(c.nodes.server, ua.ObjectIds.AlarmConditionType)
+            feed(rig, [5000, 6500, 5000, 5000], n=10)      # the deviation present (raised by the test above or now)
+            await c.get_node(ua.NodeId(ua.ObjectIds.ConditionType)).call_method(   # its state now
+                ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                ua.Variant(sub.subscription_id, ua.VariantType.UInt32))
+
+            async def present():
+                return [e for e in events if e.ConditionName == aid and getattr(e, "ActiveState/Id")]
+            ev = (await until(present))[-1]
+            shelving = await c.get_node(ev.NodeId).get_child("2:ShelvingState")
+            # the ShelvedStateMachineType's methods are there to browse
+            names = {(await m.read_browse_name()).Name for m in await shelving.get_methods()}
+            assert {"TimedShelve", "OneShotShelve", "Unshelve"} <= names
+            v = await connect(rig, client_cert, user="victor", password="view-pw-2")
+            try:
+                with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
+                    await v.get_node(shelving.nodeid).call_method(SHELVE, ua.Variant(60_000.0, ua.VariantType.Double))
+            finally:
+                await v.disconnect()
+            with pytest.raises(ua.UaStatusCodeError, match="BadShelvingTimeOutOfRange"):
+                await shelving.call_method(SHELVE, ua.Variant(0.0, ua.VariantType.Double))
+            with pytest.raises(ua.UaStatusCodeError, match="BadConditionNotShelved"):
+                await shelving.call_method(UNSHELVE)
+            await shelving.call_method(SHELVE2, ua.Variant(600_000.0, ua.VariantType.Double),
+                                       ua.LocalizedText("rope 2 being re-tensioned"))
+            feed(rig, [5000, 6500, 5000, 5000])
+
+            async def shelved():
+                return [e for e in events if e.ConditionName == aid
+                        and getattr(e, "ShelvingState/CurrentState").Text == "TimedShelved"]
+            sh = (await until(shelved))[-1]
+            assert sh.SuppressedOrShelved is True and getattr(sh, "SuppressedState/Id") is False
+            assert getattr(sh, "ShelvingState/CurrentState/Id") == ua.NodeId(2932)
+            assert 0 < getattr(sh, "ShelvingState/UnshelveTime") <= 600_000.0
+            with pytest.raises(ua.UaStatusCodeError, match="BadConditionAlreadyShelved"):
+                await shelving.call_method(SHELVE, ua.Variant(60_000.0, ua.VariantType.Double))
+            await shelving.call_method(UNSHELVE)
+            feed(rig, [5000, 6500, 5000, 5000])
+
+            async def unshelved():
+                return [e for e in events[events.index(sh):] if e.ConditionName == aid
+                        and getattr(e, "ShelvingState/CurrentState").Text == "Unshelved"]
+            await until(unshelved)
+            # OneShotShelve: shelved until the alarm returns to normal, then unshelved by the face
+            await shelving.call_method(ONE_SHOT)
+            feed(rig, [5000, 6500, 5000, 5000])
+
+            async def one_shot():
+                return [e for e in events if e.ConditionName == aid
+                        and getattr(e, "ShelvingState/CurrentState").Text == "OneShotShelved"]
+            await until(one_shot)
+
+            async def back_to_normal():
+                feed(rig, [5000, 5000, 5000, 5000], n=5)
+                return [e for e in _log_events(rig, "unshelve", aid) if e["operator"] == "alice (opcua one-shot)"]
+            await until(back_to_normal, timeout=20)
+            await sub.delete()
+        finally:
+            await c.disconnect()
+    asyncio.run(go())
+    shelves = _log_events(rig, "shelve", aid)
+    assert [e["operator"] for e in shelves][-2:] == ["alice (opcua)", "alice (opcua)"]
+    assert "rope 2 being re-tensioned" in shelves[-2]["message"]
+    assert "OneShotShelve" in shelves[-1]["message"]
+    assert [e["operator"] for e in _log_events(rig, "unshelve", aid)] == ["alice (opcua)", "alice (opcua one-shot)"]
+
+
+def test_event_history_reads_the_logs_alarm_events(rig, client_cert):
+    from ropemon.station.pipeline import Shelve, Unshelve
+    t0 = time.time() - 3600
+    feed(rig, [5000, 6500, 5000, 5000], n=10)         # the deviation raised (if not yet), then an operator's actions
+    rig["stations"].submit("north", Shelve("carol", "terminal", alarm="deviation:n1:r1", minutes=5, reason="test"))
+    feed(rig, [5000, 6500, 5000, 5000])
+    rig["stations"].submit("north", Unshelve("carol", "terminal", alarm="deviation:n1:r1"))
+    feed(rig, [5000, 5000, 5000, 5000])
+    rig["stations"].hoists["north"].store.commit()
+
+    async def go():
+        c = await connect(rig, client_cert)
+        try:
+            idx = await c.get_namespace_index("urn:ropemon:opcua")
+            evtype = c.get_node(ua.NodeId(ua.ObjectIds.AlarmConditionType))
+            got = await c.nodes.server.read_event_history(_utc(t0), _utc(rig["clock"][0] + 1), evtypes=[evtype])
+            hoist = c.get_node(ua.NodeId("north", idx))
+            own = await hoist.read_event_history(_utc(t0), _utc(rig["clock"][0] + 1), evtypes=[evtype])
+            newest = await c.nodes.server.read_event_history(None, _utc(rig["clock"][0] + 1), numvalues=2,
+                                                              evtypes=[evtype])
+            return got, own, newest, idx
+        finally:
+            await c.disconnect()
+    got, own, newest, idx = asyncio.run(go())
+    h = rig["stations"].hoists["north"]
+    with Store(h.db_path, readonly=True) as s:
+        logged = s.events()
+    assert len(got) == len(logged) == len(own) and len(logged) >= 4
+    raised = [e for e in got if e.ConditionName == "deviation:n1:r1" and e.Message.Text.startswith("raise:")]
+    assert raised and getattr(raised[0], "ActiveState/Id") is True and raised[0].Severity == 800
+    assert raised[0].SourceNode == ua.NodeId("north.n1.r2", idx)
+    # every row, in order, with its action and who acted
+    assert [(e.Message.Text.split(":")[0], e.ClientUserId) for e in got] == \
+        [(r["action"], r["operator"] or "") for r in logged]
+    assert ("shelve", "carol (terminal)") in [(e.Message.Text.split(":")[0], e.ClientUserId) for e in got]
+    assert all(getattr(e, "AckedState/Id") is True for e in got if e.Message.Text.startswith("ack:"))
+    times = [e.Time for e in got]
+    assert times == sorted(times)
+    assert [e.Time for e in newest] == sorted(times, reverse=True)[:2]

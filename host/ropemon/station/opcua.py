@@ -39,9 +39,9 @@ from urllib.parse import urlparse
 
 from ropemon.commission.tomlfields import Table
 from ropemon.station import files
-from ropemon.station.alarms import ActiveAlarm, AlarmEvent
+from ropemon.station.alarms import PRIORITY, ActiveAlarm, AlarmEvent
 from ropemon.station.link import Received
-from ropemon.station.pipeline import Acknowledge, AlarmState, Listener, StationStatus
+from ropemon.station.pipeline import Acknowledge, AlarmState, Listener, Shelve, StationStatus, Unshelve
 from ropemon.station.protocol import DAN_TO_N, L, Frame
 from ropemon.station.stationfile import StationFileError
 
@@ -58,6 +58,8 @@ CERT_DAYS = 5 * 365
 SEVERITY = {1: 800, 2: 500, 3: 300}
 QUEUE_MAX = 50_000          # messages waiting for the server; past it frames are dropped (counted)
 HISTORY_MAX_VALUES = 10_000  # values in one history-read answer; a continuation point gives the rest
+EVENT_COLUMNS = ("id", "time_s", "action", "alarm", "kind", "node", "rope", "message", "operator")
+MAX_SHELVE_MIN = 720.0       # the longest TimedShelve, and a OneShotShelve's bound (as the web face's)
 
 #: UNECE Rec. 20 codes of the units (OPC UA EUInformation, Part 8).
 UNITS = {"kN": ("B47", "kilonewton"), "%": ("P1", "percent"), "m": ("MTR", "metre"),
@@ -83,6 +85,12 @@ class OpcuaFile:
     users: Path | None = None
     allow_anonymous: bool = False
     security: tuple[str, ...] = ("Basic256Sha256_SignAndEncrypt",)
+    trusted_clients: Path | None = None   # None: any client certificate; else only those in this folder
+
+    @property
+    def rejected_clients(self) -> Path | None:
+        """Where refused client certificates are written: `rejected` beside the trusted folder."""
+        return None if self.trusted_clients is None else self.trusted_clients.parent / "rejected"
 
     @property
     def host_port(self) -> tuple[str, int]:
@@ -115,6 +123,7 @@ def parse_table(data: Any, base: Path) -> OpcuaFile:
     users = path("users", None)
     anon = t.boolean("allow_anonymous", False)
     sec = t.array("security", ["Basic256Sha256_SignAndEncrypt"], min_len=1, what="security policy names")
+    trusted = path("trusted_clients", None)
     for i, s in enumerate(sec):
         if s not in POLICIES:
             raise StationFileError(f"{t.field('security')}[{i}]: must be one of {', '.join(POLICIES)}, got {s!r} "
@@ -123,7 +132,79 @@ def parse_table(data: Any, base: Path) -> OpcuaFile:
     if users is None and not anon:
         raise StationFileError("opcua.users: needed unless allow_anonymous = true (nobody could log in)")
     assert certs is not None
-    return OpcuaFile(endpoint, certs, users, anon, tuple(dict.fromkeys(sec)))
+    return OpcuaFile(endpoint, certs, users, anon, tuple(dict.fromkeys(sec)), trusted)
+
+
+# -- the client trust list -------------------------------------------------------------------
+
+
+class TrustList:
+    """The client certificates the server accepts: the DER or PEM files in the `trusted` folder,
+    read again at each check (moving a certificate in or out needs no restart). A certificate is
+    trusted when it is one of them, byte for byte, and within its validity period; no CA chains
+    and no revocation lists. A refused certificate is written (DER) to the `rejected` folder,
+    `<common name> [<SHA-1 thumbprint>].der`, for an engineer to move into `trusted`; at most
+    REJECTED_MAX files are kept there."""
+
+    REJECTED_MAX = 200
+
+    def __init__(self, trusted: Path, rejected: Path) -> None:
+        self.trusted, self.rejected = trusted, rejected
+        trusted.mkdir(parents=True, exist_ok=True)
+        rejected.mkdir(parents=True, exist_ok=True)
+
+    def _fingerprints(self) -> set[bytes]:
+        from cryptography import x509
+        from cryptography.hazmat.primitives import hashes
+        out = set()
+        for f in sorted(self.trusted.iterdir()):
+            if not f.is_file() or f.suffix.lower() not in (".der", ".pem", ".crt", ".cer"):
+                continue
+            try:
+                data = f.read_bytes()
+                c = (x509.load_pem_x509_certificate(data) if data.lstrip().startswith(b"-----BEGIN")
+                     else x509.load_der_x509_certificate(data))
+            except (ValueError, OSError) as e:
+                log.warning("OPC UA trust list: %s is not a certificate (%s)", f, e)
+                continue
+            out.add(c.fingerprint(hashes.SHA256()))
+        return out
+
+    def why_refused(self, der: bytes | None) -> str | None:
+        """None when the certificate (DER) is trusted, else why (and it is written to `rejected`)."""
+        from cryptography import x509
+        from cryptography.hazmat.primitives import hashes
+        if not der:
+            return "no client certificate"
+        try:
+            c = x509.load_der_x509_certificate(bytes(der))
+        except ValueError:
+            return "not a certificate"
+        if c.fingerprint(hashes.SHA256()) not in self._fingerprints():
+            self._reject(c)
+            return f"certificate {_cert_name(c)!r} is not in {self.trusted}"
+        now = datetime.datetime.now(datetime.timezone.utc)
+        if not c.not_valid_before_utc <= now <= c.not_valid_after_utc:
+            return f"certificate {_cert_name(c)!r} is outside its validity period"
+        return None
+
+    def _reject(self, c: Any) -> None:
+        from cryptography.hazmat.primitives import hashes
+        from cryptography.hazmat.primitives.serialization import Encoding
+        name = "".join(ch if ch.isalnum() or ch in " ._-" else "_" for ch in _cert_name(c))[:64].strip() or "client"
+        f = self.rejected / f"{name} [{c.fingerprint(hashes.SHA1()).hex().upper()}].der"   # noqa: S303 (OPC UA thumbprint)
+        try:
+            if f.exists() or sum(1 for _ in self.rejected.iterdir()) >= self.REJECTED_MAX:
+                return
+            f.write_bytes(c.public_bytes(Encoding.DER))
+        except OSError as e:
+            log.warning("OPC UA: could not keep the rejected certificate %s: %s", f, e)
+
+
+def _cert_name(c: Any) -> str:
+    from cryptography import x509
+    cn = c.subject.get_attributes_for_oid(x509.NameOID.COMMON_NAME)
+    return str(cn[0].value) if cn else c.subject.rfc4514_string()
 
 
 # -- the listener: the station's thread -> the server's loop -------------------------
@@ -193,6 +274,7 @@ class _Hoist:
     alarms: dict[str, tuple] = None  # type: ignore[assignment]   # alarm id -> lifecycle key last emitted
     conditions: dict[str, Any] = None  # type: ignore[assignment]  # alarm id -> condition NodeId
     views: dict[str, ActiveAlarm] = None  # type: ignore[assignment]
+    one_shot: dict[str, list] = None  # type: ignore[assignment]  # alarm id -> [user, seen present, shelved seen]
 
 
 _CALLER: contextvars.ContextVar[Any] = contextvars.ContextVar("ropemon_opcua_caller", default=None)
@@ -203,12 +285,21 @@ class _UserManager:
     web face's: one file, one set of roles): a listed user with the right password, or, with
     allow_anonymous, a client without a name, as a viewer."""
 
-    def __init__(self, users: Any, allow_anonymous: bool) -> None:
-        self.users, self.allow_anonymous = users, allow_anonymous
+    def __init__(self, users: Any, allow_anonymous: bool, trust: TrustList | None = None) -> None:
+        self.users, self.allow_anonymous, self.trust = users, allow_anonymous, trust
 
     def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
                  certificate: Any = None) -> Any:
         from asyncua.crypto.permission_rules import User, UserRole
+        if self.trust is not None:
+            # `certificate` is the secure channel's own client certificate: the one CreateSession
+            # names (checked by _check_client) could be another's
+            why = self.trust.why_refused(certificate)
+            if why is not None:
+                from asyncua import ua
+                from asyncua.common.utils import ServiceError
+                log.warning("OPC UA session refused: %s", why)
+                raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
         if username is None and password is None and certificate is None:
             return User(role=UserRole.User, name=None) if self.allow_anonymous else None
         if self.users is None or not username or password is None:
@@ -247,7 +338,53 @@ class _History:
         pass
 
     async def read_event_history(self, source_id: Any, start: Any, end: Any, nb_values: int, evfilter: Any):
-        return [], None
+        """HistoryReadEvents on the Server object (every hoist) or a hoist's object (its own): the
+        rows of the hoists' logs' events table, as AlarmConditionType events (EVENT_HISTORY)."""
+        from asyncua import ua
+        face = self.face
+        if source_id == ua.NodeId(ua.ObjectIds.Server):
+            hoists = list(face.hoists.values())
+        else:
+            hoists = [h for h in face.hoists.values() if h.obj == source_id]
+        hoists = [h for h in hoists if h.db_path is not None]
+        if not hoists:
+            return [], None
+        epoch = ua.get_win_epoch()
+        t0 = None if start is None or start == epoch else start.timestamp()
+        t1 = None if end is None or end == epoch else end.timestamp()
+        if t0 is None and t1 is None:
+            return [], None
+        newest_first = t0 is None or (t1 is not None and t0 > t1)
+        lo, hi = (t1, t0) if (t0 is not None and t1 is not None and t0 > t1) else (t0, t1)
+        want = min(nb_values or HISTORY_MAX_VALUES, HISTORY_MAX_VALUES)
+        rows: list[tuple[str, dict]] = []
+        for h in hoists:
+            got = await asyncio.get_running_loop().run_in_executor(
+                self._pool, self._event_rows, h.db_path, lo, hi, want + 1, newest_first)
+            rows += [(h.id, r) for r in got]
+        rows.sort(key=lambda x: (x[1]["time_s"], x[0], x[1]["id"]), reverse=newest_first)
+        cont = None
+        if len(rows) > want and not (nb_values and nb_values <= HISTORY_MAX_VALUES):
+            cont = _utc(rows[want][1]["time_s"])
+        return [face._history_event(face.hoists[hid], r) for hid, r in rows[:want]], cont
+
+    def _event_rows(self, db: Path, lo: float | None, hi: float | None, limit: int, newest_first: bool) -> list:
+        store = self._open(db)
+        if store is None:
+            return []
+        have = {r[1] for r in store.db.execute("PRAGMA table_info(events)")}
+        cols = [c for c in EVENT_COLUMNS if c in have]
+        where, args = [], []
+        if lo is not None:
+            where.append("time_s >= ?")
+            args.append(lo)
+        if hi is not None:
+            where.append("time_s <= ?")
+            args.append(hi)
+        order = "DESC" if newest_first else "ASC"
+        cur = store.db.execute(f"SELECT {','.join(cols)} FROM events {'WHERE ' + ' AND '.join(where) if where else ''} "
+                               f"ORDER BY time_s {order}, id {order} LIMIT ?", (*args, limit))
+        return [dict(zip(cols, r)) for r in cur]
 
     async def stop(self) -> None:
         self._pool.submit(self._close).result()
@@ -280,18 +417,24 @@ class _History:
         _, _, _, what, area = spec
         return [_history_value(what, area, rx, mean, raw) for rx, mean, raw in rows], cont
 
-    def _query(self, spec: tuple, lo: float | None, hi: float | None, limit: int, newest_first: bool) -> list:
+    def _open(self, db: Path) -> Any:
         from ropemon.station.store import Store, StoreError
-        db, node, rope, _, _ = spec
         store = self._stores.get(db)
         if store is None:
             if not db.exists():
-                return []
+                return None
             try:
                 store = self._stores[db] = Store(db, readonly=True)
             except StoreError as e:
                 log.warning("history: %s", e)
-                return []
+                return None
+        return store
+
+    def _query(self, spec: tuple, lo: float | None, hi: float | None, limit: int, newest_first: bool) -> list:
+        db, node, rope, _, _ = spec
+        store = self._open(db)
+        if store is None:
+            return []
         return store.rope_series(node, rope, lo, hi, limit, newest_first)
 
 
@@ -327,6 +470,7 @@ class OpcuaFace:
         self.server: Any = None
         self.hoists: dict[str, _Hoist] = {}
         self.by_condition: dict[Any, tuple[str, str]] = {}   # condition NodeId -> (hoist, alarm id)
+        self.by_shelving: dict[Any, tuple[str, str]] = {}    # its ShelvingState NodeId -> (hoist, alarm id)
         self.event_ids: dict[bytes, tuple[str, str]] = {}    # EventIds sent -> (hoist, alarm id)
         self.idx = 2
         self.app_uri = ""
@@ -377,7 +521,9 @@ class OpcuaFace:
     def describe(self) -> str:
         who = "users from " + str(self.cfg.users) if self.cfg.users else "no users file"
         anon = ", anonymous allowed" if self.cfg.allow_anonymous else ""
-        return (f"OPC UA on {self.cfg.endpoint} ({', '.join(self.cfg.security)}; {who}{anon}; "
+        trust = (f"client certificates from {self.cfg.trusted_clients} only" if self.cfg.trusted_clients
+                 else "any client certificate")
+        return (f"OPC UA on {self.cfg.endpoint} ({', '.join(self.cfg.security)}; {who}{anon}; {trust}; "
                 f"certificate {self.cfg.certificates / CERT_FILE})")
 
     # -- the server's thread ----------------------------------------------------------------
@@ -403,7 +549,11 @@ class OpcuaFace:
         self._stop = asyncio.Event()
         cert, key = await asyncio.to_thread(ensure_certificate, self.cfg.certificates, self.cfg.host_port[0])
         self.app_uri = certificate_uri(cert) or f"urn:ropemon:station:{socket.gethostname()}"
-        server = Server(user_manager=_UserManager(self.users, self.cfg.allow_anonymous))
+        trust = None
+        if self.cfg.trusted_clients is not None:
+            assert self.cfg.rejected_clients is not None
+            trust = TrustList(self.cfg.trusted_clients, self.cfg.rejected_clients)
+        server = Server(user_manager=_UserManager(self.users, self.cfg.allow_anonymous, trust))
         server.iserver.bind_condition_methods = True        # ConditionRefresh
         self.history = _History(self)
         server.iserver.history_manager.set_storage(self.history)
@@ -420,12 +570,19 @@ class OpcuaFace:
         if self.cfg.allow_anonymous:
             tokens.insert(0, ua.AnonymousIdentityToken)
         server.set_identity_tokens(tokens)
+        if trust is not None:
+            server.set_certificate_validator(_certificate_check(trust))
         self._track_callers(server)
         self.server = server
         self.idx = await server.register_namespace(NAMESPACE)
         await self._build(server)
         server.link_method(server.get_node(ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)),
                            self._acknowledge)
+        for how, names in SHELVING_METHODS.items():
+            for name in names:
+                mid = ua.NodeId(getattr(ua.ObjectIds, name))
+                if mid in server.iserver.aspace:      # asyncua 2.1's address space lacks some "2" forms
+                    server.link_method(server.get_node(mid), self._shelving(how))
         await server.start()
         consumer = asyncio.create_task(self._consume())
         self._ready.set()
@@ -590,10 +747,13 @@ class OpcuaFace:
                     await self._variable(nobj, f"{base}.Seq", "Seq", "UInt32",
                                          description="the frame's sequence number"),
                     links)
-            self.hoists[hid] = _Hoist(hid, hobj, alarms_obj, nodes, receivers, h.db_path, {}, {}, {})
+            self.hoists[hid] = _Hoist(hid, hobj, alarms_obj, nodes, receivers, h.db_path, {}, {}, {}, {})
         # the Server object emits the alarm conditions' events
         await server.get_node(ua.NodeId(ua.ObjectIds.Server)).set_event_notifier(
-            [ua.EventNotifier.SubscribeToEvents])
+            [ua.EventNotifier.SubscribeToEvents, ua.EventNotifier.HistoryRead])
+        for h in self.hoists.values():     # a hoist's own event history (no live events there)
+            if h.db_path is not None:
+                await server.get_node(h.obj).set_event_notifier([ua.EventNotifier.HistoryRead])
 
     # -- values -----------------------------------------------------------------------
 
@@ -690,13 +850,32 @@ class OpcuaFace:
             key = (a.state, a.present, a.latched, a.priority, aid in now)
             if h.alarms.get(aid) != key:
                 h.alarms[aid] = key
-                await self._emit(h, a, retain=aid in now or a.present, ts=ts)
+                await self._emit(h, a, retain=aid in now or a.present, ts=ts, now_s=state.time_s)
         for aid in [x for x in h.alarms if x not in views]:
             del h.alarms[aid]
             last = h.views.pop(aid, None)
             if last is not None:   # back to normal and acknowledged: the condition's last event
                 await self._emit(h, last, retain=False, ts=ts, normal=True)
         h.views.update(views)
+        await self._one_shot(h, views)
+
+    async def _one_shot(self, h: _Hoist, views: dict[str, ActiveAlarm]) -> None:
+        """A OneShotShelve ends when its alarm returns to normal: the face unshelves it then."""
+        for aid, entry in list(h.one_shot.items()):
+            user, seen, shelved = entry
+            a = views.get(aid)
+            if a is not None and a.state == "shelved":
+                entry[2] = shelved = True
+            elif shelved:            # unshelved meanwhile (expired, the terminal, the web, Unshelve)
+                del h.one_shot[aid]
+                continue
+            if not shelved or a is None:
+                continue
+            if a.present:
+                entry[1] = True
+            elif seen:
+                del h.one_shot[aid]
+                self.stations.submit(h.id, Unshelve(user, "opcua one-shot", alarm=aid))
 
     async def _condition(self, h: _Hoist, aid: str) -> Any:
         from asyncua import ua
@@ -706,6 +885,27 @@ class OpcuaFace:
                                      typedef=ua.NodeId(ua.ObjectIds.AlarmConditionType))
             h.conditions[aid] = nid
             self.by_condition[nid] = (h.id, aid)
+            sid = f"{h.id}.Alarms.{aid}.ShelvingState"
+            shelving = await self._object(nid, sid, "ShelvingState", f"{h.id}: {aid}: shelving",
+                                          typedef=ua.NodeId(ua.ObjectIds.ShelvedStateMachineType))
+            refs = []
+            for names in SHELVING_METHODS.values():
+                for name in names[:2]:       # the ShelvedStateMachineType's methods, shared
+                    if ua.NodeId(getattr(ua.ObjectIds, name)) not in self.server.iserver.aspace:
+                        continue
+                    ref = ua.AddReferencesItem()
+                    ref.SourceNodeId = shelving
+                    ref.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasComponent)
+                    ref.IsForward = True
+                    ref.TargetNodeId = ua.NodeId(getattr(ua.ObjectIds, name))
+                    ref.TargetNodeClass = ua.NodeClass.Method
+                    refs.append(ref)
+            for r in await self.server.iserver.isession.add_references(refs):
+                r.check()
+            await self.server.get_node(nid).add_property(
+                self._nid(f"{h.id}.Alarms.{aid}.MaxTimeShelved"), ua.QualifiedName("MaxTimeShelved", 0),
+                ua.Variant(MAX_SHELVE_MIN * 60_000.0, ua.VariantType.Double), datatype=ua.NodeId(ua.ObjectIds.Duration))
+            self.by_shelving[shelving] = (h.id, aid)
         return nid
 
     def _source(self, h: _Hoist, a: ActiveAlarm) -> Any:
@@ -717,7 +917,7 @@ class OpcuaFace:
         return n.obj
 
     async def _emit(self, h: _Hoist, a: ActiveAlarm, retain: bool, ts: datetime.datetime,
-                    normal: bool = False) -> None:
+                    normal: bool = False, now_s: float | None = None) -> None:
         from asyncua import ua
         from asyncua.common.event_objects import AlarmCondition
         cid = await self._condition(h, a.id)
@@ -742,13 +942,22 @@ class OpcuaFace:
         setattr(ev, "AckedState/Id", acked)
         ev.ConfirmedState = ua.LocalizedText("Confirmed")
         setattr(ev, "ConfirmedState/Id", True)
-        suppressed = a.state in ("shelved", "suppressed")
+        suppressed = a.state == "suppressed"
         ev.SuppressedState = ua.LocalizedText("Suppressed" if suppressed else "Unsuppressed")
         setattr(ev, "SuppressedState/Id", suppressed)
+        shelved = a.state == "shelved" and not normal
+        shelf = ("OneShotShelved" if a.id in h.one_shot else "TimedShelved") if shelved else "Unshelved"
+        ev.add_property("ShelvingState/CurrentState", ua.LocalizedText(shelf), ua.VariantType.LocalizedText)
+        ev.add_property("ShelvingState/CurrentState/Id", ua.NodeId(SHELVING_STATE_IDS[shelf]),
+                        ua.VariantType.NodeId)
+        left = (max(0.0, (a.shelved_until - now_s) * 1000.0)
+                if shelved and a.shelved_until is not None and now_s is not None else 0.0)
+        ev.add_property("ShelvingState/UnshelveTime", left, ua.VariantType.Double)
+        ev.add_property("MaxTimeShelved", MAX_SHELVE_MIN * 60_000.0, ua.VariantType.Double)   # a Duration (ms)
         oos = a.state == "out_of_service"
         ev.OutOfServiceState = ua.LocalizedText("Out of service" if oos else "In service")
         setattr(ev, "OutOfServiceState/Id", oos)
-        ev.SuppressedOrShelved = suppressed or oos
+        ev.SuppressedOrShelved = suppressed or shelved or oos
         ev.Quality = ua.StatusCode(ua.StatusCodes.Good)
         ev.ClientUserId = a.acked_by or ""
         if a.acked_by:
@@ -763,6 +972,41 @@ class OpcuaFace:
             for k in list(self.event_ids)[:50_000]:
                 del self.event_ids[k]
         await self.server.iserver.subscription_service.trigger_event(ev)
+
+    def _history_event(self, h: _Hoist, row: dict) -> Any:
+        """One row of a hoist's events table as an AlarmConditionType event (EVENT_HISTORY)."""
+        from asyncua import ua
+        from asyncua.common.event_objects import AlarmCondition
+        ev = AlarmCondition()
+        ev.EventId = f"{h.id}:log:{row['id']}".encode()
+        ts = _utc(row["time_s"])
+        ev.Time = ev.ReceiveTime = ts
+        aid = row.get("alarm") or ""
+        node, rope = row.get("node"), row.get("rope")
+        n = h.nodes.get(node) if node is not None else None
+        if n is None:
+            ev.SourceNode = h.obj
+        elif rope is not None and 0 <= rope < len(n.ropes):
+            ev.SourceNode = self._nid(f"{h.id}.n{node}.r{rope + 1}")
+        else:
+            ev.SourceNode = n.obj
+        ev.SourceName = f"{h.id}/{aid}" if aid else h.id
+        ev.ConditionName = aid
+        cid = h.conditions.get(aid)
+        ev.add_property("NodeId", cid if cid is not None else ua.NodeId(), ua.VariantType.NodeId)
+        ev.Severity = ev.LastSeverity = SEVERITY.get(PRIORITY.get(row.get("kind") or "", 1), 300)
+        action = row.get("action") or ""
+        ev.Message = ua.LocalizedText(f"{action}: {row.get('message') or ''}")
+        ev.ClientUserId = row.get("operator") or ""
+        ev.Comment = ua.LocalizedText(action)
+        if action in ("raise", "clear"):
+            ev.ActiveState = ua.LocalizedText("Active" if action == "raise" else "Inactive")
+            setattr(ev, "ActiveState/Id", action == "raise")
+        if action in ("raise", "ack"):
+            ev.AckedState = ua.LocalizedText("Acknowledged" if action == "ack" else "Unacknowledged")
+            setattr(ev, "AckedState/Id", action == "ack")
+        ev.Retain = False
+        return ev
 
     async def _acknowledge(self, parent: Any, *args: Any) -> Any:
         """AcknowledgeableConditionType.Acknowledge(EventId, Comment) called on a condition:
@@ -787,6 +1031,95 @@ class OpcuaFace:
             return ua.StatusCode(ua.StatusCodes.BadConditionBranchAlreadyAcked)
         self.stations.submit(hoist, Acknowledge(u.name, "opcua", alarm=aid))
         return ua.StatusCode()
+
+    def _shelving(self, how: str) -> Any:
+        async def call(parent: Any, *args: Any) -> Any:
+            return await self._shelve(how, parent, *args)
+        return call
+
+    async def _shelve(self, how: str, parent: Any, *args: Any) -> Any:
+        """ShelvedStateMachineType.TimedShelve(ShelvingTime ms) / OneShotShelve() / Unshelve(), and
+        their "2" forms with a Comment, called on a condition's ShelvingState (or the condition):
+        the station's Shelve / Unshelve commands with the caller's user name."""
+        from asyncua import ua
+        target = self.by_shelving.get(parent) or self.by_condition.get(parent)
+        if target is None:
+            return ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown)
+        name = getattr(_CALLER.get(), "name", None)
+        u = self.users.get(name) if (self.users is not None and name) else None
+        if u is None or not u.may("unshelve" if how == "unshelve" else "shelve"):
+            return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+        hoist, aid = target
+        h = self.hoists[hoist]
+        key = h.alarms.get(aid)
+        shelved = key is not None and key[0] == "shelved"
+        comment = ""
+        texts = args[1:] if how == "timed" else args
+        if texts:
+            c = _arg(texts[0])
+            comment = (c.Text if isinstance(c, ua.LocalizedText) else str(c or "")) or ""
+            comment = comment.strip()[:200]
+        if how == "unshelve":
+            if not shelved:
+                return ua.StatusCode(ua.StatusCodes.BadConditionNotShelved)
+            h.one_shot.pop(aid, None)
+            self.stations.submit(hoist, Unshelve(u.name, "opcua", alarm=aid))
+            return ua.StatusCode()
+        if how == "timed":
+            if not args:
+                return ua.StatusCode(ua.StatusCodes.BadArgumentsMissing)
+            try:
+                ms = float(_arg(args[0]))
+            except (TypeError, ValueError):
+                return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+            if not (math.isfinite(ms) and 0 < ms <= MAX_SHELVE_MIN * 60_000.0):
+                return ua.StatusCode(ua.StatusCodes.BadShelvingTimeOutOfRange)
+            if shelved and aid not in h.one_shot:
+                return ua.StatusCode(ua.StatusCodes.BadConditionAlreadyShelved)
+            h.one_shot.pop(aid, None)
+            self.stations.submit(hoist, Shelve(u.name, "opcua", alarm=aid, minutes=ms / 60_000.0,
+                                               reason=comment or "TimedShelve over OPC UA"))
+            return ua.StatusCode()
+        if shelved and aid in h.one_shot:
+            return ua.StatusCode(ua.StatusCodes.BadConditionAlreadyShelved)
+        view = h.views.get(aid)
+        h.one_shot[aid] = [u.name, bool(view is not None and view.present), False]
+        self.stations.submit(hoist, Shelve(u.name, "opcua", alarm=aid, minutes=MAX_SHELVE_MIN,
+                                           reason=comment or "OneShotShelve over OPC UA: until it returns to normal"))
+        return ua.StatusCode()
+
+
+#: the shelving methods a client may call on a condition's ShelvingState (or on the condition):
+#: the ShelvedStateMachineType's, then the same on AlarmConditionType's instance declaration
+SHELVING_METHODS = {
+    "timed": ("ShelvedStateMachineType_TimedShelve", "ShelvedStateMachineType_TimedShelve2",
+              "AlarmConditionType_ShelvingState_TimedShelve", "AlarmConditionType_ShelvingState_TimedShelve2"),
+    "oneshot": ("ShelvedStateMachineType_OneShotShelve", "ShelvedStateMachineType_OneShotShelve2",
+                "AlarmConditionType_ShelvingState_OneShotShelve", "AlarmConditionType_ShelvingState_OneShotShelve2"),
+    "unshelve": ("ShelvedStateMachineType_Unshelve", "ShelvedStateMachineType_Unshelve2",
+                 "AlarmConditionType_ShelvingState_Unshelve", "AlarmConditionType_ShelvingState_Unshelve2"),
+}
+#: ShelvedStateMachineType's states (ShelvingState/CurrentState/Id)
+SHELVING_STATE_IDS = {"Unshelved": 2930, "TimedShelved": 2932, "OneShotShelved": 2933}
+
+
+def _arg(x: Any) -> Any:
+    from asyncua import ua
+    return x.Value if isinstance(x, ua.Variant) else x
+
+
+def _certificate_check(trust: TrustList) -> Any:
+    """asyncua's certificate validator at CreateSession: BadCertificateUntrusted for a client
+    certificate not in the trust list."""
+    async def check(cert: Any, app: Any) -> None:
+        from asyncua import ua
+        from asyncua.common.utils import ServiceError
+        from cryptography.hazmat.primitives.serialization import Encoding
+        why = trust.why_refused(cert.public_bytes(Encoding.DER))
+        if why is not None:
+            log.warning("OPC UA client %s refused: %s", getattr(app, "ApplicationUri", "?"), why)
+            raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+    return check
 
 
 def _ranges(h: Any) -> list[tuple[float, float]]:
