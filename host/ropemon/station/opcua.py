@@ -6,6 +6,8 @@
     users = "users.toml"                # who may log in: the web face's users file (`ropemon user add`)
     allow_anonymous = false
     security = ["Basic256Sha256_SignAndEncrypt"]
+    trusted_clients = "opcua-pki/trusted"   # optional: only these client certificates (refused ones go to
+                                            # opcua-pki/rejected for an engineer to move in)
 
 `start(stations, table)` checks the table (refusing it with the field named), adds an
 `OpcuaListener` to every hoist and runs an asyncua server in its own thread with its own
@@ -14,8 +16,9 @@ that loop (`loop.call_soon_threadsafe`, onto a bounded queue): it never waits fo
 server. On the loop, frames become variable values (SourceTimestamp: the frame's receipt
 time, the node's clock being time since boot), the alarm state becomes AlarmConditionType
 events emitted by the Server object, and the log is read (read-only, its own thread) for
-history. Acknowledge from a client goes in as the station's `Acknowledge` command with the
-client's user name.
+history (the rope tensions, and the alarm events' rows as HistoryReadEvents). Acknowledge
+and the ShelvedStateMachine's methods from a client go in as the station's `Acknowledge`,
+`Shelve` and `Unshelve` commands with the client's user name.
 
 asyncua is imported only when the face starts (the `opcua` extra); the station's minimal
 install imports this module without it.
