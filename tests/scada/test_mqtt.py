@@ -40,18 +40,31 @@ def wait(cond, timeout=20.0, what="condition"):
 
 
 class Spy:
-    """Every Sparkplug message on the broker, decoded, in arrival order."""
+    """Every Sparkplug message on the broker, decoded, in arrival order; a DDATA's metrics
+    (sent by alias only) given their names from the device's DBIRTH, as a host does."""
 
     def __init__(self, port: int) -> None:
         self.msgs: list[tuple[str, object]] = []
+        self.names: dict[str, dict[int, str]] = {}      # DBIRTH topic's device -> alias -> name
         self.ready = threading.Event()
         c = self.c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="spy")
         c.on_connect = lambda cl, *a: (cl.subscribe("spBv1.0/#", qos=1), self.ready.set())
-        c.on_message = lambda cl, u, m: self.msgs.append((m.topic, sp.decode(m.payload)))
+        c.on_message = lambda cl, u, m: self._on_message(m.topic, m.payload)
         c.connect("127.0.0.1", port)
         c.loop_start()
         assert self.ready.wait(5)
         time.sleep(0.2)
+
+    def _on_message(self, topic: str, data: bytes) -> None:
+        p = sp.decode(data)
+        parts = topic.split("/")
+        if len(parts) == 5 and parts[2] == "DBIRTH":
+            self.names[parts[4]] = {m.alias: m.name for m in p.metrics}
+        elif len(parts) == 5 and parts[2] == "DDATA":
+            for m in p.metrics:
+                assert not m.name, f"DDATA metric {m.name} sent by name, not by its alias"
+                m.name = self.names[parts[4]][m.alias]
+        self.msgs.append((topic, p))
 
     def kinds(self, kind: str) -> list:
         return [(t, p) for t, p in list(self.msgs) if t.split("/")[2] == kind]

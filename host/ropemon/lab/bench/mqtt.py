@@ -23,6 +23,7 @@ def _subscriber(port: int, timeout_s: float, out: Any) -> None:
     from ropemon.station.mqtt import sparkplug as sp
     lat: list[float] = []
     done = []
+    seq_aliases: set[int] = set()     # the frame_seq metrics' aliases (DDATA names by alias only)
     c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="bench-sub")
 
     def on_message(client, userdata, msg):
@@ -30,14 +31,23 @@ def _subscriber(port: int, timeout_s: float, out: Any) -> None:
         kind = msg.topic.split("/")[2]
         if kind == "NDEATH":
             done.append(1)
+        elif kind == "DBIRTH":
+            seq_aliases.update(m.alias for m in sp.decode(msg.payload).metrics if m.name.endswith("/frame_seq"))
         elif kind == "DDATA":
             p = sp.decode(msg.payload)
             for m in p.metrics:
-                if m.name.endswith("/frame_seq"):
+                if m.alias in seq_aliases or m.name.endswith("/frame_seq"):
                     lat.append(now - m.timestamp)
                     break
 
-    c.on_connect = lambda client, *a: (client.subscribe("spBv1.0/#", qos=1), out.put("ready"))
+    def on_connect(client, *a):
+        client.subscribe("spBv1.0/#", qos=1)
+        rebirth = sp.payload(None)            # joined after the births: ask for them (the aliases)
+        sp.add_metric(rebirth, "Node Control/Rebirth", sp.BOOLEAN, True, rebirth.timestamp)
+        client.publish(sp.topic("bench", "NCMD", "station"), rebirth.SerializeToString(), qos=1)
+        out.put("ready")
+
+    c.on_connect = on_connect
     c.on_message = on_message
     c.connect("127.0.0.1", port)
     c.loop_start()

@@ -14,17 +14,22 @@
     password_file = "mqtt-password"
     tls = false                 # true: TLS, the system's CAs or tls_ca; tls_cert/tls_key: client cert
     buffer_max_frames = 2000000
+    primary_host_id = "scada"   # optional: births only while spBv1.0/STATE/scada says online
 
 Threads: one `SparkplugValues` listener per hoist on the station's thread turns each frame
-(and each change of the alarm bits) into a record and puts it on a queue, never waiting.
-The publisher thread owns everything else: the outbox (`outbox.Outbox`, SQLite in the
-data_dir), the paho-mqtt client (a new one per connection, its NDEATH will carrying that
-connection's bdSeq), NBIRTH/DBIRTH, seq, and sending the outbox in order. A row leaves the
-outbox when the broker acknowledges it (QoS 1); a row queued before the current session's
-births goes out with is_historical.
+(and each change of the alarm bits) into a record and puts it on a queue, never waiting;
+it also says when the station stops hearing the hoist (the device's death: no frame from
+any of its nodes for silent_s, or every receiver of the hoist down) and when it hears it
+again (a frame: the device's birth). The publisher thread owns everything else: the outbox
+(`outbox.Outbox`, SQLite in the data_dir, deaths and births in order among the data), the
+paho-mqtt client (a new one per connection, its NDEATH will carrying that connection's
+bdSeq), the primary host's STATE, NBIRTH/DBIRTH/DDEATH, seq, and sending the outbox in
+order. A row leaves the outbox when the broker acknowledges it (QoS 1); a row queued before
+the current session's births goes out with is_historical.
 """
 from __future__ import annotations
 
+import json
 import logging
 import queue
 import re
@@ -46,6 +51,7 @@ from ropemon.station.stationfile import StationFileError
 log = logging.getLogger(__name__)
 SPARKPLUG_ID = re.compile(r"^[^/+#]{1,64}$")
 DEADBANDS = {"kN": 0.5, "%": 0.1, "m": 0.1, "m/s": 0.05, "V": 0.05, "degC": 0.5}
+DEVICE = "$device"     # a record {DEVICE: "death" | "birth"}: the hoist lost or heard again
 MAX_INFLIGHT = 200     # DDATA published and not yet acknowledged
 BATCH = 200            # outbox rows read at a time
 RETRY_S = (0.5, 5.0)   # reconnect back-off, first and longest
@@ -84,6 +90,9 @@ class Settings:
         if (self.tls_cert is None) != (self.tls_key is None):
             raise StationFileError("mqtt.tls_cert, mqtt.tls_key: give both or neither")
         self.buffer_max_frames = t.integer("buffer_max_frames", 2_000_000, lo=1000, hi=100_000_000)
+        self.primary_host_id = t.string("primary_host_id", "") or None
+        if self.primary_host_id is not None and not SPARKPLUG_ID.match(self.primary_host_id):
+            raise StationFileError("mqtt.primary_host_id: 1-64 characters, none of '/', '+', '#'")
         t.finish()
 
     def password(self) -> str | None:
@@ -104,14 +113,40 @@ class SparkplugValues(HoistValues):
 
     name = "mqtt"
 
-    def __init__(self, face: "MqttFace", hoist: str, nodes: list[int]) -> None:
+    def __init__(self, face: "MqttFace", hoist: str, nodes: list[int], silent_s: float = 5.0) -> None:
         super().__init__(hoist, nodes)
         self.face = face
         self.units = {name: unit for name, _, unit in sp.hoist_metrics(self.nodes)}
         self.reported: dict[str, Any] = {}
         self._alarms: tuple | None = None
+        self.silent_s = silent_s
+        self.alive = True                 # born with the session; dead while the station hears nothing
+        self._heard_s: float | None = None   # the station clock at the newest frame (or the first tick)
+        self._receivers: set[str] = set()
+        self._all_down = False
+
+    def on_status(self, status: Any) -> None:
+        super().on_status(status)
+        self._receivers = {n for n, r in status.receivers.items() if getattr(r, "url", None) is not None}
+        if self._heard_s is None:
+            self._heard_s = status.time_s
+
+    def on_alarms(self, state: Any) -> None:
+        super().on_alarms(state)          # the alarm bits of this tick first: the last word before a death
+        down = {a.id for a in state.active + state.hidden if a.present and a.kind == "receiver_down"}
+        all_down = bool(self._receivers) and all(f"receiver_down:{r}" in down for r in self._receivers)
+        quiet = self._heard_s is not None and self.station_s - self._heard_s > self.silent_s
+        if self.alive and (quiet or (all_down and not self._all_down)):
+            self.alive = False
+            self.face.queue.put((self.hoist, int(time.time() * 1000), {DEVICE: "death"}))
+        self._all_down = all_down
 
     def changed(self, what: str, v: NodeValues | None) -> None:
+        if v is not None:
+            self._heard_s = v.station_s
+            if not self.alive:            # heard again: born before this frame's data
+                self.alive = True
+                self.face.queue.put((self.hoist, int(v.wall_s * 1000), {DEVICE: "birth"}))
         alarms = (self.present_bits, self.unacked_bits, self.vouched)
         values: dict[str, Any] = {}
         if v is not None:
@@ -158,6 +193,7 @@ class MqttFace:
         self.queue: "queue.SimpleQueue[tuple[str, int, dict]]" = queue.SimpleQueue()
         self.devices = {h.id: sp.hoist_metrics(sorted(h.keys)) for h in stations.hoists.values()}
         self.datatype = {d: {n: t for n, t, _ in m} for d, m in self.devices.items()}
+        self.alias = sp.aliases(self.devices)
         data_dir = stations.file.data_dir
         if data_dir is not None:
             data_dir.mkdir(parents=True, exist_ok=True)
@@ -168,6 +204,13 @@ class MqttFace:
         self.sessions = 0                        # connections that reached their births
         self.sent = 0                            # DDATA acknowledged (or sent, QoS 0)
         self.last_error: str | None = None       # why the last connection failed or ended
+        self._said: str | None = None            # the failure last logged (said once, not at each retry)
+        self.alive = {d: True for d in self.devices}    # the hoist heard, as of the newest record taken
+        self.born = {d: False for d in self.devices}    # DBIRTH sent in this session, no DDEATH since
+        self.host_online = False                 # the primary host's newest STATE (primary_host_id)
+        self._host_ts = -1                       # that STATE's timestamp: an older one is ignored
+        self._host_offline = threading.Event()
+        self.births = False                      # this connection's NBIRTH is out
         self._stop = threading.Event()
         self._client: paho.Client | None = None
         self._lost = threading.Event()
@@ -191,7 +234,10 @@ class MqttFace:
 
     def describe(self) -> str:
         s = self.settings
-        state = "connected" if self.connected else f"not connected ({self.last_error or 'connecting'})"
+        if self.connected and s.primary_host_id and not self.births:
+            state = f"connected, waiting for the primary host {s.primary_host_id} to be online"
+        else:
+            state = "connected" if self.connected else f"not connected ({self.last_error or 'connecting'})"
         where = self.outbox_path or "memory"
         return (f"MQTT Sparkplug B to {s.host}:{s.port}{' (TLS)' if s.tls else ''}: group {s.group_id}, "
                 f"edge node {s.edge_node_id}, {len(self.devices)} device(s), {s.report}; {state}; "
@@ -212,10 +258,21 @@ class MqttFace:
         retry_at, delay = 0.0, RETRY_S[0]
         cursor = 0                    # the newest outbox row published in this session
         live_from = 1 << 62           # rows from this id on were queued after this session's births
+        self._dead_after: list[str] = []   # born for their stored data, dead now: DDEATH once it is out
         inflight = self._inflight      # mid -> outbox row id
         try:
             while not self._stop.is_set():
                 self._take(timeout=0.02)
+                if self._client is not None and self._host_offline.is_set():
+                    self._host_offline.clear()     # the primary host went offline: NDEATH, disconnect, start over
+                    if self.births:
+                        log.warning("MQTT: the primary host %s is offline: NDEATH, reconnecting to wait for it",
+                                    self.settings.primary_host_id)
+                        self._close(keep_outbox=True)
+                        inflight.clear()
+                        self._acked.clear()
+                        retry_at = 0.0
+                        continue
                 if self._client is not None and self._lost.is_set():
                     self._drop_client()
                     inflight.clear()
@@ -224,18 +281,20 @@ class MqttFace:
                     if time.monotonic() >= retry_at:
                         if self._connect():
                             delay = RETRY_S[0]
-                            live_from = self.outbox.last_id() + 1
-                            cursor = 0
-                            self._births()
                         else:
                             retry_at = time.monotonic() + delay
                             delay = min(delay * 2, RETRY_S[1])
                     continue
+                if not self.births:
+                    if self.settings.primary_host_id and not self.host_online:
+                        continue                   # store and forward: the outbox grows meanwhile
+                    live_from = self.outbox.last_id() + 1
+                    cursor = 0
+                    self._births(live_from)
                 if self._rebirth.is_set():
                     self._rebirth.clear()
-                    self.seq = 0
                     live_from = self.outbox.last_id() + 1
-                    self._births()
+                    self._births(live_from)
                 done = []
                 while self._acked:
                     row = inflight.pop(self._acked.popleft(), None)
@@ -245,8 +304,15 @@ class MqttFace:
                     self.outbox.delete(done)
                     self.sent += len(done)
                 if len(inflight) < MAX_INFLIGHT:
-                    for row_id, device, ts, values in self.outbox.after(cursor, min(BATCH, MAX_INFLIGHT - len(inflight))):
-                        mid = self._data(device, ts, values, historical=row_id < live_from)
+                    rows = self.outbox.after(cursor, min(BATCH, MAX_INFLIGHT - len(inflight)))
+                    for row_id, device, ts, values in rows:
+                        if row_id >= live_from and self._dead_after:
+                            self._deaths()
+                        mid: int | None
+                        if DEVICE in values:
+                            mid = self._device_state(device, values[DEVICE]) if row_id >= live_from else 0
+                        else:
+                            mid = self._data(device, ts, values, historical=row_id < live_from)
                         if mid is None:
                             break
                         cursor = row_id
@@ -254,6 +320,8 @@ class MqttFace:
                             self.outbox.delete([row_id])
                         else:
                             inflight[mid] = row_id
+                    if not rows and self._dead_after and self._client is not None:
+                        self._deaths()
         except Exception as e:  # noqa: BLE001 - the station alarms on it (health)
             log.exception("mqtt publisher failed")
             self.error = f"the publisher stopped: {type(e).__name__}: {e}"
@@ -273,6 +341,10 @@ class MqttFace:
         if not records:
             return
         for device, ts, values in records:
+            if DEVICE in values:
+                if device in self.alive:
+                    self.alive[device] = values[DEVICE] == "birth"
+                continue
             last = self.last[device]
             for k, v in values.items():
                 last[k] = (ts, v)
@@ -291,7 +363,7 @@ class MqttFace:
         c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=s.client_id, clean_session=True,
                         protocol=paho.MQTTv311)
         death = sp.payload(None)
-        sp.add_metric(death, "bdSeq", sp.UINT64, self.bdseq, death.timestamp)
+        sp.add_metric(death, "bdSeq", sp.INT64, self.bdseq, death.timestamp)
         c.will_set(sp.topic(s.group_id, "NDEATH", s.edge_node_id), death.SerializeToString(), qos=1, retain=False)
         if s.username:
             c.username_pw_set(s.username, s.password())
@@ -302,6 +374,7 @@ class MqttFace:
         c.max_inflight_messages_set(MAX_INFLIGHT)
         up = threading.Event()
         result: list[Any] = []
+        dropped: list[str] = []
         self._lost.clear()
 
         def on_connect(client, userdata, flags, reason, props):
@@ -309,7 +382,10 @@ class MqttFace:
             up.set()
 
         def on_disconnect(client, userdata, flags, reason, props):
-            self.last_error = f"disconnected: {reason}"
+            if result and not result[0].is_failure:      # a refusal keeps its own reason
+                self.last_error = f"disconnected: {reason}"
+            else:
+                dropped.append(f"the broker closed the connection: {reason}")
             self._lost.set()
             up.set()
 
@@ -320,28 +396,53 @@ class MqttFace:
         try:
             c.connect(s.host, s.port, keepalive=s.keepalive_s)
         except (OSError, ValueError) as e:
-            self.last_error = f"cannot connect: {e}"
+            self._failed(f"cannot connect to {s.host}:{s.port}: {e}")
             return False
         c.loop_start()
         up.wait(10.0)
         if not result or result[0].is_failure or self._lost.is_set():
-            self.last_error = f"refused: {result[0]}" if result else (self.last_error or "no CONNACK within 10 s")
+            if result and result[0].is_failure:
+                why = f"the broker refused the connection: {result[0]}"
+                if s.username or "auth" in str(result[0]).lower() or "password" in str(result[0]).lower():
+                    why += f" (user {s.username!r}: check mqtt.username and mqtt.password_file)"
+            else:
+                why = dropped[0] if dropped else "no CONNACK within 10 s"
+            self._failed(why)
             c.loop_stop()
             c.disconnect()
             return False
+        if self._said is not None:
+            log.warning("MQTT: connected to %s:%s", s.host, s.port)
+            self._said = None
         c.subscribe(sp.topic(s.group_id, "NCMD", s.edge_node_id), qos=1)
+        self.host_online = False
+        if s.primary_host_id:                  # the retained STATE arrives at once if the host is there
+            c.subscribe(f"{sp.NAMESPACE}/STATE/{s.primary_host_id}", qos=1)
         self._client = c
         self.connected = True
+        self.births = False
         self.seq = 0
         return True
+
+    def _failed(self, why: str) -> None:
+        """A connection that failed: not a station fault (the hoist does not depend on the
+        broker); said once in the log and shown by describe()."""
+        if why != self._said:
+            log.warning("MQTT: %s", why)
+            self._said = why
+        self.last_error = why
 
     def _drop_client(self) -> None:
         c, self._client = self._client, None
         self.connected = False
+        self.births = False
         if c is not None:
             c.loop_stop()
 
     def _on_command(self, client, userdata, msg) -> None:
+        if msg.topic.startswith(f"{sp.NAMESPACE}/STATE/"):
+            self._on_state(msg.payload)
+            return
         try:
             p = sp.decode(msg.payload)
         except Exception:  # noqa: BLE001 - not a Sparkplug payload: ignored
@@ -349,6 +450,25 @@ class MqttFace:
         for m in p.metrics:
             if m.name == "Node Control/Rebirth" and sp.metric_value(m):
                 self._rebirth.set()
+
+    def _on_state(self, data: bytes) -> None:
+        """The primary host's STATE: {"online": bool, "timestamp": ms}; one older than the newest
+        taken is ignored (a stale retained message)."""
+        try:
+            state = json.loads(data)
+            online, ts = state["online"], state["timestamp"]
+            if not isinstance(online, bool) or not isinstance(ts, int) or isinstance(ts, bool):
+                raise ValueError("online must be a boolean and timestamp an integer")
+        except (ValueError, KeyError, TypeError) as e:
+            log.warning("MQTT: the primary host's STATE is not Sparkplug's "
+                        '{"online": bool, "timestamp": ms} (%s): ignored', e)
+            return
+        if ts < self._host_ts:
+            return
+        self._host_ts = ts
+        self.host_online = online
+        if not online:
+            self._host_offline.set()
 
     def _publish(self, topic: str, p: Any, qos: int) -> int | None:
         assert self._client is not None
@@ -362,41 +482,77 @@ class MqttFace:
         self.seq = (self.seq + 1) % 256
         return self.seq
 
-    def _births(self) -> None:
-        """NBIRTH (seq 0, bdSeq) and each hoist's DBIRTH with every metric, its unit and newest value."""
+    def _births(self, live_from: int) -> None:
+        """NBIRTH (seq 0, bdSeq) and the DBIRTH of each hoist heard now or with stored data to
+        send, with every metric's name, alias, unit and newest value. A hoist born only for its
+        stored data is declared dead (DDEATH) once that data is out (`_deaths`)."""
         s = self.settings
         self.seq = 0
         nb = sp.payload(0)
-        sp.add_metric(nb, "bdSeq", sp.UINT64, self.bdseq, nb.timestamp)
+        sp.add_metric(nb, "bdSeq", sp.INT64, self.bdseq, nb.timestamp)
         sp.add_metric(nb, "Node Control/Rebirth", sp.BOOLEAN, False, nb.timestamp)
         self._publish(sp.topic(s.group_id, "NBIRTH", s.edge_node_id), nb, 0)
-        for device, metrics in self.devices.items():
-            p = sp.payload(self._next_seq())
-            last = self.last[device]
-            for name, datatype, unit in metrics:
-                ts, value = last.get(name, (p.timestamp, None))
-                sp.add_metric(p, name, datatype, value, ts, unit=unit)
-            self._publish(sp.topic(s.group_id, "DBIRTH", s.edge_node_id, device), p, 0)
+        stored = self.outbox.devices_before(live_from) if not all(self.alive.values()) else set()
+        self.born = {d: False for d in self.devices}
+        for device in self.devices:
+            if self.alive[device] or device in stored:
+                self._dbirth(device)
+        self._dead_after = [d for d in self.devices if self.born[d] and not self.alive[d]]
+        self.births = True
         self.sessions += 1
+
+    def _dbirth(self, device: str) -> None:
+        s = self.settings
+        p = sp.payload(self._next_seq())
+        last, alias = self.last[device], self.alias[device]
+        for name, datatype, unit in self.devices[device]:
+            ts, value = last.get(name, (p.timestamp, None))
+            sp.add_metric(p, name, datatype, value, ts, unit=unit, alias=alias[name])
+        self._publish(sp.topic(s.group_id, "DBIRTH", s.edge_node_id, device), p, 0)
+        self.born[device] = True
+
+    def _ddeath(self, device: str) -> None:
+        s = self.settings
+        self._publish(sp.topic(s.group_id, "DDEATH", s.edge_node_id, device), sp.payload(self._next_seq()), 0)
+        self.born[device] = False
+
+    def _deaths(self) -> None:
+        for device in self._dead_after:
+            if self.born[device]:
+                self._ddeath(device)
+        self._dead_after = []
+
+    def _device_state(self, device: str, what: str) -> int:
+        """A live death or birth row: DDEATH or DBIRTH (QoS 0, as the specification asks)."""
+        if device not in self.devices:
+            return 0
+        if what == "death" and self.born[device]:
+            self._ddeath(device)
+        elif what == "birth" and not self.born[device]:
+            self._dbirth(device)
+        return 0
 
     def _data(self, device: str, ts: int, values: dict[str, Any], historical: bool) -> int | None:
         s = self.settings
         types = self.datatype.get(device)
-        if types is None:          # a hoist no longer in the station file: its rows are dropped
+        if types is None or not self.born[device]:
+            # a hoist no longer in the station file, or dead: its rows are dropped (a dead hoist's
+            # alarm bits go out with its next DBIRTH, which carries the newest values)
             return 0
         p = sp.payload(self._next_seq())
+        alias = self.alias[device]
         for name, value in values.items():
             if name in types:
-                sp.add_metric(p, name, types[name], value, ts, historical=historical)
+                sp.add_metric(p, None, types[name], value, ts, historical=historical, alias=alias[name])
         return self._publish(sp.topic(s.group_id, "DDATA", s.edge_node_id, device), p, s.qos)
 
-    def _close(self) -> None:
+    def _close(self, keep_outbox: bool = False) -> None:
         """NDEATH before a clean disconnect; what is not acknowledged stays in the outbox."""
         c = self._client
         if c is not None and not self._lost.is_set():
             s = self.settings
             death = sp.payload(None)
-            sp.add_metric(death, "bdSeq", sp.UINT64, self.bdseq, death.timestamp)
+            sp.add_metric(death, "bdSeq", sp.INT64, self.bdseq, death.timestamp)
             end, done = time.monotonic() + 3.0, []
             while self._inflight and time.monotonic() < end and not self._lost.is_set():
                 while self._acked:    # the DDATA in flight: acknowledged rows leave the outbox
@@ -415,7 +571,8 @@ class MqttFace:
             c.loop_stop()
         self._client = None
         self.connected = False
-        if hasattr(self, "outbox"):
+        self.births = False
+        if hasattr(self, "outbox") and not keep_outbox:
             self.outbox.close()
 
 
@@ -423,6 +580,6 @@ def start(stations: Any, table: dict) -> MqttFace:
     """Check the [mqtt] table, add one `SparkplugValues` per hoist, start the publisher."""
     settings = Settings(table, stations.file.path.parent, stations.file.name)
     face = MqttFace(stations, settings)
-    stations.add_listeners(lambda h: SparkplugValues(face, h.id, sorted(h.keys)))
+    stations.add_listeners(lambda h: SparkplugValues(face, h.id, sorted(h.keys), stations.file.silent_s))
     face.start()
     return face

@@ -14,6 +14,13 @@ DDATA sent twice (at-least-once: the station resends what the broker had not ack
 is stored once. DBIRTH's values repeat the newest DDATA and are not stored; births, deaths
 and gaps in seq are counted (`Fleet.stats`).
 
+Metric names come from the DBIRTH: a DDATA names its metrics by alias only. The aliases an
+edge node gave are forgotten at its next NBIRTH, and at its NDEATH (the one whose bdSeq is
+that of its NBIRTH: a late will of an older connection is not). A DDATA with an alias the
+consumer does not know (it was away during the births) is held in memory (and acknowledged),
+up to `HOLD` messages per hoist, and a rebirth is asked for (NCMD `Node Control/Rebirth`, at
+most every `REBIRTH_EVERY_S` per edge node); the new DBIRTH names it and it is written then.
+
 Threads: paho's network thread only queues each message; a writer thread takes everything
 queued, decodes it, writes its rows in one transaction (a group commit: one per message at a
 low rate, many messages per commit under load) and only then acknowledges those messages
@@ -36,6 +43,8 @@ from typing import Any
 
 TENSION = re.compile(r"^node(\d+)/rope(\d+)/tension$")
 SEQ = re.compile(r"^node(\d+)/frame_seq$")
+HOLD = 10_000            # DDATA held per hoist while its aliases are unknown
+REBIRTH_EVERY_S = 5.0    # at most one rebirth request per edge node this often
 
 SQLITE_SCHEMA = """
 CREATE TABLE IF NOT EXISTS tension (
@@ -110,9 +119,12 @@ class Fleet:
         self.historian = historian
         self.topic = f"spBv1.0/{group}/#"
         self.stats = {"births": 0, "deaths": 0, "ddata": 0, "rows": 0, "seq_gaps": 0, "historical": 0,
-                      "commits": 0}
+                      "commits": 0, "held": 0, "dropped": 0, "rebirths_asked": 0}
         self.seq: dict[tuple[str, str], int] = {}     # (group, edge) -> last seq
-        self.bdseq: dict[tuple[str, str], int] = {}
+        self.bdseq: dict[tuple[str, str], int] = {}   # (group, edge) -> bdSeq of its NBIRTH
+        self.aliases: dict[tuple[str, str, str], dict[int, str]] = {}   # (group, edge, device) -> alias -> name
+        self.held: dict[tuple[str, str, str], list[Any]] = {}           # DDATA waiting for their DBIRTH
+        self._asked: dict[tuple[str, str], float] = {}                  # (group, edge) -> rebirth asked at
         self.connected = threading.Event()
         self.lock = threading.Lock()
         self.error: str | None = None                  # the historian cannot be written (the writer retries)
@@ -184,9 +196,12 @@ class Fleet:
             key = (group, edge)
             if kind in ("NBIRTH", "NDEATH"):
                 self.stats["births" if kind == "NBIRTH" else "deaths"] += 1
-                for m in p.metrics:
-                    if m.name == "bdSeq":
-                        self.bdseq[key] = sp.metric_value(m)
+                bd = next((sp.metric_value(m) for m in p.metrics if m.name == "bdSeq"), None)
+                if kind == "NBIRTH" or bd is None or self.bdseq.get(key, bd) == bd:
+                    for k in [k for k in self.aliases if k[:2] == key]:    # a session ends: its aliases
+                        del self.aliases[k]
+                if bd is not None and (kind == "NBIRTH" or key not in self.bdseq):
+                    self.bdseq[key] = bd
                 if kind == "NBIRTH":
                     self.seq[key] = p.seq
                 return []
@@ -195,30 +210,66 @@ class Fleet:
                     self.stats["seq_gaps"] += 1
             if p.HasField("seq"):
                 self.seq[key] = p.seq
-            if kind != "DDATA" or device is None:
+            if device is None:
                 return []
-            self.stats["ddata"] += 1
-            seqs: dict[int, Any] = {}
-            tensions = []
-            names = self._names
-            for m in p.metrics:
-                what = names.get(m.name, ...)
-                if what is ...:
-                    what = names[m.name] = self._name(m.name) if len(names) < 100_000 else None
-                if what is None:
-                    continue
-                if what[0] == "s":
-                    seqs[what[1]] = sp.metric_value(m)
-                else:
-                    tensions.append((what[1], what[2], m))
-            rows = []
-            for node, rope, m in tensions:
-                if seqs.get(node) is None:
-                    continue
-                rows.append((group, edge, device, node, rope, m.timestamp, sp.metric_value(m), seqs[node],
-                             bool(m.is_historical)))
-                self.stats["historical"] += bool(m.is_historical)
-            return rows
+            dkey = (group, edge, device)
+            if kind == "DBIRTH":
+                self.aliases[dkey] = {m.alias: m.name for m in p.metrics if m.HasField("alias")}
+                rows = []
+                for q in self.held.pop(dkey, []):
+                    rows += self._ddata_rows(dkey, q)
+                return rows
+            return self._ddata_rows(dkey, p) if kind == "DDATA" else []
+
+    def _ddata_rows(self, dkey: tuple[str, str, str], p: Any) -> list[tuple]:
+        """A DDATA's tension rows, its metrics named by the DBIRTH's aliases (self.lock held)."""
+        from ropemon.station.mqtt import sparkplug as sp
+        group, edge, device = dkey
+        aliases = self.aliases.get(dkey, {})
+        if any(not m.name and m.alias not in aliases for m in p.metrics):
+            self._hold(dkey, p)
+            return []
+        self.stats["ddata"] += 1
+        seqs: dict[int, Any] = {}
+        tensions = []
+        names = self._names
+        for m in p.metrics:
+            name = m.name or aliases[m.alias]
+            what = names.get(name, ...)
+            if what is ...:
+                what = names[name] = self._name(name) if len(names) < 100_000 else None
+            if what is None:
+                continue
+            if what[0] == "s":
+                seqs[what[1]] = sp.metric_value(m)
+            else:
+                tensions.append((what[1], what[2], m))
+        rows = []
+        for node, rope, m in tensions:
+            if seqs.get(node) is None:
+                continue
+            rows.append((group, edge, device, node, rope, m.timestamp, sp.metric_value(m), seqs[node],
+                         bool(m.is_historical)))
+            self.stats["historical"] += bool(m.is_historical)
+        return rows
+
+    def _hold(self, dkey: tuple[str, str, str], p: Any) -> None:
+        """A DDATA with an alias no DBIRTH named: held, and a rebirth asked for (self.lock held)."""
+        from ropemon.station.mqtt import sparkplug as sp
+        held = self.held.setdefault(dkey, [])
+        held.append(p)
+        self.stats["held"] += 1
+        if len(held) > HOLD:
+            del held[0]
+            self.stats["dropped"] += 1
+        group, edge, _ = dkey
+        now = time.monotonic()
+        if now - self._asked.get((group, edge), -REBIRTH_EVERY_S) >= REBIRTH_EVERY_S:
+            self._asked[(group, edge)] = now
+            cmd = sp.payload(None)
+            sp.add_metric(cmd, "Node Control/Rebirth", sp.BOOLEAN, True, cmd.timestamp)
+            self.client.publish(sp.topic(group, "NCMD", edge), cmd.SerializeToString(), qos=0)
+            self.stats["rebirths_asked"] += 1
 
     def _write_loop(self) -> None:
         """Take what is queued, commit it in one transaction, then acknowledge it (module docstring)."""

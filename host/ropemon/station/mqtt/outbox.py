@@ -1,7 +1,8 @@
 """The MQTT face's store-and-forward buffer: every DDATA's values, on disk, until the broker
 has acknowledged them (SQLite: `<data_dir>/mqtt-outbox.db`; in memory without a data_dir).
 
-Used by the publisher thread only. Rows are kept in the order they were queued (their id);
+Used by the publisher thread only. Rows are kept in the order they were queued (their id),
+a hoist's death or birth ({"$device": "death"}) among its data;
 past `max_rows` the oldest are dropped and counted. `meta` keeps the edge node's bdSeq
 across restarts.
 """
@@ -61,6 +62,12 @@ class Outbox:
         """The id of the newest row ever queued (0: none)."""
         row = self.db.execute("SELECT seq FROM sqlite_sequence WHERE name = 'outbox'").fetchone()
         return row[0] if row else 0
+
+    def devices_before(self, row_id: int) -> set[str]:
+        """The devices with data rows (not deaths or births) older than `row_id`."""
+        cur = self.db.execute("SELECT DISTINCT device FROM outbox WHERE id < ? AND body NOT LIKE '{\"$device\"%'",
+                              (row_id,))
+        return {d for (d,) in cur}
 
     def meta(self, key: str, default: int) -> int:
         row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()

@@ -16,7 +16,9 @@ The station is an edge node (`spBv1.0/<group>/NBIRTH/<edge node>`), each hoist a
     alarms/unacknowledged     UInt32
     vouched                   Boolean        the station vouches for the ropes (docs/integration.md)
 
-The edge node's own metrics: bdSeq (UInt64) and Node Control/Rebirth (Boolean).
+The edge node's own metrics: bdSeq (Int64, as the specification asks) and Node
+Control/Rebirth (Boolean), by name only. Each hoist's metrics have an alias, unique within
+the edge node (`aliases`): DBIRTH carries name and alias, DDATA the alias only.
 """
 from __future__ import annotations
 
@@ -28,9 +30,9 @@ from ropemon.station.scadavalues import NodeValues
 
 NAMESPACE = "spBv1.0"
 # Sparkplug B datatypes (the specification's numbering)
-UINT32, UINT64, DOUBLE, BOOLEAN, STRING = 7, 8, 10, 11, 12
-_FIELD = {UINT32: "int_value", UINT64: "long_value", DOUBLE: "double_value", BOOLEAN: "boolean_value",
-          STRING: "string_value"}
+INT64, UINT32, UINT64, DOUBLE, BOOLEAN, STRING = 4, 7, 8, 10, 11, 12
+_FIELD = {INT64: "long_value", UINT32: "int_value", UINT64: "long_value", DOUBLE: "double_value",
+          BOOLEAN: "boolean_value", STRING: "string_value"}
 ROPES = 4
 
 
@@ -54,6 +56,19 @@ def hoist_metrics(nodes: Iterable[int]) -> list[tuple[str, int, str | None]]:
     return out + [("alarms/present", UINT32, None), ("alarms/unacknowledged", UINT32, None), ("vouched", BOOLEAN, None)]
 
 
+def aliases(devices: dict[str, list[tuple[str, int, str | None]]]) -> dict[str, dict[str, int]]:
+    """{device: {metric name: alias}}: 1, 2, ... over the devices in order, each metric in order
+    (unique within the edge node, as the specification asks; the same for the same station file)."""
+    out: dict[str, dict[str, int]] = {}
+    n = 0
+    for device, metrics in devices.items():
+        out[device] = {}
+        for name, _, _ in metrics:
+            n += 1
+            out[device][name] = n
+    return out
+
+
 def frame_values(v: NodeValues) -> dict[str, Any]:
     """A node's frame as metric values (None: null)."""
     n = v.node
@@ -74,10 +89,17 @@ def frame_values(v: NodeValues) -> dict[str, Any]:
     return out
 
 
-def add_metric(p: Any, name: str, datatype: int, value: Any, ts_ms: int, *, unit: str | None = None,
-               historical: bool = False) -> None:
+def add_metric(p: Any, name: str | None, datatype: int, value: Any, ts_ms: int, *, unit: str | None = None,
+               historical: bool = False, alias: int | None = None) -> None:
+    """One metric; `name` None: by its alias only (DDATA). The datatype is always written: the
+    specification asks DDATA to leave it out (SHOULD NOT), but decoders such as Eclipse Tahu's
+    read a value by it."""
     m = p.metrics.add()
-    m.name, m.datatype, m.timestamp = name, datatype, ts_ms
+    if name is not None:
+        m.name = name
+    if alias is not None:
+        m.alias = alias
+    m.datatype, m.timestamp = datatype, ts_ms
     if historical:
         m.is_historical = True
     if value is None:
