@@ -4,5 +4,6 @@
 # filesystem. main.py is copied to the filesystem by `ropemon deploy`.
 include("$(PORT_DIR)/boards/manifest.py")
 # package() freezes every module of ropenode, the board HAL's too: hal_board (machine),
-# boards (the board tables), frontend and ads1115 (the ADS1115 driver); docs/hardware.md.
+# boards (the board tables), frontend and ads1115 (the ADS1115 driver), bringup (the
+# bench check at the REPL); docs/hardware.md.
 package("ropenode")

@@ -44,6 +44,9 @@ class FakeI2C:
         v = 0x8000 if reg == 1 else 1000 * ADDRS.index(addr) + 100 * self.ain.get(addr, 0)
         buf[0], buf[1] = v >> 8, v & 0xFF
 
+    def scan(self):
+        return [] if self.fail else list(ADDRS[:3])  # 0x4B does not answer
+
 
 MADE = []  # (class name, args, kwargs) of every fake machine object built
 
@@ -84,6 +87,7 @@ def hal_board(monkeypatch):
         monkeypatch.setattr(m, "time", clock)
     yield mod
     sys.modules.pop("ropenode.hal_board", None)
+    sys.modules.pop("ropenode.bringup", None)
 
 
 def _board(mod, ropes, fitted):
@@ -205,3 +209,20 @@ def test_a_failing_flash_stops_the_recording_not_the_node(hal_board):
         b.step()
     assert b.recorder is None and flash.closed
     assert node.frame_seq.count == 10  # the node went on framing: 200 samples, 10 windows
+
+
+def test_bench_prints_each_loop_the_battery_and_the_timing(hal_board, capsys, monkeypatch):
+    """bringup.bench (docs/hardware.md, bench steps 3-9) on the fake bus: chip i's codes are
+    1000 i + 100 ain, so rope 2's pressure is code 1000 = word 2000 = 0.833 mA (LOW)."""
+    sys.modules.pop("ropenode.bringup", None)
+    from ropenode import bringup
+
+    monkeypatch.setattr(bringup, "time", hal_board.time)
+    bringup.bench(records=1)
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == "I2C: found ['0x48', '0x49', '0x4a'] - table ['0x48', '0x49', '0x4a', '0x4b'] MISSING"
+    assert out[1] == "pressure 1: word     0   0.000 mA  LOW (<3.6 mA)"
+    assert out[2] == "pressure 2: word  2000   0.833 mA  LOW (<3.6 mA)"
+    assert out[8] == "displacement 4: word  6200   2.583 mA  LOW (<3.6 mA)"
+    assert out[9] == "battery: word 400  50 mV; temperature word 65535; encoder 1; hall 0"  # 200 codes x 125 uV x 2
+    assert out[10].startswith("record: 0 us") and "bus errors 0, timeouts 0, rdy timeouts 0" in out[10]
