@@ -59,6 +59,7 @@ friction.noise_ref_q6 0 262144
 friction.noise_shift 0 16
 friction.slide_lo_q8um 0 16777216
 friction.slide_span_q8um 0 1048576
+step_recover 1 65535
 temperature.fitted 0 1
 temperature.counts_at_0c 0 65535
 temperature.cc_mul -16384 16384
@@ -71,8 +72,9 @@ shaft.max_pulses_per_sample 1 32767
 shaft.snap_mm 0 100000
 shaft.start_depth_mm -100000 5000000
 """
-# Per-rope channel entries, stored in this order (9 and 6 ints per rope); the
+# Per-rope channel entries, stored in this order (10 and 6 ints per rope); the
 # 2nd and 3rd (fault limits) must bracket the 1st (4 mA / lowest counts).
+# step_max_counts: a larger step between two readings is implausible (0: not checked).
 # Multipliers of a 16-bit count stay <= 2**14 so products stay below 2**30.
 _PRESSURE = """
 counts_4ma 0 65535
@@ -84,6 +86,7 @@ kpa_shift 4 30
 tension_n_at_4ma -524288 524288
 tension_n_mul 0 16384
 tension_n_shift 0 30
+step_max_counts 0 65535
 """
 _DISPLACEMENT = """
 counts_lo 0 65535
@@ -273,7 +276,7 @@ def parse_node(nd):
     c.displacement = _channels(nd, "displacement", n, _table(_DISPLACEMENT))
     pc = c.pressure
     for i in range(n):
-        b = 9 * i
+        b = 10 * i
         for j in (1, 2):  # the kPa at both fault limits bound every pressure the node holds
             # (kPa/16 with the same mul: no larger than 16 times this, < 2**21)
             _range("node.pressure[%d].kpa_mul" % i, pc[b + 3] + (((pc[b + j] - pc[b]) * pc[b + 4])

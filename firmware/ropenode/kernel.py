@@ -4,7 +4,7 @@
     S = state(cfg)          # state and per-sample outputs: array('i')
     closed = step(rec, P, S, n)   # 1 when a frame window just closed
 
-`step` does, for n ropes: NAMUR check and calibration (channels), filtered
+`step` does, for n ropes: NAMUR and pressure-step checks and calibration (channels), filtered
 velocity, pipe-loss table, noise-robust LuGre friction, tension, window
 statistics; then oil temperature, depth/speed from the pulse counter and Hall
 marks, node time, and at the end of a frame window the frame's fields (OUT_*).
@@ -92,13 +92,14 @@ _NREF = const(59)    # noise following: the channels' noise level the plays are 
 _NSH = const(60)     # its low-pass gain is 2**-NSH
 _SLO = const(61)     # slide following: |e| from which e's take-over is seal travel, um/256
 _SSPAN = const(62)   # and over which its share rises to all of it, um/256 (0: off)
-_AREA = const(63)    # cylinder area per rope over the ropes' mean, Q8
+_PREC = const(63)    # samples of plausible steps after an implausible pressure step before the channel is good
+_AREA = const(64)    # cylinder area per rope over the ropes' mean, Q8
 _KQ = const(_AREA + ROPES_MAX)  # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
 _PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n healthy pressure channels
 _RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
 _RTH = const(_RPLAYS + ROPES_MAX)  # activity below which a rope is quiet, um/65536 (0: no rest hold)
-_PCAL = const(_RTH + ROPES_MAX)  # 9 ints per rope (config.py order)
-_DCAL = const(_PCAL + 9 * ROPES_MAX)     # 6 ints per rope
+_PCAL = const(_RTH + ROPES_MAX)  # 10 ints per rope (config.py order)
+_DCAL = const(_PCAL + 10 * ROPES_MAX)    # 6 ints per rope
 _GEXP = const(_DCAL + 6 * ROPES_MAX)     # exp(-u^2), Q14
 _TEMPS = const(_GEXP + GEXP_POINTS)      # loss table temperatures, centi-degC
 _VBP = const(_TEMPS + TEMPS_MAX)         # loss velocity points, then forces, then marks
@@ -180,7 +181,9 @@ _NL = const(185)       # the channel's noise level: low-pass of the clipped |sec
 _NLREM = const(189)    # its error-feedback remainder
 _NRUN = const(193)     # 2 bits per rope: samples (0..2) the channel has been healthy before this one
 NOISE_Q10 = const(194)  # the median level over _NREF, Q10 (1024: as commissioned): it scales the plays
-_S_LEN = const(195)
+_PPREV = const(195)    # per rope: the pressure channel's last count within NAMUR, -1 after none
+_PBAD = const(199)     # per rope: samples of plausible steps still needed after an implausible one
+_S_LEN = const(203)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -205,7 +208,7 @@ def pack(c):
         c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16,
         c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (
         c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift, c.slide_lo_q8um,
-        c.slide_span_q8um)
+        c.slide_span_q8um, c.step_recover)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS),
@@ -228,25 +231,41 @@ def state(c):
         s[MIN_N + i] = _BIG
         s[MAX_N + i] = -_BIG
         s[_NL + i] = c.noise_ref_q6
+        s[_PPREV + i] = -1
     s[NOISE_Q10] = 1024
     return s
 
 
 def step(rec, P, S, n):
     """Process one record (2n+4 words); return 1 when a frame window just closed."""
-    # channels: counts -> kPa, N, um/256; NAMUR NE43 limits
+    # channels: counts -> kPa, N, um/256; NAMUR NE43 limits; an implausible pressure step
+    # (docs/model.md): a count more than step_max_counts from the last one within NAMUR
+    # faults the channel until its steps have been plausible for _PREC samples (its value
+    # held, as for a NAMUR fault)
     mask = 0
     seen = S[SEEN]
     for i in range(n):
         c = rec[i]
-        b = _PCAL + 9 * i
+        b = _PCAL + 10 * i
         if c < P[b + 1] or c > P[b + 2]:
             mask |= 1 << i
+            S[_PPREV + i] = -1
         else:
-            d = c - P[b]
-            S[P_KPA16 + i] = (P[b + 3] << 4) + ((d * P[b + 4]) >> (P[b + 5] - 4))  # kpa_shift >= 4
-            S[RAW_N + i] = P[b + 6] + ((d * P[b + 7]) >> P[b + 8])
-            seen |= 1 << i
+            d = S[_PPREV + i]
+            S[_PPREV + i] = c
+            if d >= 0 and P[b + 9] != 0:
+                d -= c
+                if d > P[b + 9] or d < -P[b + 9]:
+                    S[_PBAD + i] = P[_PREC]
+                elif S[_PBAD + i] > 0:
+                    S[_PBAD + i] -= 1
+            if S[_PBAD + i] > 0:
+                mask |= 1 << i
+            else:
+                d = c - P[b]
+                S[P_KPA16 + i] = (P[b + 3] << 4) + ((d * P[b + 4]) >> (P[b + 5] - 4))  # kpa_shift >= 4
+                S[RAW_N + i] = P[b + 6] + ((d * P[b + 7]) >> P[b + 8])
+                seen |= 1 << i
         c = rec[n + i]
         b = _DCAL + 6 * i
         if c < P[b + 1] or c > P[b + 2]:

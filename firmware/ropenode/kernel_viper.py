@@ -70,13 +70,14 @@ _NREF = const(59)
 _NSH = const(60)
 _SLO = const(61)
 _SSPAN = const(62)
-_AREA = const(63)
+_PREC = const(63)
+_AREA = const(64)
 _KQ = const(_AREA + ROPES_MAX)
 _PLAYS = const(_KQ + ROPES_MAX)
 _RPLAYS = const(_PLAYS + ROPES_MAX)
 _RTH = const(_RPLAYS + ROPES_MAX)
 _PCAL = const(_RTH + ROPES_MAX)
-_DCAL = const(_PCAL + 9 * ROPES_MAX)
+_DCAL = const(_PCAL + 10 * ROPES_MAX)
 _GEXP = const(_DCAL + 6 * ROPES_MAX)
 _TEMPS = const(_GEXP + GEXP_POINTS)
 _VBP = const(_TEMPS + TEMPS_MAX)
@@ -156,7 +157,9 @@ _NL = const(185)
 _NLREM = const(189)
 _NRUN = const(193)
 NOISE_Q10 = const(194)
-_S_LEN = const(195)
+_PPREV = const(195)
+_PBAD = const(199)
+_S_LEN = const(203)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -170,7 +173,7 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift, c.slide_lo_q8um, c.slide_span_q8um)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift, c.slide_lo_q8um, c.slide_span_q8um, c.step_recover)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
@@ -189,6 +192,7 @@ def state(c):
         s[MIN_N + i] = _BIG
         s[MAX_N + i] = -_BIG
         s[_NL + i] = c.noise_ref_q6
+        s[_PPREV + i] = -1
     s[NOISE_Q10] = 1024
     return s
 
@@ -201,14 +205,26 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
     seen = (S[SEEN] ^ s31) - s31
     for i in range(n):
         c = rec[i]
-        b = _PCAL + 9 * i
+        b = _PCAL + 10 * i
         if c < (P[b + 1] ^ s31) - s31 or c > (P[b + 2] ^ s31) - s31:
             mask |= 1 << i
+            S[_PPREV + i] = -1
         else:
-            d = c - ((P[b] ^ s31) - s31)
-            S[P_KPA16 + i] = ((P[b + 3] ^ s31) - s31 << 4) + (d * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31 - 4)
-            S[RAW_N + i] = (P[b + 6] ^ s31) - s31 + (d * ((P[b + 7] ^ s31) - s31) >> (P[b + 8] ^ s31) - s31)
-            seen |= 1 << i
+            d = (S[_PPREV + i] ^ s31) - s31
+            S[_PPREV + i] = c
+            if d >= 0 and (P[b + 9] ^ s31) - s31 != 0:
+                d -= c
+                if d > (P[b + 9] ^ s31) - s31 or d < -((P[b + 9] ^ s31) - s31):
+                    S[_PBAD + i] = (P[_PREC] ^ s31) - s31
+                elif (S[_PBAD + i] ^ s31) - s31 > 0:
+                    S[_PBAD + i] -= 1
+            if (S[_PBAD + i] ^ s31) - s31 > 0:
+                mask |= 1 << i
+            else:
+                d = c - ((P[b] ^ s31) - s31)
+                S[P_KPA16 + i] = ((P[b + 3] ^ s31) - s31 << 4) + (d * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31 - 4)
+                S[RAW_N + i] = (P[b + 6] ^ s31) - s31 + (d * ((P[b + 7] ^ s31) - s31) >> (P[b + 8] ^ s31) - s31)
+                seen |= 1 << i
         c = rec[n + i]
         b = _DCAL + 6 * i
         if c < (P[b + 1] ^ s31) - s31 or c > (P[b + 2] ^ s31) - s31:

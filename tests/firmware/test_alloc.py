@@ -38,10 +38,12 @@ def load_node_json():
     raise OSError("firmware/node.json (beside firmware/ropenode) not found on sys.path")
 
 
-def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64, slide_span_q8um=1 << 20):
+def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64, slide_span_q8um=1 << 20,
+                step_max_counts=None, step_recover=None):
     """The shipped node.json changed (fewer ropes, an oil temperature input, the largest
     hydraulic compliance the node accepts with a warm-up, noise following from
-    `noise_ref_q6` and slide following over `slide_span_q8um`), CRC renewed."""
+    `noise_ref_q6`, slide following over `slide_span_q8um`, the pressure step check's
+    limit and recovery), CRC renewed."""
     from ropenode.config import canonical
     from ropenode.crc16 import crc16
     doc = load_node_json()
@@ -78,6 +80,11 @@ def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64
         nd["friction"].update(compliance_q=[131071] * nd["ropes"], compliance_shift=9,
                               warmup_samples=400, alpha_e_q14=4096, stroke_q8um=1, stroke_vmin_q16=0,
                               stroke_settle=0, area_q8=[(128, 384)[i % 2] for i in range(nd["ropes"])])
+    if step_max_counts is not None:  # 0: off (the shipped limit faults most of the test streams' steps)
+        for ch in nd["pressure"]:
+            ch["step_max_counts"] = step_max_counts
+    if step_recover is not None:
+        nd["step_recover"] = step_recover
     if temp_fitted:
         # 4-20 mA = 9600..48000 counts = -20..+80 C; loss table rows clamp at both ends
         nd["temperature"] = {"fitted": 1, "counts_at_0c": 17280, "cc_mul": 8533, "cc_shift": 15,
@@ -101,7 +108,7 @@ def build_node(doc=None):
     n = cfg.ropes
     chans = []
     for i in range(n):
-        p = cfg.pressure[9 * i:9 * i + 3]
+        p = cfg.pressure[10 * i:10 * i + 3]
         d = cfg.displacement[6 * i:6 * i + 3]
         chans.append((p[0], p[1], p[2], d[0], d[1], d[2]))
     return node, n, chans
@@ -302,7 +309,9 @@ def test_sample_allocation_free_with_temperature_input_and_one_rope():
     (loss-table rows re-selected as the temperature moves), N = 1, and a hydraulic
     compliance with its warm-up (the LuGre position from pressure)."""
     for fitted, doc in ((True, variant_doc(temp_fitted=True)), (True, variant_doc(ropes=1, temp_fitted=True)),
-                        (False, variant_doc(ropes=3)), (False, variant_doc(compliance=True))):
+                        (False, variant_doc(ropes=3)), (False, variant_doc(compliance=True)),
+                        (False, variant_doc(compliance=True, step_max_counts=0)),
+                        (False, variant_doc(compliance=True, step_max_counts=20000, step_recover=2))):
         node, ropes, chans = build_node(doc)
         recs = hot_path_records(ropes, chans, 1200, seed=ropes)
         w = 2 * ropes + 4

@@ -254,3 +254,31 @@ def test_noise_following_is_built_from_the_commissioned_noise_and_refused_when_i
         with pytest.raises(config.ConfigError) as e:
             config.parse_node(nd)
         assert e.value.field == "node.friction." + field, e.value.field
+
+
+def test_the_pressure_step_limit_is_derived_written_or_off_and_checked_on_both_sides():
+    """Derived: 2 pi bounce_hz T_r / (A f_s) + 6 sqrt(2) noise in counts, rounded up; written
+    per Pa; 0: off. The host refuses a negative limit or a recovery beyond 10 s, the node a
+    step_recover of 0 or a step_max_counts beyond 65535."""
+    from ropemon.station.physical import PhysicalError
+    ph = example_physical()
+    lim = 2 * math.pi * 2.8 * 100e3 / (ph["cylinder_area_m2"][0] * 200) + 6 * math.sqrt(2) * math.hypot(
+        5e3, 62.5 / math.sqrt(12))
+    nd = build_node_section(ph)
+    assert [c["step_max_counts"] for c in nd["pressure"]] == [math.ceil(lim / (25e6 / 38400))] * 4
+    assert nd["step_recover"] == 20
+    nd = build_node_section(dict(ph, pressure_step_max_Pa=2e6, pressure_step_recover_s=0.0))
+    assert [c["step_max_counts"] for c in nd["pressure"]] == [3072] * 4 and nd["step_recover"] == 1
+    assert [c["step_max_counts"] for c in build_node_section(dict(ph, pressure_step_max_Pa=0.0))["pressure"]] == [0] * 4
+    for key, v in (("pressure_step_max_Pa", -1.0), ("pressure_step_recover_s", 11.0)):
+        with pytest.raises(PhysicalError, match="physical." + key):
+            build_node_section(dict(ph, **{key: v}))
+    for path, v in ((("step_recover",), 0), (("pressure", 2, "step_max_counts"), 65536)):
+        nd = build_node_section(ph)
+        d = nd
+        for k in path[:-1]:
+            d = d[k]
+        d[path[-1]] = v
+        with pytest.raises(config.ConfigError) as e:
+            config.parse_node(nd)
+        assert e.value.field == "node." + ".".join(str(k) for k in path).replace(".2.", "[2].")

@@ -212,6 +212,34 @@ def pressure_noise_pa(ph: dict | Physical) -> float:
     return math.hypot(as_physical(ph).setting("pressure_noise_Pa"), 1e3 / 16 / math.sqrt(12))
 
 
+PRESSURE_STEP_NOISE_SIGMAS = 6  # the step limit's margin for the noise of two readings' difference
+
+
+def pressure_step_max_pa(ph: dict | Physical) -> list[float]:
+    """Per rope, the largest plausible change of its sensor pressure from one sample to the
+    next (Pa; 0: not checked): `pressure_step_max_Pa` where written, else the largest legal
+    rate of tension change over the sample rate plus the noise (docs/model.md, "Channels"):
+    the rope's tension swinging by the rated tension at the bounce, 2 pi bounce_hz T_r / A_i,
+    plus PRESSURE_STEP_NOISE_SIGMAS times the rms of two readings' difference."""
+    p = as_physical(ph)
+    if p.pressure_step_max_Pa is not None:
+        return [p.pressure_step_max_Pa] * p.ropes
+    rate = [2 * math.pi * p.setting("bounce_hz") * p.rated_rope_tension_N / a for a in p.cylinder_area_m2]
+    noise = PRESSURE_STEP_NOISE_SIGMAS * math.sqrt(2) * pressure_noise_pa(p)
+    return [r / p.sample_hz + noise for r in rate]
+
+
+def pressure_step_counts(ph: dict | Physical) -> list[int]:
+    """`pressure_step_max_pa` per rope in its channel's counts, as the node compares them
+    (rounded up; at most 65535; 0: not checked)."""
+    p = as_physical(ph)
+    out = []
+    for lim, ch in zip(pressure_step_max_pa(p), p.pressure_channels):
+        pa_per_count = abs(ch.range_Pa[1] - ch.range_Pa[0]) / (ch.counts_20mA - ch.counts_4mA)
+        out.append(0 if lim == 0 else min(65535, max(1, math.ceil(lim / pa_per_count - 1e-9))))
+    return out
+
+
 def physical_params(ph: dict | Physical) -> dict:
     """The SI quantities both the builder and the float reference derive from `physical`
     (a dict is checked by Physical.from_dict: ValueError naming the field)."""
@@ -305,6 +333,10 @@ def physical_params(ph: dict | Physical) -> dict:
         "alpha_a": alpha_a,
         "v_max": p.setting("piston_speed_max_m_s"),
         "p_max_pa": p.friction_p_max_Pa,
+        # an implausible pressure step: the limit per rope in counts (0: not checked), and
+        # the samples of plausible steps before the channel is good again
+        "pressure_step_counts": pressure_step_counts(p),
+        "pressure_step_recover": min(65535, max(1, round(p.setting("pressure_step_recover_s") * fs))),
     }
 
 
@@ -390,8 +422,9 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
         pressure.append({"counts_4ma": c4, "fault_lo_counts": flo, "fault_hi_counts": fhi,
                          "kpa_at_4ma": round(lo / 1000), "kpa_mul": km, "kpa_shift": ks,
                          "tension_n_at_4ma": round(lo * areas[i]), "tension_n_mul": tm,
-                         "tension_n_shift": ts})
+                         "tension_n_shift": ts, "step_max_counts": pp["pressure_step_counts"][i]})
     nd["pressure"] = pressure
+    nd["step_recover"] = pp["pressure_step_recover"]
 
     displacement = []
     for i, ch in enumerate(p.displacement_channels):

@@ -79,6 +79,29 @@ def _hold(values: np.ndarray, ok: np.ndarray, before: float = 0.0) -> np.ndarray
     return out
 
 
+def _step_faults(counts: np.ndarray, namur_ok: np.ndarray, limit: int, recover: int) -> np.ndarray:
+    """Samples where a pressure channel is faulted by an implausible step (docs/model.md,
+    "Channels"), as the node decides it: a count within NAMUR more than `limit` from the
+    last such count before it (none after a NAMUR fault) faults it until `recover` plausible
+    steps have followed (limit 0: never)."""
+    bad = np.zeros(len(counts), bool)
+    if limit == 0:
+        return bad
+    prev, left = -1, 0
+    for j, (c, ok) in enumerate(zip(counts.tolist(), namur_ok.tolist())):
+        if not ok:
+            prev = -1
+            continue
+        if prev >= 0:
+            if abs(c - prev) > limit:
+                left = recover
+            elif left > 0:
+                left -= 1
+        prev = c
+        bad[j] = left > 0
+    return bad
+
+
 def _temperature_c(ph: dict, counts: np.ndarray) -> np.ndarray:
     """Oil temperature per sample (C): the input where fitted and plausible, else the assumed."""
     assumed = float(ph["oil_temp_assumed_C"])
@@ -180,6 +203,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         flo, fhi = namur_limits(c4, c20)
         cp = records[:, i].astype(float)
         p_ok = (cp >= flo) & (cp <= fhi)
+        # an implausible step is a fault as NAMUR's limits are (the node compares counts)
+        p_ok &= ~_step_faults(records[:, i], p_ok, pp["pressure_step_counts"][i], pp["pressure_step_recover"])
         P[:, i] = _hold(plo + (cp - c4) * (phi - plo) / (c20 - c4), p_ok)
         dc = ph["displacement_channels"][i]
         clo, chi = dc["counts_lo"], dc["counts_hi"]

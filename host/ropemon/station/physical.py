@@ -40,6 +40,7 @@ MAX_MARKS = 64                  # Hall marks the node holds
 MAX_LOSS_TEMPS = 8              # temperature rows of the loss table
 MAX_LOSS_FLOWS = 32             # flow points of the loss table
 COMPLIANCE_K_MAX = 1e-6         # m/Pa
+PRESSURE_STEP_MAX_PA = 1e8      # the largest plausibility limit of a pressure step that can be written
 FRICTION_LINES = ("Fs", "Fc", "vs", "sigma2")
 
 
@@ -99,6 +100,11 @@ NODE_DEFAULTS: dict[str, Any] = {
     # channel's noise (the low-pass, this slow, of |second difference|) and scales the plays
     # and the rest threshold by the median channel's over pressure_noise_Pa's (0: fixed)
     "noise_follow_s": 0.0,
+    # an implausible pressure step (docs/model.md, "Channels"): a reading further than
+    # pressure_step_max_Pa (default: from the rated tension and the bounce,
+    # ropemon.commission.nodejson.pressure_step_max_pa) from the one before is a transmitter
+    # glitch, a fault until the steps have been plausible this long
+    "pressure_step_recover_s": 0.1,
 }
 # the defaults that change when a compliance is given
 COMPLIANCE_DEFAULTS: dict[str, float] = {
@@ -134,6 +140,7 @@ SETTING_RANGES: dict[str, tuple[float, float | str]] = {
     "stroke_settle_s": (0.0, 300.0),
     "slide_follow_lo_sigmas": (0.0, 100.0),
     "slide_follow_hi_sigmas": (0.0, 100.0),
+    "pressure_step_recover_s": (0.0, 10.0),
 }
 # the pressure tracker's settings: its defaults are checked only where it runs (a compliance)
 TRACKER_SETTINGS = ("bounce_hz", "bounce_filter_damping", "creep_q_Pa2_s3", "bounce_q_Pa2_s3")
@@ -295,6 +302,8 @@ class Physical:
     slide_follow_lo_sigmas: float | None = None
     slide_follow_hi_sigmas: float | None = None
     friction_p_max_MPa: float | None = None
+    pressure_step_max_Pa: float | None = None
+    pressure_step_recover_s: float | None = None
     # host only (the node section and its CRC do not depend on them)
     friction_residual_frac: ResidualFrac | None = None
     conveyance_weight_N: float | None = None
@@ -553,6 +562,8 @@ def _parse(d: Any, where: str) -> Physical:
     if t.raw("friction_p_max_MPa", None) is not None:
         kw["friction_p_max_MPa"] = t.number("friction_p_max_MPa", ge=0.1, le=top_MPa)
     p_max_MPa = kw.get("friction_p_max_MPa") or top_MPa
+    if t.raw("pressure_step_max_Pa", None) is not None:  # 0: not checked; absent: derived
+        kw["pressure_step_max_Pa"] = t.number("pressure_step_max_Pa", ge=0, le=PRESSURE_STEP_MAX_PA)
     fr, fname = t.raw("friction"), t.field("friction")
     friction = friction_from_dict(fr, p_max_MPa, fname)
     tomlfields.known(fr, fname, {*FRICTION_LINES, "sigma0", "sigma1", "residual"}, PhysicalError)
