@@ -11,7 +11,7 @@ import importlib
 import json
 import sys
 
-PARTS = ("firmware", "plant", "host", "noise", "opcua", "mqtt", "modbus", "web")
+PARTS = ("firmware", "plant", "host", "noise", "opcua", "mqtt", "modbus", "web", "fleet")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
