@@ -85,10 +85,12 @@ def ddata_size() -> int:
     from ropemon.station.scadavalues import node_values
     values = sp.frame_values(node_values(_template(), time.time(), 0.0))
     values.update({"alarms/present": 0, "alarms/unacknowledged": 0, "vouched": True})
-    types = {n: t for n, t, _ in sp.hoist_metrics([1])}
+    devices = {h: sp.hoist_metrics([1]) for h in _hoist_ids(HOISTS_PER_EDGE)}
+    types = {n: t for n, t, _ in devices[_hoist_ids(HOISTS_PER_EDGE)[-1]]}
+    alias = sp.aliases(devices)[_hoist_ids(HOISTS_PER_EDGE)[-1]]     # by alias, as the face sends DDATA
     p = sp.payload(1)
     for name, value in values.items():
-        sp.add_metric(p, name, types[name], value, sp.now_ms())
+        sp.add_metric(p, None, types[name], value, sp.now_ms(), alias=alias[name])
     return len(p.SerializeToString())
 
 
