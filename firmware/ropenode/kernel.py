@@ -806,12 +806,16 @@ def step(rec, P, S, n):
             elif S[_SCNT] < P[_SSET]:
                 S[_SCNT] += 1
             if c > P[_SVMIN] and S[_SCNT] >= P[_SSET]:
+                # a stroke is one piston sliding alone: exactly one rope's e past the
+                # threshold (two or more are pistons moving alike, whose e tie within
+                # rounding: the float reference could not pick the same one)
                 best = 0
                 for i in range(n):
-                    t = S[_E + i] * s
-                    if t > th:
-                        th = t
-                        best = i + 1
+                    if S[_E + i] * s > th:
+                        if best == 0:
+                            best = i + 1
+                        else:
+                            best = -1
                 if best > 0:
                     S[_SMODE] = best
                     re = 1

@@ -698,10 +698,11 @@ def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
             if c > (P[_SVMIN] ^ s31) - s31 and (S[_SCNT] ^ s31) - s31 >= (P[_SSET] ^ s31) - s31:
                 best = 0
                 for i in range(n):
-                    t = ((S[_E + i] ^ s31) - s31) * s
-                    if t > th:
-                        th = t
-                        best = i + 1
+                    if ((S[_E + i] ^ s31) - s31) * s > th:
+                        if best == 0:
+                            best = i + 1
+                        else:
+                            best = -1
                 if best > 0:
                     S[_SMODE] = best
                     re = 1

@@ -8,9 +8,16 @@ the pressure tracker into the node's clamps (kernel.py: its bounce within +-2**2
 units, the creep and its rate within +-2**28), which the reference mirrors
 (reference.PressureTracker).
 
-Balancing strokes are left at the shipped settings: with `stroke_sigmas` 1 and
-`stroke_settle_s` 0 two pistons moving alike tie for the stroke (their e within the node's
-1/256 um) and the node's rounding picks one; the reference does not mirror that yet.
+Steps of 5 and 10 MPa are beyond the pressure step check's limit (1.16 MPa for these
+configs): both fault the same samples. The second test draws the stroke settings down to
+`stroke_sigmas` 1 and `stroke_settle_s` 0, with the check on or off (the streams' shocks are
+implausible steps, and a faulted rope stops stroke tracking) and two ropes' pistons and
+compliances alike: their e tie within rounding, and a stroke starts only when exactly one
+rope's e is past the threshold, so node and reference start and end the same strokes at the
+same samples (picking the larger of two, each picked its own: 4-14 % of rated apart).
+Still open (xfail): at 1 sigma a stroke's end still falls a sample apart now and then
+(e or the common motion meeting its threshold within the two's rounding), up to ~4 % of
+rated on one sample (seed 111, equal compliances, sigma0 1e7).
 
 Longer run: ROPEMON_FUZZ_EXAMPLES=500 .venv/bin/pytest tests/firmware/test_reference_fuzz_cpython.py
 """
@@ -19,6 +26,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from streams_cpython import random_stream, run_node
@@ -33,8 +41,9 @@ Node = node_module("node").Node
 EXAMPLES = int(os.environ.get("ROPEMON_FUZZ_EXAMPLES", "60"))
 
 
-def _doc(k_m: list[float], sigma0: float) -> dict:
+def _doc(k_m: list[float], sigma0: float, **changes) -> dict:
     ph = example_physical()
+    ph.update(changes)
     ph["hydraulic_compliance_m_per_Pa"] = k_m
     ph["friction"] = dict(ph["friction"], sigma0=sigma0, sigma1=sigma0 * 1e-3)
     ph["piston_speed_max_m_s"] = 0.05  # sigma0 dx_max within the node's 2**19 (N/16)
@@ -103,5 +112,77 @@ def test_a_resonant_square_wave_drives_the_tracker_into_the_nodes_clamps():
     ref = reference.compensate(ph, recs, tracker_class=Recording)
     assert any(hits)  # the bounce reached the node's clamp
     ten, good, _ = run_node(Node(config.parse(doc)), recs)
+    err = np.abs(ten - ref.tension_n)[good]
+    assert err.max() <= 0.0005 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]
+
+
+def _node_strokes(doc: dict, recs: np.ndarray):
+    """(tension, good, [(sample, rope or -1)]) of the node: its stroke starts and ends."""
+    import array
+    kernel = node_module("kernel")
+    node = Node(config.parse(doc))
+    n = node.n
+    ten = np.zeros((len(recs), n))
+    good = np.zeros((len(recs), n), bool)
+    rec = array.array("H", [0] * recs.shape[1])
+    mode, events = 0, []
+    for j, row in enumerate(recs.tolist()):
+        rec[:] = array.array("H", row)
+        node.sample(rec)
+        ten[j] = node.rope(kernel.TENSION_N)
+        good[j] = [(node.S[kernel.GOOD] >> i) & 1 for i in range(n)]
+        if node.S[kernel._SMODE] != mode:
+            mode = node.S[kernel._SMODE]
+            events.append((j, mode - 1))
+    return ten, good, events
+
+
+@pytest.mark.xfail(strict=False, reason="a stroke end a sample apart where e meets the threshold "
+                   "within rounding (module docstring)")
+@settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**16),
+       k_m=st.lists(st.floats(1e-10, 6e-10), min_size=4, max_size=4),
+       sigma0=st.sampled_from([1e7, 1e8]),
+       stroke_sigmas=st.sampled_from([1.0, 2.0, 6.5]),
+       stroke_settle_s=st.sampled_from([0.0, 0.5, 4.0]),
+       step_check=st.booleans(),
+       alike=st.booleans(),
+       events=st.lists(st.tuples(st.floats(0.1, 0.99), st.integers(1, 2),
+                                 st.sampled_from([-10.0, -5.0, 5.0, 10.0])), max_size=3))
+def test_node_and_reference_take_the_same_strokes_with_aggressive_settings(
+        seed, k_m, sigma0, stroke_sigmas, stroke_settle_s, step_check, alike, events):
+    if alike:
+        k_m = [k_m[0]] + k_m[:3]
+    changes = {} if step_check else {"pressure_step_max_Pa": 0.0}
+    doc = _doc(k_m, sigma0, stroke_sigmas=stroke_sigmas, stroke_settle_s=stroke_settle_s, **changes)
+    ph = doc["physical"]
+    recs = random_stream(ph, 8, seed)
+    if alike:  # ropes 0 and 1: the same pressure and piston
+        recs[:, 1] = recs[:, 0]
+        recs[:, 5] = recs[:, 4]
+    recs = _steps(ph, recs, events, None)
+    strokes = []
+    ref = reference.compensate(ph, recs, strokes=strokes)
+    ten, good, node_events = _node_strokes(doc, recs)
+    assert node_events == [(j, r) for j, r, _ in strokes]
+    assert (good == ref.good).all()
+    err = np.abs(ten - ref.tension_n)[good]
+    assert err.max() <= 0.0005 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]
+
+
+def test_two_pistons_alike_start_no_stroke():
+    """The case the fuzz found, fixed: ropes 0 and 1 alike with strokes at 1 sigma and no
+    settling. Past the threshold together, neither takes a stroke; node and reference agree
+    on every start and end, and strokes do start (of one rope alone)."""
+    k = 2.5e-10
+    doc = _doc([k, k, 4e-10, 1.5e-10], 1e8, stroke_sigmas=1.0, stroke_settle_s=0.0, pressure_step_max_Pa=0.0)
+    ph = doc["physical"]
+    recs = random_stream(ph, 12, 27598)
+    recs[:, 1] = recs[:, 0]
+    recs[:, 5] = recs[:, 4]
+    strokes = []
+    ref = reference.compensate(ph, recs, strokes=strokes)
+    ten, good, node_events = _node_strokes(doc, recs)
+    assert len(node_events) > 10 and node_events == [(j, r) for j, r, _ in strokes]
     err = np.abs(ten - ref.tension_n)[good]
     assert err.max() <= 0.0005 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]

@@ -168,7 +168,7 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
     """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`.
 
     `strokes`, a list, receives (sample, rope or -1, e per rope in m) for every start
-    (rope 0-based) and end (-1) of a balancing stroke (`ropemon study stroke-events`).
+    (rope 0-based) and end (-1, also by a fault or a restart) of a balancing stroke (`ropemon study stroke-events`).
     `increments`, a dict, receives the observer's per-sample increments [sample, rope]
     (m): "dxs" of the LuGre position and "dxp" of its play (`ropemon study observer-losses`),
     and "noise_ratio"[sample], the noise following's ratio (1: as commissioned).
@@ -385,6 +385,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             if w[i] < warm:
                 allw = False
         if not allw:
+            if mode > 0 and strokes is not None:  # a fault or a restart ends the stroke
+                strokes.append((j, -1, list(e)))
             mode = 0
         for i in range(n):
             if not okr[i]:
@@ -452,9 +454,10 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             elif cnt < settle:
                 cnt += 1
             if moving and cnt >= settle:
-                best = max(range(n), key=lambda i: e[i] * s)
-                if e[best] * s > th:
-                    mode, re = best + 1, True
+                # exactly one piston past the threshold (two alike tie within rounding)
+                past = [i for i in range(n) if e[i] * s > th]
+                if len(past) == 1:
+                    mode, re = past[0] + 1, True
         else:
             if s != sgn:
                 re, cnt = True, 0
