@@ -435,7 +435,8 @@ def release():
     (hal_board._boot). A later import loads the module again.
     """
     import sys
-    sys.modules.pop("ropenode.config", None)
     pkg = sys.modules.get("ropenode")
-    if pkg is not None and hasattr(pkg, "config"):
-        delattr(pkg, "config")  # set by the import of the submodule
+    for name in ("config", "crc16"):  # crc16 checks the config only
+        sys.modules.pop("ropenode." + name, None)
+        if pkg is not None and hasattr(pkg, name):
+            delattr(pkg, name)  # set by the import of the submodule

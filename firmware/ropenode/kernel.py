@@ -2,7 +2,7 @@
 
     P = pack(cfg)           # config: array('i'), layout below
     S = state(cfg)          # state and per-sample outputs: array('i')
-    closed = step(rec, P, S, n)   # 1 when a frame window just closed
+    closed = step(S, P, rec, n)   # 1 when a frame window just closed
 
 `step` does, for n ropes: NAMUR and pressure-step checks and calibration (channels), filtered
 velocity, pipe-loss table, noise-robust LuGre friction, tension, window
@@ -10,7 +10,9 @@ statistics; then oil temperature, depth/speed from the pulse counter and Hall
 marks, node time, and at the end of a frame window the frame's fields (OUT_*).
 Every int stays within +-2**30, nothing is allocated, and `step` is one call
 (a bytecode function with many locals gets its frame from the heap on some
-ports; a viper one keeps it on the C stack).
+ports; a viper one keeps it on the C stack). S comes first: the native emitter keeps
+the first arguments in registers (two of them when loaded from .mpy), and S is the
+array read and written most.
 
 It is written in the subset of Python that @micropython.viper compiles with
 the same meaning (ints only, no calls, no `not`/`~`/ternaries, arrays read by
@@ -236,7 +238,7 @@ def state(c):
     return s
 
 
-def step(rec, P, S, n):
+def step(S, P, rec, n):
     """Process one record (2n+4 words); return 1 when a frame window just closed."""
     # channels: counts -> kPa, N, um/256; NAMUR NE43 limits; an implausible pressure step
     # (docs/model.md): a count more than step_max_counts from the last one within NAMUR

@@ -197,7 +197,7 @@ def state(c):
     return s
 
 @micropython.viper
-def step(rec: ptr16, P: ptr32, S: ptr32, n: int) -> int:
+def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
     """Process one record (2n+4 words); return 1 when a frame window just closed."""
     s31 = 1 << 29
     s31 <<= 2

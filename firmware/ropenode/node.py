@@ -91,7 +91,7 @@ class Node:
             self.in_window = 0
         elif len(rec) != self.words:  # the viper kernel reads rec unchecked: refuse a wrong length
             raise ValueError("record of %d words, the config needs %d" % (len(rec), self.words))
-        elif not self.step(rec, self.P, S, self.n):
+        elif not self.step(S, self.P, rec, self.n):
             return False
         self.ready = True
         return True

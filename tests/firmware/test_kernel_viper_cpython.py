@@ -164,7 +164,7 @@ def test_viper_step_is_the_plain_step_plus_identities():
 
 
 def test_generator_refuses_code_outside_the_viper_subset():
-    base = "def step(rec, P, S, n):\n    x = 1\n    {}\n    return 0\n"
+    base = "def step(S, P, rec, n):\n    x = 1\n    {}\n    return 0\n"
     for line, why in (("x = not x", "not"), ("x = 1 if x else 2", "conditional"), ("x = abs(x)", "call"),
                       ("x = S.x", "Attribute"), ("S[0] *= 3", "not exact"),
                       ("x = 1 / 2", "Div"), ("x = 1073741824", "literal")):
