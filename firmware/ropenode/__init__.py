@@ -3,4 +3,4 @@
 Pure logic modules never import `machine`; hardware access is behind the HAL
 (`hal_board` on the reference MCU, `hal_sim` on the unix port).
 """
-FIRMWARE_VERSION = "0.1.0"
+FIRMWARE_VERSION = "0.2.0"

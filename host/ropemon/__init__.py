@@ -1,2 +1,2 @@
 """ropemon: host tools of the open rope tension monitor (CPython)."""
-__version__ = "0.1.0"
+__version__ = "0.2.0"
