@@ -18,6 +18,11 @@ Keys of a table:
     encoder      (machine.Counter id, pulse pin, direction pin)
     hall         (sensor A pin, sensor B pin), low over a mark, internal pull-ups
     radio        (UART id, TX pin, RX pin, baud), 8N1
+    port         the MicroPython port the board runs ("esp32", "rp2", "stm32"): what its
+                 machine.WDT accepts (WDT_MAX_MS)
+    wdt_maintenance_ms  the watchdog's timeout once the loop is interrupted (Ctrl-C at the
+                 REPL, mpremote): the maintenance window (hal_board.maintenance); from
+                 WDT_MS to the port's WDT_MAX_MS
 
 The stream word of a loop is the ADS1115 code times 2 (WORD_SHIFT), so that
 the 16-bit .rsens words span the ADC's positive range: on the reference board
@@ -35,6 +40,14 @@ NAMUR_HI_UA = const(21000)  # NE43: above 21 mA a failed signal (short, transmit
 LOOP_OK = const(0)
 LOOP_LOW = const(1)
 LOOP_HIGH = const(2)
+
+# The watchdog: WDT_MS while the loop samples (ropenode.hal_board), the board's
+# wdt_maintenance_ms once it is interrupted. WDT_MAX_MS: the longest timeout each port's
+# machine.WDT accepts again once it runs (its machine_wdt.c): rp2 refuses more than 8388 ms
+# (RP2040), stm32's IWDG more than 32767 ms; esp32 reconfigures its task watchdog to any
+# timeout, capped here at 1 h.
+WDT_MS = const(2000)
+WDT_MAX_MS = {"esp32": 3_600_000, "rp2": 8388, "stm32": 32767}
 
 BOARDS = {
     # The reference board (docs/hardware.md): ESP32-DevKitC V4 (ESP32-WROOM-32E) on a
@@ -55,6 +68,8 @@ BOARDS = {
         "encoder": (0, 25, 26),
         "hall": (32, 33),
         "radio": (1, 17, 16, 9600),
+        "port": "esp32",
+        "wdt_maintenance_ms": 1_200_000,  # 20 min: longer than any ropemon step (record --fetch: 920 s)
     },
     # The same front end on an ESP32-S3-DevKitC-1 (pins of the S3; GPIO 19/20 are its
     # USB, 0/3/45/46 strapping, 26..37 flash and PSRAM). A table only: never built.
@@ -73,6 +88,8 @@ BOARDS = {
         "encoder": (0, 4, 5),
         "hall": (6, 7),
         "radio": (1, 17, 18, 9600),
+        "port": "esp32",
+        "wdt_maintenance_ms": 1_200_000,  # 20 min: longer than any ropemon step (record --fetch: 920 s)
     },
 }
 
@@ -86,6 +103,26 @@ def get(name=None):
     if t is None:
         raise ValueError("board %r: not one of %s" % (name, ", ".join(sorted(BOARDS))))
     return t
+
+
+def maintenance_ms(t):
+    """The maintenance timeout in ms of board table `t`: its wdt_maintenance_ms clamped to
+    WDT_MS .. its port's WDT_MAX_MS (WDT_MS for an unknown port). Never raises: a wrong
+    table must not keep a node from sampling (check() is the test's refusal)."""
+    top = WDT_MAX_MS.get(t.get("port"), WDT_MS)
+    ms = t.get("wdt_maintenance_ms", WDT_MS)
+    return WDT_MS if ms < WDT_MS else top if ms > top else ms
+
+
+def check(t):
+    """ValueError unless table `t` names a known port and its wdt_maintenance_ms is an int
+    within WDT_MS .. that port's WDT_MAX_MS."""
+    port = t.get("port")
+    if port not in WDT_MAX_MS:
+        raise ValueError("port %r: not one of %s" % (port, ", ".join(sorted(WDT_MAX_MS))))
+    ms = t.get("wdt_maintenance_ms")
+    if type(ms) is not int or not WDT_MS <= ms <= WDT_MAX_MS[port]:
+        raise ValueError("wdt_maintenance_ms %r: %s needs %d .. %d" % (ms, port, WDT_MS, WDT_MAX_MS[port]))
 
 
 def loop_uv(word, fs_mv):

@@ -17,7 +17,11 @@ that rope's sample, never a crash.
 A Timer fires at sample_hz; its callback only sets a flag (and counts a
 missed tick when the flag is still set). The main loop does the I2C reads into
 preallocated buffers, calls node.sample and sends a frame when a window
-closes. The watchdog is fed only while samples keep being processed on time.
+closes. The watchdog (2 s) is fed only while samples keep being processed on time.
+Ctrl-C (someone at the REPL, or mpremote) opens a maintenance window: `maintenance`
+re-arms the watchdog with the board's wdt_maintenance_ms (ropenode.boards), says so,
+and the KeyboardInterrupt goes on to the REPL; nothing feeds the watchdog there, so
+the node resets and samples again at the end of the window unless reset before.
 The frame seq continues across resets through the boot counter in /bootcount
 (ropenode.bootseq). When armed (/record, `ropemon record`), the raw records of
 the first seconds after boot also go to /wind.rsens (ropenode.rsens), for the
@@ -35,6 +39,7 @@ from ropenode.bootseq import FrameSeq
 
 BOOT_FILE = "/bootcount"
 _frame_seq = None  # one per boot: a restarted run() (main.py) continues it, no extra flash write
+_maint_ms = 0      # while this boot's sampling watchdog runs: the board's maintenance timeout; else 0
 
 _WDT_MS = const(2000)
 _HEALTHY_MS = const(500)        # fed only if a sample was processed this recently
@@ -57,6 +62,7 @@ class Board:
 
         t = boards.get() if table is None else table
         self.table = t
+        self.maint_ms = boards.maintenance_ms(t)
         self.node = node
         self.ropes = ropes
         self.sample_hz = sample_hz
@@ -99,18 +105,27 @@ class Board:
         self.fe.acquire()
 
     def run_forever(self):
+        """Sample until Ctrl-C: then the maintenance window (`maintenance`) and the
+        KeyboardInterrupt goes on (to main.py, then the REPL)."""
+        global _maint_ms
         node = self.node
         if machine.reset_cause() == machine.WDT_RESET:
             node.sticky_status |= layout.ST_WATCHDOG_RESET
+        _maint_ms = self.maint_ms  # before the watchdog starts: a Ctrl-C from here on opens the window
         self.wdt = WDT(timeout=_WDT_MS)
-        self.timer = Timer(0)
-        self.timer.init(mode=Timer.PERIODIC, freq=self.sample_hz, callback=self._on_timer)
-        while True:
-            if not self.tick:
-                self._feed_if_healthy()
-                continue
-            self.tick = False
-            self.step()
+        timer = self.timer = Timer(0)
+        timer.init(mode=Timer.PERIODIC, freq=self.sample_hz, callback=self._on_timer)
+        try:
+            while True:
+                if not self.tick:
+                    self._feed_if_healthy()
+                    continue
+                self.tick = False
+                self.step()
+        except KeyboardInterrupt:
+            self.wdt = maintenance()  # first thing: the 2 s watchdog is still counting
+            timer.deinit()
+            raise
 
     def step(self):
         """One timer tick's work: acquire, record (if armed), compensate, frame, feed."""
@@ -148,6 +163,28 @@ class Board:
     def _feed_if_healthy(self):
         if time.ticks_diff(time.ticks_ms(), self.last_ok_ms) < _HEALTHY_MS and self.wdt is not None:
             self.wdt.feed()
+
+
+def maintenance():
+    """Open the maintenance window: re-arm the watchdog with the board's maintenance timeout
+    and print so. Called on Ctrl-C (Board.run_forever, main.py); does nothing unless this
+    boot's run_forever has started the sampling watchdog, and only once. Returns the WDT,
+    or None. Nothing feeds it afterwards: the node resets at the end of the window (a
+    watchdog reset: frames flag it) unless reset before; a soft reset (mpremote) does not
+    stop it. Never raises but KeyboardInterrupt: the caller's Ctrl-C must reach the REPL."""
+    global _maint_ms
+    ms = _maint_ms
+    if not ms:
+        return None
+    _maint_ms = 0
+    try:
+        wdt = WDT(timeout=ms)  # esp32: reconfigures the running task watchdog (esp_task_wdt_reconfigure)
+    except Exception as e:
+        print("ropenode: the watchdog refused", ms, "ms:", e, "- the node resets within 2 s")
+        return None
+    print("ropenode: MAINTENANCE: sampling stopped; the watchdog resets the node in", ms // 1000,
+          "s unless it is reset before")
+    return wdt
 
 
 def _load_config(config_path):

@@ -6,8 +6,10 @@ word is read only when a temperature input is fitted (else 0xFFFF,
 docs/data-formats.md), the slow-input counter wraps instead of growing past
 2**30, the bus-error counter saturates, and an armed recording takes the
 records the node samples (and stops, without stopping the node, when the
-flash fails). The ADS1115 driver and the front end in detail:
-test_ads1115_cpython.py.
+flash fails), and Ctrl-C in the loop opens the maintenance window: the
+watchdog re-armed with the board's maintenance timeout (clamped to what its
+port's machine.WDT accepts), then the KeyboardInterrupt goes on to the REPL.
+The ADS1115 driver and the front end in detail: test_ads1115_cpython.py.
 """
 from __future__ import annotations
 
@@ -65,6 +67,15 @@ def _fake(name):
         def write(self, data):  # the radio UART
             return len(data)
 
+        def feed(self):  # the watchdog
+            self.fed = getattr(self, "fed", 0) + 1
+
+        def init(self, **k):  # the sample timer: never fires here
+            self.inited = k
+
+        def deinit(self):
+            self.deinited = True
+
     Fake.__name__ = name
     return Fake
 
@@ -77,6 +88,8 @@ def hal_board(monkeypatch):
     for name in ("UART", "WDT", "Counter", "Pin", "Timer"):
         setattr(machine, name, _fake(name))
     machine.I2C = FakeI2C
+    machine.WDT_RESET = 3
+    machine.reset_cause = lambda: 1  # power on
     monkeypatch.setitem(sys.modules, "machine", machine)
     monkeypatch.delitem(sys.modules, "ropenode.hal_board", raising=False)
     mod = importlib.import_module("ropenode.hal_board")
@@ -226,3 +239,100 @@ def test_bench_prints_each_loop_the_battery_and_the_timing(hal_board, capsys, mo
     assert out[8] == "displacement 4: word  6200   2.583 mA  LOW (<3.6 mA)"
     assert out[9] == "battery: word 400  50 mV; temperature word 65535; encoder 1; hall 0"  # 200 codes x 125 uV x 2
     assert out[10].startswith("record: 0 us") and "bus errors 0, timeouts 0, rdy timeouts 0" in out[10]
+
+
+# --- the watchdog and the maintenance window
+
+
+def _interrupted_after(b, n):
+    """Run b.run_forever with a timer tick before every pass; Ctrl-C (KeyboardInterrupt)
+    lands in the n-th step. Returns the sampling watchdog (b.wdt while it sampled)."""
+    step, seen = b.step, []
+
+    def ticking_step():
+        seen.append(b.wdt)
+        if len(seen) == n:
+            raise KeyboardInterrupt
+        step()
+        b.tick = True
+
+    b.step = ticking_step
+    b.tick = True
+    with pytest.raises(KeyboardInterrupt):
+        b.run_forever()
+    assert len(set(map(id, seen))) == 1
+    return seen[0]
+
+
+def _wdts():
+    return [m[2]["timeout"] for m in MADE if m[0] == "WDT"]
+
+
+def test_the_loop_keeps_the_2s_watchdog_and_ctrl_c_opens_the_maintenance_window(hal_board, capsys):
+    from ropenode import boards
+    from ropenode.node import Node
+
+    b = hal_board.Board(Node(None), 2, 200, False)
+    sampling = _interrupted_after(b, 250)
+    assert sampling.a == () and _wdts() == [boards.WDT_MS, 1_200_000]  # 20 min on the reference board
+    assert sampling.fed >= 249 and not hasattr(b.wdt, "fed")  # nothing feeds the window's watchdog
+    assert b.timer.deinited
+    assert capsys.readouterr().out == ("ropenode: MAINTENANCE: sampling stopped; the watchdog resets "
+                                       "the node in 1200 s unless it is reset before\n")
+    assert hal_board.maintenance() is None and len(_wdts()) == 2  # once (main.py calls it again)
+
+
+def test_maintenance_never_starts_a_watchdog(hal_board):
+    """main.py calls it on any Ctrl-C: before the loop has started the watchdog, nothing."""
+    assert hal_board.maintenance() is None and _wdts() == []
+
+
+def test_the_window_is_clamped_to_what_the_port_accepts(hal_board):
+    from ropenode import boards
+    from ropenode.node import Node
+
+    rp2 = dict(boards.get(), port="rp2", wdt_maintenance_ms=1_200_000)
+    _interrupted_after(hal_board.Board(Node(None), 2, 200, False, rp2), 3)
+    assert _wdts() == [2000, 8388]
+    assert boards.maintenance_ms(dict(rp2, port="stm32")) == 32767
+    assert boards.maintenance_ms(dict(rp2, port="zephyr")) == 2000  # unknown: no window, no crash
+    assert boards.maintenance_ms(dict(rp2, wdt_maintenance_ms=10)) == 2000
+
+
+def test_a_refused_timeout_still_reaches_the_repl(hal_board, capsys):
+    """A port whose WDT refuses the timeout (ValueError, as rp2 above 8388 ms): the Ctrl-C still
+    goes on (not the ValueError, which main.py would answer by restarting the loop)."""
+    made = []
+
+    class PickyWDT:
+        def __init__(self, timeout):
+            if timeout > 8388:
+                raise ValueError("timeout exceeds 8388")
+            made.append(timeout)
+
+        def feed(self):
+            pass
+
+    from ropenode.node import Node
+
+    hal_board.WDT = PickyWDT
+    _interrupted_after(hal_board.Board(Node(None), 2, 200, False), 2)
+    assert made == [2000]
+    assert "the watchdog refused 1200000 ms: timeout exceeds 8388 - the node resets within 2 s" in capsys.readouterr().out
+
+
+def test_every_board_table_has_a_window_its_port_accepts(hal_board):
+    from ropenode import boards
+
+    assert hal_board._WDT_MS == boards.WDT_MS
+    for name, t in boards.BOARDS.items():
+        boards.check(t)
+        assert boards.maintenance_ms(t) == t["wdt_maintenance_ms"] >= 10 * 60_000, name
+    ok = dict(boards.get())
+    for port, ms in (("rp2", 8388), ("stm32", 32767), ("esp32", 3_600_000), ("esp32", 2000)):
+        boards.check(dict(ok, port=port, wdt_maintenance_ms=ms))
+    for port, ms, why in (("rp2", 8389, "rp2 needs 2000 .. 8388"), ("stm32", 40_000, "stm32 needs 2000 .. 32767"),
+                          ("esp32", 1999, "esp32 needs"), ("esp32", 600.0 * 1000, "esp32 needs"),
+                          ("esp32", None, "esp32 needs"), ("zephyr", 5000, "port 'zephyr': not one of")):
+        with pytest.raises(ValueError, match=why):
+            boards.check(dict(ok, port=port, wdt_maintenance_ms=ms))
