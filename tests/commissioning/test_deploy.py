@@ -221,7 +221,7 @@ def test_deploy_cli_end_to_end(tmp_path, node_json):
                            capture_output=True, text=True, timeout=60)
         resets = node.soft_resets
     assert r.returncode == 0, r.stdout + r.stderr
-    assert resets == 4  # probe, stage, swap, report
+    assert resets == 4  # probe, stage, swap, report (and the hard reset: none, the unix port has no machine.reset)
     doc = json.loads(cfg.read_text())
     crc, node_id = doc["crc"], doc["node"]["node_id"]
     assert "arch x64" in r.stdout
@@ -247,6 +247,43 @@ def test_a_config_the_deployed_firmware_refuses_fails_the_deploy(tmp_path, node_
                            capture_output=True, text=True, timeout=60)
     assert r.returncode == 1, r.stdout + r.stderr
     assert "firmware 1.0.0, node.json REFUSED by the node: node.ropes: refused by this test build" in r.stdout
+
+
+def _hard_reset_seen(root: Path, wait_s: float) -> bool:
+    """Whether the stand-in machine.reset ran on the node (it is sent with --no-follow)."""
+    import time
+
+    end = time.monotonic() + wait_s
+    while not (root / "hard-reset").exists() and time.monotonic() < end:
+        time.sleep(0.1)
+    return (root / "hard-reset").exists()
+
+
+def test_a_clean_deploy_ends_with_a_hard_reset(tmp_path, node_json):
+    """So the node leaves the maintenance window its first Ctrl-C opened (docs/hardware.md,
+    step 12) and samples with the new firmware at once; not with --no-reset, nor when the
+    read-back fails (exit code 1). The unix port has no machine.reset: a machine.py in the
+    node's directory stands in for it (a board's never returns)."""
+    fw = _tree(tmp_path / "fw", "1.0.0")
+    bad = _tree(tmp_path / "bad", "1.0.1")
+    with open(bad / "ropenode" / "config.py", "a") as f:
+        f.write('\n\ndef parse(doc):\n    raise ConfigError("node.ropes", "refused by this test build")\n')
+    root = tmp_path / "node"
+    root.mkdir()
+    (root / "machine.py").write_text("def reset():\n    open('hard-reset', 'w').close()\n")
+    with VirtualNode(root) as node:
+        r = subprocess.run([sys.executable, "-m", "ropemon.cli", "deploy", "--port", node.port, "--resume",
+                            "--firmware", str(fw), "--config", str(node_json)],
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert r.stdout.splitlines()[-1] == "resetting the node: it boots the new firmware and samples"
+        assert _hard_reset_seen(root, 5)
+        (root / "hard-reset").unlink()
+        report = D.deploy(node.port, fw, config=node_json, resume=True, log=lambda s: None, reset=False)
+        assert report["can_reset"] and not report["reset"]
+        report = D.deploy(node.port, bad, config=node_json, resume=True, log=lambda s: None)
+        assert "config_error" in report and not report["reset"]
+        assert not _hard_reset_seen(root, 1)
 
 
 def test_redeploy_replaces_the_whole_package(tmp_path):

@@ -19,7 +19,10 @@ four runs per deploy); the steps:
    staged one into place (os.rename, milliseconds), deletes the journal; then
    the live files are hashed;
 6. delete `.prev/` and read back what the node now holds: firmware version,
-   config CRC and node id, through the deployed firmware's own modules.
+   config CRC and node id, through the deployed firmware's own modules; when that
+   is clean (exit code 0), hard-reset the node in the same mpremote run (unless
+   --no-reset), so it leaves the maintenance window its first Ctrl-C opened
+   (ropenode.hal_board.maintenance) and samples with the new firmware at once.
 
 Until step 5 the live files are untouched, so a deploy broken anywhere before
 it leaves the previous firmware as it was. A swap cut by a power loss is
@@ -171,7 +174,22 @@ else:
         _r['node_id'] = config.load('node.json').node_id
     except Exception as e:
         _r['config_error'] = str(e)
+try:
+    import machine
+    _r['can_reset'] = hasattr(machine, 'reset')  # the unix port (virtual node) has none
+except ImportError:
+    _r['can_reset'] = False
+_r['reset'] = _want_reset and _r['can_reset'] and 'firmware_version' in _r and 'config_error' not in _r
 _out(_r)
+"""
+
+# Sent after _REPORT in the same mpremote run, with --no-follow (the reset drops the
+# connection; mpremote's own `reset` does the same): a clean deploy ends with a hard reset.
+_RESET = r"""
+if _r['reset']:
+    import time
+    time.sleep_ms(100)
+    machine.reset()
 """
 
 
@@ -387,9 +405,12 @@ UNCHANGED = "; the live firmware on the node is unchanged"
 
 def deploy(port: str, firmware_dir: Path = FIRMWARE_DIR, config: Path | None = None,
            arch: str | None = None, as_py: bool = False, resume: bool = False,
-           timeout_s: float = 20.0, log: Callable[[str], None] = print, allow_example_key: bool = False) -> dict:
-    """Deploy; return what the node holds afterwards. Raises DeployError; a config with a key
-    published with ropemon is refused unless `allow_example_key` (then warned on stderr)."""
+           timeout_s: float = 20.0, log: Callable[[str], None] = print, allow_example_key: bool = False,
+           reset: bool = True) -> dict:
+    """Deploy; return what the node holds afterwards (`reset`: whether it was hard-reset).
+    Raises DeployError; a config with a key published with ropemon is refused unless
+    `allow_example_key` (then warned on stderr). `reset`: hard-reset the node after a clean
+    read-back (not on the unix port, which cannot)."""
     if config is not None:
         warning = check_example_key(check_config(config), config, allow_example_key)
         if warning:
@@ -436,7 +457,8 @@ def deploy(port: str, firmware_dir: Path = FIRMWARE_DIR, config: Path | None = N
     if bad:
         raise DeployError("after the swap the live files differ for " + ", ".join(bad)
                           + f"; the previous version is kept in {PREV_DIR}/ on the node")
-    report = mp.exec(_NODE_TOOLS + f"_rmtree({PREV_DIR!r})\n" + _REPORT, "reading back the deployed version")
+    report = mp.exec_args(["exec", _NODE_TOOLS + f"_rmtree({PREV_DIR!r})\n_want_reset = {reset!r}\n" + _REPORT,
+                           "+", "exec", "--no-follow", _RESET], "reading back the deployed version")
     assert isinstance(report, dict)
     report["files"] = len(hashes)
     return report
@@ -468,6 +490,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="do not soft-reset the node before each mpremote step (mpremote's `resume`)")
     p.add_argument("--firmware", type=Path, default=FIRMWARE_DIR, help="firmware tree to deploy (default: this repo's firmware/, or the one an installed wheel ships)")
     p.add_argument("--timeout", type=float, default=20.0, help="seconds to wait for each mpremote step")
+    p.add_argument("--no-reset", action="store_true",
+                   help="leave the node at its REPL after the deploy (it resets itself at the end of its "
+                        "maintenance window); default: hard-reset it, so it samples with the new firmware at once")
     p.add_argument("--allow-example-key", action="store_true",
                    help="deploy a config carrying a key published with ropemon (firmware/node.json's example, "
                         "the demo site's) to a bench or demo node; refused without it")
@@ -476,7 +501,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         r = deploy(args.port, args.firmware, args.config, args.arch, args.py, args.resume, args.timeout,
-                   allow_example_key=args.allow_example_key)
+                   allow_example_key=args.allow_example_key, reset=not args.no_reset)
     except DeployError as e:
         print(f"ropemon deploy: {e}", file=sys.stderr)
         return 1
@@ -491,4 +516,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f", config CRC {r['config_crc']} (0x{r['config_crc']:04x}), node id {r['node_id']}")
     print(f"{r['files']} files verified by SHA-256 on the node")
+    if r.get("reset"):
+        print("resetting the node: it boots the new firmware and samples")
+    elif r.get("can_reset"):
+        print("node left at its REPL: it resets itself at the end of its maintenance window; "
+              f"now: mpremote connect {args.port} reset")
     return 0 if "firmware_version" in r and "config_error" not in r else 1
