@@ -201,8 +201,8 @@ def _consumer(mode: str, port: int, db: str, ctl: Any, out: Any) -> None:
             self.commit_ms = array.array("d")
             self.frame_ms = array.array("d")
 
-        def write(self, rows: list[tuple]) -> None:
-            super().write(rows)
+        def write(self, rows: list[tuple], *held: Any) -> None:
+            super().write(rows, *held)
             now = time.time() * 1000
             for r in rows:
                 if r[4] == 1:

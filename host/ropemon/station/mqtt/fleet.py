@@ -17,9 +17,16 @@ and gaps in seq are counted (`Fleet.stats`).
 Metric names come from the DBIRTH: a DDATA names its metrics by alias only. The aliases an
 edge node gave are forgotten at its next NBIRTH, and at its NDEATH (the one whose bdSeq is
 that of its NBIRTH: a late will of an older connection is not). A DDATA with an alias the
-consumer does not know (it was away during the births) is held in memory (and acknowledged),
-up to `HOLD` messages per hoist, and a rebirth is asked for (NCMD `Node Control/Rebirth`, at
-most every `REBIRTH_EVERY_S` per edge node); the new DBIRTH names it and it is written then.
+consumer does not know (it was away during the births) is held, and a rebirth is asked for
+(NCMD `Node Control/Rebirth`, at most every `REBIRTH_EVERY_S` per edge node); the new DBIRTH
+names it and its rows are written then. A held message is written as it came (topic, payload,
+time of arrival) to the historian's `held` table in the transaction of its batch, before it is
+acknowledged, so a consumer that stops or dies before the DBIRTH loses nothing: at start it
+reads the held messages back and asks their edge nodes for a rebirth. The rows a DBIRTH names
+are written and their held messages deleted in one transaction. At most `HOLD` messages are
+held per hoist and `HOLD_TOTAL` in all (a broken edge node must not fill the disk): beyond
+that the oldest held message is dropped, counted in `stats["dropped"]` and logged (a warning at
+the first drop per hoist, then at most every `DROP_LOG_S` with the count).
 
 Threads: paho's network thread only queues each message; a writer thread takes everything
 queued, decodes it, writes its rows in one transaction (a group commit: one per message at a
@@ -31,6 +38,7 @@ not acknowledged, so the broker delivers it again (to this session, after a reco
 from __future__ import annotations
 
 import argparse
+import logging
 import queue
 import re
 import signal
@@ -39,11 +47,15 @@ import sys
 import threading
 import time
 from pathlib import Path
+from collections import deque
 from typing import Any
 
+log = logging.getLogger(__name__)
 TENSION = re.compile(r"^node(\d+)/rope(\d+)/tension$")
 SEQ = re.compile(r"^node(\d+)/frame_seq$")
-HOLD = 10_000            # DDATA held per hoist while its aliases are unknown
+HOLD = 10_000            # DDATA held per hoist while its aliases are unknown (1,000 s at 10 frames/s)
+HOLD_TOTAL = 100_000     # DDATA held in all (about 40 MB at 400 bytes each), over every hoist
+DROP_LOG_S = 60.0        # a hoist's dropped held DDATA logged at most this often (after the first)
 REBIRTH_EVERY_S = 5.0    # at most one rebirth request per edge node this often
 
 SQLITE_SCHEMA = """
@@ -52,6 +64,9 @@ CREATE TABLE IF NOT EXISTS tension (
     rope INTEGER NOT NULL, ts_ms INTEGER NOT NULL, tension_kn REAL, frame_seq INTEGER NOT NULL,
     historical INTEGER NOT NULL, arrival INTEGER NOT NULL,
     PRIMARY KEY (group_id, edge_node, device, node, frame_seq, rope));
+CREATE TABLE IF NOT EXISTS held (
+    id INTEGER PRIMARY KEY, group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL,
+    topic TEXT NOT NULL, payload BLOB NOT NULL, arrival_ms INTEGER NOT NULL);
 """
 PG_SCHEMA = """
 CREATE TABLE IF NOT EXISTS tension (
@@ -59,6 +74,9 @@ CREATE TABLE IF NOT EXISTS tension (
     rope INTEGER NOT NULL, ts TIMESTAMPTZ NOT NULL, tension_kn DOUBLE PRECISION, frame_seq BIGINT NOT NULL,
     historical BOOLEAN NOT NULL, arrival BIGINT NOT NULL,
     PRIMARY KEY (group_id, edge_node, device, node, frame_seq, rope, ts));
+CREATE TABLE IF NOT EXISTS held (
+    id BIGINT PRIMARY KEY, group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL,
+    topic TEXT NOT NULL, payload BYTEA NOT NULL, arrival_ms BIGINT NOT NULL);
 """
 
 
@@ -85,21 +103,55 @@ class Historian:
             self.conn.executescript(SQLITE_SCHEMA)
             self.arrival = self.conn.execute("SELECT COALESCE(MAX(arrival), 0) FROM tension").fetchone()[0]
 
-    def write(self, rows: list[tuple]) -> None:
-        """rows: (group, edge, device, node, rope, ts_ms, tension_kn, frame_seq, historical)."""
+    def write(self, rows: list[tuple], hold: list[tuple] = (), unhold: list[int] = ()) -> None:
+        """One transaction. rows: (group, edge, device, node, rope, ts_ms, tension_kn, frame_seq,
+        historical); hold: held messages to keep (id, group, edge, device, topic, payload, arrival_ms);
+        unhold: the ids of held messages to delete (named and written, or dropped)."""
         out = []
         for r in rows:
             self.arrival += 1
             out.append((*r, self.arrival))
+        gone = [(i,) for i in unhold]
+        if self.pg:
+            try:
+                with self.conn.cursor() as cur:
+                    if out:
+                        cur.executemany(
+                            "INSERT INTO tension VALUES (%s, %s, %s, %s, %s, to_timestamp(%s / 1000.0), %s, %s, %s, %s) "
+                            "ON CONFLICT DO NOTHING", out)
+                    if hold:
+                        cur.executemany("INSERT INTO held VALUES (%s, %s, %s, %s, %s, %s, %s) ON CONFLICT DO NOTHING",
+                                        list(hold))
+                    if gone:
+                        cur.executemany("DELETE FROM held WHERE id = %s", gone)
+                self.conn.commit()
+            except Exception:
+                self.conn.rollback()
+                self.arrival -= len(out)
+                raise
+        else:
+            try:
+                with self.conn:
+                    if out:
+                        self.conn.executemany("INSERT OR IGNORE INTO tension VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", out)
+                    if hold:
+                        self.conn.executemany("INSERT OR IGNORE INTO held VALUES (?, ?, ?, ?, ?, ?, ?)", list(hold))
+                    if gone:
+                        self.conn.executemany("DELETE FROM held WHERE id = ?", gone)
+            except Exception:
+                self.arrival -= len(out)
+                raise
+
+    def held(self) -> list[tuple]:
+        """The held messages, oldest first: (id, group, edge, device, topic, payload, arrival_ms)."""
         if self.pg:
             with self.conn.cursor() as cur:
-                cur.executemany(
-                    "INSERT INTO tension VALUES (%s, %s, %s, %s, %s, to_timestamp(%s / 1000.0), %s, %s, %s, %s) "
-                    "ON CONFLICT DO NOTHING", out)
+                cur.execute("SELECT id, group_id, edge_node, device, topic, payload, arrival_ms FROM held ORDER BY id")
+                got = [(*r[:5], bytes(r[5]), r[6]) for r in cur.fetchall()]
             self.conn.commit()
-        else:
-            with self.conn:
-                self.conn.executemany("INSERT OR IGNORE INTO tension VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", out)
+            return got
+        return self.conn.execute(
+            "SELECT id, group_id, edge_node, device, topic, payload, arrival_ms FROM held ORDER BY id").fetchall()
 
     def close(self) -> None:
         self.conn.close()
@@ -123,7 +175,13 @@ class Fleet:
         self.seq: dict[tuple[str, str], int] = {}     # (group, edge) -> last seq
         self.bdseq: dict[tuple[str, str], int] = {}   # (group, edge) -> bdSeq of its NBIRTH
         self.aliases: dict[tuple[str, str, str], dict[int, str]] = {}   # (group, edge, device) -> alias -> name
-        self.held: dict[tuple[str, str, str], list[Any]] = {}           # DDATA waiting for their DBIRTH
+        # DDATA waiting for their DBIRTH: (group, edge, device) -> deque of (held id, topic, payload, arrival_ms)
+        self.held: dict[tuple[str, str, str], deque[tuple[int, str, bytes, int]]] = {}
+        self.held_count = 0
+        self._held_id = 0
+        self._hold_new: list[tuple] = []       # held messages for the next transaction's `held` table
+        self._hold_gone: list[int] = []        # held ids to delete in it (named and written, or dropped)
+        self._dropped_said: dict[tuple[str, str, str], tuple[float, int]] = {}   # dkey -> (logged at, dropped then)
         self._asked: dict[tuple[str, str], float] = {}                  # (group, edge) -> rebirth asked at
         self.connected = threading.Event()
         self.lock = threading.Lock()
@@ -145,6 +203,11 @@ class Fleet:
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
         self.host, self.port = host, port
+        for hid, group, edge, device, topic, data, arrival_ms in historian.held():   # a previous run's
+            self.held.setdefault((group, edge, device), deque()).append((hid, topic, bytes(data), arrival_ms))
+            self.held_count += 1
+            self._held_id = max(self._held_id, hid)
+        self.stats["held_loaded"] = self.held_count
 
     def start(self) -> None:
         self._writer.start()
@@ -163,6 +226,9 @@ class Fleet:
             with self._ack_lock:
                 self._session += 1
             client.subscribe(self.topic, qos=1)
+            with self.lock:                  # held messages (of a previous run too): ask their births
+                for group, edge in {k[:2] for k, q in self.held.items() if q}:
+                    self._ask_rebirth(group, edge)
             self.connected.set()
 
     def _on_disconnect(self, *args: Any) -> None:
@@ -214,21 +280,35 @@ class Fleet:
                 return []
             dkey = (group, edge, device)
             if kind == "DBIRTH":
-                self.aliases[dkey] = {m.alias: m.name for m in p.metrics if m.HasField("alias")}
+                self.aliases[dkey] = aliases = {m.alias: m.name for m in p.metrics if m.HasField("alias")}
                 rows = []
-                for q in self.held.pop(dkey, []):
-                    rows += self._ddata_rows(dkey, q)
+                held = self.held.pop(dkey, None)
+                if held:
+                    still: deque[tuple[int, str, bytes, int]] = deque()
+                    for item in held:
+                        q = sp.decode(item[2])
+                        if any(not m.name and m.alias not in aliases for m in q.metrics):
+                            still.append(item)       # this DBIRTH does not name it either: held on
+                            continue
+                        rows += self._ddata_rows(dkey, q)
+                        self._hold_gone.append(item[0])
+                        self.held_count -= 1
+                    if still:
+                        self.held[dkey] = still
                 return rows
-            return self._ddata_rows(dkey, p) if kind == "DDATA" else []
+            if kind != "DDATA":
+                return []
+            aliases = self.aliases.get(dkey, {})
+            if any(not m.name and m.alias not in aliases for m in p.metrics):
+                self._hold(dkey, topic, payload)
+                return []
+            return self._ddata_rows(dkey, p)
 
     def _ddata_rows(self, dkey: tuple[str, str, str], p: Any) -> list[tuple]:
         """A DDATA's tension rows, its metrics named by the DBIRTH's aliases (self.lock held)."""
         from ropemon.station.mqtt import sparkplug as sp
         group, edge, device = dkey
         aliases = self.aliases.get(dkey, {})
-        if any(not m.name and m.alias not in aliases for m in p.metrics):
-            self._hold(dkey, p)
-            return []
         self.stats["ddata"] += 1
         seqs: dict[int, Any] = {}
         tensions = []
@@ -253,16 +333,44 @@ class Fleet:
             self.stats["historical"] += bool(m.is_historical)
         return rows
 
-    def _hold(self, dkey: tuple[str, str, str], p: Any) -> None:
-        """A DDATA with an alias no DBIRTH named: held, and a rebirth asked for (self.lock held)."""
-        from ropemon.station.mqtt import sparkplug as sp
-        held = self.held.setdefault(dkey, [])
-        held.append(p)
+    def _hold(self, dkey: tuple[str, str, str], topic: str, payload: bytes) -> None:
+        """A DDATA with an alias no DBIRTH named: held (in the `held` table with the batch), the
+        oldest dropped past HOLD for the hoist or HOLD_TOTAL in all; a rebirth asked for (self.lock held)."""
+        self._held_id += 1
+        item = (self._held_id, topic, bytes(payload), int(time.time() * 1000))
+        held = self.held.setdefault(dkey, deque())
+        held.append(item)
+        self.held_count += 1
+        self._hold_new.append((item[0], *dkey, item[1], item[2], item[3]))
         self.stats["held"] += 1
-        if len(held) > HOLD:
-            del held[0]
-            self.stats["dropped"] += 1
-        group, edge, _ = dkey
+        while len(held) > HOLD:
+            self._drop(dkey)
+        while self.held_count > HOLD_TOTAL:
+            self._drop(min((k for k, q in self.held.items() if q), key=lambda k: self.held[k][0][0]))
+        self._ask_rebirth(dkey[0], dkey[1])
+
+    def _drop(self, dkey: tuple[str, str, str]) -> None:
+        """Drop the hoist's oldest held DDATA: lost, counted and logged (self.lock held)."""
+        held = self.held[dkey]
+        hid = held.popleft()[0]
+        if not held:
+            del self.held[dkey]
+        self._hold_gone.append(hid)
+        self.held_count -= 1
+        self.stats["dropped"] += 1
+        now = time.monotonic()
+        said_at, n = self._dropped_said.get(dkey, (None, 0))
+        n += 1
+        if said_at is None or now - said_at >= DROP_LOG_S:
+            log.warning("fleet: %s/%s/%s: %d DDATA dropped unwritten (oldest first): their aliases are unknown and "
+                        "more than %d are held for the hoist or %d in all (no DBIRTH came after the rebirth asked)",
+                        *dkey, n, HOLD, HOLD_TOTAL)
+            said_at, n = now, 0
+        self._dropped_said[dkey] = (said_at, n)
+
+    def _ask_rebirth(self, group: str, edge: str) -> None:
+        """NCMD Node Control/Rebirth to the edge node, at most every REBIRTH_EVERY_S (self.lock held)."""
+        from ropemon.station.mqtt import sparkplug as sp
         now = time.monotonic()
         if now - self._asked.get((group, edge), -REBIRTH_EVERY_S) >= REBIRTH_EVERY_S:
             self._asked[(group, edge)] = now
@@ -275,6 +383,8 @@ class Fleet:
         """Take what is queued, commit it in one transaction, then acknowledge it (module docstring)."""
         pending: list[tuple[int, int, int]] = []       # (session, mid, qos) to acknowledge
         rows: list[tuple] = []
+        hold: list[tuple] = []                          # the batch's held messages, kept for a retry
+        unhold: list[int] = []
         while True:
             if not pending:
                 try:
@@ -288,14 +398,16 @@ class Fleet:
                         session, mid, qos, topic, payload = item
                         pending.append((session, mid, qos))
                         rows += self.rows_of(topic, payload)
-                        if len(rows) >= MAX_BATCH_ROWS:
+                        if len(rows) + len(self._hold_new) >= MAX_BATCH_ROWS:
                             break
                         item = self._queue.get_nowait()
                 except queue.Empty:
                     pass
-            if rows:
+            if rows or hold or unhold or self._hold_new or self._hold_gone:
+                hold, self._hold_new = hold + self._hold_new, []
+                unhold, self._hold_gone = unhold + self._hold_gone, []
                 try:
-                    self.historian.write(rows)
+                    self.historian.write(rows, hold, unhold)
                 except Exception as e:  # noqa: BLE001 - not acknowledged: tried again
                     self.error = f"cannot write the historian: {type(e).__name__}: {e}"
                     if self._stop.wait(1.0):
@@ -309,7 +421,7 @@ class Fleet:
                 for session, mid, qos in pending:
                     if qos and session == self._session:
                         self.client.ack(mid, qos)
-            pending, rows = [], []
+            pending, rows, hold, unhold = [], [], [], []
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
