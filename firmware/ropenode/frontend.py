@@ -48,6 +48,12 @@ def _check(table, what, ch, used):
     used.append((chip, ain))
 
 
+def _word(a):
+    """The stream word of chip a's conversion register: code << WORD_SHIFT, 0 for a code <= 0."""
+    code = a.read_code()
+    return code << WORD_SHIFT if code > 0 else 0
+
+
 def _rounds(chans):
     """[(chip, ain, word)] into rounds, each a tuple of (chip, ain, word) with distinct chips."""
     rounds = []
@@ -95,7 +101,8 @@ class FrontEnd:
         self.ropes = ropes
         self.rec = array.array("H", bytes(2 * (2 * ropes + 4)))
         self.rec[2 * ropes + 1] = 0xFFFF   # the temperature word when no input is fitted
-        self._started = bytearray(len(table["ads"]))
+        self._started = bytearray(len(self.rec))  # by word: 1 when its conversion started this round
+        self._line = False                         # the RDY line rose this round
         self.k = 0                         # sample index modulo AUX_EVERY
         self.bus_errors = 0
         self.timeouts = 0
@@ -106,57 +113,72 @@ class FrontEnd:
         """Set up every chip in use; False if any did not answer (counted as a bus error)."""
         ok = True
         for c in self.chips:
-            try:
-                self.ads[c].init()
-            except OSError:
-                self._bus_error()
+            if not self._init_chip(c):
                 ok = False
         return ok
+
+    def _init_chip(self, c):
+        try:
+            self.ads[c].init()
+            return True
+        except OSError:
+            self._bus_error()
+            return False
 
     def _bus_error(self):
         if self.bus_errors < COUNT_MAX:
             self.bus_errors += 1
 
+    # The per-sample methods below are split so that each one's frame (locals, value stack,
+    # exception stack) fits in 11 words: a bigger bytecode frame is taken from the heap on
+    # every call on ports without a pystack (tests/firmware/test_alloc_frames_cpython.py).
+
     def _convert(self, r):
         """One conversion on each (chip, mux, word) of round r, in parallel; 0 where one fails."""
-        rec = self.rec
-        st = self._started
-        n = len(r)
-        for i in range(n):
-            a, mux, w = r[i]
-            rec[w] = 0
-            try:
-                a.start(mux)
-                st[i] = 1
-            except OSError:
-                st[i] = 0
-                self._bus_error()
+        for i in range(len(r)):
+            self._start(r[i])
         time.sleep_us(self.conv_us)
-        line = False
-        if self.rdy is not None:
-            t0 = time.ticks_us()
-            while True:
-                if self.rdy.value():
-                    line = True
-                    break
-                if time.ticks_diff(time.ticks_us(), t0) >= self.wait_us:
-                    break
-            if not line:
-                self._reinit = True
-                if self.rdy_timeouts < COUNT_MAX:
-                    self.rdy_timeouts += 1
-        for i in range(n):
-            if not st[i]:
-                continue
-            a, mux, w = r[i]
-            try:
-                if line or a.wait_ready(self.wait_us, True):
-                    code = a.read_code()
-                    rec[w] = code << WORD_SHIFT if code > 0 else 0
-                elif self.timeouts < COUNT_MAX:
-                    self.timeouts += 1
-            except OSError:
-                self._bus_error()
+        self._line = self.rdy is not None and self._wait_rdy()
+        for i in range(len(r)):
+            self._read(r[i])
+
+    def _start(self, ch):
+        """Start channel ch = (chip, mux, word); its word reads 0 until it is read."""
+        self.rec[ch[2]] = 0
+        self._started[ch[2]] = 0
+        try:
+            ch[0].start(ch[1])
+        except OSError:
+            self._bus_error()
+            return
+        self._started[ch[2]] = 1
+
+    def _wait_rdy(self):
+        """True once the RDY line is high, False (counted, chips set up again at the next slow
+        round) when it is not within wait_us."""
+        t0 = time.ticks_us()
+        while True:
+            if self.rdy.value():
+                return True
+            if time.ticks_diff(time.ticks_us(), t0) >= self.wait_us:
+                break
+        self._reinit = True
+        if self.rdy_timeouts < COUNT_MAX:
+            self.rdy_timeouts += 1
+        return False
+
+    def _read(self, ch):
+        """Read channel ch = (chip, mux, word) into its word if it started, once ready: the RDY
+        line said so this round (_line), else the chip's OS bit within wait_us."""
+        if not self._started[ch[2]]:
+            return
+        try:
+            if self._line or ch[0].wait_ready(self.wait_us, True):
+                self.rec[ch[2]] = _word(ch[0])
+            elif self.timeouts < COUNT_MAX:
+                self.timeouts += 1
+        except OSError:
+            self._bus_error()
 
     def acquire(self):
         """Fill self.rec with one record in the .rsens word order."""
@@ -170,13 +192,17 @@ class FrontEnd:
             slow = self.slow
             for j in range(len(slow)):
                 self._convert(slow[j])
-        n = self.ropes
+        self._pins()
+        k = self.k + 1  # wrapped: a count of all samples would pass 2**30 (62 days) and allocate
+        self.k = 0 if k >= AUX_EVERY else k
+
+    def _pins(self):
+        """The encoder count and the Hall sensors into the record's last two words."""
         rec = self.rec
+        n = self.ropes
         if self.counter is not None:
             rec[2 * n + 2] = self.counter.value() & 0xFFFF
         # Hall sensors pull low over a mark
         a = 0 if self.hall_a is None or self.hall_a.value() else 1
         b = 0 if self.hall_b is None or self.hall_b.value() else 2
         rec[2 * n + 3] = a | b
-        k = self.k + 1  # wrapped: a count of all samples would pass 2**30 (62 days) and allocate
-        self.k = 0 if k >= AUX_EVERY else k

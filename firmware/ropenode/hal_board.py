@@ -147,18 +147,26 @@ class Board:
 
     def _record(self, rec: rsens.Writer) -> None:
         """Append this record to the armed recording `rec`; drop it once it is done, or when
-        the flash fails (full): the node goes on monitoring either way."""
+        the flash fails (full): the node goes on monitoring either way. Runs every sample
+        while armed, so its frame stays within 11 words (no `except ... as e`: that costs a
+        second exception level, a heap frame on every call; tools/check_frame_spill.py)."""
         try:
-            if not rec.add(self.rec):
-                self.recorder = None
-                print("ropenode: recorded", rsens.RECORD_FILE)
-        except OSError as e:
-            self.recorder = None
-            print("ropenode: recording stopped:", e)
-            try:
-                rec.close()
-            except OSError:
-                pass
+            if rec.add(self.rec):
+                return
+        except OSError:
+            self._stop_recording(rec)
+            return
+        self.recorder = None
+        print("ropenode: recorded", rsens.RECORD_FILE)
+
+    def _stop_recording(self, rec: rsens.Writer) -> None:
+        """The flash refused a write of the recording: drop it and close its file."""
+        self.recorder = None
+        print("ropenode: recording stopped: a flash write failed")
+        try:
+            rec.close()
+        except OSError:
+            pass
 
     def _feed_if_healthy(self):
         if time.ticks_diff(time.ticks_ms(), self.last_ok_ms) < _HEALTHY_MS and self.wdt is not None:
