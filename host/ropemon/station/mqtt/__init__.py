@@ -23,9 +23,14 @@ any of its nodes for silent_s, or every receiver of the hoist down) and when it 
 again (a frame: the device's birth). The publisher thread owns everything else: the outbox
 (`outbox.Outbox`, SQLite in the data_dir, deaths and births in order among the data), the
 paho-mqtt client (a new one per connection, its NDEATH will carrying that connection's
-bdSeq), the primary host's STATE, NBIRTH/DBIRTH/DDEATH, seq, and sending the outbox in
-order. A row leaves the outbox when the broker acknowledges it (QoS 1); a row queued before
-the current session's births goes out with is_historical.
+bdSeq; its network loop run by this thread, not a paho thread: a publish is written to the
+socket at once, acknowledgements and commands are read every POLL_S), the primary host's STATE, NBIRTH/DBIRTH/DDEATH, seq, and sending the outbox in
+order. Each record is committed to the outbox before it is published (the durability point)
+and kept in memory too: records newer than what has been published go out from memory, older
+ones (a backlog, a previous run's) are read back from the outbox. A row leaves the outbox when
+the broker acknowledges it (QoS 1): acknowledged rows are deleted together, every
+`DELETE_EVERY` acknowledgements or `DELETE_S`, and before the outbox is read again after a
+reconnection. A row queued before the current session's births goes out with is_historical.
 """
 from __future__ import annotations
 
@@ -37,6 +42,7 @@ import ssl
 import threading
 import time
 from collections import deque
+from itertools import islice
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +60,11 @@ DEADBANDS = {"kN": 0.5, "%": 0.1, "m": 0.1, "m/s": 0.05, "V": 0.05, "degC": 0.5}
 DEVICE = "$device"     # a record {DEVICE: "death" | "birth"}: the hoist lost or heard again
 MAX_INFLIGHT = 200     # DDATA published and not yet acknowledged
 BATCH = 200            # outbox rows read at a time
+FRESH_MAX = 5000       # records kept in memory to publish (older ones are read from the outbox)
+DELETE_EVERY = 200     # acknowledged rows deleted from the outbox together, this many ...
+DELETE_S = 0.1         # ... or after this long
 RETRY_S = (0.5, 5.0)   # reconnect back-off, first and longest
+POLL_S = 0.005         # the connection's incoming packets (acknowledgements, commands) read this often at most
 
 
 class Settings:
@@ -216,6 +226,10 @@ class MqttFace:
         self._lost = threading.Event()
         self._acked: deque[int] = deque()
         self._inflight: dict[int, int] = {}
+        self._fresh: deque[tuple[int, str, int, dict]] = deque()   # (row id, device, ts, values) just queued
+        self._done: list[int] = []                 # rows acknowledged (or not to send), to delete
+        self._done_since = 0.0
+        self._polled = 0.0
         self._rebirth = threading.Event()
         self._thread = threading.Thread(target=self._run, name="mqtt", daemon=True)
         self._ready = threading.Event()
@@ -263,6 +277,7 @@ class MqttFace:
         try:
             while not self._stop.is_set():
                 self._take(timeout=0.02)
+                self._poll()
                 if self._client is not None and self._host_offline.is_set():
                     self._host_offline.clear()     # the primary host went offline: NDEATH, disconnect, start over
                     if self.births:
@@ -275,6 +290,8 @@ class MqttFace:
                         continue
                 if self._client is not None and self._lost.is_set():
                     self._drop_client()
+                    self._take_acks()               # those that came: their rows are not sent again
+                    self._flush(force=True)
                     inflight.clear()
                     self._acked.clear()
                 if self._client is None:
@@ -295,16 +312,10 @@ class MqttFace:
                     self._rebirth.clear()
                     live_from = self.outbox.last_id() + 1
                     self._births(live_from)
-                done = []
-                while self._acked:
-                    row = inflight.pop(self._acked.popleft(), None)
-                    if row is not None:
-                        done.append(row)
-                if done:
-                    self.outbox.delete(done)
-                    self.sent += len(done)
+                self._take_acks()
+                self._flush()
                 if len(inflight) < MAX_INFLIGHT:
-                    rows = self.outbox.after(cursor, min(BATCH, MAX_INFLIGHT - len(inflight)))
+                    rows = self._rows_after(cursor, min(BATCH, MAX_INFLIGHT - len(inflight)))
                     for row_id, device, ts, values in rows:
                         if row_id >= live_from and self._dead_after:
                             self._deaths()
@@ -317,11 +328,13 @@ class MqttFace:
                             break
                         cursor = row_id
                         if mid == 0:
-                            self.outbox.delete([row_id])
+                            self._finished(row_id)
                         else:
                             inflight[mid] = row_id
-                    if not rows and self._dead_after and self._client is not None:
-                        self._deaths()
+                    if not rows:                   # nothing after the cursor: none to read until a newer row
+                        cursor = max(cursor, self.outbox.next_id - 1)
+                        if self._dead_after and self._client is not None:
+                            self._deaths()
         except Exception as e:  # noqa: BLE001 - the station alarms on it (health)
             log.exception("mqtt publisher failed")
             self.error = f"the publisher stopped: {type(e).__name__}: {e}"
@@ -329,8 +342,53 @@ class MqttFace:
             self._take(timeout=0)
             self._close()
 
+    def _poll(self, timeout: float = 0.0, force: bool = False) -> None:
+        """paho's network loop, run by this thread (no network thread: a publish writes to the
+        socket at once): read what came (PUBACKs, NCMD, STATE), write what is left, keepalive."""
+        c = self._client
+        if c is None or self._lost.is_set():
+            return
+        now = time.monotonic()
+        if not force and now - self._polled < POLL_S:
+            return
+        self._polled = now
+        if c.loop(timeout=timeout) != paho.MQTT_ERR_SUCCESS:
+            self._lost.set()
+
+    def _rows_after(self, cursor: int, limit: int) -> list[tuple[int, str, int, dict[str, Any]]]:
+        """The next rows to publish after `cursor`: from memory when the row after it is there
+        (the fresh records follow each other by id up to the newest), else from the outbox."""
+        fresh = self._fresh
+        while fresh and fresh[0][0] <= cursor:
+            fresh.popleft()
+        if cursor >= self.outbox.next_id - 1:
+            return []                          # nothing newer was queued
+        if fresh and fresh[0][0] == cursor + 1:
+            return list(islice(fresh, limit))
+        return self.outbox.after(cursor, limit)
+
+    def _take_acks(self) -> None:
+        while self._acked:
+            row = self._inflight.pop(self._acked.popleft(), None)
+            if row is not None:
+                self._finished(row)
+                self.sent += 1
+
+    def _finished(self, row_id: int) -> None:
+        if not self._done:
+            self._done_since = time.monotonic()
+        self._done.append(row_id)
+
+    def _flush(self, force: bool = False) -> None:
+        """Delete the acknowledged rows in one transaction: every DELETE_EVERY, after DELETE_S,
+        or now (`force`: before the outbox is read again, at a stop)."""
+        if self._done and (force or len(self._done) >= DELETE_EVERY
+                           or time.monotonic() - self._done_since >= DELETE_S):
+            done, self._done = self._done, []
+            self.outbox.delete(done)
+
     def _take(self, timeout: float) -> None:
-        """Queued records into the outbox, in one transaction."""
+        """Queued records into the outbox, in one transaction (committed), and into memory."""
         records = []
         try:
             records.append(self.queue.get(timeout=timeout) if timeout else self.queue.get_nowait())
@@ -349,10 +407,18 @@ class MqttFace:
             for k, v in values.items():
                 last[k] = (ts, v)
         try:
-            self.outbox.add(records)
+            dropped = self.outbox.dropped
+            first = self.outbox.add(records)
             self.error = None
         except Exception as e:  # noqa: BLE001 - disk full, I/O error: the station alarms on it
             self.error = f"cannot write the outbox {self.outbox_path}: {type(e).__name__}: {e}"
+            return
+        fresh = self._fresh                    # consecutive ids, up to the newest
+        if self.outbox.dropped != dropped:     # past buffer_max_frames: the oldest rows are gone
+            fresh.clear()
+        fresh.extend((first + k, dev, ts, values) for k, (dev, ts, values) in enumerate(records))
+        while len(fresh) > FRESH_MAX:
+            fresh.popleft()
 
     # -- MQTT ---------------------------------------------------------------------------------
 
@@ -398,8 +464,11 @@ class MqttFace:
         except (OSError, ValueError) as e:
             self._failed(f"cannot connect to {s.host}:{s.port}: {e}")
             return False
-        c.loop_start()
-        up.wait(10.0)
+        end = time.monotonic() + 10.0           # paho's loop is run by this thread (`_poll`)
+        while not up.is_set() and time.monotonic() < end:
+            if c.loop(timeout=0.1) != paho.MQTT_ERR_SUCCESS and not up.is_set():
+                dropped.append("the connection closed before the broker's CONNACK")
+                break
         if not result or result[0].is_failure or self._lost.is_set():
             if result and result[0].is_failure:
                 why = f"the broker refused the connection: {result[0]}"
@@ -408,7 +477,6 @@ class MqttFace:
             else:
                 why = dropped[0] if dropped else "no CONNACK within 10 s"
             self._failed(why)
-            c.loop_stop()
             c.disconnect()
             return False
         if self._said is not None:
@@ -436,8 +504,9 @@ class MqttFace:
         c, self._client = self._client, None
         self.connected = False
         self.births = False
-        if c is not None:
-            c.loop_stop()
+        sock = c.socket() if c is not None else None
+        if sock is not None:         # closed, not DISCONNECTed: the broker sends the will
+            sock.close()
 
     def _on_command(self, client, userdata, msg) -> None:
         if msg.topic.startswith(f"{sp.NAMESPACE}/STATE/"):
@@ -553,27 +622,26 @@ class MqttFace:
             s = self.settings
             death = sp.payload(None)
             sp.add_metric(death, "bdSeq", sp.INT64, self.bdseq, death.timestamp)
-            end, done = time.monotonic() + 3.0, []
+            end = time.monotonic() + 3.0
             while self._inflight and time.monotonic() < end and not self._lost.is_set():
-                while self._acked:    # the DDATA in flight: acknowledged rows leave the outbox
-                    row = self._inflight.pop(self._acked.popleft(), None)
-                    if row is not None:
-                        done.append(row)
-                time.sleep(0.01)
-            self.outbox.delete(done)
-            self.sent += len(done)
+                self._take_acks()     # the DDATA in flight: acknowledged rows leave the outbox
+                self._poll(0.01, force=True)
+            self._take_acks()
             try:
                 info = c.publish(sp.topic(s.group_id, "NDEATH", s.edge_node_id), death.SerializeToString(), qos=1)
-                info.wait_for_publish(2.0)
+                end = time.monotonic() + 2.0
+                while not info.is_published() and time.monotonic() < end and not self._lost.is_set():
+                    self._poll(0.05, force=True)
             except (RuntimeError, ValueError):
                 pass
             c.disconnect()
-            c.loop_stop()
         self._client = None
         self.connected = False
         self.births = False
-        if hasattr(self, "outbox") and not keep_outbox:
-            self.outbox.close()
+        if hasattr(self, "outbox"):
+            self._flush(force=True)
+            if not keep_outbox:
+                self.outbox.close()
 
 
 def start(stations: Any, table: dict) -> MqttFace:

@@ -1,9 +1,11 @@
 """The MQTT face's store-and-forward buffer: every DDATA's values, on disk, until the broker
 has acknowledged them (SQLite: `<data_dir>/mqtt-outbox.db`; in memory without a data_dir).
 
-Used by the publisher thread only. Rows are kept in the order they were queued (their id),
-a hoist's death or birth ({"$device": "death"}) among its data;
-past `max_rows` the oldest are dropped and counted. `meta` keeps the edge node's bdSeq
+Used by the publisher thread only. Rows are kept in the order they were queued (their id,
+given here: consecutive over one `add`), a hoist's death or birth ({"$device": "death"})
+among its data; past `max_rows` the oldest are dropped and counted. `add` commits (the
+durability point: a row added is sent, again after a crash if it was not acknowledged);
+`delete` takes the acknowledged rows in one transaction. `meta` keeps the edge node's bdSeq
 across restarts.
 """
 from __future__ import annotations
@@ -30,21 +32,26 @@ class Outbox:
         self.db.executescript(SCHEMA)
         self.dropped = 0
         self.rows = self.db.execute("SELECT COUNT(*) FROM outbox").fetchone()[0]
+        self.next_id = max(self.last_id(), self.db.execute("SELECT COALESCE(MAX(id), 0) FROM outbox").fetchone()[0]) + 1
 
     def add(self, records: Iterable[tuple[str, int, dict[str, Any]]]) -> int:
-        rows = [(dev, ts, json.dumps(values, separators=(",", ":"))) for dev, ts, values in records]
+        """Queue the records in one transaction; returns the id of the first (the others follow it)."""
+        first = self.next_id
+        rows = [(first + k, dev, ts, json.dumps(values, separators=(",", ":")))
+                for k, (dev, ts, values) in enumerate(records)]
         if not rows:
-            return 0
+            return first
         with self.db:   # one transaction
             self.db.execute("BEGIN")
-            self.db.executemany("INSERT INTO outbox (device, ts_ms, body) VALUES (?, ?, ?)", rows)
+            self.db.executemany("INSERT INTO outbox (id, device, ts_ms, body) VALUES (?, ?, ?, ?)", rows)
             self.rows += len(rows)
             if self.rows > self.max_rows:
                 over = self.rows - self.max_rows
                 self.db.execute("DELETE FROM outbox WHERE id IN (SELECT id FROM outbox ORDER BY id LIMIT ?)", (over,))
                 self.dropped += over
                 self.rows -= over
-        return len(rows)
+        self.next_id = first + len(rows)
+        return first
 
     def after(self, row_id: int, limit: int) -> list[tuple[int, str, int, dict[str, Any]]]:
         cur = self.db.execute("SELECT id, device, ts_ms, body FROM outbox WHERE id > ? ORDER BY id LIMIT ?",
@@ -55,8 +62,8 @@ class Outbox:
         if ids:
             with self.db:
                 self.db.execute("BEGIN")
-                self.db.executemany("DELETE FROM outbox WHERE id = ?", [(i,) for i in ids])
-            self.rows -= len(ids)
+                cur = self.db.executemany("DELETE FROM outbox WHERE id = ?", [(i,) for i in ids])
+            self.rows -= cur.rowcount
 
     def last_id(self) -> int:
         """The id of the newest row ever queued (0: none)."""
