@@ -7,6 +7,7 @@ timing (NODE SILENT after silent_s) is exact.
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 from ropemon.lab.localnet import free_port  # noqa: F401  (the SCADA tests' ports)
@@ -58,3 +59,13 @@ class Rig:
 
     def close(self) -> None:
         self.stations.close()
+
+
+def wait(cond, timeout=20.0, what="condition"):
+    """Poll `cond` until true; fail naming `what` after `timeout` s."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")

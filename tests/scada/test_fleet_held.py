@@ -17,32 +17,14 @@ pytest.importorskip("paho.mqtt")
 
 import paho.mqtt.client as paho  # noqa: E402
 
-from ropemon.lab.localnet import Broker, available  # noqa: E402
 from ropemon.station.mqtt import fleet as fleet_mod  # noqa: E402
 from ropemon.station.mqtt import sparkplug as sp  # noqa: E402
 from ropemon.station.mqtt.fleet import Fleet, Historian  # noqa: E402
+from scada_rig import wait  # noqa: E402
 
 GROUP, EDGE = "mine", "shaft-9"
 METRICS = [f"node1/rope{r}/tension" for r in range(1, 5)] + ["node1/frame_seq"]
 ALIAS = {"h0": {n: k + 1 for k, n in enumerate(METRICS)}, "h1": {n: k + 11 for k, n in enumerate(METRICS)}}
-
-
-@pytest.fixture
-def broker(tmp_path):
-    if not available():
-        pytest.fail("mosquitto is missing: `make test` installs it (apt-get install mosquitto, as root)")
-    b = Broker(tmp_path)
-    yield b
-    b.close()
-
-
-def wait(cond, timeout=20.0, what="condition"):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def ddata(device: str, seq: int, frame_seq: int) -> bytes:

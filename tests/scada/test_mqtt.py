@@ -3,7 +3,6 @@ store-and-forward across a broker kill, and the fleet consumer's historian."""
 from __future__ import annotations
 
 import socket
-import sqlite3
 import threading
 import time
 
@@ -13,30 +12,11 @@ pytest.importorskip("paho.mqtt")
 
 import paho.mqtt.client as paho  # noqa: E402
 
-from ropemon.lab.localnet import Broker, available  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.mqtt import sparkplug as sp  # noqa: E402
 from ropemon.station.mqtt.fleet import Fleet, Historian  # noqa: E402
 from ropemon.station.stationfile import StationFileError  # noqa: E402
-from scada_rig import Rig  # noqa: E402
-
-
-@pytest.fixture
-def broker(tmp_path):
-    if not available():
-        pytest.fail("mosquitto is missing: `make test` installs it (apt-get install mosquitto, as root)")
-    b = Broker(tmp_path)
-    yield b
-    b.close()
-
-
-def wait(cond, timeout=20.0, what="condition"):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
+from scada_rig import Rig, wait  # noqa: E402
 
 
 class Spy:

@@ -10,21 +10,11 @@ import pytest
 
 pytest.importorskip("paho.mqtt")
 
-from ropemon.lab.localnet import Broker, available  # noqa: E402
 from ropemon.station import mqtt as face_mod  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.mqtt.outbox import Outbox  # noqa: E402
-from scada_rig import Rig, free_port  # noqa: E402
-from test_mqtt import Spy, metric, mqtt_table, wait  # noqa: E402
-
-
-@pytest.fixture
-def broker(tmp_path):
-    if not available():
-        pytest.fail("mosquitto is missing: `make test` installs it (apt-get install mosquitto, as root)")
-    b = Broker(tmp_path)
-    yield b
-    b.close()
+from scada_rig import Rig, free_port, wait  # noqa: E402
+from test_mqtt import Spy, metric, mqtt_table  # noqa: E402
 
 
 def test_fresh_records_go_out_from_memory_and_acknowledged_rows_are_not_sent_again(tmp_path, broker, monkeypatch):

@@ -23,7 +23,7 @@ from cryptography.x509.oid import NameOID  # noqa: E402
 from ropemon.lab.localnet import Broker, available  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.mqtt.fleet import Fleet, Historian  # noqa: E402
-from scada_rig import Rig  # noqa: E402
+from scada_rig import Rig, wait  # noqa: E402
 
 USERS = {"ropemon": "rope-s3cret", "fleet": "fleet-s3cret"}
 
@@ -75,15 +75,6 @@ def tls_broker(tmp_path):
     b = Broker(tmp_path, users=USERS, tls=make_pki(pki))
     yield b
     b.close()
-
-
-def wait(cond, timeout=20.0, what="condition"):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def station(d: Path, port: int, edge: str, password: str, tls_ca: bool = True, n: int = 1) -> Rig:

@@ -22,10 +22,9 @@ pytest.importorskip("paho.mqtt")
 
 import paho.mqtt.client as paho  # noqa: E402
 
-from ropemon.lab.localnet import Broker, available  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.stationfile import StationFileError  # noqa: E402
-from scada_rig import Rig  # noqa: E402
+from scada_rig import Rig, wait  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 TAHU = Path(__file__).with_name("tahu_decode.js")
@@ -41,15 +40,6 @@ NODE1 = {**{f"node1/rope{r}/tension": ("Double", "kN") for r in range(1, 5)},
          "vouched": ("Boolean", None)}
 
 
-@pytest.fixture
-def broker(tmp_path):
-    if not available():
-        pytest.fail("mosquitto is missing: `make test` installs it (apt-get install mosquitto, as root)")
-    b = Broker(tmp_path)
-    yield b
-    b.close()
-
-
 def tahu(payloads: list[bytes]) -> list[dict]:
     """Decode with Eclipse Tahu's JavaScript codec (64-bit integers come back as strings)."""
     node = shutil.which("node")
@@ -59,15 +49,6 @@ def tahu(payloads: list[bytes]) -> list[dict]:
                          capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout)
-
-
-def wait(cond, timeout=20.0, what="condition"):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 class RawSpy:
