@@ -352,14 +352,10 @@ class _History:
         hoists = [h for h in hoists if h.db_path is not None]
         if not hoists:
             return [], None
-        epoch = ua.get_win_epoch()
-        t0 = None if start is None or start == epoch else start.timestamp()
-        t1 = None if end is None or end == epoch else end.timestamp()
-        if t0 is None and t1 is None:
+        span = _span(start, end, nb_values)
+        if span is None:
             return [], None
-        newest_first = t0 is None or (t1 is not None and t0 > t1)
-        lo, hi = (t1, t0) if (t0 is not None and t1 is not None and t0 > t1) else (t0, t1)
-        want = min(nb_values or HISTORY_MAX_VALUES, HISTORY_MAX_VALUES)
+        lo, hi, newest_first, want = span
         rows: list[tuple[str, dict]] = []
         for h in hoists:
             got = await asyncio.get_running_loop().run_in_executor(
@@ -399,18 +395,13 @@ class _History:
         self._stores.clear()
 
     async def read_node_history(self, node_id: Any, start: Any, end: Any, nb_values: int):
-        from asyncua import ua
         spec = self.series.get(node_id)
         if spec is None:
             return [], None
-        epoch = ua.get_win_epoch()
-        t0 = None if start is None or start == epoch else start.timestamp()
-        t1 = None if end is None or end == epoch else end.timestamp()
-        if t0 is None and t1 is None:
+        span = _span(start, end, nb_values)
+        if span is None:
             return [], None
-        newest_first = t0 is None or (t1 is not None and t0 > t1)
-        lo, hi = (t1, t0) if (t0 is not None and t1 is not None and t0 > t1) else (t0, t1)
-        want = min(nb_values or HISTORY_MAX_VALUES, HISTORY_MAX_VALUES)
+        lo, hi, newest_first, want = span
         rows = await asyncio.get_running_loop().run_in_executor(
             self._pool, self._query, spec, lo, hi, want + 1, newest_first)
         cont = None
@@ -439,6 +430,20 @@ class _History:
         if store is None:
             return []
         return store.rope_series(node, rope, lo, hi, limit, newest_first)
+
+
+def _span(start: Any, end: Any, nb_values: int) -> tuple[float | None, float | None, bool, int] | None:
+    """A history read's (lo, hi, newest first, how many) from OPC UA's start, end and count
+    (an unset time is the Windows epoch); None when neither time is set (nothing to read)."""
+    from asyncua import ua
+    epoch = ua.get_win_epoch()
+    t0 = None if start is None or start == epoch else start.timestamp()
+    t1 = None if end is None or end == epoch else end.timestamp()
+    if t0 is None and t1 is None:
+        return None
+    newest_first = t0 is None or (t1 is not None and t0 > t1)
+    lo, hi = (t1, t0) if (t0 is not None and t1 is not None and t0 > t1) else (t0, t1)
+    return lo, hi, newest_first, min(nb_values or HISTORY_MAX_VALUES, HISTORY_MAX_VALUES)
 
 
 def _utc(t: float) -> datetime.datetime:
