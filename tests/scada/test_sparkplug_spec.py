@@ -306,6 +306,7 @@ def test_the_fleet_names_ddata_from_the_births_and_asks_a_rebirth_when_it_missed
              what="the held DDATA written once the rebirth named them")
         assert fleet.stats["rebirths_asked"] == 1 and fleet.stats["held"] >= 1
         assert len(spy.kinds("NCMD")) == 1 and len(spy.kinds("NBIRTH")) == 2   # the station was born again
+        assert face.sessions == 1                              # ... in the same session
         for _ in range(3):
             rig.feed("h0", (6000, 5000, 4900, 5100))
         wait(lambda: hist.conn.execute("SELECT COUNT(*) FROM tension").fetchone()[0] == 2 * 5 * 4 + 3 * 4,
@@ -320,6 +321,8 @@ def test_the_fleet_names_ddata_from_the_births_and_asks_a_rebirth_when_it_missed
                             "ORDER BY device, frame_seq").fetchall()
     assert got == ([("h0", s, (5000 + s - 1) / 100) for s in range(1, 6)] + [("h0", s, 60.0) for s in (6, 7, 8)]
                    + [("h1", s, (5000 + s - 1) / 100) for s in range(1, 6)])
+    # queued and sent within the session: live, the rebirth does not make them historical
+    assert hist.conn.execute("SELECT COUNT(*) FROM tension WHERE historical").fetchone()[0] == 0
     # a late will of an older connection does not make the fleet forget the new session's aliases
     assert fleet.bdseq[("mine", "shaft-2")] == face.bdseq
     hist.close()

@@ -89,9 +89,20 @@ class Broker:
         raise RuntimeError("mosquitto did not listen within 10 s")
 
     def saves(self) -> int:
-        """How many times the broker has saved its sessions to disk (its log's count)."""
+        """How many times the broker has begun saving its sessions to disk (its log's count; the
+        line is written before the save, which a SIGKILL can still cut short: see `saved`)."""
         log = self.dir / "mosquitto.log"
         return log.read_text(errors="replace").count("Saving in-memory database") if log.exists() else 0
+
+    def saved(self) -> tuple[int, int, int] | None:
+        """The sessions file of the broker's last completed save, (inode, mtime ns, size); None
+        before the first. Mosquitto writes mosquitto.db.new and renames it over mosquitto.db, so
+        a value that changed means a save has finished since, and a restart will load it."""
+        try:
+            st = (self.dir / "mosquitto.db").stat()
+        except FileNotFoundError:
+            return None
+        return (st.st_ino, st.st_mtime_ns, st.st_size)
 
     def kill(self) -> None:
         if self.proc is not None and self.proc.poll() is None:

@@ -30,7 +30,8 @@ and kept in memory too: records newer than what has been published go out from m
 ones (a backlog, a previous run's) are read back from the outbox. A row leaves the outbox when
 the broker acknowledges it (QoS 1): acknowledged rows are deleted together, every
 `DELETE_EVERY` acknowledgements or `DELETE_S`, and before the outbox is read again after a
-reconnection. A row queued before the current session's births goes out with is_historical.
+reconnection. A row queued before the current session's births goes out with is_historical;
+a rebirth asked by a host (NCMD) within the session does not move that line.
 """
 from __future__ import annotations
 
@@ -308,10 +309,9 @@ class MqttFace:
                     live_from = self.outbox.last_id() + 1
                     cursor = 0
                     self._births(live_from)
-                if self._rebirth.is_set():
-                    self._rebirth.clear()
-                    live_from = self.outbox.last_id() + 1
-                    self._births(live_from)
+                if self._rebirth.is_set():       # asked by a host (NCMD): the same session, born again;
+                    self._rebirth.clear()        # what was queued in it since its births stays live
+                    self._births(live_from, rebirth=True)
                 self._take_acks()
                 self._flush()
                 if len(inflight) < MAX_INFLIGHT:
@@ -551,10 +551,11 @@ class MqttFace:
         self.seq = (self.seq + 1) % 256
         return self.seq
 
-    def _births(self, live_from: int) -> None:
+    def _births(self, live_from: int, rebirth: bool = False) -> None:
         """NBIRTH (seq 0, bdSeq) and the DBIRTH of each hoist heard now or with stored data to
         send, with every metric's name, alias, unit and newest value. A hoist born only for its
-        stored data is declared dead (DDEATH) once that data is out (`_deaths`)."""
+        stored data is declared dead (DDEATH) once that data is out (`_deaths`). `rebirth`: asked
+        by a host (NCMD) within the session, not a new session (`sessions` counts connections)."""
         s = self.settings
         self.seq = 0
         nb = sp.payload(0)
@@ -568,7 +569,8 @@ class MqttFace:
                 self._dbirth(device)
         self._dead_after = [d for d in self.devices if self.born[d] and not self.alive[d]]
         self.births = True
-        self.sessions += 1
+        if not rebirth:
+            self.sessions += 1
 
     def _dbirth(self, device: str) -> None:
         s = self.settings

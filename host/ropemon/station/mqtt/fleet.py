@@ -183,7 +183,7 @@ class Fleet:
         self._hold_gone: list[int] = []        # held ids to delete in it (named and written, or dropped)
         self._dropped_said: dict[tuple[str, str, str], tuple[float, int]] = {}   # dkey -> (logged at, dropped then)
         self._asked: dict[tuple[str, str], float] = {}                  # (group, edge) -> rebirth asked at
-        self.connected = threading.Event()
+        self.connected = threading.Event()       # subscribed: the broker acknowledged the subscription
         self.lock = threading.Lock()
         self.error: str | None = None                  # the historian cannot be written (the writer retries)
         self._names: dict[str, tuple[str, int, int] | None] = {}   # metric name -> ("t"|"s", node, rope)
@@ -202,6 +202,7 @@ class Fleet:
         c.on_connect = self._on_connect
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
+        c.on_subscribe = self._on_subscribe
         self.host, self.port = host, port
         for hid, group, edge, device, topic, data, arrival_ms in historian.held():   # a previous run's
             self.held.setdefault((group, edge, device), deque()).append((hid, topic, bytes(data), arrival_ms))
@@ -229,7 +230,14 @@ class Fleet:
             with self.lock:                  # held messages (of a previous run too): ask their births
                 for group, edge in {k[:2] for k, q in self.held.items() if q}:
                     self._ask_rebirth(group, edge)
+
+    def _on_subscribe(self, client, userdata, mid, reasons, props) -> None:
+        """SUBACK: from now on the broker sends this consumer what is published (births are QoS 0,
+        not kept for a consumer not yet subscribed), so `connected` is set only now."""
+        if reasons and not any(r.is_failure for r in reasons):
             self.connected.set()
+        else:
+            log.warning("fleet: the broker refused the subscription to %s: %s", self.topic, reasons)
 
     def _on_disconnect(self, *args: Any) -> None:
         with self._ack_lock:
