@@ -1,6 +1,7 @@
 """`ropemon replay`: the firmware in micropython (and CPython) on a sensor stream."""
 import json
 import struct
+from pathlib import Path
 
 import pytest
 
@@ -153,3 +154,25 @@ def test_db_refusals_name_the_reason(wind, tmp_path, capsys):
     assert main(["replay", s, "--config", str(cfg), "--db", str(tmp_path / "n.db"), "--out", str(out)]) == 1
     assert "nokey.json: node.key: must be 16..32 bytes" in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "n.db").exists()   # refused before the firmware ran
+
+
+def test_db_says_and_fails_when_the_decoder_refuses_frames(wind, tmp_path, capsys, monkeypatch):
+    """The log is built from the node's own bytes: a frame the decoder refuses (here one byte
+    of the third frame flipped after the firmware wrote it) leaves it incomplete, and the
+    command says so and fails."""
+    from ropemon.commission import replay as rp
+    real = rp.replay
+
+    def corrupting(sensors, out, config, interpreter):
+        fig = real(sensors, out, config, interpreter)
+        data = bytearray(Path(out).read_bytes())
+        third = [i for i, b in enumerate(data) if b == 0][4]   # frames are 0x00 .. 0x00
+        data[third + 5] ^= 0x40
+        Path(out).write_bytes(bytes(data))
+        return fig
+
+    monkeypatch.setattr(rp, "replay", corrupting)
+    db = tmp_path / "bad.db"
+    assert main(["replay", str(wind / "sensors.rsens"), "--config", str(wind / "node.json"), "--db", str(db)]) == 1
+    cap = capsys.readouterr()
+    assert "1 frames refused by the decoder" in cap.out and "lacks them" in cap.err

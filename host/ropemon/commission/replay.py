@@ -253,4 +253,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.db}: {st['frames']} frames stored, {st['trips']} trips"
               + (f", {bad} frames refused by the decoder ({d})" if bad else ""))
         print(alarm_summary(st))
+        if bad:   # the node's own bytes with its own key: a refusal means the log is incomplete
+            print(f"ropemon replay: {bad} frames refused by the decoder: {args.db} lacks them", file=sys.stderr)
+            return 1
     return 0
