@@ -238,6 +238,17 @@ def test_anonymous_and_wrong_password_refused(rig, client_cert):
     asyncio.run(go())
 
 
+def test_allow_anonymous_admits_a_client_without_a_name_over_the_secure_channel(client_cert):
+    """Every endpoint signs and encrypts, so an anonymous session always comes with the channel's
+    certificate: allow_anonymous admits it (with no name: a viewer), and without it it is refused."""
+    from ropemon.station.opcua import _UserManager
+    cert = client_cert[0].read_bytes()
+    user = _UserManager(None, allow_anonymous=True).get_user(None, certificate=cert)
+    assert user is not None and user.name is None
+    assert _UserManager(None, allow_anonymous=False).get_user(None, certificate=cert) is None
+    assert _UserManager(None, allow_anonymous=True).get_user(None, "alice", "pw", certificate=cert) is None
+
+
 def test_history_read_returns_the_stored_tensions(rig, client_cert):
     t0 = time.time()
     for t in (7000, 7100, 7200):

@@ -303,7 +303,7 @@ class _UserManager:
                 from asyncua.common.utils import ServiceError
                 log.warning("OPC UA session refused: %s", why)
                 raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
-        if username is None and password is None and certificate is None:
+        if username is None and password is None:   # an anonymous token (over a secure channel: with its certificate)
             return User(role=UserRole.User, name=None) if self.allow_anonymous else None
         if self.users is None or not username or password is None:
             return None
