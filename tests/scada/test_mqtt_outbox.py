@@ -73,3 +73,90 @@ def test_a_row_committed_but_not_acknowledged_is_sent_by_the_next_run(tmp_path, 
     data = [p for _, p in spy.kinds("DDATA")]
     assert [metric(p, "node1/frame_seq") for p in data] == [1, 2, 3]
     assert all(m.is_historical for p in data for m in p.metrics)
+
+
+class _Sent:
+    def __init__(self, mid: int) -> None:
+        self.mid, self.rc = mid, 0
+
+    def is_published(self) -> bool:
+        return True
+
+
+class _NoAckClient:
+    """A paho client that takes every publish and acknowledges none (the test does)."""
+
+    def __init__(self) -> None:
+        self.mid, self.sent = 0, []
+
+    def publish(self, topic, payload, qos=0, retain=False):
+        self.mid += 1
+        self.sent.append((topic, payload))
+        return _Sent(self.mid)
+
+    def loop(self, timeout=0):
+        return 0
+
+    def disconnect(self):
+        pass
+
+    def socket(self):
+        return None
+
+
+def test_a_rebirth_sends_a_quiet_hoists_rows_still_to_publish_before_its_ddeath(tmp_path, monkeypatch):
+    """A host's rebirth while the publisher is behind (MAX_INFLIGHT unacknowledged) and a hoist's
+    newest record is its death: the hoist is born again for its live rows still to send, which
+    go out, then its DDEATH (none deleted unsent); a hoist whose DDEATH was already out and has
+    only a dropped alarm row still to send is not born."""
+    from types import SimpleNamespace
+
+    from ropemon.station.mqtt import sparkplug as sp
+
+    fake = _NoAckClient()
+
+    def connect(self):
+        self.bdseq = (self.bdseq + 1) % 256
+        self._client, self.connected, self.births, self.seq = fake, True, False, 0
+        return True
+
+    monkeypatch.setattr(face_mod.MqttFace, "_connect", connect)
+    monkeypatch.setattr(face_mod.MqttFace, "_poll", lambda self, timeout=0.0, force=False: None)
+    hoists = {h: SimpleNamespace(id=h, keys={1: None}) for h in ("h0", "h1")}
+    stations = SimpleNamespace(hoists=hoists, file=SimpleNamespace(data_dir=None))
+    face = face_mod.MqttFace(stations, face_mod.Settings({"group_id": "g", "edge_node_id": "e"}, tmp_path, "s"))
+    n = 500
+    face.start()
+    try:
+        wait(lambda: face.births, 5, "the session's births")
+        face.queue.put(("h1", 900, {face_mod.DEVICE: "death"}))            # h1 quiet: its DDEATH goes out now
+        wait(lambda: any("/DDEATH/" in t for t, _ in fake.sent), 5, "h1's DDEATH")
+        for i in range(n):
+            face.queue.put(("h0", 1000 + i, {"node1/frame_seq": i}))
+        face.queue.put(("h1", 1600, {"alarms/present": 1}))               # a dead hoist's alarm row: dropped
+        face.queue.put(("h0", 1700, {face_mod.DEVICE: "death"}))           # h0 goes quiet
+        wait(lambda: face.outbox.rows == n + 3 and len(face._inflight) == face_mod.MAX_INFLIGHT, 5,
+             "the publisher behind, MAX_INFLIGHT in flight")
+        before = len(fake.sent)
+        face._rebirth.set()                                                 # NCMD Node Control/Rebirth
+        wait(lambda: any("/NBIRTH/" in t for t, _ in fake.sent[before:]), 5, "the rebirth")
+        acked = 0
+
+        def ack_all() -> bool:
+            nonlocal acked
+            face._acked.extend(range(acked + 1, fake.mid + 1))              # the broker acknowledges
+            acked = fake.mid
+            return face.outbox.rows == 0 and not face._inflight
+        wait(ack_all, 10, "every row acknowledged or dropped")
+        sent = list(fake.sent)                                              # (the stop adds its NDEATH)
+    finally:
+        face.stop()
+    kinds = [(t.split("/")[2], t.split("/")[4:]) for t, _ in sent]        # (type, [device])
+    seqs = [sp.metric_value(m) for t, p in sent if "/DDATA/" in t for m in sp.decode(p).metrics]
+    assert seqs == list(range(n))                                           # every committed row, in order, once
+    after = kinds[before:]
+    nbirth = after.index(("NBIRTH", []))
+    assert [k for k in after[nbirth:] if k[0] != "DDATA"] == [("NBIRTH", []), ("DBIRTH", ["h0"]),
+                                                               ("DDEATH", ["h0"])]
+    assert after[-1] == ("DDEATH", ["h0"])                                   # after all of h0's data
+    assert not any(k[1] == ["h1"] for k in after[nbirth:])                   # h1 stays dead: no DBIRTH, no DDATA

@@ -273,7 +273,7 @@ class MqttFace:
         retry_at, delay = 0.0, RETRY_S[0]
         cursor = 0                    # the newest outbox row published in this session
         live_from = 1 << 62           # rows from this id on were queued after this session's births
-        self._dead_after: list[str] = []   # born for their stored data, dead now: DDEATH once it is out
+        self._dead_after: list[str] = []   # born for their stored data, dead at the live rows: DDEATH once it is out
         inflight = self._inflight      # mid -> outbox row id
         try:
             while not self._stop.is_set():
@@ -311,7 +311,7 @@ class MqttFace:
                     self._births(live_from)
                 if self._rebirth.is_set():       # asked by a host (NCMD): the same session, born again;
                     self._rebirth.clear()        # what was queued in it since its births stays live
-                    self._births(live_from, rebirth=True)
+                    self._births(live_from, cursor, rebirth=True)
                 self._take_acks()
                 self._flush()
                 if len(inflight) < MAX_INFLIGHT:
@@ -551,23 +551,31 @@ class MqttFace:
         self.seq = (self.seq + 1) % 256
         return self.seq
 
-    def _births(self, live_from: int, rebirth: bool = False) -> None:
-        """NBIRTH (seq 0, bdSeq) and the DBIRTH of each hoist heard now or with stored data to
-        send, with every metric's name, alias, unit and newest value. A hoist born only for its
-        stored data is declared dead (DDEATH) once that data is out (`_deaths`). `rebirth`: asked
-        by a host (NCMD) within the session, not a new session (`sessions` counts connections)."""
+    def _births(self, live_from: int, cursor: int = 0, rebirth: bool = False) -> None:
+        """NBIRTH (seq 0, bdSeq) and the DBIRTH of each hoist heard where publishing stands (the
+        rows after `cursor` are still to send) or with stored data still to send, with every
+        metric's name, alias, unit and newest value. Where publishing stands, a hoist is as its
+        first live death or birth row still to send says it was before it (a death: heard), or as
+        of now without one: its rows still to send then replay its deaths and births in order. A
+        hoist born only for its stored data is declared dead (DDEATH) once that data is out
+        (`_deaths`). `rebirth`: asked by a host (NCMD) within the session, not a new session
+        (`sessions` counts connections)."""
         s = self.settings
         self.seq = 0
         nb = sp.payload(0)
         sp.add_metric(nb, "bdSeq", sp.INT64, self.bdseq, nb.timestamp)
         sp.add_metric(nb, "Node Control/Rebirth", sp.BOOLEAN, False, nb.timestamp)
         self._publish(sp.topic(s.group_id, "NBIRTH", s.edge_node_id), nb, 0)
-        stored = self.outbox.devices_before(live_from) if not all(self.alive.values()) else set()
+        start = max(cursor + 1, live_from)         # the first live row still to send
+        first = self.outbox.first_states(start) if start < self.outbox.next_id else {}
+        alive = {d: first[d] == "death" if d in first else self.alive[d] for d in self.devices}
+        stored = (self.outbox.devices_between(cursor, live_from)
+                  if cursor + 1 < live_from and not all(alive.values()) else set())
         self.born = {d: False for d in self.devices}
         for device in self.devices:
-            if self.alive[device] or device in stored:
+            if alive[device] or device in stored:
                 self._dbirth(device)
-        self._dead_after = [d for d in self.devices if self.born[d] and not self.alive[d]]
+        self._dead_after = [d for d in self.devices if self.born[d] and not alive[d]]
         self.births = True
         if not rebirth:
             self.sessions += 1

@@ -70,11 +70,17 @@ class Outbox:
         row = self.db.execute("SELECT seq FROM sqlite_sequence WHERE name = 'outbox'").fetchone()
         return row[0] if row else 0
 
-    def devices_before(self, row_id: int) -> set[str]:
-        """The devices with data rows (not deaths or births) older than `row_id`."""
-        cur = self.db.execute("SELECT DISTINCT device FROM outbox WHERE id < ? AND body NOT LIKE '{\"$device\"%'",
-                              (row_id,))
+    def devices_between(self, after: int, before: int) -> set[str]:
+        """The devices with data rows (not deaths or births) after `after` and older than `before`."""
+        cur = self.db.execute("SELECT DISTINCT device FROM outbox WHERE id > ? AND id < ? "
+                              "AND body NOT LIKE '{\"$device\"%'", (after, before))
         return {d for (d,) in cur}
+
+    def first_states(self, row_id: int) -> dict[str, str]:
+        """Each device's first death or birth row from `row_id` on: device -> "death" | "birth"."""
+        cur = self.db.execute("SELECT device, body FROM outbox WHERE id IN (SELECT MIN(id) FROM outbox "
+                              "WHERE id >= ? AND body LIKE '{\"$device\"%' GROUP BY device)", (row_id,))
+        return {d: json.loads(b)["$device"] for d, b in cur}
 
     def meta(self, key: str, default: int) -> int:
         row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
