@@ -34,11 +34,24 @@ low rate, many messages per commit under load) and only then acknowledges those 
 (PUBACK, in arrival order; paho's manual ack). Decoding in the writer keeps the network thread
 idle, so the writer seldom waits for the GIL between SQLite's steps. A message whose rows are not committed is
 not acknowledged, so the broker delivers it again (to this session, after a reconnect).
+
+What the station cannot have sent is refused, not written: a tension or frame_seq metric whose
+node number is not 0..MAX_NODE or rope number not 1..MAX_ROPE, a frame_seq that is not an integer
+in 0..2**63-1 (SQLite's INTEGER, PostgreSQL's BIGINT; the tensions of its node go with it), a
+tension that is neither null nor a finite number, a timestamp past MAX_TS_MS. Each refused metric
+is counted (`stats["refused"]`) and logged (a warning at the first, then at most every
+REFUSE_LOG_S with the count). A batch whose transaction fails for a reason of its data (not the
+database: `_data_error`) is written again message by message: a message the database still
+refuses (or one that cannot be decoded at all) is dropped, counted (`stats["refused_messages"]`),
+logged and acknowledged, so that it is not delivered again forever; the others are committed and
+acknowledged in order. A database that cannot be written at all (disk full, locked, gone) keeps
+the whole batch, unacknowledged, and the writer tries it again every second.
 """
 from __future__ import annotations
 
 import argparse
 import logging
+import math
 import queue
 import re
 import signal
@@ -51,8 +64,13 @@ from collections import deque
 from typing import Any
 
 log = logging.getLogger(__name__)
-TENSION = re.compile(r"^node(\d+)/rope(\d+)/tension$")
-SEQ = re.compile(r"^node(\d+)/frame_seq$")
+TENSION = re.compile(r"^node([0-9]+)/rope([0-9]+)/tension$")
+SEQ = re.compile(r"^node([0-9]+)/frame_seq$")
+MAX_NODE = 255           # a node id is one byte (docs/protocol.md)
+MAX_ROPE = 255           # ropes count from 1
+MAX_SEQ = 2**63 - 1      # frame_seq is a UInt64; the historian's column a signed 64-bit integer
+MAX_TS_MS = 253_402_300_799_999   # 9999-12-31 23:59:59.999 UTC: beyond it PostgreSQL's to_timestamp fails
+REFUSE_LOG_S = 60.0      # refused metrics and messages logged at most this often (after the first)
 HOLD = 10_000            # DDATA held per hoist while its aliases are unknown (1,000 s at 10 frames/s)
 HOLD_TOTAL = 100_000     # DDATA held in all (about 40 MB at 400 bytes each), over every hoist
 DROP_LOG_S = 60.0        # a hoist's dropped held DDATA logged at most this often (after the first)
@@ -171,7 +189,8 @@ class Fleet:
         self.historian = historian
         self.topic = f"spBv1.0/{group}/#"
         self.stats = {"births": 0, "deaths": 0, "ddata": 0, "rows": 0, "seq_gaps": 0, "historical": 0,
-                      "commits": 0, "held": 0, "dropped": 0, "rebirths_asked": 0}
+                      "commits": 0, "held": 0, "dropped": 0, "rebirths_asked": 0, "refused": 0,
+                      "refused_messages": 0}
         self.seq: dict[tuple[str, str], int] = {}     # (group, edge) -> last seq
         self.bdseq: dict[tuple[str, str], int] = {}   # (group, edge) -> bdSeq of its NBIRTH
         self.aliases: dict[tuple[str, str, str], dict[int, str]] = {}   # (group, edge, device) -> alias -> name
@@ -183,6 +202,7 @@ class Fleet:
         self._hold_gone: list[int] = []        # held ids to delete in it (named and written, or dropped)
         self._dropped_said: dict[tuple[str, str, str], tuple[float, int]] = {}   # dkey -> (logged at, dropped then)
         self._asked: dict[tuple[str, str], float] = {}                  # (group, edge) -> rebirth asked at
+        self._refused_said: tuple[float | None, int] = (None, 0)        # (logged at, refused since)
         self.connected = threading.Event()       # subscribed: the broker acknowledged the subscription
         self.lock = threading.Lock()
         self.error: str | None = None                  # the historian cannot be written (the writer retries)
@@ -248,11 +268,34 @@ class Fleet:
         self._queue.put((self._session, msg.mid, msg.qos, msg.topic, msg.payload))
 
     def _name(self, name: str) -> tuple[str, int, int] | None:
+        """("t", node, rope) of a tension, ("s", node, 0) of a frame_seq, ("bad", 0, 0) of either
+        with a node or rope number the station cannot have sent, None of any other metric."""
         t = TENSION.match(name)
         if t is not None:
-            return ("t", int(t.group(1)), int(t.group(2)))
+            node, rope = t.group(1), t.group(2)
+            if len(node) > 3 or len(rope) > 3 or not (0 <= int(node) <= MAX_NODE and 1 <= int(rope) <= MAX_ROPE):
+                return ("bad", 0, 0)
+            return ("t", int(node), int(rope))
         s = SEQ.match(name)
-        return ("s", int(s.group(1)), 0) if s is not None else None
+        if s is None:
+            return None
+        node = s.group(1)
+        return ("s", int(node), 0) if len(node) <= 3 and int(node) <= MAX_NODE else ("bad", 0, 0)
+
+    def _refuse(self, topic: str, reason: str, n: int = 1, what: str = "refused") -> None:
+        """Count n refused metrics (or messages: what="refused_messages") and log it, a warning at
+        the first and then at most every REFUSE_LOG_S with the count since (self.lock held)."""
+        self.stats[what] += n
+        now = time.monotonic()
+        said_at, since = self._refused_said
+        since += n
+        if said_at is None or now - said_at >= REFUSE_LOG_S:
+            log.warning("fleet: %s: %s not written: %s (%d refused since the last warning, this one included; "
+                        "in all %s)",
+                        topic, "metric(s)" if what == "refused" else "message", reason, since,
+                        {k: self.stats[k] for k in ("refused", "refused_messages")})
+            said_at, since = now, 0
+        self._refused_said = (said_at, since)
 
     def rows_of(self, topic: str, payload: bytes) -> list[tuple]:
         """One message's historian rows (none for births, deaths and what is not Sparkplug)."""
@@ -298,7 +341,7 @@ class Fleet:
                         if any(not m.name and m.alias not in aliases for m in q.metrics):
                             still.append(item)       # this DBIRTH does not name it either: held on
                             continue
-                        rows += self._ddata_rows(dkey, q)
+                        rows += self._ddata_rows(dkey, q, item[1])
                         self._hold_gone.append(item[0])
                         self.held_count -= 1
                     if still:
@@ -310,10 +353,11 @@ class Fleet:
             if any(not m.name and m.alias not in aliases for m in p.metrics):
                 self._hold(dkey, topic, payload)
                 return []
-            return self._ddata_rows(dkey, p)
+            return self._ddata_rows(dkey, p, topic)
 
-    def _ddata_rows(self, dkey: tuple[str, str, str], p: Any) -> list[tuple]:
-        """A DDATA's tension rows, its metrics named by the DBIRTH's aliases (self.lock held)."""
+    def _ddata_rows(self, dkey: tuple[str, str, str], p: Any, topic: str) -> list[tuple]:
+        """A DDATA's tension rows, its metrics named by the DBIRTH's aliases; what the station cannot
+        have sent refused (module docstring) (self.lock held)."""
         from ropemon.station.mqtt import sparkplug as sp
         group, edge, device = dkey
         aliases = self.aliases.get(dkey, {})
@@ -328,16 +372,34 @@ class Fleet:
                 what = names[name] = self._name(name) if len(names) < 100_000 else None
             if what is None:
                 continue
-            if what[0] == "s":
-                seqs[what[1]] = sp.metric_value(m)
+            if what[0] == "bad":
+                self._refuse(topic, f"{name!r:.60}: node not 0..{MAX_NODE} or rope not 1..{MAX_ROPE}")
+            elif what[0] == "s":
+                v = sp.metric_value(m)
+                if v is not None and (type(v) is not int or not 0 <= v <= MAX_SEQ):
+                    self._refuse(topic, f"{name} = {v!r:.40}: not an integer 0..2**63-1 (nor its node's tensions)")
+                    v = ...
+                seqs[what[1]] = v
             else:
                 tensions.append((what[1], what[2], m))
         rows = []
         for node, rope, m in tensions:
-            if seqs.get(node) is None:
+            seq = seqs.get(node)
+            if seq is None:
                 continue
-            rows.append((group, edge, device, node, rope, m.timestamp, sp.metric_value(m), seqs[node],
-                         bool(m.is_historical)))
+            if seq is ...:
+                self._refuse(topic, f"node{node}/rope{rope}/tension: its node's frame_seq was refused")
+                continue
+            v = sp.metric_value(m)
+            if type(v) is int:              # an integer metric type: REAL in the historian
+                v = float(v)
+            if v is not None and (type(v) is not float or not math.isfinite(v)):
+                self._refuse(topic, f"node{node}/rope{rope}/tension = {v!r:.40}: neither null nor a finite number")
+                continue
+            if not 0 <= m.timestamp <= MAX_TS_MS:
+                self._refuse(topic, f"node{node}/rope{rope}/tension: timestamp {m.timestamp} past year 9999")
+                continue
+            rows.append((group, edge, device, node, rope, m.timestamp, v, seq, bool(m.is_historical)))
             self.stats["historical"] += bool(m.is_historical)
         return rows
 
@@ -388,48 +450,93 @@ class Fleet:
             self.stats["rebirths_asked"] += 1
 
     def _write_loop(self) -> None:
-        """Take what is queued, commit it in one transaction, then acknowledge it (module docstring)."""
-        pending: list[tuple[int, int, int]] = []       # (session, mid, qos) to acknowledge
-        rows: list[tuple] = []
-        hold: list[tuple] = []                          # the batch's held messages, kept for a retry
-        unhold: list[int] = []
+        """Take what is queued, commit it in one transaction, then acknowledge it; a batch its data
+        made fail is written message by message, a message still refused set aside (module docstring)."""
+        batch: list[tuple] = []        # per message: ((session, mid, qos), topic, rows, hold, unhold); kept for a retry
         while True:
-            if not pending:
+            if not batch:
                 try:
                     item = self._queue.get(timeout=0.2)
                 except queue.Empty:
                     if self._stop.is_set():
                         return
                     continue
+                n = 0
                 try:
                     while True:
                         session, mid, qos, topic, payload = item
-                        pending.append((session, mid, qos))
-                        rows += self.rows_of(topic, payload)
-                        if len(rows) + len(self._hold_new) >= MAX_BATCH_ROWS:
+                        try:
+                            rows = self.rows_of(topic, payload)
+                        except Exception as e:  # noqa: BLE001 - one unreadable message must not stop the writer
+                            rows = []
+                            with self.lock:
+                                self._refuse(topic, f"cannot be read: {type(e).__name__}: {e}", what="refused_messages")
+                        batch.append(((session, mid, qos), topic, rows, self._hold_new, self._hold_gone))
+                        n += len(rows) + len(self._hold_new)
+                        self._hold_new, self._hold_gone = [], []
+                        if n >= MAX_BATCH_ROWS:
                             break
                         item = self._queue.get_nowait()
                 except queue.Empty:
                     pass
-            if rows or hold or unhold or self._hold_new or self._hold_gone:
-                hold, self._hold_new = hold + self._hold_new, []
-                unhold, self._hold_gone = unhold + self._hold_gone, []
-                try:
-                    self.historian.write(rows, hold, unhold)
-                except Exception as e:  # noqa: BLE001 - not acknowledged: tried again
+            try:
+                self._commit(batch)
+            except Exception as e:  # noqa: BLE001 - not acknowledged: tried again, or message by message
+                if not _data_error(e):
                     self.error = f"cannot write the historian: {type(e).__name__}: {e}"
                     if self._stop.wait(1.0):
                         return
                     continue
-                self.error = None
-                with self.lock:
-                    self.stats["rows"] += len(rows)
-                    self.stats["commits"] += 1
-            with self._ack_lock:
-                for session, mid, qos in pending:
-                    if qos and session == self._session:
-                        self.client.ack(mid, qos)
-            pending, rows, hold, unhold = [], [], [], []
+                failed = None
+                while batch:                        # its data: each message alone, in order
+                    try:
+                        self._commit(batch[:1])
+                    except Exception as e1:  # noqa: BLE001
+                        if not _data_error(e1):     # the database itself now: the rest kept, tried again
+                            failed = f"cannot write the historian: {type(e1).__name__}: {e1}"
+                            break
+                        with self.lock:
+                            self._refuse(batch[0][1], f"the historian refused it: {type(e1).__name__}: {e1}",
+                                         what="refused_messages")
+                    self._ack(batch[:1])
+                    del batch[0]
+                if batch:
+                    self.error = failed
+                    if self._stop.wait(1.0):
+                        return
+                continue
+            self._ack(batch)
+            batch = []
+
+    def _commit(self, batch: list[tuple]) -> None:
+        """The messages' rows and held messages in one transaction (none when there is nothing to write)."""
+        rows = [r for m in batch for r in m[2]]
+        hold = [h for m in batch for h in m[3]]
+        unhold = [u for m in batch for u in m[4]]
+        if rows or hold or unhold:
+            self.historian.write(rows, hold, unhold)
+            self.error = None
+            with self.lock:
+                self.stats["rows"] += len(rows)
+                self.stats["commits"] += 1
+
+    def _ack(self, batch: list[tuple]) -> None:
+        """PUBACK the messages, in order (those of the current connection only)."""
+        with self._ack_lock:
+            for (session, mid, qos), *_ in batch:
+                if qos and session == self._session:
+                    self.client.ack(mid, qos)
+
+
+def _data_error(e: BaseException) -> bool:
+    """Whether a failed write is its data's fault (a value the database cannot take: the message
+    is set aside) rather than the database's (it cannot be written at all: disk full, locked,
+    closed, gone; everything is kept and tried again)."""
+    if isinstance(e, (OverflowError, ValueError, TypeError, sqlite3.IntegrityError, sqlite3.DataError,
+                      sqlite3.InterfaceError)):
+        return True
+    names = {c.__name__ for c in type(e).__mro__}          # psycopg's, without importing it
+    return type(e).__module__.startswith("psycopg") and bool(names & {"DataError", "IntegrityError"})
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
