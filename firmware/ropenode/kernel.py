@@ -185,7 +185,9 @@ _NRUN = const(193)     # 2 bits per rope: samples (0..2) the channel has been he
 NOISE_Q10 = const(194)  # the median level over _NREF, Q10 (1024: as commissioned): it scales the plays
 _PPREV = const(195)    # per rope: the pressure channel's last count within NAMUR, -1 after none
 _PBAD = const(199)     # per rope: samples of plausible steps still needed after an implausible one
-_S_LEN = const(203)
+_TOREM = const(203)    # per rope: error-feedback remainder of the take-over, um/256 / 256
+_TRREM = const(207)    # per rope: that of its slide-following share
+_S_LEN = const(211)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -769,14 +771,16 @@ def step(S, P, rec, n):
         re = 0
         if mode == 0:
             # what e holds beyond a quarter of the threshold (noise: 1.6 sigma) is
-            # real unequal sharing: x_h takes it over at 1/64 per sample; a stroke's e
+            # real unequal sharing: x_h takes it over at 1/64 per sample, (4|e| - th) / 256
+            # in um/256 / 256 with its remainder carried to the next sample (rounded, a
+            # slowly varying take-over would lean one way for seconds); a stroke's e
             # runs faster than that and still shows. Slide following: of that take-over
             # the share f = (|e| - lo) / span (0 .. 1, Q8 rounded) is the piston's proven
-            # travel: it is left out of x_h, and x_h's next step carries it into x_s
-            # (|e| < 2**27: c < 2**21, c f < 2**29; d < span <= 2**20: d << 8 < 2**28).
+            # travel, its remainder carried too: it is left out of x_h, and x_h's next
+            # step carries it into x_s (|e| < 2**27: 4|e| < 2**29, c < 2**21,
+            # c f < 2**29; d < span <= 2**20: d << 8 < 2**28).
             # lo and hi (the median's ranks, done with) hold lo and span: a new local
             # would cost the viper step's every sample (1.45 -> 3.4 us on the unix port)
-            lim = th >> 2
             lo = P[_SLO]
             hi = P[_SSPAN]
             for i in range(n):
@@ -784,15 +788,19 @@ def step(S, P, rec, n):
                 c = t
                 if t < 0:
                     c = -t
-                if c > lim:
+                if (c << 2) > th:
                     d = c - lo
-                    c = (c - lim + 32) >> 6
+                    c = (c << 2) - th + S[_TOREM + i]
+                    S[_TOREM + i] = c & 255
+                    c = c >> 8
                     r = 0
                     if hi != 0 and d > 0:
                         if d >= hi:
                             r = c
                         else:
-                            r = (c * (((d << 8) + (hi >> 1)) // hi) + 128) >> 8
+                            r = c * (((d << 8) + (hi >> 1)) // hi) + S[_TRREM + i]
+                            S[_TRREM + i] = r & 255
+                            r = r >> 8
                     if t < 0:
                         c = -c
                         r = -r

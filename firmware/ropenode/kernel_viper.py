@@ -159,7 +159,9 @@ _NRUN = const(193)
 NOISE_Q10 = const(194)
 _PPREV = const(195)
 _PBAD = const(199)
-_S_LEN = const(203)
+_TOREM = const(203)
+_TRREM = const(207)
+_S_LEN = const(211)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -664,7 +666,6 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
         th = (P[_STH] ^ s31) - s31
         re = 0
         if mode == 0:
-            lim = th >> 2
             lo = (P[_SLO] ^ s31) - s31
             hi = (P[_SSPAN] ^ s31) - s31
             for i in range(n):
@@ -672,15 +673,19 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
                 c = t
                 if t < 0:
                     c = -t
-                if c > lim:
+                if c << 2 > th:
                     d = c - lo
-                    c = c - lim + 32 >> 6
+                    c = (c << 2) - th + ((S[_TOREM + i] ^ s31) - s31)
+                    S[_TOREM + i] = c & 255
+                    c = c >> 8
                     r = 0
                     if hi != 0 and d > 0:
                         if d >= hi:
                             r = c
                         else:
-                            r = c * (((d << 8) + (hi >> 1)) // hi) + 128 >> 8
+                            r = c * (((d << 8) + (hi >> 1)) // hi) + ((S[_TRREM + i] ^ s31) - s31)
+                            S[_TRREM + i] = r & 255
+                            r = r >> 8
                     if t < 0:
                         c = -c
                         r = -r
