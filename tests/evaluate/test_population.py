@@ -148,6 +148,9 @@ def test_one_drawn_wind_end_to_end_and_the_json_summary(tmp_path):
     fw = r["estimators"][FIRMWARE]
     assert 0 < fw["rope_rms_pct"] < 50 and fw["pithead_total_pct"] is not None
     assert r["firmware_vs_float_max_pct"] is not None
+    # the same against the reference following the node's stroke decisions: none disputed
+    fo = r["firmware_vs_float_following"]
+    assert fo["disputes"] == 0 and 0.0 <= fo["max_pct"] < 1.0
     # the baseline node (slide following off) ran its own firmware: its own frames and reference
     assert r["estimators"][P.BASELINE_FIRMWARE]["rope_rms_pct"] > 0
     assert r["baseline_firmware_vs_float_max_pct"] is not None
@@ -160,14 +163,16 @@ def test_one_drawn_wind_end_to_end_and_the_json_summary(tmp_path):
         assert set(s[key]) >= {"median", "p95"}
     assert s["winds"] == 1 and isinstance(s["silent_winds"], int)
     assert s["false_warnings_per_wind"] is not None and s["firmware_vs_float_max_pct"] is not None
+    assert s["following"]["disputes"] == 0 and s["following"]["max_pct"] == round(fo["max_pct"], 4)
     assert 0.0 <= r["ideal_bound"]["warning_share"] <= 1.0
     # re-scoring the run directory decodes both runs' frames (they share their sequence numbers)
     again = P.rescore_wind(tmp_path / P.draw(1).name)
     assert again["node"]["natural"] == r["alarms"]["node"]["natural"]
     assert again["baseline"]["natural"] == r["alarms"]["baseline"]["natural"]
-    assert "| silent winds |" in P.markdown({"population": s, "baseline": P.summary([r], "baseline"),
+    md = P.markdown({"population": s, "baseline": P.summary([r], "baseline"),
                                              "by_law": P.by_law([r]), "seeds": "tuning", "wall_s": 1.0,
                                              "winds": [r]})
+    assert "| silent winds |" in md and "decisions followed on" in md
 
 
 def ideal_case(load_n: float):

@@ -14,3 +14,5 @@ def test_the_command_on_the_short_wind(tmp_path, capsys):
     # 5 s at 200 Hz; the short wind has no balancing stroke, and neither side takes one
     assert out[0] == f"{work}: 1000 samples; strokes started: node 0, reference 0"
     assert not any("<- not the" in line for line in out)
+    assert out[-1].startswith("following the node where the two decide apart by rounding: 0 decisions followed, "
+                              "0 disputed; frames within ")

@@ -1,29 +1,26 @@
 """Fixed-point node vs the float reference on fuzzed streams with a hydraulic compliance.
 
 test_compensation_cpython.py holds the node within 0.05 % of rated of the reference on the
-shipped config's random streams; here hypothesis draws compliance configs and streams with
-what those lack: pressure steps of up to 10 MPa on every channel at once, held a sample or
-two or repeated as a square wave near the rope bounce (within the NAMUR limits), which drive
+shipped config's random streams; here draws of compliance configs and streams with what
+those lack: pressure steps of up to 10 MPa on every channel at once, held a sample or two
+or repeated as a square wave near the rope bounce (within the NAMUR limits), which drive
 the pressure tracker into the node's clamps (kernel.py: its bounce within +-2**26 of its
 units, the creep and its rate within +-2**28), which the reference mirrors
-(reference.PressureTracker).
+(reference.PressureTracker). Steps of 5 and 10 MPa are beyond the pressure step check's
+limit (1.16 MPa for these configs): both fault the same samples.
 
-Steps of 5 and 10 MPa are beyond the pressure step check's limit (1.16 MPa for these
-configs): both fault the same samples. The second test draws the stroke settings down to
-`stroke_sigmas` 1 and `stroke_settle_s` 0, with the check on or off (the streams' shocks are
-implausible steps, and a faulted rope stops stroke tracking) and two ropes' pistons and
-compliances alike: their e tie within rounding, and a stroke starts only when exactly one
-rope's e is past the threshold, so node and reference start and end the same strokes at the
-same samples (picking the larger of two, each picked its own: 4-14 % of rated apart).
-This second test draws its cases at random (seeded), not by hypothesis: a hypothesis search
-still finds rare cases at the edges of the draw (compliances at the range's end, two ropes
-alike, from 1 up to at least 3 sigmas) where e or the common motion meets a threshold within
-the float and fixed-point rounding, a stroke starts or ends a sample apart or one side takes
-a stroke the other does not, and the outputs part by up to a few % of rated for tens of
-samples. Mirroring those too needs the reference to compute e in the node's integer steps.
-Of 400 random draws (ROPEMON_STROKE_DRAWS=400) one is such a case (draw 165, 2 sigmas: a
-stroke's end 3 samples apart); `make test` runs the first 96.
-
+A balancing stroke starts and ends by comparing e and the common motion cl with
+thresholds, and node and reference hold them a few hundredths of a um apart: where one
+grazes its threshold they decide a sample or seconds apart. So every test here runs the
+reference following the node's decisions (reference.Follow, `_follows`): where the two
+decide apart, a comparison must come out otherwise on the node's values than on the
+reference's (else it is a dispute and the test fails); then they must take the same
+strokes and stay within 0.05 % of rated. The stroke draws go down to `stroke_sigmas` 1
+and `stroke_settle_s` 0, with two ropes' pistons and compliances alike (their e tie
+within rounding: a stroke starts only when exactly one rope's e is past the threshold);
+`make test` runs 96 draws, ROPEMON_STROKE_DRAWS=400 more. Two cases fail by rounding
+that following does not reach (strict xfail): the rest hold's switch and the bounce's
+clamp amplify it past 0.05 % for a moment.
 """
 from __future__ import annotations
 
@@ -34,10 +31,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from streams_cpython import random_stream, run_node
+from streams_cpython import random_stream, run_node, slide_stream
 
 from ropemon.commission import reference
 from ropemon.commission.nodejson import example_physical, make_node_json
+from ropemon.lab.studies.stroke_events import node_trace
 from ropemon.firmware import node_module
 
 config = node_module("config")
@@ -79,6 +77,30 @@ def _steps(ph: dict, recs: np.ndarray, events: list, square: tuple | None) -> np
     return r.astype(np.uint16)
 
 
+def _events(state: np.ndarray) -> list:
+    """(sample, rope or -1) at each start and end of a stroke in a trace of (mode, ...)."""
+    mode = state[:, 0]
+    return [(int(j), int(mode[j]) - 1) for j in np.flatnonzero(mode != np.concatenate(([0], mode[:-1])))]
+
+
+def _follows(doc: dict, recs: np.ndarray):
+    """(node trace, reference following it, its Follow) after checking what a follow must hold:
+    no decision disputed (each the two take apart had a comparison that came out otherwise
+    on the node's values than on the reference's), the same strokes and good samples, and the
+    tensions within 0.05 % of rated."""
+    ph = doc["physical"]
+    tr = node_trace(doc, recs)
+    follow = reference.Follow(tr.state, tr.e, tr.cl)
+    strokes: list = []
+    ref = reference.compensate(ph, recs, strokes=strokes, follow=follow)
+    assert follow.disputes == []
+    assert _events(tr.state) == [(j, r) for j, r, _ in strokes]
+    assert (tr.good == ref.good).all()
+    err = np.abs(tr.tension - ref.tension_n)[tr.good]
+    assert err.max() <= 0.0005 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]
+    return tr, ref, follow
+
+
 @settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**16),
        k_m=st.lists(st.floats(1e-10, 6e-10), min_size=4, max_size=4),
@@ -90,13 +112,22 @@ def _steps(ph: dict, recs: np.ndarray, events: list, square: tuple | None) -> np
 def test_node_follows_the_reference_with_a_compliance_through_pressure_steps(seed, k_m, sigma0, events,
                                                                             square):
     doc = _doc(k_m, sigma0)
+    recs = _steps(doc["physical"], random_stream(doc["physical"], 12, seed), events, square)
+    _follows(doc, recs)
+
+
+@pytest.mark.xfail(strict=True, reason="the bounce meets its clamp a sample apart: 0.053 % of rated")
+def test_a_pressure_shock_that_drives_the_bounce_into_its_clamp():
+    """A case a hypothesis search found: three alike compliances, and a transmitter's shock
+    (15 % of its span, in the stream, within NAMUR) swings the tracker's bounce to its
+    clamp (+-1 MPa here). The node's and the reference's bounce are 450 Pa apart by then
+    (0.05 % of the bounce: the Q14 products' rounding, integrated by a lightly damped
+    oscillator); the clamp takes both to the same value a sample apart, and k p_l steps
+    by 0.23 um on one side: 0.053 % of rated for a sample, gone in ten."""
+    doc = _doc([5.09219104138202e-10] * 3 + [3.648055294435989e-10], 1e8)
     ph = doc["physical"]
-    recs = _steps(ph, random_stream(ph, 12, seed), events, square)
-    ref = reference.compensate(ph, recs)
-    ten, good, _ = run_node(Node(config.parse(doc)), recs)
-    assert (good == ref.good).all()
-    err = np.abs(ten - ref.tension_n)[good]
-    assert err.max() <= 0.0005 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]
+    recs = _steps(ph, random_stream(ph, 12, 13), [], None)
+    _follows(doc, recs)
 
 
 def test_a_resonant_square_wave_drives_the_tracker_into_the_nodes_clamps():
@@ -121,32 +152,10 @@ def test_a_resonant_square_wave_drives_the_tracker_into_the_nodes_clamps():
     assert err.max() <= 0.0005 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]
 
 
-def _node_strokes(doc: dict, recs: np.ndarray):
-    """(tension, good, [(sample, rope or -1)]) of the node: its stroke starts and ends."""
-    import array
-    kernel = node_module("kernel")
-    node = Node(config.parse(doc))
-    n = node.n
-    ten = np.zeros((len(recs), n))
-    good = np.zeros((len(recs), n), bool)
-    rec = array.array("H", [0] * recs.shape[1])
-    mode, events = 0, []
-    for j, row in enumerate(recs.tolist()):
-        rec[:] = array.array("H", row)
-        node.sample(rec)
-        ten[j] = node.rope(kernel.TENSION_N)
-        good[j] = [(node.S[kernel.GOOD] >> i) & 1 for i in range(n)]
-        if node.S[kernel._SMODE] != mode:
-            mode = node.S[kernel._SMODE]
-            events.append((j, mode - 1))
-    return ten, good, events
-
-
 STROKE_DRAWS = int(os.environ.get("ROPEMON_STROKE_DRAWS", "96"))
 
 
-@pytest.mark.parametrize("draw", range(STROKE_DRAWS))
-def test_node_and_reference_take_the_same_strokes_with_aggressive_settings(draw):
+def _stroke_draw(draw: int) -> tuple[dict, np.ndarray]:
     rng = random.Random(draw)
     k_m = [rng.uniform(1e-10, 6e-10) for _ in range(4)]
     alike = draw % 2 == 1
@@ -164,11 +173,72 @@ def test_node_and_reference_take_the_same_strokes_with_aggressive_settings(draw)
     if alike:  # ropes 0 and 1: the same pressure and piston
         recs[:, 1] = recs[:, 0]
         recs[:, 5] = recs[:, 4]
-    recs = _steps(ph, recs, events, None)
-    strokes = []
-    ref = reference.compensate(ph, recs, strokes=strokes)
-    ten, good, node_events = _node_strokes(doc, recs)
-    assert node_events == [(j, r) for j, r, _ in strokes]
-    assert (good == ref.good).all()
-    err = np.abs(ten - ref.tension_n)[good]
-    assert err.max() <= 0.0005 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]
+    return doc, _steps(ph, recs, events, None)
+
+
+@pytest.mark.parametrize("draw", range(STROKE_DRAWS))
+def test_node_and_reference_take_the_same_strokes_with_aggressive_settings(draw):
+    _follows(*_stroke_draw(draw))
+
+
+def test_a_node_stroke_where_the_reference_tracks_none_is_disputed():
+    """The reference does not track strokes while a loop is faulted or warming up: a node
+    state there is disputed whatever the values."""
+    doc, recs = _stroke_draw(3)
+    tr = node_trace(doc, recs)
+    state = tr.state.copy()
+    state[2] = (1, 1, 0)  # in the warm-up
+    follow = reference.Follow(state, tr.e, tr.cl)
+    reference.compensate(doc["physical"], recs, follow=follow)
+    assert follow.disputes[:1] == [(2, (0, 0, 0), (1, 1, 0))]
+
+
+def test_a_stroke_decided_a_sample_apart_is_followed_within_the_band():
+    """Draw 165: e meets the threshold within rounding, and the float reference alone ends
+    a stroke 3 samples from the node; following the node there, the two take the same
+    strokes and stay within 0.05 %."""
+    doc, recs = _stroke_draw(165)
+    alone: list = []
+    reference.compensate(doc["physical"], recs, strokes=alone)
+    tr, _, follow = _follows(doc, recs)
+    assert _events(tr.state) != [(j, r) for j, r, _ in alone]
+    assert follow.followed
+
+
+@pytest.mark.parametrize("slide_um_s", [8.0, 16.0, 30.0, 60.0, 66.0, 68.0, 76.0, 120.0])
+def test_a_steady_slide_is_taken_over_without_leaning_and_grazes_the_threshold(slide_um_s):
+    """A piston sliding steadily ahead of the others holds e about where the take-over
+    (x_h taking over what e holds beyond a quarter of the threshold, 1/64 per sample)
+    balances the slide: up to 66 um/s below the threshold (3 sigmas), from 68 um/s past it
+    (a stroke). Rounded each sample, the take-over leaned the same way for seconds (0.47 %
+    of rated at 18 um/s): its remainder is carried. At 76 um/s e meets the threshold within
+    rounding and the reference alone ends a stroke at another sample; followed, they agree."""
+    doc = _doc([3e-10] * 4, 1e8, stroke_sigmas=3.0)
+    recs, _, _ = slide_stream(doc["physical"], 3e-10, 7, slide_um_s=slide_um_s)
+    _follows(doc, recs)
+
+
+@pytest.mark.xfail(strict=True, reason="the rest hold's switch amplifies rounding: 0.059 % of rated")
+def test_a_slide_near_the_rest_holds_switch():
+    """At 18 um/s rope 2's activity passes between the rest hold's threshold and twice it
+    as the slide begins, where the hold's share of b's gain and the activity feed each
+    other: node and reference, 0.004 um apart in the activity (x_s in um/256), part by
+    0.06 % of rated for a few seconds."""
+    doc = _doc([3e-10] * 4, 1e8, stroke_sigmas=3.0)
+    recs, _, _ = slide_stream(doc["physical"], 3e-10, 7, slide_um_s=18.0)
+    _follows(doc, recs)
+
+
+def test_a_node_deciding_otherwise_than_its_values_is_disputed():
+    """A stroke start put into the node's trace where every comparison comes out alike on
+    both sides is not followed: it is a dispute, and the reference keeps its own decision."""
+    doc, recs = _stroke_draw(0)
+    tr = node_trace(doc, recs)
+    at = int(np.flatnonzero((tr.state[:, 0] == 0) & (tr.state[:, 1] != 0))[-20])  # tracking, no stroke
+    state = tr.state.copy()
+    state[at:at + 3] = (1, 1, 0)
+    follow = reference.Follow(state, tr.e, tr.cl)
+    strokes: list = []
+    reference.compensate(doc["physical"], recs, strokes=strokes, follow=follow)
+    assert [j for j, _, _ in follow.disputes][:1] == [at]
+    assert at not in [j for j, _, _ in strokes]

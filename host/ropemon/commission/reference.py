@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -163,15 +163,51 @@ def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray,
     return zn + c1 * (zn - zprev) + sigma2 * vq
 
 
+@dataclass
+class Follow:
+    """The node's stroke decisions, for the reference to take where the two decide apart
+    only because their values part by rounding.
+
+    `state[sample]` is the node's (mode, direction, count) after each sample (kernel.py's
+    _SMODE, _SSGN, _SCNT); `e[sample, rope]` (m) and `cl[sample]` (m per sample) are the
+    values its decision compared (each rope's e, the common motion). Where the reference's
+    decision differs from the node's and one of those comparisons (|e| past the stroke
+    threshold in either direction, |cl| past the minimum speed, cl's sign) comes out
+    otherwise on the node's values than on the reference's, the threshold lay between the
+    two: the reference takes the node's decision (its sample listed in `followed`). A
+    difference with no such comparison is the node deciding otherwise than its model: it
+    is listed in `disputes` (sample, reference's state, node's state), and the reference
+    keeps its own."""
+
+    state: np.ndarray
+    e: np.ndarray
+    cl: np.ndarray
+    followed: list = field(default_factory=list)
+    disputes: list = field(default_factory=list)
+
+    def apart(self, j: int, e: list, cl: float, th: float, vmin: float) -> bool:
+        """Whether a comparison of sample j's decision comes out otherwise on the node's
+        values than on the reference's `e` and `cl`."""
+        c = float(self.cl[j])
+        if (abs(cl) > vmin) != (abs(c) > vmin) or (cl > 0) != (c > 0):
+            return True
+        return any((r > th) != (v > th) or (-r > th) != (-v > th) for r, v in zip(e, self.e[j].tolist()))
+
+
 def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
-               increments: dict | None = None, tracker_class: type | None = None) -> Compensated:
+               increments: dict | None = None, tracker_class: type | None = None,
+               follow: Follow | None = None) -> Compensated:
     """Run the model over records[k, 2N+4] (uint16 words) with physical section `ph`.
 
     `strokes`, a list, receives (sample, rope or -1, e per rope in m) for every start
     (rope 0-based) and end (-1, also by a fault or a restart) of a balancing stroke (`ropemon study stroke-events`).
     `increments`, a dict, receives the observer's per-sample increments [sample, rope]
     (m): "dxs" of the LuGre position and "dxp" of its play (`ropemon study observer-losses`),
-    and "noise_ratio"[sample], the noise following's ratio (1: as commissioned).
+    "noise_ratio"[sample], the noise following's ratio (1: as commissioned), and after each
+    sample "e"[sample, rope] (m) and "cl"[sample] (m per sample), the values the stroke
+    decisions compare.
+    `follow` (Follow) gives the node's stroke decisions, taken where the two decide apart
+    only by rounding.
     `tracker_class` takes the place of `PressureTracker` (the same constructor and `step`):
     a lab study's stand-in for the node's pressure tracker.
 
@@ -217,9 +253,10 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
         OK[:, i] = p_ok & x_ok
         POK[:, i] = p_ok
-    DX, DXS, DXP, NR = _observer(pp, P, X, OK, POK, fs, strokes, tracker_class or PressureTracker)
+    DX, DXS, DXP, NR, EV, CL = _observer(pp, P, X, OK, POK, fs, strokes, tracker_class or PressureTracker,
+                                         follow)
     if increments is not None:
-        increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR)
+        increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR, e=EV, cl=CL)
     for i in range(n):
         p = P[:, i]
         dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]
@@ -307,7 +344,7 @@ REST_D_MAX = 64e-6  # |x_s - x_l| is clamped here for the activity (as the node:
 
 
 def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.ndarray, fs: float,
-              strokes: list | None = None, tracker_class: type | None = None):
+              strokes: list | None = None, tracker_class: type | None = None, follow: Follow | None = None):
     """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
     position x_h = k p_l + b (p_l the pressure tracker's estimate of the median of the
     healthy pressure channels) and its play, with the balancing-stroke tracking and the
@@ -330,6 +367,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
     dx = np.zeros((k, n))
     dxs = np.zeros((k, n))
     dxp = np.zeros((k, n))
+    ev = np.zeros((k, n))
+    clv = np.zeros(k)
     started = [False] * n
     xf, xs, xp, xh, pl, xb, e, mot, xl, act = ([0.0] * n for _ in range(10))
     w = [0] * n
@@ -432,11 +471,16 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             xp[i] += dxp[j, i]
         if not allw:
             mode, sgn, cnt, cl = 0, 0, 0, 0.0
+            if follow is not None and follow.state[j].any():  # no comparison decides this
+                follow.disputes.append((j, (0, 0, 0), tuple(int(v) for v in follow.state[j])))
+            ev[j] = e
+            clv[j] = cl
             continue
         cl += alpha_e * (cv - cl)
         s = 1 if cl > 0 else -1
         moving = abs(cl) > vmin
         re = False
+        was = mode
         if mode == 0:
             # e beyond a quarter of the threshold (noise: 1.6 sigma) is real unequal
             # sharing: x_h takes it over at 1/64 per sample; with slide following the
@@ -465,6 +509,15 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                 re = True
             if re:
                 mode, sgn = 0, s
+        if follow is not None:
+            node = tuple(int(v) for v in follow.state[j])
+            if (mode, sgn, cnt) != node:
+                if follow.apart(j, e, cl, th, vmin):
+                    follow.followed.append(j)
+                    mode, sgn, cnt = node
+                    re = mode != was
+                else:
+                    follow.disputes.append((j, (mode, sgn, cnt), node))
         if re and strokes is not None:
             strokes.append((j, mode - 1, list(e)))
         if re and mode > 0:
@@ -494,7 +547,9 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                 xb[i] += e[i]
                 xh[i] += e[i]
                 e[i] = 0.0
-    return dx, dxs, dxp, nr
+        ev[j] = e
+        clv[j] = cl
+    return dx, dxs, dxp, nr, ev, clv
 
 def decimate(ph: dict, comp: Compensated) -> Frames:
     """Frame-window mean/min/max of the good samples (NaN for a window with none)."""
