@@ -207,6 +207,18 @@ def pressure_tracker(ph: dict | Physical, fs: float, n: int) -> dict:
                          (MEDIAN_NOISE[n - 1] * pressure_noise_pa(p)) ** 2)
 
 
+def pressure_scale(ch, field: str = "physical.pressure_channels[]") -> tuple[int, int, int]:
+    """(kpa_at_4ma, kpa_mul, kpa_shift) of a pressure channel as the node reads it:
+    kPa/16 = kpa_at_4ma * 16 + ((counts - counts_4mA) * kpa_mul) >> (kpa_shift - 4)."""
+    lo, hi = ch.range_Pa
+    pa_per_count = (hi - lo) / (ch.counts_20mA - ch.counts_4mA)
+    km, ks = fit_mul_shift(pa_per_count / 1000, 65535, field + ".range_Pa")
+    if ks < 4:  # the node also reads kPa/16 with this mul
+        raise ValueError(f"{field}.range_Pa: {pa_per_count / 1000:g} kPa per count, the node "
+                         "reads at most 1024")
+    return round(lo / 1000), km, ks
+
+
 def pressure_noise_pa(ph: dict | Physical) -> float:
     """rms noise of one pressure channel as the node reads it (in kPa/16 steps)."""
     return math.hypot(as_physical(ph).setting("pressure_noise_Pa"), 1e3 / 16 / math.sqrt(12))
@@ -409,10 +421,7 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
         lo, hi = ch.range_Pa
         flo, fhi = namur_limits(c4, c20)
         pa_per_count = (hi - lo) / (c20 - c4)
-        km, ks = fit_mul_shift(pa_per_count / 1000, 65535, f + ".range_Pa")
-        if ks < 4:  # the node also reads kPa/16 with this mul
-            raise ValueError(f"{f}.range_Pa: {pa_per_count / 1000:g} kPa per count, the node "
-                             "reads at most 1024")
+        _, km, ks = pressure_scale(ch, f)
         tm, ts = fit_mul_shift(pa_per_count * areas[i], 65535, f + ".range_Pa*cylinder_area_m2")
         for c in (flo, fhi):
             t = lo * areas[i] + (c - c4) * pa_per_count * areas[i]

@@ -3,7 +3,8 @@
 Same equations as firmware/ropenode, in floating point and SI units, with the
 same discrete-time choices that are part of the model (filtered-position
 velocity with the +-v_max/fs increment clamp, the noise-robust LuGre observer, table
-interpolation of the loss, NAMUR limits, last-good hold on a failed channel):
+interpolation of the loss, NAMUR limits, last-good hold on a failed channel, the
+pressure read in the node's kPa/16 steps):
 
     T_i = p_tap,i A_i + dp_i(A_i v_i) A_i + F_i
 
@@ -20,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from ropemon.firmware import node_module
-from ropemon.commission.nodejson import DEFAULTS, NOISE_CLIP, NOISE_RANGE, namur_limits, physical_params
+from ropemon.commission.nodejson import (DEFAULTS, NOISE_CLIP, NOISE_RANGE, as_physical, namur_limits,
+                                         physical_params, pressure_scale)
 from ropemon.commission.seal import g, lines_at
 
 RS = node_module("rsens")  # the .rsens format is firmware/ropenode/rsens.py's, never restated
@@ -217,6 +219,7 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
     of it (lo, hi in e's rms noise) enters as seal travel (x_s and the play, next sample)
     instead of re-anchoring x_h."""
     pp = physical_params(ph)
+    phys = as_physical(ph)
     n = pp["ropes"]
     fs = float(ph["sample_hz"])
     p_max = pp["p_max_pa"]
@@ -235,13 +238,18 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
     for i in range(n):
         pc = ph["pressure_channels"][i]
         c4, c20 = pc["counts_4mA"], pc["counts_20mA"]
-        plo, phi = pc["range_Pa"]
         flo, fhi = namur_limits(c4, c20)
         cp = records[:, i].astype(float)
         p_ok = (cp >= flo) & (cp <= fhi)
         # an implausible step is a fault as NAMUR's limits are (the node compares counts)
         p_ok &= ~_step_faults(records[:, i], p_ok, pp["pressure_step_counts"][i], pp["pressure_step_recover"])
-        P[:, i] = _hold(plo + (cp - c4) * (phi - plo) / (c20 - c4), p_ok)
+        # the pressure as the node reads it, in kPa/16 steps (its gain within 3e-5 and its
+        # 4 mA value within 500 Pa of the channel's range: the median the pressure tracker
+        # takes must be the node's, or its bounce parts from the node's where the median
+        # passes from one pair of channels to another)
+        k4, km, ks = pressure_scale(phys.pressure_channels[i], f"physical.pressure_channels[{i}]")
+        kpa16 = (k4 << 4) + (((records[:, i].astype(np.int64) - c4) * km) >> (ks - 4))
+        P[:, i] = _hold(kpa16 * (1000.0 / 16), p_ok)
         dc = ph["displacement_channels"][i]
         clo, chi = dc["counts_lo"], dc["counts_hi"]
         xlo, xhi = dc["range_m"]
