@@ -1,6 +1,7 @@
 """The node config (/node.json, schema 1): canonical form, CRC check, validation.
 
 `parse(doc)` checks the schema version, the CRC over `canonical(doc["node"])`
+(`canonical_crc16`: the CRC without the bytes)
 and the presence, type and range of every field of the integer `node` section,
 and returns a `Config`; a bad file raises `ConfigError(field, reason)` naming
 the field. A HAL boots with `load_for_boot`, which never raises and, for a
@@ -152,6 +153,50 @@ def _canon(obj, out, path):
         raise ConfigError(path, "only ints, lists and dicts allowed, got %s" % t.__name__)
 
 
+def _crc_of(obj, crc):
+    """crc16 continued over canonical(obj) without building it (the boot's peak heap: the
+    bytes and the paths `canonical` builds came to some 40 KB on a 64-bit port); None
+    for a value `canonical` refuses (it then names the field)."""
+    t = type(obj)
+    if t is int:
+        return crc16(b"%d" % obj, -1, crc)
+    if t is dict:
+        crc = crc16(b"{", -1, crc)
+        first = True
+        for k in sorted(obj):
+            if type(k) is not str:
+                return None
+            if not first:
+                crc = crc16(b",", -1, crc)
+            first = False
+            crc = crc16(b'"', -1, crc)
+            crc = crc16(k.encode(), -1, crc)
+            crc = _crc_of(obj[k], crc16(b'":', -1, crc))
+            if crc is None:
+                return None
+        return crc16(b"}", -1, crc)
+    if t is list or t is tuple:
+        crc = crc16(b"[", -1, crc)
+        for i in range(len(obj)):
+            if i:
+                crc = crc16(b",", -1, crc)
+            crc = _crc_of(obj[i], crc)
+            if crc is None:
+                return None
+        return crc16(b"]", -1, crc)
+    return None
+
+
+def canonical_crc16(obj):
+    """crc16(canonical(obj)), with far less heap; ConfigError as `canonical` for a value it
+    refuses."""
+    crc = _crc_of(obj, 0xFFFF)
+    if crc is None:
+        canonical(obj)  # raises, naming the field
+        raise ConfigError("node", "not canonical")
+    return crc
+
+
 def canonical(obj):
     """The canonical bytes of an int-only JSON value: keys sorted, no spaces.
 
@@ -245,7 +290,7 @@ def parse(doc):
     crc = _get(doc, "crc", "")
     if type(crc) is not int:
         raise ConfigError("crc", "must be an integer")
-    got = crc16(canonical(node))
+    got = canonical_crc16(node)
     if got != crc:
         raise ConfigError("crc", "mismatch: file says %d, node section hashes to %d" % (crc, got))
     return parse_node(node)

@@ -36,6 +36,19 @@ def test_canonical_form_is_sorted_compact_and_int_only():
             raise AssertionError("accepted %r" % (bad,))
 
 
+def test_the_crc_is_taken_without_building_the_canonical_bytes():
+    for d in ({"b": [1, -2], "a": {"d": 0, "c": 30}}, node_doc()["node"], {}, [],
+              {"x": [[1, 2], [], {"y": -7, "z": [0]}], "w": 2**29}):
+        assert config.canonical_crc16(d) == crc16(config.canonical(d))
+    for bad in (1.5, True, None, "x"):
+        try:
+            config.canonical_crc16({"k": [1, {"j": bad}]})
+        except config.ConfigError as e:
+            assert e.field == "node.k[1].j", e.field
+        else:
+            raise AssertionError("accepted %r" % (bad,))
+
+
 def test_shipped_config_parses():
     c = config.parse(node_doc())
     assert c.ropes == 4 and c.sample_hz == 200 and c.window == 20

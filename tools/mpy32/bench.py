@@ -9,6 +9,15 @@ qemu-user: its times are the emulator's, not a Cortex-M's). With --source, each 
 imports the node from the firmware's .py sources (compiled by the interpreter itself), the
 runs alternating with the .mpy ones. Prints a markdown table of medians over N runs
 (docs/benchmarks.md, "32-bit builds").
+
+    .venv/bin/python tools/mpy32/bench.py --least-heap [--source] [--builds ...]
+
+instead finds, for each build, the least heap (`-X heapsize`, to 64 bytes) in which a
+board's boot completes and the node then runs 400 samples and their frames: the modules
+hal_board imports first, the config loaded, parsed and released as hal_board._boot does,
+the Node built, then the board's front end modules (boards, frontend, ads1115), as a
+board loads them. A measured bound on everything the boot holds at once, the
+interpreter's own start included; not hal_board itself (it needs `machine`).
 """
 from __future__ import annotations
 
@@ -58,15 +67,102 @@ def run_once(exe: str, arch: str, tmp: Path, samples: int, repeats: int, chunk: 
     return out
 
 
+LEAST_SCRIPT = r'''
+import gc, array
+from ropenode import layout, rsens
+from ropenode.bootseq import FrameSeq
+
+
+def load_config():
+    from ropenode import config
+    cfg, node_id, key, reason = config.load_for_boot(NODE_JSON)
+    if cfg is None:
+        raise SystemExit("refused: %s" % reason)
+    config.release()
+    return cfg, node_id, key
+
+
+def boot():
+    cfg, node_id, key = load_config()
+    gc.collect()
+    from ropenode.node import Node
+    return Node(cfg, node_id, key)
+
+
+node = boot()
+gc.collect()
+from ropenode import boards
+from ropenode.frontend import FrontEnd
+gc.collect()
+rec = array.array("H", RECORD)
+buf = bytearray(MAX_WIRE_LEN)
+frames = 0
+for k in range(400):
+    rec[0] = RECORD[0] + (k & 7)
+    if node.sample(rec):
+        frames += node.frame_into(buf) > 0
+print("ok", frames)
+'''
+
+
+def least_heap(exe: str, arch: str, tmp: Path, source: bool = False) -> int:
+    """The least `-X heapsize` (bytes, to 64) in which LEAST_SCRIPT completes."""
+    fw = fb.FIRMWARE
+    tree = tmp / arch
+    fb.compile_tree(fw, tree, arch)
+    config = fw / "node.json"
+    doc = json.loads(config.read_text())
+    on_node = tmp / "node-on-node.json"
+    on_node.write_text(json.dumps(node_part(doc), separators=(",", ":")))
+    ph = doc["physical"]
+    n = ph["ropes"]
+    record = ([(c["counts_4mA"] + c["counts_20mA"]) // 2 for c in ph["pressure_channels"]]
+              + [(c["counts_lo"] + c["counts_hi"]) // 2 for c in ph["displacement_channels"]]
+              + [60000, 0xFFFF, 0, 0])
+    assert len(record) == 2 * n + 4
+    script = tmp / "least_heap.py"
+    script.write_text(LEAST_SCRIPT.replace("NODE_JSON", json.dumps(str(on_node)))
+                      .replace("RECORD", repr(record))
+                      .replace("MAX_WIRE_LEN", str(node_module("layout").MAX_WIRE_LEN)))
+    env = dict(os.environ, MICROPYPATH=str(fw if source else tree))
+
+    def boots(size: int) -> bool:
+        r = subprocess.run([exe, "-X", f"heapsize={size}", str(script)], cwd=tmp, env=env,
+                           capture_output=True, text=True, timeout=600)
+        return r.returncode == 0 and r.stdout.split()[:1] == ["ok"] and int(r.stdout.split()[1]) > 0
+
+    lo, hi = 4096, 1 << 20
+    if not boots(hi):
+        raise RuntimeError(f"{exe}: the boot fails even with a {hi}-byte heap")
+    while hi - lo > 64:
+        mid = (lo + hi) // 2 // 64 * 64
+        if boots(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=5, help="whole runs per build (median)")
     ap.add_argument("--source", action="store_true", help="also import the node from the .py sources")
+    ap.add_argument("--least-heap", action="store_true",
+                    help="find the least heap each build boots and runs the node in, instead of timing")
     ap.add_argument("--builds", default=",".join(a for _, a in BUILDS.values()),
                     help="the builds to run, by .mpy arch (x64: unix port, x86: i386, armv7m: Thumb-2)")
     a = ap.parse_args()
     wanted = a.builds.split(",")
     loadings = [False, True] if a.source else [False]
+    if a.least_heap:
+        print("| build | node loaded from | least heap (`-X heapsize`), bytes |\n|---|---|---:|")
+        with tempfile.TemporaryDirectory(prefix="ropemon-mpy32-heap-") as t:
+            for name, (exe, arch) in BUILDS.items():
+                if arch in wanted:
+                    for src in loadings:
+                        size = least_heap(exe, arch, Path(t), source=src)
+                        print(f"| {name} | {'source (.py)' if src else '.mpy'} | {size:,} |", flush=True)
+        return
     rows = []
     with tempfile.TemporaryDirectory(prefix="ropemon-mpy32-bench-") as t:
         for name, (exe, arch) in BUILDS.items():
