@@ -776,7 +776,8 @@ def step(S, P, rec, n):
             # slowly varying take-over would lean one way for seconds); a stroke's e
             # runs faster than that and still shows. Slide following: of that take-over
             # the share f = (|e| - lo) / span (0 .. 1, Q8 rounded) is the piston's proven
-            # travel, its remainder carried too: it is left out of x_h, and x_h's next
+            # travel, its remainder carried too (neither remainder is reset at a restart
+            # or a stroke: less than a unit): it is left out of x_h, and x_h's next
             # step carries it into x_s (|e| < 2**27: 4|e| < 2**29, c < 2**21,
             # c f < 2**29; d < span <= 2**20: d << 8 < 2**28).
             # lo and hi (the median's ranks, done with) hold lo and span: a new local

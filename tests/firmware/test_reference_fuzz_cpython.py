@@ -11,16 +11,16 @@ limit (1.16 MPa for these configs): both fault the same samples.
 
 A balancing stroke starts and ends by comparing e and the common motion cl with
 thresholds, and node and reference hold them a few hundredths of a um apart: where one
-grazes its threshold they decide a sample or seconds apart. So every test here runs the
-reference following the node's decisions (reference.Follow, `_follows`): where the two
-decide apart, a comparison must come out otherwise on the node's values than on the
-reference's (else it is a dispute and the test fails); then they must take the same
-strokes and stay within 0.05 % of rated. The stroke draws go down to `stroke_sigmas` 1
-and `stroke_settle_s` 0, with two ropes' pistons and compliances alike (their e tie
-within rounding: a stroke starts only when exactly one rope's e is past the threshold);
-`make test` runs 96 draws, ROPEMON_STROKE_DRAWS=400 more. One case fails by rounding
-that following does not reach (strict xfail): the rest hold's switch amplifies it past
-0.05 % for a moment.
+grazes its threshold they decide a sample or seconds apart. So the differential tests here
+run the reference following the node's decisions (reference.Follow, `_follows`): where
+the two decide apart, the reference's own rule on the node's values must give the node's
+decision, and both must track strokes at the same samples (else it is a dispute and the
+test fails); then they must take the same strokes and stay within 0.05 % of rated.
+
+The stroke draws go down to `stroke_sigmas` 1 and `stroke_settle_s` 0, with two ropes'
+pistons and compliances alike (their e tie within rounding: a stroke starts only when
+exactly one rope's e is past the threshold); `make test` runs 96 draws, ROPEMON_STROKE_DRAWS=400 more. One case is held to 0.1 %
+instead: the rest hold's switch amplifies rounding past 0.05 % for 80 ms.
 """
 from __future__ import annotations
 
@@ -83,21 +83,21 @@ def _events(state: np.ndarray) -> list:
     return [(int(j), int(mode[j]) - 1) for j in np.flatnonzero(mode != np.concatenate(([0], mode[:-1])))]
 
 
-def _follows(doc: dict, recs: np.ndarray):
+def _follows(doc: dict, recs: np.ndarray, limit_pct: float = 0.05):
     """(node trace, reference following it, its Follow) after checking what a follow must hold:
-    no decision disputed (each the two take apart had a comparison that came out otherwise
-    on the node's values than on the reference's), the same strokes and good samples, and the
-    tensions within 0.05 % of rated."""
+    no decision disputed (every decision the two take apart is the reference's own rule on
+    the node's values, and both track strokes at the same samples), the same strokes and
+    good samples, and the tensions within `limit_pct` % of rated."""
     ph = doc["physical"]
     tr = node_trace(doc, recs)
-    follow = reference.Follow(tr.state, tr.e, tr.cl)
+    follow = tr.follow()
     strokes: list = []
     ref = reference.compensate(ph, recs, strokes=strokes, follow=follow)
     assert follow.disputes == []
     assert _events(tr.state) == [(j, r) for j, r, _ in strokes]
     assert (tr.good == ref.good).all()
     err = np.abs(tr.tension - ref.tension_n)[tr.good]
-    assert err.max() <= 0.0005 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]
+    assert err.max() <= limit_pct / 100 * ph["rated_rope_tension_N"], err.max() / ph["rated_rope_tension_N"]
     return tr, ref, follow
 
 
@@ -123,10 +123,20 @@ def test_a_pressure_shock_that_drives_the_bounce_into_its_clamp():
     kPa/16 readings (its gain within 3e-5, its 4 mA value in whole kPa): as the median
     passed to another pair of channels, the bounce parted from the node's by 450 Pa, the
     clamp took both to the same value, and k p_l stepped by 0.23 um on one side (0.053 %
-    of rated). The reference reads the pressure in the node's steps."""
+    of rated). The reference reads the pressure in the node's steps for its observer."""
     doc = _doc([5.09219104138202e-10] * 3 + [3.648055294435989e-10], 1e8)
     ph = doc["physical"]
     recs = _steps(ph, random_stream(ph, 12, 13), [], None)
+    hits = []
+
+    class Recording(reference.PressureTracker):
+        def step(self, y):
+            out = super().step(y)
+            hits.append(self.tr is not None and self.on and abs(self.b0) >= self.lim_b)
+            return out
+
+    reference.compensate(ph, recs, tracker_class=Recording)
+    assert any(hits)  # the bounce reached its clamp
     _follows(doc, recs)
 
 
@@ -181,16 +191,25 @@ def test_node_and_reference_take_the_same_strokes_with_aggressive_settings(draw)
     _follows(*_stroke_draw(draw))
 
 
-def test_a_node_stroke_where_the_reference_tracks_none_is_disputed():
-    """The reference does not track strokes while a loop is faulted or warming up: a node
-    state there is disputed whatever the values."""
-    doc, recs = _stroke_draw(3)
+def test_a_node_tracking_strokes_where_the_reference_does_not_is_disputed():
+    """Stroke tracking runs only while every rope is healthy, started and warmed up: a node
+    that tracks during the warm-up, or stops tracking (its state and cl zeroed) while the
+    reference tracks, is disputed whatever its values."""
+    doc, recs = _stroke_draw(0)
     tr = node_trace(doc, recs)
-    state = tr.state.copy()
-    state[2] = (1, 1, 0)  # in the warm-up
-    follow = reference.Follow(state, tr.e, tr.cl)
-    reference.compensate(doc["physical"], recs, follow=follow)
-    assert follow.disputes[:1] == [(2, (0, 0, 0), (1, 1, 0))]
+    on = np.flatnonzero(tr.tracking)
+    assert 0 < on[0] and len(on) > 100
+    f = tr.follow()
+    f.tracking[on[0] - 1] = True  # still warming up
+    reference.compensate(doc["physical"], recs, follow=f)
+    assert f.disputes == [(on[0] - 1, "not tracking", "tracking")]
+    f = tr.follow()
+    dropped = on[50:60]
+    f.tracking[dropped] = False
+    f.state[dropped] = 0
+    f.cl[dropped] = 0.0
+    reference.compensate(doc["physical"], recs, follow=f)
+    assert [d[0] for d in f.disputes if d[1] == "tracking"] == dropped.tolist()
 
 
 @pytest.mark.parametrize("slide_um_s", [8.0, 16.0, 30.0, 60.0, 66.0, 68.0, 76.0, 120.0])
@@ -211,26 +230,25 @@ def test_a_steady_slide_is_taken_over_without_leaning_and_grazes_the_threshold(s
     assert len(follow.followed) >= 2 + apart  # two of cl's in the bounce, and a stroke's end
 
 
-@pytest.mark.xfail(strict=True, reason="the rest hold's switch amplifies rounding: 0.06 % of rated")
 def test_a_slide_near_the_rest_holds_switch():
-    """At 18 um/s rope 2's activity passes between the rest hold's threshold and twice it
-    as the slide begins, where the hold's share of b's gain and the activity feed each
-    other: node and reference, 0.004 um apart in the activity (x_s in um/256), part by
-    0.06 % of rated for a few seconds."""
+    """At 18 um/s the take-over, rounded each sample without its remainder, leaned node and
+    reference 0.47 % of rated apart. They are now 0.06 % apart, the one case here beyond
+    0.05 %: rope 2's activity passes between the rest hold's threshold and twice it as the
+    slide begins, where the hold's share of b's gain and the activity feed each other, and
+    the two, 0.004 um apart in the activity (x_s in um/256), part for 80 ms."""
     doc = _doc([3e-10] * 4, 1e8, stroke_sigmas=3.0)
     recs, _, _ = slide_stream(doc["physical"], 3e-10, 7, slide_um_s=18.0)
-    _follows(doc, recs)
+    _follows(doc, recs, limit_pct=0.1)
 
 
 def test_a_node_deciding_otherwise_than_its_values_is_disputed():
-    """A stroke start put into the node's trace where every comparison comes out alike on
-    both sides is not followed: it is a dispute, and the reference keeps its own decision."""
+    """A stroke start put into the node's trace where the reference's rule on the node's
+    values starts none is not followed: it is a dispute, and the reference keeps its own."""
     doc, recs = _stroke_draw(0)
     tr = node_trace(doc, recs)
     at = int(np.flatnonzero((tr.state[:, 0] == 0) & (tr.state[:, 1] != 0))[-20])  # tracking, no stroke
-    state = tr.state.copy()
-    state[at:at + 3] = (1, 1, 0)
-    follow = reference.Follow(state, tr.e, tr.cl)
+    follow = tr.follow()
+    follow.state[at:at + 3] = (1, 1, 0)
     strokes: list = []
     reference.compensate(doc["physical"], recs, strokes=strokes, follow=follow)
     assert [j for j, _, _ in follow.disputes][:1] == [at]

@@ -4,7 +4,7 @@ Same equations as firmware/ropenode, in floating point and SI units, with the
 same discrete-time choices that are part of the model (filtered-position
 velocity with the +-v_max/fs increment clamp, the noise-robust LuGre observer, table
 interpolation of the loss, NAMUR limits, last-good hold on a failed channel, the
-pressure read in the node's kPa/16 steps):
+pressure read in the node's kPa/16 steps for the observer and the friction):
 
     T_i = p_tap,i A_i + dp_i(A_i v_i) A_i + F_i
 
@@ -170,30 +170,49 @@ class Follow:
     """The node's stroke decisions, for the reference to take where the two decide apart
     only because their values part by rounding.
 
-    `state[sample]` is the node's (mode, direction, count) after each sample (kernel.py's
-    _SMODE, _SSGN, _SCNT); `e[sample, rope]` (m) and `cl[sample]` (m per sample) are the
-    values its decision compared (each rope's e, the common motion). Where the reference's
-    decision differs from the node's and one of those comparisons (|e| past the stroke
-    threshold in either direction, |cl| past the minimum speed, cl's sign) comes out
-    otherwise on the node's values than on the reference's, the threshold lay between the
-    two: the reference takes the node's decision (its sample listed in `followed`). A
-    difference with no such comparison is the node deciding otherwise than its model: it
-    is listed in `disputes` (sample, reference's state, node's state), and the reference
-    keeps its own."""
+    Per sample: `tracking` whether the node tracked strokes (every rope healthy, started
+    and warmed up), `state` its (mode, direction, count) after the sample (kernel.py's
+    _SMODE, _SSGN, _SCNT), and `e` (per rope, m) and `cl` (m per sample) as its decision
+    compared them. Where the reference's decision differs from the node's and
+    `stroke_decision` on the node's `e` and `cl`, from the reference's state before the
+    sample, gives the node's: the reference takes the node's (its sample listed in
+    `followed`). Any other difference, and any sample where one tracks and the other does
+    not, is the node deciding otherwise than its model: listed in `disputes` (sample, the
+    reference's, the node's), the reference keeping its own."""
 
+    tracking: np.ndarray
     state: np.ndarray
     e: np.ndarray
     cl: np.ndarray
     followed: list = field(default_factory=list)
     disputes: list = field(default_factory=list)
 
-    def apart(self, j: int, e: list, cl: float, th: float, vmin: float) -> bool:
-        """Whether a comparison of sample j's decision comes out otherwise on the node's
-        values than on the reference's `e` and `cl`."""
-        c = float(self.cl[j])
-        if (abs(cl) > vmin) != (abs(c) > vmin) or (cl > 0) != (c > 0):
-            return True
-        return any((r > th) != (v > th) or (-r > th) != (-v > th) for r, v in zip(e, self.e[j].tolist()))
+
+def stroke_decision(state: tuple, e: list, cl: float, th: float, vmin: float, settle: int) -> tuple:
+    """The stroke tracking's (mode, direction, count) after a sample, from those before it,
+    each rope's e (m, after the take-over) and the common motion's low-pass cl (docs/model.md,
+    "Balancing strokes"). A stroke starts, after the direction held `settle` samples while
+    moving (|cl| > vmin), when exactly one rope's e is past the threshold that way (two alike
+    tie within rounding); it ends when the direction turns or another rope's e passes it."""
+    mode, sgn, cnt = state
+    s = 1 if cl > 0 else -1
+    if mode == 0:
+        moving = abs(cl) > vmin
+        if moving and s != sgn:
+            sgn, cnt = s, 0
+        elif cnt < settle:
+            cnt += 1
+        if moving and cnt >= settle:
+            past = [i for i in range(len(e)) if e[i] * s > th]
+            if len(past) == 1:
+                mode = past[0] + 1
+        return mode, sgn, cnt
+    end = False
+    if s != sgn:
+        end, cnt = True, 0
+    if any(e[i] * sgn > th for i in range(len(e)) if i != mode - 1):  # another piston moves
+        end = True
+    return (0, s, cnt) if end else (mode, sgn, cnt)
 
 
 def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
@@ -206,8 +225,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
     `increments`, a dict, receives the observer's per-sample increments [sample, rope]
     (m): "dxs" of the LuGre position and "dxp" of its play (`ropemon study observer-losses`),
     "noise_ratio"[sample], the noise following's ratio (1: as commissioned), and after each
-    sample "e"[sample, rope] (m) and "cl"[sample] (m per sample), the values the stroke
-    decisions compare.
+    sample "e"[sample, rope] (m; zeroed where a stroke starts or ends) and "cl"[sample]
+    (m per sample), what the stroke decisions compare.
     `follow` (Follow) gives the node's stroke decisions, taken where the two decide apart
     only by rounding.
     `tracker_class` takes the place of `PressureTracker` (the same constructor and `step`):
@@ -233,23 +252,27 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
     fault = np.zeros(k, int)
     P = np.zeros(shape)
     X = np.zeros(shape)
+    PQ = np.zeros(shape)
     OK = np.zeros(shape, bool)
     POK = np.zeros(shape, bool)
     for i in range(n):
         pc = ph["pressure_channels"][i]
         c4, c20 = pc["counts_4mA"], pc["counts_20mA"]
+        plo, phi = pc["range_Pa"]
         flo, fhi = namur_limits(c4, c20)
         cp = records[:, i].astype(float)
         p_ok = (cp >= flo) & (cp <= fhi)
         # an implausible step is a fault as NAMUR's limits are (the node compares counts)
         p_ok &= ~_step_faults(records[:, i], p_ok, pp["pressure_step_counts"][i], pp["pressure_step_recover"])
-        # the pressure as the node reads it, in kPa/16 steps (its gain within 3e-5 and its
-        # 4 mA value within 500 Pa of the channel's range: the median the pressure tracker
-        # takes must be the node's, or its bounce parts from the node's where the median
-        # passes from one pair of channels to another)
+        P[:, i] = _hold(plo + (cp - c4) * (phi - plo) / (c20 - c4), p_ok)
+        # the pressure as the node reads it for its observer and friction, in kPa/16 steps
+        # (its gain within 3e-5 and its 4 mA value within 500 Pa of the channel's range: the
+        # median the pressure tracker takes must be the node's, or its bounce parts from the
+        # node's where the median passes from one pair of channels to another); the tension's
+        # p A is the node's own product of the counts, as exact as the float one
         k4, km, ks = pressure_scale(phys.pressure_channels[i], f"physical.pressure_channels[{i}]")
         kpa16 = (k4 << 4) + (((records[:, i].astype(np.int64) - c4) * km) >> (ks - 4))
-        P[:, i] = _hold(kpa16 * (1000.0 / 16), p_ok)
+        PQ[:, i] = _hold(kpa16 * (1000.0 / 16), p_ok)
         dc = ph["displacement_channels"][i]
         clo, chi = dc["counts_lo"], dc["counts_hi"]
         xlo, xhi = dc["range_m"]
@@ -261,7 +284,7 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         good[:, i] = p_ok & x_ok & np.maximum.accumulate(p_ok) & np.maximum.accumulate(x_ok)
         OK[:, i] = p_ok & x_ok
         POK[:, i] = p_ok
-    DX, DXS, DXP, NR, EV, CL = _observer(pp, P, X, OK, POK, fs, strokes, tracker_class or PressureTracker,
+    DX, DXS, DXP, NR, EV, CL = _observer(pp, PQ, X, OK, POK, fs, strokes, tracker_class or PressureTracker,
                                          follow)
     if increments is not None:
         increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR, e=EV, cl=CL)
@@ -272,7 +295,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         # the velocity of the pipe loss and the viscous term: with a compliance that of
         # the LuGre position, from the pressure (the displacement's noise would pass)
         vq = dxs * fs if pp["compliance"][i] else v
-        fric = lugre_friction(fr, np.clip(p, 0.0, p_max), dxs, dxp, vq, fs)
+        # the friction's pressure in whole kPa, as the node takes it
+        fric = lugre_friction(fr, np.clip(np.floor(PQ[:, i] / 1000.0) * 1000.0, 0.0, p_max), dxs, dxp, vq, fs)
         loss = _loss_force(ph, i, areas[i], vq, temp_c)
         raw = p * areas[i]
         ok = good[:, i]
@@ -477,18 +501,15 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             elif xs[i] < xp[i] - wp:
                 dxp[j, i] = xs[i] + wp - xp[i]
             xp[i] += dxp[j, i]
+        if follow is not None and bool(follow.tracking[j]) != allw:  # no comparison decides this
+            follow.disputes.append((j, "tracking" if allw else "not tracking",
+                                    "tracking" if follow.tracking[j] else "not tracking"))
         if not allw:
             mode, sgn, cnt, cl = 0, 0, 0, 0.0
-            if follow is not None and follow.state[j].any():  # no comparison decides this
-                follow.disputes.append((j, (0, 0, 0), tuple(int(v) for v in follow.state[j])))
             ev[j] = e
             clv[j] = cl
             continue
         cl += alpha_e * (cv - cl)
-        s = 1 if cl > 0 else -1
-        moving = abs(cl) > vmin
-        re = False
-        was = mode
         if mode == 0:
             # e beyond a quarter of the threshold (noise: 1.6 sigma) is real unequal
             # sharing: x_h takes it over at 1/64 per sample; with slide following the
@@ -501,31 +522,18 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                     xb[i] += a
                     xh[i] += a * (1 - f)
                     e[i] -= a
-            if moving and s != sgn:
-                sgn, cnt = s, 0
-            elif cnt < settle:
-                cnt += 1
-            if moving and cnt >= settle:
-                # exactly one piston past the threshold (two alike tie within rounding)
-                past = [i for i in range(n) if e[i] * s > th]
-                if len(past) == 1:
-                    mode, re = past[0] + 1, True
-        else:
-            if s != sgn:
-                re, cnt = True, 0
-            if any(e[i] * sgn > th for i in range(n) if i != mode - 1):  # another piston moves
-                re = True
-            if re:
-                mode, sgn = 0, s
+        was = (mode, sgn, cnt)
+        mode, sgn, cnt = stroke_decision(was, e, cl, th, vmin, settle)
         if follow is not None:
             node = tuple(int(v) for v in follow.state[j])
             if (mode, sgn, cnt) != node:
-                if follow.apart(j, e, cl, th, vmin):
+                # the same decision on the node's values: the two part by rounding only
+                if stroke_decision(was, follow.e[j].tolist(), float(follow.cl[j]), th, vmin, settle) == node:
                     follow.followed.append(j)
                     mode, sgn, cnt = node
-                    re = mode != was
                 else:
                     follow.disputes.append((j, (mode, sgn, cnt), node))
+        re = mode != was[0]
         if re and strokes is not None:
             strokes.append((j, mode - 1, list(e)))
         if re and mode > 0:

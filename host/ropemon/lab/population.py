@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ropemon.lab.rundir import RunDir
+from ropemon.lab.studies.stroke_events import follow_figures
 
 TUNING_SEEDS = tuple(range(1, 21))
 SCORING_SEEDS = tuple(range(101, 201))
@@ -347,9 +348,10 @@ def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) ->
         out["firmware_vs_float_max_pct"] = fw.get("vs_reference_max_pct")
         wind_dir = Path(work) / h.name
         # the same with the reference taking the node's stroke decisions where its own are in doubt
-        from ropemon.lab.studies.stroke_events import follow_figures
-
-        out["firmware_vs_float_following"] = follow_figures(RunDir(wind_dir), len(case.truth_n))
+        try:
+            out["firmware_vs_float_following"] = follow_figures(RunDir(wind_dir), len(case.truth_n))
+        except (OSError, ValueError, KeyError, RuntimeError) as e:
+            out["firmware_vs_float_following"] = {"error": f"{type(e).__name__}: {e}"}
         base_case = baseline_case(case, wind_dir)
         fb = EV.score_frames(base_case)
         out["estimators"][BASELINE_FIRMWARE] = {k: fb.get(k) for k in ("rope_rms_pct", "rope_peak_pct",
@@ -486,8 +488,10 @@ VS_FLOAT_PCT = 0.05  # the firmware's target against its float reference, % of r
 def _following(scored: list[dict]) -> dict | None:
     """The node against the reference that follows its stroke decisions in doubt, over the winds."""
     f = [r["firmware_vs_float_following"] for r in scored if "firmware_vs_float_following" in r]
+    errors = [x["error"] for x in f if "error" in x]
+    f = [x for x in f if "error" not in x]
     if not f:
-        return None
+        return {"errors": errors} if errors else None
     vs = [x["max_pct"] for x in f if np.isfinite(x["max_pct"])]
     return {"max_pct": round(max(vs), 4) if vs else None,
             "beyond": sum(1 for v in vs if v > VS_FLOAT_PCT),
@@ -496,7 +500,8 @@ def _following(scored: list[dict]) -> dict | None:
             "disputes": sum(x["disputes"] for x in f),
             "hoists_disputed": sum(1 for x in f if x["disputes"]),
             "e_gap_um": round(max(x["e_gap_um"] for x in f), 4),
-            "cl_gap_of_vmin": round(max(x["cl_gap_of_vmin"] for x in f), 4)}
+            "cl_gap_of_vmin": round(max(x["cl_gap_of_vmin"] for x in f), 4),
+            "errors": errors}
 
 
 def by_law(results: list[dict]) -> dict:
@@ -544,7 +549,10 @@ def markdown(out: dict) -> str:
               f"{pop['firmware_vs_float_max_pct']} ({pop.get('firmware_vs_float_beyond')}) | "
               f"{base['firmware_vs_float_max_pct']} ({base.get('firmware_vs_float_beyond')}) |", ""]
     fo = pop.get("following")
-    if fo:
+    if fo and fo.get("errors"):
+        lines += [f"- following the node's decisions could not be run on {len(fo['errors'])} winds: "
+                  + "; ".join(fo["errors"][:3]), ""]
+    if fo and "max_pct" in fo:
         lines += [f"With the float reference following the node's stroke decisions where the two decide apart "
                   f"by rounding (`reference.Follow`: a comparison comes out otherwise on the node's values): "
                   f"firmware vs float reference max {fo['max_pct']} % of rated ({fo['beyond']} winds beyond "

@@ -27,15 +27,20 @@ from ropemon.lab.rundir import RunDir
 
 @dataclass
 class NodeTrace:
-    """The node after each sample: its stroke tracking (`state`[k, 3] of (mode, direction,
-    count), and e[k, N] in m and cl[k] in m per sample as its stroke decision compared them:
-    reference.Follow's), tension[k, N] in N and good[k, N]."""
+    """The node after each sample: its stroke tracking (`tracking`[k]: every rope healthy,
+    started and warmed up; `state`[k, 3] of (mode, direction, count); e[k, N] in m and
+    cl[k] in m per sample as its stroke decision compared them: reference.Follow's),
+    tension[k, N] in N and good[k, N]."""
 
+    tracking: np.ndarray
     state: np.ndarray
     e: np.ndarray
     cl: np.ndarray
     tension: np.ndarray
     good: np.ndarray
+
+    def follow(self):
+        return reference.Follow(self.tracking, self.state, self.e, self.cl)
 
 
 def node_trace(doc: dict, recs) -> NodeTrace:
@@ -49,12 +54,15 @@ def node_trace(doc: dict, recs) -> NodeTrace:
     n = int(doc["physical"]["ropes"])
     k = recs.shape[0]
     rec = array.array("H", [0] * recs.shape[1])
+    tracking = np.zeros(k, bool)
     state = np.zeros((k, 3), np.int64)
     e = np.zeros((k, n), np.int64)
     cl = np.zeros(k, np.int64)
     ten = np.zeros((k, n), np.int64)
     good = np.zeros(k, np.int64)
-    E, MODE = kernel._E, kernel._SMODE
+    E, MODE, WARM = kernel._E, kernel._SMODE, kernel._WARM
+    every = (1 << n) - 1
+    warm = P[kernel._WARMN]
 
     class Watch(array.array):
         def __setitem__(self, i, v):
@@ -67,42 +75,48 @@ def node_trace(doc: dict, recs) -> NodeTrace:
         rec[:] = array.array("H", row)
         before = S[:]
         node.sample(rec)
+        # the kernel's allw: a stroke threshold, every rope healthy now, started before and
+        # warmed up before this sample
+        tracking[j] = (P[kernel._STH] != 0 and S[kernel.GOOD] & every == every
+                       and before[kernel._STARTED] & every == every
+                       and min(before[WARM:WARM + n]) >= warm)
         state[j] = [S[a] for a in at]
         e[j] = S[E:E + n]
         if S[MODE] != before[MODE]:
             w = Watch(before.typecode, before)
             kernel.step(w, P, rec, n)
-            assert w == S  # the step is a function of its arguments
+            if w != S:
+                raise RuntimeError(f"sample {j}: the kernel's step is not a function of its arguments")
             e[j] = w.e
         cl[j] = S[kernel._CL]
         ten[j] = node.rope(kernel.TENSION_N)
         good[j] = S[kernel.GOOD]
-    return NodeTrace(state, e / 256e6, cl / 65536e6, ten.astype(float),
+    return NodeTrace(tracking, state, e / 256e6, cl / 65536e6, ten.astype(float),
                      (good[:, None] >> np.arange(n)) & 1 == 1)
 
 
-def node_strokes(doc: dict, recs) -> list[tuple[int, int, list[float]]]:
-    """(sample, rope or -1, e per rope in um as the sample began) at each stroke start/end
-    of the node."""
-    tr = node_trace(doc, recs)
+def node_strokes(doc: dict, recs, trace: NodeTrace | None = None) -> list[tuple[int, int, list[float]]]:
+    """(sample, rope or -1, e per rope in um as the decision compared it) at each stroke
+    start/end of the node (`trace`: its node_trace, if already run)."""
+    tr = trace or node_trace(doc, recs)
     mode = tr.state[:, 0]
     changes = np.flatnonzero(mode != np.concatenate(([0], mode[:-1])))
     return [(int(j), int(mode[j]) - 1, (tr.e[j] * 1e6).tolist()) for j in changes]
 
 
-def follow_figures(wind: RunDir, samples: int | None = None) -> dict:
+def follow_figures(wind: RunDir, samples: int | None = None, trace: NodeTrace | None = None) -> dict:
     """The node against the float reference that follows its stroke decisions where the two
     decide apart by rounding (reference.Follow), over the first `samples` of a run's stream:
     max % of rated over frame-window means of the tensions (in N, before the frame's daN),
     the decisions followed and disputed, and how far apart the two held the values the
     decisions compare near the thresholds (`decision_gaps`: e in um, cl as a share of the
-    minimum speed)."""
+    minimum speed). `trace`: the node's over those samples, if already run."""
     from ropemon.lab import metrics as M
 
     doc, recs = wind.config, wind.records[:samples]
     ph = doc["physical"]
-    tr = node_trace(doc, recs)
-    follow = reference.Follow(tr.state, tr.e, tr.cl)
+    tr = trace or node_trace(doc, recs)
+    follow = tr.follow()
     inc: dict = {}
     ref = reference.compensate(ph, recs, increments=inc, follow=follow).tension_n
     w = int(ph["sample_hz"]) // int(ph["frame_hz"])
@@ -145,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
     ref: list = []
     reference.compensate(doc["physical"], recs, strokes=ref)
     ref = [(j, r, [v * 1e6 for v in e]) for j, r, e in ref]
-    node = node_strokes(doc, recs)
+    trace = node_trace(doc, recs)
+    node = node_strokes(doc, recs, trace)
     keys = {"node": {(j, r) for j, r, _ in node}, "reference": {(j, r) for j, r, _ in ref}}
     rows = sorted([(j, "node", r, e) for j, r, e in node] + [(j, "reference", r, e) for j, r, e in ref])
     print(f"{args.run}: {len(recs)} samples; strokes started: node {sum(r >= 0 for _, r, _ in node)}, "
@@ -155,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
         alone = "" if (j, r) in keys[other[who]] else f"   <- not the {other[who]}'s"
         what = f"start rope {r + 1}" if r >= 0 else "end"
         print(f"{j / hz:9.3f} s  {who:9s}  {what:12s}  e (um) " + " ".join(f"{v:7.2f}" for v in e) + alone)
-    f = follow_figures(wind, len(recs))
+    f = follow_figures(wind, len(recs), trace)
     print(f"following the node where the two decide apart by rounding: {f['followed']} decisions followed, "
           f"{f['disputes']} disputed; frames within {f['max_pct']:.4f} % of rated; near the thresholds e "
           f"{f['e_gap_um']:.4f} um and cl {f['cl_gap_of_vmin']:.4f} of the minimum speed apart")
