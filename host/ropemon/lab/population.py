@@ -554,10 +554,11 @@ def markdown(out: dict) -> str:
                   + "; ".join(fo["errors"][:3]), ""]
     if fo and "max_pct" in fo:
         lines += [f"With the float reference following the node's stroke decisions where the two decide apart "
-                  f"by rounding (`reference.Follow`: a comparison comes out otherwise on the node's values): "
+                  f"by rounding (`reference.Follow`: its own rule on the node's values gives the node's decision): "
                   f"firmware vs float reference max {fo['max_pct']} % of rated ({fo['beyond']} winds beyond "
                   f"{VS_FLOAT_PCT}); {fo['followed']} decisions followed on {fo['hoists_followed']} winds; "
-                  f"{fo['disputes']} disputed (the node deciding otherwise than its values) on "
+                  f"{fo['disputes']} disputed (the node deciding otherwise than its values, or tracking strokes "
+                  f"where the reference does not) on "
                   f"{fo['hoists_disputed']} winds. Near the thresholds the two held e at most {fo['e_gap_um']} um "
                   f"apart and the common motion at most {fo['cl_gap_of_vmin']} of the minimum speed.", ""]
     lines += [
