@@ -150,6 +150,7 @@ def test_one_drawn_wind_end_to_end_and_the_json_summary(tmp_path):
     assert r["firmware_vs_float_max_pct"] is not None
     # the same against the reference following the node's stroke decisions: none disputed
     fo = r["firmware_vs_float_following"]
+    assert "error" not in fo, fo
     assert fo["disputes"] == 0 and 0.0 <= fo["max_pct"] <= 0.05, fo
     # the baseline node (slide following off) ran its own firmware: its own frames and reference
     assert r["estimators"][P.BASELINE_FIRMWARE]["rope_rms_pct"] > 0

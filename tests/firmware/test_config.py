@@ -37,9 +37,16 @@ def test_canonical_form_is_sorted_compact_and_int_only():
 
 
 def test_the_crc_is_taken_without_building_the_canonical_bytes():
-    for d in ({"b": [1, -2], "a": {"d": 0, "c": 30}}, node_doc()["node"], {}, [],
-              {"x": [[1, 2], [], {"y": -7, "z": [0]}], "w": 2**29}):
+    for d in ({"b": [1, -2], "a": {"d": 0, "c": 30}}, node_doc()["node"], {}, [], (1, (2,)),
+              {"x": [[1, 2], [], {"y": -7, "z": [0]}], "w": 2**29, "big": [2**30, -2**31, 2**64 + 5]},
+              {"\u00e9t\u00e9": 1, "": [], "q\"": {}}):
         assert config.canonical_crc16(d) == crc16(config.canonical(d))
+    try:
+        config.canonical_crc16({"k": {1: 2}})
+    except config.ConfigError as e:
+        assert e.field == "node.k", e.field
+    else:
+        raise AssertionError("accepted a key that is not a string")
     for bad in (1.5, True, None, "x"):
         try:
             config.canonical_crc16({"k": [1, {"j": bad}]})

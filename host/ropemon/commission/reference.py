@@ -296,7 +296,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         # the LuGre position, from the pressure (the displacement's noise would pass)
         vq = dxs * fs if pp["compliance"][i] else v
         # the friction's pressure in whole kPa, as the node takes it
-        fric = lugre_friction(fr, np.clip(np.floor(PQ[:, i] / 1000.0) * 1000.0, 0.0, p_max), dxs, dxp, vq, fs)
+        fric = lugre_friction(fr, np.clip(np.floor(PQ[:, i] / 1000.0) * 1000.0, 0.0, math.ceil(p_max / 1000.0) * 1000.0),
+                              dxs, dxp, vq, fs)
         loss = _loss_force(ph, i, areas[i], vq, temp_c)
         raw = p * areas[i]
         ok = good[:, i]
@@ -501,7 +502,8 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
             elif xs[i] < xp[i] - wp:
                 dxp[j, i] = xs[i] + wp - xp[i]
             xp[i] += dxp[j, i]
-        if follow is not None and bool(follow.tracking[j]) != allw:  # no comparison decides this
+        apart = follow is not None and bool(follow.tracking[j]) != allw
+        if apart:  # no comparison decides this
             follow.disputes.append((j, "tracking" if allw else "not tracking",
                                     "tracking" if follow.tracking[j] else "not tracking"))
         if not allw:
@@ -524,7 +526,7 @@ def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.nd
                     e[i] -= a
         was = (mode, sgn, cnt)
         mode, sgn, cnt = stroke_decision(was, e, cl, th, vmin, settle)
-        if follow is not None:
+        if follow is not None and not apart:  # (a sample disputed above is not compared again)
             node = tuple(int(v) for v in follow.state[j])
             if (mode, sgn, cnt) != node:
                 # the same decision on the node's values: the two part by rounding only

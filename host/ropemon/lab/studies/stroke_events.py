@@ -39,8 +39,9 @@ class NodeTrace:
     tension: np.ndarray
     good: np.ndarray
 
-    def follow(self):
-        return reference.Follow(self.tracking, self.state, self.e, self.cl)
+    def follow(self) -> reference.Follow:
+        """A Follow of this trace (its own copies: a test may alter them)."""
+        return reference.Follow(self.tracking.copy(), self.state.copy(), self.e.copy(), self.cl.copy())
 
 
 def node_trace(doc: dict, recs) -> NodeTrace:
