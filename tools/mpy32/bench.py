@@ -12,12 +12,16 @@ runs alternating with the .mpy ones. Prints a markdown table of medians over N r
 
     .venv/bin/python tools/mpy32/bench.py --least-heap [--source] [--builds ...]
 
-instead finds, for each build, the least heap (`-X heapsize`, to 64 bytes) in which a
-board's boot completes and the node then runs 400 samples and their frames: the modules
-hal_board imports first, the config loaded, parsed and released as hal_board._boot does,
-the Node built, then the board's front end modules (boards, frontend, ads1115), as a
-board loads them. A measured bound on everything the boot holds at once, the
-interpreter's own start included; not hal_board itself (it needs `machine`).
+instead tries, for each build, every heap size (`-X heapsize`) from 16 to 256 KiB in
+1 KiB steps, and prints the least in which a board's boot completes and the least from
+which it completes in every size (fragmentation moves with the heap's size, so a boot
+that fits in one size can fail in a larger one). What runs: the modules hal_board
+imports first, the config loaded, parsed and released as
+hal_board._boot does, the Node built, then the board's front end modules (boards,
+frontend, ads1115), as a board loads them, and 400 samples and their frames. A measured bound on everything the boot holds
+at once, the interpreter's own start included; not hal_board, deployswap and main.py
+(hal_board needs `machine`). The 32-bit builds have no C json: their lib/json.py, loaded
+from .mpy, is counted too.
 """
 from __future__ import annotations
 
@@ -105,11 +109,14 @@ print("ok", frames)
 '''
 
 
-def least_heap(exe: str, arch: str, tmp: Path, source: bool = False) -> int:
-    """The least `-X heapsize` (bytes, to 64) in which LEAST_SCRIPT completes."""
+def least_heap(exe: str, arch: str, tmp: Path, source: bool = False) -> tuple[int, int]:
+    """(the least `-X heapsize` in which LEAST_SCRIPT completes, the least from which it
+    completes in every size up to 256 KiB), in bytes on a 1 KiB grid from 16 KiB."""
     fw = fb.FIRMWARE
     tree = tmp / arch
     fb.compile_tree(fw, tree, arch)
+    if arch != "x64":  # the 32-bit builds' json is lib/json.py (a board's is C): from .mpy, as a board's code
+        fb.compile_tree(ROOT / "tools" / "mpy32" / "lib", tree, arch)
     config = fw / "node.json"
     doc = json.loads(config.read_text())
     on_node = tmp / "node-on-node.json"
@@ -131,16 +138,14 @@ def least_heap(exe: str, arch: str, tmp: Path, source: bool = False) -> int:
                            capture_output=True, text=True, timeout=600)
         return r.returncode == 0 and r.stdout.split()[:1] == ["ok"] and int(r.stdout.split()[1]) > 0
 
-    lo, hi = 4096, 1 << 20
-    if not boots(hi):
-        raise RuntimeError(f"{exe}: the boot fails even with a {hi}-byte heap")
-    while hi - lo > 64:
-        mid = (lo + hi) // 2 // 64 * 64
-        if boots(mid):
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    # not monotonic: where the collections fall, and so the fragmentation, moves with the
+    # heap's size, so a boot that fits in one size can fail in a larger one
+    sizes = range(16 * 1024, 256 * 1024 + 1, 1024)
+    ok = [boots(z) for z in sizes]
+    if not ok[-1]:
+        raise RuntimeError(f"{exe}: the boot fails even with a {sizes[-1]}-byte heap")
+    fails = [z for z, good in zip(sizes, ok) if not good]
+    return min(z for z, good in zip(sizes, ok) if good), (fails[-1] + 1024 if fails else sizes[0])
 
 
 def main() -> None:
@@ -155,13 +160,15 @@ def main() -> None:
     wanted = a.builds.split(",")
     loadings = [False, True] if a.source else [False]
     if a.least_heap:
-        print("| build | node loaded from | least heap (`-X heapsize`), bytes |\n|---|---|---:|")
+        print("| build | node loaded from | least heap it booted in | booted in every heap from |\n"
+              "|---|---|---:|---:|")
         with tempfile.TemporaryDirectory(prefix="ropemon-mpy32-heap-") as t:
             for name, (exe, arch) in BUILDS.items():
                 if arch in wanted:
                     for src in loadings:
-                        size = least_heap(exe, arch, Path(t), source=src)
-                        print(f"| {name} | {'source (.py)' if src else '.mpy'} | {size:,} |", flush=True)
+                        least, every = least_heap(exe, arch, Path(t), source=src)
+                        print(f"| {name} | {'source (.py)' if src else '.mpy'} | {least:,} | {every:,} |",
+                              flush=True)
         return
     rows = []
     with tempfile.TemporaryDirectory(prefix="ropemon-mpy32-bench-") as t:
