@@ -154,8 +154,8 @@ def _canon(obj, out, path):
 
 
 def _crc_of(obj, crc):
-    """crc16 continued over canonical(obj) without building it (the boot's peak heap: the
-    bytes and the paths `canonical` builds came to some 40 KB on a 64-bit port); None
+    """crc16 continued over canonical(obj) without building it (the bytes and the paths
+    `canonical` builds, held all at once, more than double the heap a boot needs); None
     for a value `canonical` refuses (it then names the field)."""
     t = type(obj)
     if t is int:

@@ -365,3 +365,22 @@ def test_viper_equals_plain_on_fuzzed_configs_and_extreme_streams(arch, tmp_path
         doc = fuzz_config(1000 + i)
         jobs.append(_write_job(tmp_path, f"fuzz{i}r{doc['node']['ropes']}", doc, extreme_records(doc, count, 2000 + i)))
     _run_jobs(arch, tmp_path, jobs, timeout=900)
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("mpy32_bench", ROOT / "tools" / "mpy32" / "bench.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
+@pytest.mark.parametrize("arch", ["x64", "x86", "armv7m"])
+def test_a_boards_boot_fits_a_96_kib_heap(arch, tmp_path):
+    """A board's boot from .mpy (tools/mpy32/bench.py --least-heap's script: the config
+    parsed and released, the Node and the front end's modules, 400 samples and frames)
+    completes in a 96 KiB heap on the unix port and both 32-bit builds (each boots in every
+    size from 68-87 KiB, docs/benchmarks.md). Taking the config's CRC over its canonical
+    bytes built whole needed 155-202 KB."""
+    bench = _bench()
+    exe = next(e for e, a in bench.BUILDS.values() if a == arch)
+    assert bench.boot_in(exe, arch, tmp_path)(96 * 1024)

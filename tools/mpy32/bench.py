@@ -109,9 +109,9 @@ print("ok", frames)
 '''
 
 
-def least_heap(exe: str, arch: str, tmp: Path, source: bool = False) -> tuple[int, int]:
-    """(the least `-X heapsize` in which LEAST_SCRIPT completes, the least from which it
-    completes in every size up to 256 KiB), in bytes on a 1 KiB grid from 16 KiB."""
+def boot_in(exe: str, arch: str, tmp: Path, source: bool = False):
+    """A function of a heap size (bytes): whether LEAST_SCRIPT completes in a heap that
+    size on this build, the node loaded from .mpy files (or with source, its .py files)."""
     fw = fb.FIRMWARE
     tree = tmp / arch
     fb.compile_tree(fw, tree, arch)
@@ -138,6 +138,13 @@ def least_heap(exe: str, arch: str, tmp: Path, source: bool = False) -> tuple[in
                            capture_output=True, text=True, timeout=600)
         return r.returncode == 0 and r.stdout.split()[:1] == ["ok"] and int(r.stdout.split()[1]) > 0
 
+    return boots
+
+
+def least_heap(exe: str, arch: str, tmp: Path, source: bool = False) -> tuple[int, int]:
+    """(the least `-X heapsize` in which LEAST_SCRIPT completes, the least from which it
+    completes in every size up to 256 KiB), in bytes on a 1 KiB grid from 16 KiB."""
+    boots = boot_in(exe, arch, tmp, source)
     # not monotonic: where the collections fall, and so the fragmentation, moves with the
     # heap's size, so a boot that fits in one size can fail in a larger one
     sizes = range(16 * 1024, 256 * 1024 + 1, 1024)
