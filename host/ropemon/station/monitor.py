@@ -5,9 +5,11 @@ SQLite log) with one more listener, `MonitorView`, and the keys. The view fits
 an 80x24 terminal (ssh from the hoist room): per rope compensated and raw
 tension, deviation from the mean, a trend, total load against rated, alarms
 (with the terminal bell), link quality per receiver and the node's battery.
-Key `a` acknowledges the alarms, `n` shows the next cage node (each cage has
-its own), `r` then `y` accepts a node refused because its boot counter went
-back (logged with who and when), `q` quits. Keys become the station's commands.
+Key `a` acknowledges the alarms, `s` shelves one (which, for how long, why:
+each a digit; it returns by itself), `u` unshelves one, `n` shows the next cage
+node (each cage has its own), `r` then `y` accepts a node refused because its
+boot counter went back (logged with who and when), `q` quits. Keys become the
+station's commands; any key not offered cancels a question.
 """
 from __future__ import annotations
 
@@ -35,8 +37,8 @@ from ropemon.station.alarms import ActiveAlarm, AlarmEvent
 from ropemon.station.decode_cli import add_key_arguments, node_id
 from ropemon.station.link import DEFAULT_BAUDRATE, Received
 from ropemon.station.physical import SiteFigures, alarm_settings, site_from_configs
-from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Station, StationStatus,
-                                      station_listeners)
+from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Shelve, Station,
+                                      StationStatus, Unshelve, station_listeners)
 from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
 from ropemon.station.uncertainty import DeviationBand
 
@@ -87,6 +89,9 @@ class MonitorView(Listener):
         self.refused: dict[int, tuple[int, int]] = {}  # node -> (newest boot, refused boot)
         self.bands: dict[int, list[DeviationBand | None]] = {}  # node -> per rope deviation and band
         self.confirm_accept: int | None = None  # node awaiting the operator's `y`
+        self.alarms: list[ActiveAlarm] = []     # as alarm_rows, with their ids
+        self.shelved: list[ActiveAlarm] = []    # shelved alarms, present or not
+        self.question: Question | None = None   # a shelve or unshelve being asked
         self.frames = 0
         self.new_raises = 0     # raise events since the bell last rang
 
@@ -99,7 +104,9 @@ class MonitorView(Listener):
             self.new_raises += 1
 
     def on_alarms(self, state: AlarmState) -> None:
+        self.alarms = list(state.active)
         self.alarm_rows = [(alarm_text(a), not a.latched) for a in state.active]
+        self.shelved = [a for a in state.hidden if a.shelved_until is not None]
         self.bands = dict(state.bands)
 
     def on_status(self, status: StationStatus) -> None:
@@ -174,11 +181,16 @@ class MonitorView(Listener):
         parts: list[RenderableType] = [self._header(now_s), self._ropes(now_s)]
         if len(self.nodes) > 1:
             parts.append(self._others(now_s))
-        keys = "a: acknowledge alarms   " + ("n: next node   " if len(self.nodes) > 1 else "") + "q: quit"
+        keys = ("a: acknowledge alarms   " + ("s: shelve   " if self.alarms else "")
+                + ("u: unshelve   " if self.shelved else "") + ("n: next node   " if len(self.nodes) > 1 else "")
+                + "q: quit")
         parts += [self._alarms(), self._links()]
         if self.refused:
             parts.append(self._refused())
-        parts.append(Text(keys, style="dim"))
+        if self.question is not None:
+            parts.append(Text(" " + self.question.text(), style="bold reverse"))
+        else:
+            parts.append(Text(keys, style="dim"))
         return Group(*parts)
 
     def _refused(self) -> Text:
@@ -303,16 +315,20 @@ class MonitorView(Listener):
 
     def _alarms(self) -> Text:
         t = Text()
+        if self.shelved:
+            t.append(" shelved: " + "; ".join(shelved_text(a) for a in self.shelved)[:70] + "\n", style="yellow")
         if not self.alarm_rows:
             t.append(" alarms: none", style="green")
             return t
         only_warnings = all(is_warning(text) for text, _ in self.alarm_rows)
         t.append(" ALARMS", style="bold yellow reverse" if only_warnings else "bold red reverse")
-        shown = self.alarm_rows[:5]
-        for text, acked in shown:
+        shown = self.alarm_rows[:SHOWN_ALARMS]
+        numbered = self.question is not None and self.question.step == "which" and self.question.action == "shelve"
+        for i, (text, acked) in enumerate(shown):
             t.append("\n ")
             new_style = "bold yellow" if is_warning(text) else "bold red"
-            t.append(("  ack " if acked else "! NEW ") + text[:70],
+            mark = f"{i + 1}) " if numbered else ""
+            t.append(mark + ("  ack " if acked else "! NEW ") + text[:70 - len(mark)],
                      style="yellow" if acked else new_style)
         if len(self.alarm_rows) > len(shown):
             t.append(f"\n  ... and {len(self.alarm_rows) - len(shown)} more")
@@ -325,6 +341,43 @@ class MonitorView(Listener):
         if self.merge_text:
             t.append("\n      " + self.merge_text)
         return t
+
+
+SHOWN_ALARMS = 5
+SHELVE_MINUTES = (15, 60, 480)
+SHELVE_REASONS = ("nuisance: chattering or standing in error", "sensor or loop under repair",
+                  "hoist under maintenance")
+
+
+@dataclass
+class Question:
+    """A shelve (which alarm, for how long, why) or an unshelve (which) being asked, one
+    digit a step."""
+
+    action: str                 # "shelve" or "unshelve"
+    choices: list[ActiveAlarm]  # the alarms offered, numbered from 1
+    step: str = "which"         # "which", "minutes", "reason"
+    alarm: str = ""
+    minutes: int = 0
+
+    def text(self) -> str:
+        if self.step == "which" and self.action == "shelve":
+            return f"shelve which alarm? 1-{len(self.choices)} (numbered above), any other key: cancel"
+        if self.step == "which":
+            return "unshelve: " + "  ".join(f"{i + 1}) {a.id}" for i, a in enumerate(self.choices)) + "  other: cancel"
+        if self.step == "minutes":
+            return "for how long? " + "  ".join(f"{i + 1}) {_duration(m)}" for i, m in enumerate(SHELVE_MINUTES))
+        return "why? " + "  ".join(f"{i + 1}) {r.split(':')[0]}" for i, r in enumerate(SHELVE_REASONS))
+
+
+def _duration(minutes: int) -> str:
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h"
+
+
+def shelved_text(a: ActiveAlarm) -> str:
+    """One shelved alarm: what, until when (local time), why and who."""
+    until = datetime.datetime.fromtimestamp(a.shelved_until).strftime("%H:%M") if a.shelved_until else "?"
+    return f"{a.kind.replace('_', ' ')}{f' rope {a.rope + 1}' if a.rope is not None else ''} until {until} ({a.note})"
 
 
 def link_figures(merger_stats: dict, counts: dict[str, Any], down: dict[str, str] | None = None,
@@ -473,8 +526,12 @@ def operator_name() -> str:
 def handle_keys(station: Station, view: MonitorView, k: str, operator: str) -> bool:
     """Act on key presses; False when the operator quits. `a` and `y` become the station's
     commands (carried out at its next pump); `r` asks to accept the first refused node,
-    `y` confirms it, any other key cancels the question."""
+    `y` confirms it, any other key cancels the question; `s` and `u` ask which alarm to
+    shelve or unshelve (`ask`)."""
     k = k.lower()
+    if view.question is not None:
+        ask(station, view, k[:1], operator)
+        return True
     if "q" in k:
         return False
     if view.confirm_accept is not None:
@@ -488,7 +545,33 @@ def handle_keys(station: Station, view: MonitorView, k: str, operator: str) -> b
         view.next_node()
     if "r" in k and view.refused:
         view.confirm_accept = min(view.refused)
+    if "s" in k and view.alarms:
+        view.question = Question("shelve", view.alarms[:SHOWN_ALARMS])
+    elif "u" in k and view.shelved:
+        view.question = Question("unshelve", view.shelved[:9])
     return True
+
+
+def ask(station: Station, view: MonitorView, key: str, operator: str) -> None:
+    """One step of the shelve or unshelve question: a digit among those offered moves it on
+    (the last becomes the station's command), any other key cancels it."""
+    q = view.question
+    assert q is not None
+    offered = {"which": len(q.choices), "minutes": len(SHELVE_MINUTES), "reason": len(SHELVE_REASONS)}[q.step]
+    if not (key.isdigit() and 1 <= int(key) <= offered):
+        view.question = None
+        return
+    i = int(key) - 1
+    if q.step == "which" and q.action == "unshelve":
+        station.submit(Unshelve(operator, "terminal", alarm=q.choices[i].id))
+        view.question = None
+    elif q.step == "which":
+        q.alarm, q.step = q.choices[i].id, "minutes"
+    elif q.step == "minutes":
+        q.minutes, q.step = SHELVE_MINUTES[i], "reason"
+    else:
+        station.submit(Shelve(operator, "terminal", alarm=q.alarm, minutes=q.minutes, reason=SHELVE_REASONS[i]))
+        view.question = None
 
 
 def live_loop(station: Station, view: MonitorView, console: Console, refresh_hz: float,
