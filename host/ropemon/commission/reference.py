@@ -295,9 +295,9 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         # the velocity of the pipe loss and the viscous term: with a compliance that of
         # the LuGre position, from the pressure (the displacement's noise would pass)
         vq = dxs * fs if pp["compliance"][i] else v
-        # the friction's pressure in whole kPa, as the node takes it
-        fric = lugre_friction(fr, np.clip(np.floor(PQ[:, i] / 1000.0) * 1000.0, 0.0, math.ceil(p_max / 1000.0) * 1000.0),
-                              dxs, dxp, vq, fs)
+        # the friction's pressure in whole kPa, as the node takes it (and clamps it)
+        p_kpa = np.clip(np.floor(PQ[:, i] / 1000.0), 0.0, math.ceil(p_max / 1000.0))
+        fric = lugre_friction(fr, p_kpa * 1000.0, dxs, dxp, vq, fs)
         loss = _loss_force(ph, i, areas[i], vq, temp_c)
         raw = p * areas[i]
         ok = good[:, i]
