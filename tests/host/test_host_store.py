@@ -244,3 +244,63 @@ def test_a_log_sqlite_cannot_open_read_only_in_wal_is_opened_immutable(tmp_path,
     with Store(db, readonly=True) as s:
         assert s.frames() == []
     assert uris[-1].endswith("?mode=ro&immutable=1")
+
+
+def _schema_1_file(path, frames):
+    """A log as schema version 1 wrote it: no stroke_mask, no pos_01mm, version 1 in meta."""
+    with Store(path) as s:
+        for i, f in enumerate(frames):
+            s.add_frame("pithead", f, 100.0 + i)
+    db = sqlite3.connect(path)
+    db.execute("ALTER TABLE frames DROP COLUMN stroke_mask")
+    db.execute("ALTER TABLE ropes DROP COLUMN pos_01mm")
+    db.execute("UPDATE meta SET value='1' WHERE key='schema_version'")
+    db.commit()
+    db.close()
+
+
+def test_a_schema_1_log_still_opens_read_only_and_is_migrated_when_written(tmp_path):
+    p = tmp_path / "old.db"
+    frames = decoded(6)
+    _schema_1_file(p, frames)
+    with Store(p, readonly=True) as s:          # report and export on an old log: nothing written
+        assert s.schema_version == 1
+        assert [b.frame.ropes == f.ropes for b, f in zip(s.frames(), frames)] == [True] * 6
+        s.export_csv(tmp_path / "csv")
+    rows = list(csv.DictReader((tmp_path / "csv" / "frames.csv").open()))
+    assert rows[0]["stroke_mask"] == "" and rows[0]["r1_pos_01mm"] == ""
+    db = sqlite3.connect(p)
+    assert "pos_01mm" not in {r[1] for r in db.execute("PRAGMA table_info(ropes)")}
+    db.close()
+    with Store(p) as s:                         # a writer migrates it: the new columns, NULL in old rows
+        assert s.schema_version == SCHEMA_VERSION == 2
+        s.add_frame("pithead", frames[0], 200.0)
+        assert len(s.frames()) == 7
+        assert s.db.execute("SELECT count(*) FROM ropes WHERE pos_01mm IS NOT NULL").fetchone()[0] == 0
+        assert s.db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == "2"
+
+
+def test_positions_and_the_stroke_mask_are_logged_and_exported(tmp_path):
+    from ropemon.station.protocol import L, Rope
+    ropes = [Rope(5000, 4990, 5010, 700, 123), Rope(5000, 4990, 5010, 700, -456),
+             Rope(5000, 4990, 5010, 700, L.POS_ABSENT), Rope(5000, 4990, 5010, 700, 0)]
+    _, w3 = encode_frame(node=1, seq=1, ropes=ropes, stroke_mask=0x12, status=L.ST_STROKE_LIMIT)
+    _, w2 = encode_frame(node=1, seq=2, ropes=[tuple(r)[:4] for r in ropes], version=2)
+    f3, f2 = StreamDecoder().feed(w3 + w2)
+    assert (f3.version, f3.stroke_mask, f2.version) == (3, 0x12, 2)
+    with Store(tmp_path / "a.db") as s:
+        s.add_frame("a", f3, 1.0)
+        s.add_frame("a", f2, 1.1)
+        back = [b.frame for b in s.frames()]
+        assert back == [f3, f2]                       # the positions (and the absent one) come back
+        assert [r.pos_01mm for r in back[0].ropes] == [123, -456, L.POS_ABSENT, 0]
+        assert s.db.execute("SELECT stroke_mask FROM frames ORDER BY id").fetchall() == [(0x12,), (None,)]
+        assert s.db.execute("SELECT pos_01mm FROM ropes WHERE frame_id = 1 ORDER BY rope").fetchall() == \
+            [(123,), (-456,), (None,), (0,)]
+        s.export_csv(tmp_path / "csv")
+    rows = list(csv.DictReader((tmp_path / "csv" / "frames.csv").open()))
+    assert [rows[0][f"r{i}_pos_01mm"] for i in range(1, 5)] == ["123", "-456", "", "0"]
+    assert rows[0]["stroke_mask"] == "18" and rows[1]["stroke_mask"] == ""
+    assert [rows[1][f"r{i}_pos_01mm"] for i in range(1, 5)] == [""] * 4   # a version-2 frame has none
+    header = next(csv.reader((tmp_path / "csv" / "frames.csv").open()))
+    assert header.index("r4_raw_kpa") < header.index("stroke_mask") < header.index("r1_pos_01mm")

@@ -66,12 +66,15 @@ class StationStatus:
 @dataclass(frozen=True)
 class AlarmState:
     """The alarm engine's picture: active alarms (oldest first, warnings last) and, per node,
-    each rope's deviation and band (empty without the seal's friction lines)."""
+    each rope's deviation and band (empty without the seal's friction lines), and each hoist
+    node's standing status (`AlarmEngine.hoist_status`: the imbalance the seals can hide; shown
+    as status, never as an alarm; empty without a band)."""
 
     time_s: float
     active: tuple[ActiveAlarm, ...]
     bands: dict[int, list[DeviationBand | None]]
     hidden: tuple[ActiveAlarm, ...] = ()      # shelved, out of service, suppressed by design
+    hoist: dict[int, Any] = field(default_factory=dict)   # node -> HoistStatus (hidden_frac, text, ...)
 
 
 @dataclass(frozen=True)
@@ -421,8 +424,15 @@ class AlarmListener(Listener):
 
     def _publish_state(self, now_s: float) -> None:
         e = self.engine
+        status = getattr(e, "hoist_status", None)
+        hoist = {}
+        if status is not None:
+            for n in e.nodes():
+                st = status(n)
+                if st is not None:
+                    hoist[n] = st
         self.publish(AlarmState(now_s, tuple(e.active()), {n: e.deviation_bands(n, now_s) for n in e.nodes()},
-                                tuple(e.hidden())))
+                                tuple(e.hidden()), hoist))
 
 
 class StoreListener(Listener):

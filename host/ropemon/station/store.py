@@ -24,7 +24,13 @@ from ropemon.station.protocol import Frame, L, Rope
 
 OIL_TEMP_ABSENT = L.OIL_TEMP_ABSENT
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: what opening an older file adds (docs/storage.md): version -> [(table, column, type)]
+_MIGRATIONS = {2: [("frames", "stroke_mask", "INTEGER"), ("ropes", "pos_01mm", "INTEGER")]}
+POS_ABSENT = getattr(L, "POS_ABSENT", -32768)
+#: the running protocol's Rope and Frame carry the piston's position and the stroke mask
+_ROPE_POS = "pos_01mm" in Rope._fields
+_FRAME_STROKE = "stroke_mask" in getattr(Frame, "__dataclass_fields__", {})
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -44,7 +50,8 @@ CREATE TABLE IF NOT EXISTS frames (
     battery_mv INTEGER NOT NULL,
     oil_temp_cc INTEGER NOT NULL,
     authenticated INTEGER,
-    mac BLOB NOT NULL
+    mac BLOB NOT NULL,
+    stroke_mask INTEGER
 );
 CREATE INDEX IF NOT EXISTS frames_node_time ON frames (node, rx_time);
 CREATE INDEX IF NOT EXISTS frames_node_seq ON frames (node, seq);
@@ -55,6 +62,7 @@ CREATE TABLE IF NOT EXISTS ropes (
     min_dan INTEGER NOT NULL,
     max_dan INTEGER NOT NULL,
     raw_kpa INTEGER NOT NULL,
+    pos_01mm INTEGER,
     PRIMARY KEY (frame_id, rope)
 ) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS events (
@@ -94,7 +102,9 @@ CREATE TABLE IF NOT EXISTS trips (
 """
 
 _FRAME_COLS = ("rx_time", "receiver", "node", "seq", "version", "kind", "time_ms", "status",
-               "fault_mask", "depth_mm", "speed_mm_s", "battery_mv", "oil_temp_cc", "authenticated", "mac")
+               "fault_mask", "depth_mm", "speed_mm_s", "battery_mv", "oil_temp_cc", "authenticated", "mac",
+               "stroke_mask")
+_ROPE_COLS = ("mean_dan", "min_dan", "max_dan", "raw_kpa", "pos_01mm")
 _LINK_COLS = ("frames_ok", "crc_fail", "malformed", "mac_fail", "replayed", "bytes_discarded",
               "delivered", "share", "lost", "duplicates", "rewound", "duplicate")
 #: link_stats columns added to schema 1 before its first release; files written
@@ -139,6 +149,12 @@ def _with_utc(row: list, *cols) -> list:
 
 class StoreError(RuntimeError):
     pass
+
+
+def _pos(r: Rope) -> int | None:
+    """A rope record's piston position for the log (0.1 mm), None where the frame has none."""
+    pos = getattr(r, "pos_01mm", POS_ABSENT)
+    return None if pos == POS_ABSENT else pos
 
 
 @dataclass(frozen=True)
@@ -207,6 +223,12 @@ class Store:
             self.db.execute("INSERT INTO meta VALUES ('created', ?)", (str(time.time()),))
         elif int(row[0]) > SCHEMA_VERSION:
             raise StoreError(f"{self.path}: schema version {row[0]} is newer than this ropemon ({SCHEMA_VERSION})")
+        self.schema_version = SCHEMA_VERSION if row is None else int(row[0])
+        if not readonly and self.schema_version < SCHEMA_VERSION:
+            self._migrate()
+        # a read-only older file: its missing columns read as NULL
+        self._frame_sql = ",".join(self._cols("frames", _FRAME_COLS))
+        self._rope_sql = ",".join(self._cols("ropes", _ROPE_COLS))
         if not readonly:
             have = {r[1] for r in self.db.execute("PRAGMA table_info(link_stats)")}
             for col in _LINK_COLS_ADDED:
@@ -222,6 +244,28 @@ class Store:
         self._pending = 0
         self._pending_since: float | None = None
         self.committed_frames = self.db.execute("SELECT count(*) FROM frames").fetchone()[0]
+
+    def _cols(self, table: str, cols: tuple[str, ...]) -> list[str]:
+        have = {r[1] for r in self.db.execute(f"PRAGMA table_info({table})")}
+        return [c if c in have else f"NULL AS {c}" for c in cols]
+
+    def _migrate(self) -> None:
+        """Bring a file of an older schema version to this one, in one transaction: the columns
+        each later version added (NULL in the older rows), then the new version number."""
+        self.db.execute("BEGIN IMMEDIATE")
+        try:
+            for version in range(self.schema_version + 1, SCHEMA_VERSION + 1):
+                for table, col, typ in _MIGRATIONS.get(version, ()):
+                    have = {r[1] for r in self.db.execute(f"PRAGMA table_info({table})")}
+                    if col not in have:
+                        self.db.execute(f"ALTER TABLE {table} ADD COLUMN {col} {typ}")
+            self.db.execute("UPDATE meta SET value=? WHERE key='schema_version'", (str(SCHEMA_VERSION),))
+            self.db.execute("COMMIT")
+        except sqlite3.Error as e:
+            self.db.execute("ROLLBACK")
+            raise StoreError(f"{self.path}: cannot migrate schema version {self.schema_version} to "
+                             f"{SCHEMA_VERSION} ({e})") from None
+        self.schema_version = SCHEMA_VERSION
 
     # -- writing --------------------------------------------------------------
 
@@ -241,11 +285,13 @@ class Store:
             f"INSERT INTO frames ({','.join(_FRAME_COLS)}) VALUES ({','.join('?' * len(_FRAME_COLS))})",
             (rx_time, receiver, frame.node, frame.seq, frame.version, frame.kind, frame.time_ms,
              frame.status, frame.fault_mask, frame.depth_mm, frame.speed_mm_s, frame.battery_mv,
-             frame.oil_temp_cc, None if frame.authenticated is None else int(frame.authenticated), frame.mac))
+             frame.oil_temp_cc, None if frame.authenticated is None else int(frame.authenticated), frame.mac,
+             getattr(frame, "stroke_mask", 0) if frame.version >= 3 else None))
         fid = int(cur.lastrowid or 0)
         if frame.ropes:
-            self.db.executemany("INSERT INTO ropes VALUES (?,?,?,?,?,?)",
-                                [(fid, i, *r) for i, r in enumerate(frame.ropes)])
+            self.db.executemany(
+                f"INSERT INTO ropes (frame_id, rope, {','.join(_ROPE_COLS)}) VALUES (?,?,?,?,?,?,?)",
+                [(fid, i, r[0], r[1], r[2], r[3], _pos(r)) for i, r in enumerate(frame.ropes)])
         self._trip_step(frame, rx_time, fid)
         self._pending += 1
         if self._pending_since is None:
@@ -366,7 +412,7 @@ class Store:
         if t1 is not None:
             where.append("rx_time <= ?")
             args.append(t1)
-        sql = f"SELECT id, {','.join(_FRAME_COLS)} FROM frames"
+        sql = f"SELECT id, {self._frame_sql} FROM frames"
         if where:
             sql += " WHERE " + " AND ".join(where)
         return self._stored(self.db.execute(sql + " ORDER BY rx_time, id", args).fetchall())
@@ -395,7 +441,7 @@ class Store:
         """StoredFrames of frames rows (id, *_FRAME_COLS), with their ropes, in the order given."""
         ropes: dict[int, list[Rope]] = {}
         if rows:
-            sql = "SELECT frame_id, rope, mean_dan, min_dan, max_dan, raw_kpa FROM ropes WHERE frame_id "
+            sql = f"SELECT frame_id, rope, {self._rope_sql} FROM ropes WHERE frame_id "
             if len(rows) <= 500:  # a few frames, maybe far apart (one node of several): by id
                 ids = [r[0] for r in rows]
                 cur = self.db.execute(sql + f"IN ({','.join('?' * len(ids))}) ORDER BY frame_id, rope", ids)
@@ -403,11 +449,15 @@ class Store:
                 cur = self.db.execute(sql + "BETWEEN ? AND ? ORDER BY frame_id, rope",
                                       (min(r[0] for r in rows), max(r[0] for r in rows)))
             for fid, _i, *vals in cur:
+                pos = vals.pop()
+                if _ROPE_POS:
+                    vals.append(POS_ABSENT if pos is None else pos)
                 ropes.setdefault(fid, []).append(Rope(*vals))
         out = []
-        for fid, rx, rcv, node_, seq, ver, kind, tms, st, fm, dep, spd, bat, oil, auth, mac in rows:
+        for fid, rx, rcv, node_, seq, ver, kind, tms, st, fm, dep, spd, bat, oil, auth, mac, smask in rows:
+            extra = {"stroke_mask": smask or 0} if _FRAME_STROKE else {}
             f = Frame(ver, kind, node_, fm, seq, tms, st, tuple(ropes.get(fid, ())), dep, spd, bat, oil,
-                      None if auth is None else bool(auth), bytes(mac))
+                      authenticated=None if auth is None else bool(auth), mac=bytes(mac), **extra)
             out.append(StoredFrame(fid, rx, rcv, f))
         return out
 
@@ -457,7 +507,7 @@ class Store:
         first: a restarted host still tells their radio retries (duplicates) from replays."""
         start = self._line_starts().get(node, 0)
         rows = self.db.execute(
-            f"SELECT id, {','.join(_FRAME_COLS)} FROM frames WHERE node = ? AND authenticated = 1 AND id >= ? "
+            f"SELECT id, {self._frame_sql} FROM frames WHERE node = ? AND authenticated = 1 AND id >= ? "
             "ORDER BY rx_time DESC, id DESC LIMIT ?", (node, start, n)).fetchall()
         return [sf.frame for sf in self._stored(rows[::-1])]
 
@@ -483,35 +533,42 @@ class Store:
     def export_csv(self, out_dir: str | Path) -> list[Path]:
         """Write frames.csv, events.csv, link_stats.csv and trips.csv for people and spreadsheets:
         ropes numbered from 1 as on the cage (`r1_mean_dan`, events' `rope`), each time column
-        followed by its ISO-8601 UTC form (`rx_time_utc`), an absent oil temperature empty."""
+        followed by its ISO-8601 UTC form (`rx_time_utc`), an absent oil temperature empty; the
+        stroke mask and each rope's piston position (`r1_pos_01mm`) last, empty where the frame
+        has none."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         self.commit()
         n_ropes = self.db.execute("SELECT coalesce(max(rope) + 1, 0) FROM ropes").fetchone()[0]
         rope_fields = ("mean_dan", "min_dan", "max_dan", "raw_kpa")
-        oil = _FRAME_COLS.index("oil_temp_cc") + 1
+        # the columns of schema 1 first, in their order; what later versions added last
+        cols_v1 = _FRAME_COLS[:-1]
+        oil = cols_v1.index("oil_temp_cc") + 1
         paths = []
         p = out / "frames.csv"
         with p.open("w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(_with_utc(["id", *_FRAME_COLS], "rx_time")
-                       + [f"r{i + 1}_{f}" for i in range(n_ropes) for f in rope_fields])
-            cur = self.db.execute(f"SELECT id, {','.join(_FRAME_COLS)} FROM frames ORDER BY id")
-            rope_cur = self.db.execute("SELECT frame_id, rope, mean_dan, min_dan, max_dan, raw_kpa "
-                                       "FROM ropes ORDER BY frame_id, rope")
+            w.writerow(_with_utc(["id", *cols_v1], "rx_time")
+                       + [f"r{i + 1}_{f}" for i in range(n_ropes) for f in rope_fields]
+                       + ["stroke_mask"] + [f"r{i + 1}_pos_01mm" for i in range(n_ropes)])
+            cur = self.db.execute(f"SELECT id, {self._frame_sql} FROM frames ORDER BY id")
+            rope_cur = self.db.execute(f"SELECT frame_id, rope, {self._rope_sql} FROM ropes ORDER BY frame_id, rope")
             pending = next(rope_cur, None)
             for row in cur:
                 fid = row[0]
                 cells = [""] * (4 * n_ropes)
+                pos = [""] * n_ropes
                 while pending is not None and pending[0] <= fid:
                     if pending[0] == fid:
-                        cells[4 * pending[1]: 4 * pending[1] + 4] = pending[2:]
+                        cells[4 * pending[1]: 4 * pending[1] + 4] = pending[2:6]
+                        pos[pending[1]] = "" if pending[6] is None else pending[6]
                     pending = next(rope_cur, None)
                 row = list(row)
+                smask = row.pop()
                 row[-1] = row[-1].hex()  # mac
                 if row[oil] == OIL_TEMP_ABSENT:
                     row[oil] = ""
-                w.writerow(_with_utc(row, 1) + cells)
+                w.writerow(_with_utc(row, 1) + cells + ["" if smask is None else smask] + pos)
         paths.append(p)
         for table, times in (("events", ("time_s",)), ("link_stats", ("time_s",)),
                              ("trips", ("start_time", "end_time"))):
