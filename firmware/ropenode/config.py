@@ -97,6 +97,17 @@ q8um_at_lo -67108864 67108864
 q8um_mul 0 16384
 q8um_shift 0 30
 """
+# The piston's travel and stroke margin per rope, um/256 from mid-stroke (the displacement
+# calibration's zero), in the order the kernel keeps them after each rope's 6 displacement
+# ints: a reading below travel_lo or above travel_hi is a displacement fault; a position at or
+# below stroke_lo / at or above stroke_hi sets the rope's stroke bit. Each key is optional (an
+# older node.json): its default here is beyond any position (the check is off). An int applies
+# to every rope, else a list of one per rope.
+_LIMIT = 1 << 29
+_STROKE = (("travel_lo_q8um", -_LIMIT), ("stroke_lo_q8um", -_LIMIT), ("stroke_hi_q8um", _LIMIT),
+           ("travel_hi_q8um", _LIMIT))
+# A position the node holds: within this at both fault limits of its channel (um/256, 131 mm).
+POSITION_MAX_Q8UM = 1 << 25
 # Friction parameters linear in sensor pressure, {at_0, slope_mul, slope_shift}:
 # key, lo and hi of at_0, lo over 0..p_kpa_max; each becomes the attribute `key` = (at0, mul, shift).
 _LINEAR = """
@@ -273,7 +284,8 @@ def _channels(nd, key, n, spec):
 
 class Config:
     """A validated node section: the attributes named in the tables above, plus
-    key (bytes), window, pressure and displacement (per-rope int arrays),
+    key (bytes), window, pressure and displacement (per-rope int arrays), the _STROKE keys
+    (an int array of one per rope each),
     gexp_q14, temps_cc, loss_nt, loss_nv, v_um_s, force_n and marks_mm."""
 
 
@@ -326,6 +338,28 @@ def parse_node(nd):
             # (kPa/16 with the same mul: no larger than 16 times this, < 2**21)
             _range("node.pressure[%d].kpa_mul" % i, pc[b + 3] + (((pc[b + j] - pc[b]) * pc[b + 4])
                                                                >> pc[b + 5]), -100000, 100000)
+    dc = c.displacement
+    for i in range(n):
+        b = 6 * i
+        for j in (1, 2):  # the positions at both fault limits bound every position the node holds
+            _range("node.displacement[%d].q8um_mul" % i, dc[b + 3] + (((dc[b + j] - dc[b]) * dc[b + 4])
+                                                                     >> dc[b + 5]),
+                   -POSITION_MAX_Q8UM, POSITION_MAX_Q8UM)
+    for key, default in _STROKE:
+        v = nd.get(key, default)
+        if type(v) is int:
+            _range("node." + key, v, -_LIMIT, _LIMIT)
+            setattr(c, key, array.array("i", [v] * n))
+        else:
+            setattr(c, key, _ints(nd, key, "node", n, n, -_LIMIT, _LIMIT))
+    for i in range(n):
+        f = "node.%s[%d]"
+        if c.travel_lo_q8um[i] > c.stroke_lo_q8um[i]:
+            raise ConfigError(f % ("travel_lo_q8um", i), "above stroke_lo_q8um")
+        if c.stroke_lo_q8um[i] >= c.stroke_hi_q8um[i]:
+            raise ConfigError(f % ("stroke_lo_q8um", i), "not below stroke_hi_q8um")
+        if c.stroke_hi_q8um[i] > c.travel_hi_q8um[i]:
+            raise ConfigError(f % ("travel_hi_q8um", i), "below stroke_hi_q8um")
     if c.dx_max_q8um * c.sample_hz >= 1 << 28:
         raise ConfigError("node.velocity.dx_max_q8um", "times sample_hz exceeds 2**28")
 
