@@ -42,11 +42,15 @@ class Rig:
         self.seq = {h: 0 for h in self.stations.hoists}
         self.ids = list(self.stations.hoists)
 
-    def feed(self, hoist: str, tensions=(5000, 5100, 4900, 5000), **kw) -> int:
-        """One frame of hoist's node 1; returns its seq."""
+    def feed(self, hoist: str, tensions=(5000, 5100, 4900, 5000), positions=None, **kw) -> int:
+        """One frame of hoist's node 1; returns its seq. `positions`: each rope's pos_01mm
+        (None: absent); without them the frame's ropes carry no position. `version`,
+        `stroke_mask` and the frame's other fields go in `kw`."""
         self.seq[hoist] += 1
         i = self.ids.index(hoist)
         ropes = [(t, t - 50, t + 50, 8000) if t is not None else (-32768, -32768, -32768, 0xFFFF) for t in tensions]
+        if positions is not None:
+            ropes = [r + (-32768 if x is None else x,) for r, x in zip(ropes, positions)]
         kw.setdefault("battery_mv", 12_000)
         kw.setdefault("time_ms", self.seq[hoist] * 100)
         wire = encode_frame(node=1, seq=self.seq[hoist], key=key_of(i), ropes=ropes, **kw)[1]

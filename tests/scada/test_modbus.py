@@ -1,6 +1,8 @@
 """The Modbus TCP face read and written by a pymodbus client: the map, the heartbeat, the ack coil."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import pytest
 
 pytest.importorskip("pymodbus")
@@ -156,3 +158,84 @@ class _Events:
 
     def on_event(self, e):
         self.out.append(e)
+
+
+# -- map version 2: the pistons, the standing status, the equalizer's alarm bits -------------
+
+#: Version 1's registers as docs/integration.md lists them, written out (not taken from the
+#: module): hoist block offsets, node sub-block offsets (node sub-block 0 at 20)
+V1_HOIST = (0, 1, 2, 3, 4, 5, 6, 7, 8)
+V1_NODE = tuple(range(0, 22))
+
+
+def _listener(rig, hoist):
+    return next(x for x in rig.stations.hoists[hoist].station.listeners if isinstance(x, M.ModbusValues))
+
+
+def test_version_2_reads_the_positions_back_and_keeps_version_1s_registers(tmp_path):
+    port = free_port()
+    rig = Rig(tmp_path, 2, f"[modbus]\nport = {port}\n")
+    for h in rig.stations.hoists.values():          # the site's stroke (EURange of the gauge)
+        h.site.stroke_m = [0.25, 0.25, 0.25, 0.30]
+        h.site.stroke_margin_m = 0.01
+    faces = start_faces(rig.stations, rig.file)
+    client = ModbusTcpClient("127.0.0.1", port=port, timeout=3)
+    try:
+        assert client.connect()
+        assert read(client, 0, 7) == [2, 2, 100, 100, 2, 4, 0]       # map version 2, then as version 1
+        rig.step()
+        frame = dict(depth_mm=812_345, speed_mm_s=-9500, battery_mv=11_900, oil_temp_cc=2150)
+        rig.feed("h0", (5000, 5100, 4900, None), version=2, **frame)             # a version 2 node
+        rig.feed("h1", (5000, 5100, 4900, None), positions=(1234, -500, 0, None),   # version 3
+                 stroke_mask=0b0001_0010, **frame)
+        rig.step()
+        b0, b1 = block(client, 0), block(client, 1)
+        n = 20
+        # the version 3 node: position 0.1 mm signed, the stroke mask, the layout version
+        assert [s16(b1[n + 22 + r]) for r in range(4)] == [1234, -500, 0, -32768]
+        assert b1[n + 26] == 0x12 and b1[n + 27] == 3
+        assert [b1[n + 29 + r] for r in range(4)] == [2500, 2500, 2500, 3000] and b1[n + 33] == 100
+        # the version 2 node: no positions, no stroke bits
+        assert [s16(b0[n + 22 + r]) for r in range(4)] == [-32768] * 4 and b0[n + 26] == 0 and b0[n + 27] == 2
+        # version 1's registers: the same values for the same tensions, with or without positions
+        assert [b0[a] for a in V1_HOIST if a not in (2, 3, 4, 5)] == [b1[a] for a in V1_HOIST if a not in (2, 3, 4, 5)]
+        assert [b0[n + a] for a in V1_NODE] == [b1[n + a] for a in V1_NODE]
+        assert [s16(b1[n + 12 + 2 * r]) for r in range(4)] == [5000, 5100, 4900, -32768]
+        assert [s16(b1[n + 13 + 2 * r]) for r in range(4)] == [0, 200, -200, -32768]
+        assert s32(b1[n + 6], b1[n + 7]) == 812_345 and s16(b1[n + 8]) == -9500 and b1[n + 9] == 11_900
+        assert s32(b1[n + 20], b1[n + 21]) == 1
+        # an equalizer alarm: its own bit in the version 2 words, "any other kind" (bit 16) in version 1's
+        other = s32(b1[2], b1[3]) & (1 << 16)
+        eq = s32(b1[M.EQ_PRESENT], b1[M.EQ_PRESENT + 1])
+        assert bool(other) == bool(eq)
+    finally:
+        client.close()
+        for f in faces:
+            f.stop()
+        rig.close()
+
+
+def test_version_2_carries_the_equalizer_alarms_and_the_standing_status(served):
+    from ropemon.station.alarms import ActiveAlarm
+    from ropemon.station.pipeline import AlarmState
+    from ropemon.station.scadavalues import EQUALIZER_KINDS
+    rig, face, client = served(1)
+    rig.feed("h0", positions=(10, 20, 30, 40))
+    rig.step()
+    v = _listener(rig, "h0")
+    assert s16(block(client, 0)[M.NODE_BASE + M.N_HIDDEN]) == -32768        # no standing status yet
+
+    def alarm(kind, rope, present, latched):
+        return ActiveAlarm(f"{kind}:n1:r{rope}", kind, 1, rope, present, latched, None, None, kind, 1.0)
+    status = SimpleNamespace(hidden_frac=0.1634, text="the seals can hide 16.3 %")
+    v.on_alarms(AlarmState(rig.now, (alarm("stroke_limit", 2, True, True), alarm("oil_loss", 0, False, True),
+                                     alarm("deviation", 1, True, False)), {}, (), {1: status}))
+    b = block(client, 0)
+    assert s32(b[9], b[10]) == 1 << EQUALIZER_KINDS.index("stroke_limit")           # present
+    assert s32(b[11], b[12]) == (1 << EQUALIZER_KINDS.index("stroke_limit")) | (1 << EQUALIZER_KINDS.index("oil_loss"))
+    assert s32(b[2], b[3]) == (1 << 16) | (1 << ALARM_KINDS.index("deviation"))      # version 1: "any other kind"
+    assert s32(b[4], b[5]) == (1 << 16)
+    assert s16(b[M.NODE_BASE + 28]) == 1634                                          # 0.01 %
+    v.on_alarms(AlarmState(rig.now, (), {}, (), {}))
+    b = block(client, 0)
+    assert s32(b[9], b[10]) == 0 and s32(b[11], b[12]) == 0 and s16(b[M.NODE_BASE + 28]) == -32768

@@ -9,7 +9,9 @@ Registers (function 3 holding or 4 input: the same map, read-only): map header a
 hoist h's block at `HOIST_BASE + h * HOIST_STRIDE` (hoists in the station file's order).
 Values are 16-bit registers; a 32-bit value spans two, high word first (big-endian words,
 "ABCD"); signed values are two's complement. The map's layout is `MAP_VERSION`; a reader
-checks register 0 first.
+checks register 0 first. Version 2 is version 1 with registers added where version 1 had
+none (the pistons, the standing status, the equalizer's alarm bits): every register of
+version 1 keeps its address and its meaning.
 
 The listener (`ModbusValues`, one per hoist, on the station's thread) builds the hoist's
 block and swaps in a new tuple; the server (pymodbus, its own asyncio loop in its own
@@ -32,10 +34,10 @@ from pymodbus.server.requesthandler import ServerRequestHandler
 
 from ropemon.commission.tomlfields import Table
 from ropemon.station.pipeline import Acknowledge
-from ropemon.station.scadavalues import ALARM_KINDS, HoistValues, NodeValues
+from ropemon.station.scadavalues import ALARM_KINDS, EQUALIZER_KINDS, HoistValues, NodeValues
 from ropemon.station.stationfile import StationFileError
 
-MAP_VERSION = 1
+MAP_VERSION = 2
 HOIST_BASE = 100            # hoist 0's block
 HOIST_STRIDE = 100          # registers per hoist block
 MAX_HOISTS = 64
@@ -50,11 +52,16 @@ AGE_NONE = 0xFFFF           # frame age: never, or 6553.5 s and more
 
 # hoist header offsets
 HB, STATUS, PRESENT, UNACKED, AGE, NODES, FRAMES = 0, 1, 2, 4, 6, 7, 8
+EQ_PRESENT, EQ_UNACKED = 9, 11          # version 2: the EQUALIZER_KINDS words (uint32 each)
 # status bits
 ST_VOUCHED, ST_ALARM, ST_UNACKED, ST_ALL_HEARD, ST_ACK_COIL = 1, 2, 4, 8, 16
 # node sub-block offsets
 N_ID, N_AGE, N_STATUS, N_FAULTS, N_SUM, N_DEPTH, N_SPEED, N_BATTERY, N_OIL, N_ROPES = 0, 1, 2, 3, 4, 6, 8, 9, 10, 11
 N_SEQ = ROPE_BASE + 2 * ROPES   # 20..21: the frame's sequence number (uint32)
+# version 2, node sub-block: rope r's piston position (int16, 0.1 mm) at N_POS + r, the frame's
+# stroke mask, its layout version, the hidden imbalance (int16, 0.01 %), rope r's stroke
+# (uint16, 0.1 mm) at N_STROKE + r, the stroke margin (uint16, 0.1 mm)
+N_POS, N_STROKE_MASK, N_VERSION, N_HIDDEN, N_STROKE, N_MARGIN = 22, 26, 27, 28, 29, 33
 
 log = logging.getLogger(__name__)
 _PEER: contextvars.ContextVar[str] = contextvars.ContextVar("modbus_peer", default="?")
@@ -69,6 +76,11 @@ def _i32(words: list[int], at: int, v: int | None) -> None:
     words[at], words[at + 1] = u >> 16, u & 0xFFFF
 
 
+def _u01mm(m: float | None) -> int:
+    """A length in m as uint16 0.1 mm (0: unknown)."""
+    return 0 if m is None or not m > 0 else min(0xFFFF, round(m * 10_000))
+
+
 def _age(now_s: float, then_s: float | None) -> int:
     if then_s is None:
         return AGE_NONE
@@ -80,7 +92,8 @@ class ModbusValues(HoistValues):
 
     name = "modbus"
 
-    def __init__(self, face: "ModbusFace", index: int, hoist: str, nodes: Sequence[int]) -> None:
+    def __init__(self, face: "ModbusFace", index: int, hoist: str, nodes: Sequence[int],
+                 stroke_m: Sequence[float] = (), margin_m: float | None = None) -> None:
         super().__init__(hoist, nodes)
         self.face, self.index = face, index
         self.frames = 0
@@ -91,6 +104,9 @@ class ModbusValues(HoistValues):
             self.words[base + N_ID] = n
             self.words[base + N_AGE] = AGE_NONE
             self._node_none(base)
+            for r in range(ROPES):
+                self.words[base + N_STROKE + r] = _u01mm(stroke_m[r] if r < len(stroke_m) else None)
+            self.words[base + N_MARGIN] = _u01mm(margin_m)
         self.words[AGE] = AGE_NONE
         face.blocks[index] = tuple(self.words)
 
@@ -101,6 +117,8 @@ class ModbusValues(HoistValues):
         w[base + N_SPEED] = w[base + N_OIL] = _i16(None)
         for r in range(ROPES):
             w[base + ROPE_BASE + 2 * r] = w[base + ROPE_BASE + 2 * r + 1] = _i16(None)
+            w[base + N_POS + r] = _i16(None)
+        w[base + N_HIDDEN] = _i16(None)
 
     def changed(self, what: str, v: NodeValues | None) -> None:
         w = self.words
@@ -122,6 +140,11 @@ class ModbusValues(HoistValues):
         w[HB] = self.heartbeat
         w[PRESENT], w[PRESENT + 1] = self.present_bits >> 16, self.present_bits & 0xFFFF
         w[UNACKED], w[UNACKED + 1] = self.unacked_bits >> 16, self.unacked_bits & 0xFFFF
+        w[EQ_PRESENT], w[EQ_PRESENT + 1] = self.present_eq >> 16, self.present_eq & 0xFFFF
+        w[EQ_UNACKED], w[EQ_UNACKED + 1] = self.unacked_eq >> 16, self.unacked_eq & 0xFFFF
+        for k, n in enumerate(self.nodes):
+            hidden = self.standing[n].hidden_frac
+            w[NODE_BASE + k * NODE_STRIDE + N_HIDDEN] = _i16(None if hidden is None else round(hidden * 10000))
         w[STATUS] = ((ST_VOUCHED if self.vouched else 0) | (ST_ALARM if self.present_bits else 0)
                      | (ST_UNACKED if self.unacked_bits else 0)
                      | (ST_ALL_HEARD if all(n in self.latest for n in self.nodes) else 0)
@@ -145,6 +168,11 @@ class ModbusValues(HoistValues):
             dev = rope.deviation if rope else None
             w[base + ROPE_BASE + 2 * r + 1] = _i16(None if dev is None else round(dev * 10000))
         _i32(w, base + N_SEQ, v.seq & 0x7FFFFFFF)
+        for r in range(ROPES):
+            rope = v.ropes[r] if r < len(v.ropes) else None
+            w[base + N_POS + r] = _i16(rope.pos_01mm if rope else None)
+        w[base + N_STROKE_MASK] = v.stroke_mask & 0xFF
+        w[base + N_VERSION] = v.version & 0xFFFF
 
 
 class _Context(ModbusServerContext):
@@ -297,9 +325,11 @@ def start(stations: Any, table: dict) -> ModbusFace:
         if len(nodes) > MAX_NODES:
             raise StationFileError(f"modbus: hoist {h.id} has {len(nodes)} nodes; the map holds {MAX_NODES} per hoist")
     index = {hid: i for i, hid in enumerate(face.hoist_ids)}
-    stations.add_listeners(lambda h: ModbusValues(face, index[h.id], h.id, sorted(h.keys)))
+    stations.add_listeners(lambda h: ModbusValues(face, index[h.id], h.id, sorted(h.keys),
+                                                  list(getattr(h.site, "stroke_m", None) or ()),
+                                                  getattr(h.site, "stroke_margin_m", None)))
     face.start()
     return face
 
 
-__all__ = ["ALARM_KINDS", "MAP_VERSION", "ModbusFace", "start"]
+__all__ = ["ALARM_KINDS", "EQUALIZER_KINDS", "MAP_VERSION", "ModbusFace", "start"]
