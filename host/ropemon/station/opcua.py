@@ -46,6 +46,7 @@ from ropemon.station.alarms import PRIORITY, ActiveAlarm, AlarmEvent
 from ropemon.station.link import Received
 from ropemon.station.pipeline import Acknowledge, AlarmState, Listener, Shelve, StationStatus, Unshelve
 from ropemon.station.protocol import DAN_TO_N, L, Frame
+from ropemon.station.scadavalues import POS_ABSENT, standing_of
 from ropemon.station.stationfile import StationFileError
 
 log = logging.getLogger(__name__)
@@ -65,7 +66,7 @@ EVENT_COLUMNS = ("id", "time_s", "action", "alarm", "kind", "node", "rope", "mes
 MAX_SHELVE_MIN = 720.0       # the longest TimedShelve, and a OneShotShelve's bound (as the web face's)
 
 #: UNECE Rec. 20 codes of the units (OPC UA EUInformation, Part 8).
-UNITS = {"kN": ("B47", "kilonewton"), "%": ("P1", "percent"), "m": ("MTR", "metre"),
+UNITS = {"kN": ("B47", "kilonewton"), "%": ("P1", "percent"), "m": ("MTR", "metre"), "mm": ("MMT", "millimetre"),
          "m/s": ("MTS", "metre per second"), "V": ("VLT", "volt"), "degC": ("CEL", "degree Celsius")}
 UNECE_URI = "http://www.opcfoundation.org/UA/units/un/cefact"
 
@@ -249,6 +250,9 @@ class _Rope:
     dev_min: Any
     dev_max: Any
     area_m2: float | None
+    position: Any = None           # piston position, mm from mid-stroke
+    near_low: Any = None           # within the stroke margin of the retracted end (Boolean)
+    near_high: Any = None          # ... of the extended end
 
 
 @dataclass
@@ -264,6 +268,9 @@ class _Node:
     fault_mask: Any
     seq: Any
     links: dict[str, Any]          # receiver -> its share of this node's frames (%)
+    hidden: Any = None             # the standing status: the imbalance the seals can hide (%)
+    standing: Any = None           # ... and its line of text
+    standing_last: tuple | None = None   # what was last written to those two
 
 
 @dataclass
@@ -708,6 +715,7 @@ class OpcuaFace:
                                                        "Boolean", description="the receiver's port is open")
             nodes = {}
             areas = list(h.site.cylinder_area_m2)
+            strokes = list(getattr(h.site, "stroke_m", None) or ())
             for n in sorted(h.keys):
                 base = f"{hid}.n{n}"
                 nobj = await self._object(hobj, base, f"Node{n}", f"{h.name}: node {n}")
@@ -728,6 +736,17 @@ class OpcuaFace:
                         await self._variable(robj, f"{rb}.DeviationMax", "DeviationMax", "Double", "%",
                                              (-100.0, 100.0), description="high end of the deviation's band"),
                         areas[k])
+                    half = strokes[k] / 2 * 1000.0 if k < len(strokes) and strokes[k] else None
+                    r.position = await self._variable(
+                        robj, f"{rb}.Position", "Position", "Double", "mm", (-half, half) if half else None,
+                        description="piston position from mid-stroke (window mean; > 0: pulled out by the rope); "
+                                    "EURange: the end stops")
+                    r.near_low = await self._variable(
+                        robj, f"{rb}.NearRetractedEnd", "NearRetractedEnd", "Boolean",
+                        description="the piston came within the stroke margin of its retracted end in the window")
+                    r.near_high = await self._variable(
+                        robj, f"{rb}.NearExtendedEnd", "NearExtendedEnd", "Boolean",
+                        description="the piston came within the stroke margin of its extended end in the window")
                     ropes.append(r)
                     if h.db_path is not None:
                         self.history.series[r.tension] = (h.db_path, n, k, "Tension", None)
@@ -754,7 +773,12 @@ class OpcuaFace:
                                          description="pressure/displacement channels failed (docs/protocol.md)"),
                     await self._variable(nobj, f"{base}.Seq", "Seq", "UInt32",
                                          description="the frame's sequence number"),
-                    links)
+                    links,
+                    await self._variable(nobj, f"{base}.HiddenImbalance", "HiddenImbalance", "Double", "%",
+                                         (0.0, 100.0), description="standing status: the imbalance (of the mean "
+                                         "rope tension) the seals' static friction can hide with the ropes equal"),
+                    await self._variable(nobj, f"{base}.StandingStatus", "StandingStatus", "String",
+                                         description="standing status: one line an operator reads"))
             self.hoists[hid] = _Hoist(hid, hobj, alarms_obj, nodes, receivers, h.db_path, {}, {}, {}, {})
         # the Server object emits the alarm conditions' events
         await server.get_node(ua.NodeId(ua.ObjectIds.Server)).set_event_notifier(
@@ -810,6 +834,15 @@ class OpcuaFace:
             await self._write(rope.raw, raw, D, ts)
             dev = (r.mean_dan - mean) / mean * 100.0 if (t is not None and len(present) >= 2 and mean > 0) else None
             await self._write(rope.deviation, dev, D, ts, ua.StatusCodes.BadNoData if t is not None else None)
+            if f.version < 3 or r is None:       # a version 2 node sends no position
+                for nid in (rope.position, rope.near_low, rope.near_high):
+                    await self._write(nid, None, D, ts, ua.StatusCodes.BadNoData)
+                continue
+            pos = getattr(r, "pos_01mm", POS_ABSENT)
+            await self._write(rope.position, None if pos == POS_ABSENT else pos / 10.0, D, ts)
+            mask = getattr(f, "stroke_mask", 0)
+            await self._write(rope.near_low, bool(mask >> k & 1), ua.VariantType.Boolean, ts)
+            await self._write(rope.near_high, bool(mask >> (4 + k) & 1), ua.VariantType.Boolean, ts)
         total = f.total_dan
         await self._write(n.sum, None if total is None else total * DAN_TO_N / 1000.0, D, ts)
         await self._write(n.depth, f.depth_mm / 1000.0, D, ts)
@@ -851,6 +884,14 @@ class OpcuaFace:
                 b = bands[k] if k < len(bands) else None
                 await self._write(rope.dev_min, None if b is None else b.d_min * 100.0, D, ts, ua.StatusCodes.BadNoData)
                 await self._write(rope.dev_max, None if b is None else b.d_max * 100.0, D, ts, ua.StatusCodes.BadNoData)
+        statuses = getattr(state, "hoist", None) or {}
+        for node, n in h.nodes.items():
+            st = standing_of(statuses.get(node))
+            now_st = (None if st.hidden_frac is None else round(st.hidden_frac * 100.0, 3), st.text)
+            if now_st != n.standing_last:
+                n.standing_last = now_st
+                await self._write(n.hidden, now_st[0], D, ts, ua.StatusCodes.BadNoData)
+                await self._write(n.standing, now_st[1], ua.VariantType.String, ts, ua.StatusCodes.BadNoData)
         now = {a.id: a for a in state.active}
         hidden = {a.id: a for a in state.hidden}
         views = {**hidden, **now}
