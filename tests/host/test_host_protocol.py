@@ -52,11 +52,45 @@ def test_good_vectors_decode_to_their_fields_and_match_the_node_code(v):
     assert bytes(dst[:n]) == wire
     mac_at = len(raw) - L.MAC_LEN - L.CRC_LEN
     assert raw[mac_at: mac_at + L.MAC_LEN] == hmac.new(key, raw[:mac_at], hashlib.sha256).digest()[:4]
+    # Independent of the host's structs: the rope records and the tail by hand (layout 3).
+    assert raw[0] == 3 and len(raw) == 33 + 10 * len(fields["ropes"])
+    for i, r in enumerate(fields["ropes"]):
+        assert int.from_bytes(raw[14 + 10 * i + 8: 14 + 10 * i + 10], "little", signed=True) == r[4]
+    assert raw[mac_at - 1] == fields["stroke_mask"]
+
+
+def test_the_vectors_cover_positions_absent_positions_and_stroke_bits():
+    good = load_vectors()["good"]
+    pos = [r[4] for v in good for r in v["fields"]["ropes"]]
+    assert L.POS_ABSENT in pos and any(p > 0 for p in pos if p != L.POS_ABSENT) and any(-32768 < p < 0 for p in pos)
+    masks = [v["fields"]["stroke_mask"] for v in good]
+    assert any(m & 0x0F for m in masks) and any(m & 0xF0 for m in masks)
+    assert len(load_vectors()["good_v2"]) >= 1
+
+
+@pytest.mark.parametrize("v", load_vectors()["good_v2"], ids=lambda v: v["name"])
+def test_version_2_vectors_decode_without_positions(v):
+    key = bytes.fromhex(v["key_hex"])
+    raw, wire = bytes.fromhex(v["raw_hex"]), bytes.fromhex(v["wire_hex"])
+    fields = v["fields"]
+    assert raw[0] == 2 and len(raw) == 32 + 8 * len(fields["ropes"])
+    f = decode_raw(raw, {fields["node"]: key})
+    assert f.version == 2 and f.stroke_mask == 0 and f.authenticated is True
+    assert [list(r) for r in f.ropes] == [r + [L.POS_ABSENT] for r in fields["ropes"]]
+    assert all(r.position_m is None for r in f.ropes)
+    for k, want in fields.items():
+        if k != "ropes":
+            assert getattr(f, k) == want, k
+    dec = StreamDecoder({fields["node"]: key})
+    (g,) = dec.feed(wire)
+    assert g == f
+    from ropemon.station.decoder import frame_bytes
+    assert frame_bytes(f) == raw  # what the replay guard compares copies by
 
 
 def test_bad_vectors_land_in_their_count():
     vec = load_vectors()
-    keys = {v["fields"]["node"]: bytes.fromhex(v["key_hex"]) for v in vec["good"]}
+    keys = {v["fields"]["node"]: bytes.fromhex(v["key_hex"]) for v in vec["good"] + vec["good_v2"]}
     good = {v["name"]: v for v in vec["good"]}
     for v in vec["bad"]:
         dec = StreamDecoder(keys)
@@ -69,8 +103,8 @@ def test_bad_vectors_land_in_their_count():
             assert frames == [] and dec.counts.frames_ok == 0, v["name"]
         assert dec.versions == ({v["version"]: 1} if "version" in v else {}), v["name"]
         if "version" in v:
-            assert (f"malformed: 1 frame(s) of layout version {v['version']} (this host decodes version {L.VERSION} "
-                    "only") in dec.summary()
+            assert (f"malformed: 1 frame(s) of layout version {v['version']} (this host decodes "
+                    "versions 2, 3") in dec.summary()
 
 
 def test_crc32_check_value_and_residue():
@@ -85,13 +119,13 @@ def test_crc32_check_value_and_residue():
 
 def test_a_version_1_frame_is_named_not_taken():
     """A node with the old firmware (CRC-16, 2 bytes shorter): VersionError, not CRC noise."""
-    raw, _ = encode_frame(node=1, seq=5, ropes=[(1, 2, 3, 4)], key=KEYS[1])
+    raw, _ = encode_frame(node=1, seq=5, ropes=[(1, 2, 3, 4)], key=KEYS[1], version=2)
     v1 = bytearray(raw[:-4])
     v1[0] = 1
     v1 += binascii.crc_hqx(bytes(v1), 0xFFFF).to_bytes(2, "little")
-    with pytest.raises(VersionError, match="layout version 1: this host decodes version 2 only"):
+    with pytest.raises(VersionError, match="layout version 1: this host decodes versions 2, 3 only"):
         decode_raw(bytes(v1), KEYS)
-    status_v1 = bytearray(encode_frame(node=1, seq=6)[0][:-4])  # 30 bytes: shorter than any version 2 frame
+    status_v1 = bytearray(encode_frame(node=1, seq=6, version=2)[0][:-4])  # 30 bytes: shorter than any frame
     status_v1[0] = 1
     status_v1 += binascii.crc_hqx(bytes(status_v1), 0xFFFF).to_bytes(2, "little")
     with pytest.raises(VersionError):
@@ -100,7 +134,78 @@ def test_a_version_1_frame_is_named_not_taken():
     from cobs import cobs
     assert dec.feed(b"".join(b"\x00" + cobs.encode(bytes(r)) + b"\x00" for r in (v1, status_v1))) == []
     assert dec.counts.malformed == 2 and dec.counts.crc_fail == 0 and dec.versions == {1: 2}
-    assert "malformed: 2 frame(s) of layout version 1 (this host decodes version 2 only" in dec.summary()
+    assert "malformed: 2 frame(s) of layout version 1 (this host decodes versions 2, 3" in dec.summary()
+
+
+def test_a_mixed_stream_of_version_2_and_3_nodes_decodes_in_order():
+    """A mine upgrades one cage at a time: node 1 sends version 3, node 2 still version 2,
+    interleaved; both decode, in stream order, each with its own layout's fields."""
+    wires, want = [], []
+    for k in range(40):
+        node, version = (1, 3) if k % 2 == 0 else (2, 2)
+        ropes = [(4000 + k, 3990, 4010, 5000 + i) + ((k * 10 - 200 + i,) if version == 3 else ()) for i in range(4)]
+        mask = (1 << (k % 8)) if version == 3 else 0
+        wires.append(encode_frame(node=node, seq=k + 1, ropes=ropes, key=KEYS[node], version=version,
+                                  stroke_mask=mask, status=L.ST_STROKE_LIMIT if mask else 0)[1])
+        want.append((node, version, k + 1, [r[4] if version == 3 else L.POS_ABSENT for r in ropes], mask))
+    data = b"".join(wires)
+    for chunk in (1, 7, 4096):
+        dec = StreamDecoder(KEYS)
+        got = [f for i in range(0, len(data), chunk) for f in dec.feed(data[i:i + chunk])]
+        assert [(f.node, f.version, f.seq, [r.pos_01mm for r in f.ropes], f.stroke_mask) for f in got] == want
+        assert dec.counts.frames_ok == 40 and dec.counts.malformed == dec.counts.crc_fail == 0
+    from ropemon.station.batch import decode_bytes
+    b = decode_bytes(data, KEYS)
+    assert [(f.node, f.version, f.seq, [r.pos_01mm for r in f.ropes], f.stroke_mask) for f in b.frames()] == want
+    assert b.counts == dec.counts
+    # a damaged frame of either version is dropped (CRC, or its COBS chain), and the rest still decode
+    for at in (5, len(wires[0]) + 5, len(wires[0]) + 20):  # inside the first version 3, then version 2 frame
+        bad = bytearray(data)
+        bad[at] ^= 0x10
+        dec = StreamDecoder(KEYS)
+        assert len(dec.feed(bytes(bad))) == 39 and dec.counts.crc_fail + dec.counts.malformed == 1
+
+
+def test_positions_and_stroke_bits():
+    raw, _ = encode_frame(node=1, seq=5, ropes=[Rope(100, 90, 110, 5, -1234), Rope(200, 190, 210, 6),
+                                                (300, 290, 310, 7, 32767)],
+                          stroke_mask=(1 << L.STROKE_LOW_SHIFT) | (1 << (L.STROKE_HIGH_SHIFT + 2)),
+                          status=L.ST_STROKE_LIMIT)
+    f = decode_raw(raw)
+    assert f.version == 3 and [r.pos_01mm for r in f.ropes] == [-1234, L.POS_ABSENT, 32767]
+    assert f.ropes[0].position_m == pytest.approx(-0.1234) and f.ropes[1].position_m is None
+    assert f.stroke_low == [True, False, False] and f.stroke_high == [False, False, True]
+    assert "stroke_limit" in f.status_flags
+    d = f.to_dict()
+    assert d["stroke_mask"] == 0x41 and d["ropes"][0]["pos_01mm"] == -1234
+    assert d["ropes"][1]["position_absent"] is True and d["ropes"][0]["position_absent"] is False
+    json.dumps(d)
+    # a version 2 frame cannot carry either
+    with pytest.raises(ValueError, match="no piston position"):
+        encode_frame(node=1, seq=1, ropes=[(1, 2, 3, 4, 5)], version=2)
+    with pytest.raises(ValueError, match="no stroke_mask"):
+        encode_frame(node=1, seq=1, ropes=[(1, 2, 3, 4)], version=2, stroke_mask=1)
+    # the default Rope and Frame of code written before positions: absent, 0
+    assert Rope(1, 2, 3, 4).pos_01mm == L.POS_ABSENT
+    from ropemon.station.protocol import Frame
+    assert Frame(3, 0, 1, 0, 1, 0, 0, (), 0, 0, 0, 0).stroke_mask == 0
+
+
+def test_length_is_checked_for_the_version_byte():
+    """CRC intact, version 2 or 3, but the other version's length (or none): malformed, named."""
+    raw3, _ = encode_frame(node=1, seq=5, ropes=[(1, 2, 3, 4, 5)] * 2)
+    raw2, _ = encode_frame(node=1, seq=5, ropes=[(1, 2, 3, 4)] * 2, version=2)
+
+    def recrc(b: bytes) -> bytes:
+        return b[:-4] + crc32(b[:-4]).to_bytes(4, "little")
+
+    with pytest.raises(MalformedError, match="length 53 is not a version 2 frame's"):
+        decode_raw(recrc(b"\x02" + raw3[1:]))
+    with pytest.raises(MalformedError, match="length 48 is not a version 3 frame's"):
+        decode_raw(recrc(b"\x03" + raw2[1:]))
+    with pytest.raises(VersionError, match="layout version 4"):
+        decode_raw(recrc(b"\x04" + raw3[1:]))
+    assert decode_raw(raw2).version == 2 and decode_raw(raw3).version == 3
 
 
 def test_junk_without_a_delimiter_does_not_cost_the_next_frame():

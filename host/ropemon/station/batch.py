@@ -2,11 +2,14 @@
 
 Same rules and same counts as `StreamDecoder` fed the whole file then `finish()`
 (tests/host/test_host_batch.py checks it): bodies between 0x00 delimiters are
-grouped by length; for each valid frame length the COBS code chain, the CRC-32
-and the field parse run as array operations over every body of that length.
-Bodies of any other length cannot be frames of this version and go through the
-scalar decoder for classification only (a frame of layout version 1 is one of
-them: its lengths are never this version's). MAC (hmac per frame) and the
+grouped by length; for each valid frame length (of layout version 2 or 3: their
+lengths never coincide) the COBS code chain, the CRC-32 and the field parse run as
+array operations over every body of that length, and a frame whose version byte is
+not that length's version is malformed, as the streaming decoder counts it. A
+version 2 frame's ropes have pos_01mm POS_ABSENT and its stroke_mask is 0.
+Bodies of any other length cannot be frames and go through the scalar decoder for
+classification only (a frame of layout version 1 is one of them: its lengths are
+never version 2's or 3's). MAC (hmac per frame) and the
 anti-replay check (order dependent: replayed, rewound, duplicate) run per
 frame, only when keys are given.
 """
@@ -31,14 +34,19 @@ def _fields(fmt: str, names: tuple[str, ...], prefix: str = "") -> list[tuple[st
     return [(prefix + n, "<" + _NP[c]) for n, c in zip(names, codes)]
 
 
-def frame_dtype(n_ropes: int) -> np.dtype:
+_RECORDS = {2: (L.V2_ROPE_FMT, L.V2_ROPE_FIELDS, L.V2_TAIL_FMT, L.V2_TAIL_FIELDS),
+            3: (L.ROPE_FMT, L.ROPE_FIELDS, L.TAIL_FMT, L.TAIL_FIELDS)}
+
+
+def frame_dtype(n_ropes: int, version: int = L.VERSION) -> np.dtype:
+    rope_fmt, rope_fields, tail_fmt, tail_fields = _RECORDS[version]
     f = _fields(L.HEADER_FMT, L.HEADER_FIELDS)
     for i in range(n_ropes):
-        f += _fields(L.ROPE_FMT, L.ROPE_FIELDS, f"r{i}_")
-    f += _fields(L.TAIL_FMT, L.TAIL_FIELDS)
+        f += _fields(rope_fmt, rope_fields, f"r{i}_")
+    f += _fields(tail_fmt, tail_fields)
     f += [("mac", f"V{L.MAC_LEN}"), ("crc", "<u4")]
     dt = np.dtype(f)
-    assert dt.itemsize == L.frame_len(n_ropes)
+    assert dt.itemsize == L.frame_len(n_ropes, version)
     return dt
 
 
@@ -55,6 +63,11 @@ def _crc_table() -> np.ndarray:
 
 _CRC_TABLE = _crc_table()
 COLUMNS = L.HEADER_FIELDS + L.TAIL_FIELDS
+#: what a version 2 frame's columns hold where version 3 has a field it lacks
+_V2_FILL = {"stroke_mask": 0, "pos_01mm": L.POS_ABSENT}
+#: body length (COBS adds one byte) -> (version, rope count), over every version decoded
+_VALID_LENS = {L.frame_len(n, v) + 1: (v, n) for v in L.VERSIONS for n in range(L.MAX_ROPES + 1)}
+assert len(_VALID_LENS) == len(L.VERSIONS) * (L.MAX_ROPES + 1), "two versions share a frame length"
 
 
 @dataclass
@@ -62,7 +75,8 @@ class BatchResult:
     """Good frames as columns (stream order) plus the counts.
 
     `columns[name]`: one array per header/tail field; `n_ropes` per frame;
-    `ropes[field]`: (frames, MAX_ROPES) arrays, zero beyond a frame's n_ropes;
+    `ropes[field]`: (frames, MAX_ROPES) arrays, zero beyond a frame's n_ropes (pos_01mm
+    POS_ABSENT in a version 2 frame);
     `mac`: (frames, MAC_LEN) uint8; `authenticated`: None when no keys were given.
     """
 
@@ -133,15 +147,15 @@ def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResu
         counts.bytes_discarded += tail
 
     keys = dict(keys) if keys else None
-    parts: list[tuple] = []  # (body indices, n_ropes, structured records, raw rows) per length
-    valid_lens = {L.frame_len(n) + 1: n for n in range(L.MAX_ROPES + 1)}
+    parts: list[tuple] = []  # (body indices, n_ropes, structured records, raw rows, version) per length
+    valid_lens = _VALID_LENS
     odd = ~np.isin(lengths, list(valid_lens)) & (lengths > 0)
     if odd.any():
         # Cannot be frames; classify them exactly as the streaming decoder does.
         sd = StreamDecoder(keys)
         sd._decode_bodies([data[s:s + n] for s, n in zip(starts[odd].tolist(), lengths[odd].tolist())], [])
         counts.add(sd.counts)
-    for body_len, n_ropes in valid_lens.items():
+    for body_len, (version, n_ropes) in valid_lens.items():
         idx = np.flatnonzero(lengths == body_len)
         if not idx.size:
             continue
@@ -153,12 +167,13 @@ def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResu
         crc_bad = ok & ~crc_ok
         counts.crc_fail += int(crc_bad.sum())
         good = ok & crc_ok
-        rec = np.ascontiguousarray(raw[good]).view(frame_dtype(n_ropes)).reshape(-1)
+        rec = np.ascontiguousarray(raw[good]).view(frame_dtype(n_ropes, version)).reshape(-1)
         want_kind = L.KIND_DATA if n_ropes else L.KIND_STATUS
-        sem = (rec["version"] == L.VERSION) & (rec["kind"] == want_kind)
+        # another version byte at this length: an unknown version, or a known one of the wrong length
+        sem = (rec["version"] == version) & (rec["kind"] == want_kind)
         counts.malformed += int((~sem).sum())
         counts.bytes_discarded += (int(bad.sum()) + int(crc_bad.sum()) + int((~sem).sum())) * (body_len + 1)
-        parts.append((idx[good][sem], n_ropes, rec[sem], raw[good][sem]))
+        parts.append((idx[good][sem], n_ropes, rec[sem], raw[good][sem], version))
 
     # Stream order across the length groups.
     order = np.argsort(np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64), kind="stable")
@@ -167,7 +182,14 @@ def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResu
     def gather(get, empty):
         return np.concatenate([get(p) for p in parts])[order] if parts else empty
 
-    columns = {k: gather(lambda p: p[2][k], np.zeros(0, np.int64)) for k in COLUMNS}
+    tail_types = dict(_fields(L.TAIL_FMT, L.TAIL_FIELDS))
+
+    def column(p, k):
+        if k in p[2].dtype.names:
+            return p[2][k]
+        return np.full(len(p[0]), _V2_FILL[k], tail_types[k])
+
+    columns = {k: gather(lambda p, k=k: column(p, k), np.zeros(0, np.int64)) for k in COLUMNS}
     n_ropes = gather(lambda p: np.full(len(p[0]), p[1], np.uint8), np.zeros(0, np.uint8))
     rope_types = dict(_fields(L.ROPE_FMT, L.ROPE_FIELDS))
     ropes = {}
@@ -175,10 +197,11 @@ def decode_bytes(data: bytes, keys: dict[int, bytes] | None = None) -> BatchResu
         def block(p, k=k, dt=dt):
             b = np.zeros((len(p[0]), L.MAX_ROPES), dt)
             for i in range(p[1]):
-                b[:, i] = p[2][f"r{i}_{k}"]
+                name = f"r{i}_{k}"
+                b[:, i] = p[2][name] if name in p[2].dtype.names else _V2_FILL[k]
             return b
         ropes[k] = gather(block, np.zeros((0, L.MAX_ROPES), dt))
-    mac = gather(lambda p: p[3][:, L.frame_len(p[1]) - L.MAC_LEN - L.CRC_LEN:][:, :L.MAC_LEN],
+    mac = gather(lambda p: p[3][:, L.frame_len(p[1], p[4]) - L.MAC_LEN - L.CRC_LEN:][:, :L.MAC_LEN],
                  np.zeros((0, L.MAC_LEN), np.uint8))
     keep = np.ones(total, bool)
     if keys is not None:

@@ -4,8 +4,10 @@ Frames are COBS bodies between 0x00 delimiters (the node sends one before and
 one after each frame). The decoder splits on 0x00, so it resynchronises at the
 next delimiter after any damage; the leading one ends any junk before a frame.
 The CRC-32 is checked before anything else in the frame (the MAC too), so radio
-noise is counted as `crc_fail` and never reaches the MAC check. A frame of
-another layout version is `malformed`, and named in the summary (`versions`).
+noise is counted as `crc_fail` and never reaches the MAC check. Layout versions 2
+and 3 (L.VERSIONS) are decoded side by side, the version byte picking the layout
+once the CRC holds; an intact frame of another layout version is `malformed`, and
+named in the summary (`versions`), as is one whose length is not its version's.
 A body longer than the longest valid frame is skipped without being buffered
 (garbage without delimiters cannot grow memory). Each rejected body is counted once by cause and
 its bytes, delimiter included, are added to `bytes_discarded`; idle delimiters
@@ -179,8 +181,12 @@ def frame_bytes(f: P.Frame) -> bytes:
     """The raw bytes (COBS removed) a decoded or logged frame came in: its fields,
     its MAC as received, and the CRC-32 over them. What `ReplayGuard` compares copies by."""
     body = P.HEADER.pack(f.version, f.kind, f.node, f.fault_mask, f.seq, f.time_ms, f.status)
-    body += b"".join(P.ROPE.pack(*r) for r in f.ropes)
-    body += P.TAIL.pack(f.depth_mm, f.speed_mm_s, f.battery_mv, f.oil_temp_cc) + f.mac
+    if f.version == 2:
+        body += b"".join(P.V2_ROPE.pack(*r[:4]) for r in f.ropes)
+        body += P.V2_TAIL.pack(f.depth_mm, f.speed_mm_s, f.battery_mv, f.oil_temp_cc) + f.mac
+    else:
+        body += b"".join(P.ROPE.pack(*r) for r in f.ropes)
+        body += P.TAIL.pack(f.depth_mm, f.speed_mm_s, f.battery_mv, f.oil_temp_cc, f.stroke_mask) + f.mac
     return body + P.CRC.pack(P.crc32(body))
 
 
@@ -262,7 +268,7 @@ class StreamDecoder:
         crc = binascii.crc32
         residue = P.CRC_RESIDUE
         parse = P._parse
-        ropes_in = L.ropes_in
+        lengths_of = P.LENGTHS.get
         min_len, max_len = P.MIN_RAW_LEN, P.MAX_RAW_LEN
         ACCEPTED, DUPLICATE, REWOUND = ReplayGuard.ACCEPTED, ReplayGuard.DUPLICATE, ReplayGuard.REWOUND
         for body in bodies:
@@ -291,11 +297,15 @@ class StreamDecoder:
                     c.crc_fail += 1
                 c.bytes_discarded += nb + 1
                 continue
-            n_ropes = ropes_in(n)
+            version = raw[0]
             try:
-                if n_ropes < 0:
+                lengths = lengths_of(version)
+                if lengths is None:
+                    raise P.VersionError(version)
+                n_ropes = lengths.get(n)
+                if n_ropes is None:
                     raise P.MalformedError("bad length")
-                f = parse(raw, n_ropes, keys)
+                f = parse(raw, n_ropes, keys, version)
             except P.MacError:
                 c.mac_fail += 1
                 c.bytes_discarded += nb + 1
@@ -337,7 +347,7 @@ class StreamDecoder:
                 f"bytes_discarded={c.bytes_discarded}; {auth}")
         for version, n in sorted(self.versions.items()):
             line += (f"; malformed: {n} frame(s) of layout version {version} (this host decodes "
-                     f"version {L.VERSION} only: a node with older or newer firmware)")
+                     f"versions {', '.join(map(str, L.VERSIONS))}: a node with older or newer firmware)")
         for node, (top, boot) in sorted(self.replay.rewound.items()):
             line += (f"; node {node} REFUSED: its boot counter went back from {top} to {boot} "
                      f"(a replay, or the node lost its counter: an operator must accept node {node})")

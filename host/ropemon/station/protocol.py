@@ -3,9 +3,13 @@ and decoding of one frame, with a distinct exception per failure.
 
 The byte layout is firmware/ropenode/layout.py, imported here, never restated:
 raw = header + ropes + tail + mac + crc; wire = 0x00 + COBS(raw) + 0x00.
-This host decodes layout version L.VERSION only; a frame of version 1 (the
-layout before, with a CRC-16) is recognised by its own CRC and refused as
-`VersionError`, so an old node shows as such, not as radio noise.
+This host decodes the layout versions L.VERSIONS side by side (2 and 3: a mine
+upgrades its nodes one cage at a time): the CRC-32 is checked over the frame, then
+the version byte picks the layout and the length must be one of that version's. A
+version 2 frame decodes with every rope's pos_01mm POS_ABSENT and stroke_mask 0
+(`Frame.version` tells which). A frame of version 1 (with a CRC-16) is recognised
+by its own CRC and refused as `VersionError`, so an old node shows as such, not as
+radio noise; so is an intact frame of a version not in L.VERSIONS.
 """
 from __future__ import annotations
 
@@ -24,28 +28,36 @@ from ropemon.firmware import node_module
 L = node_module("layout")
 
 HEADER = struct.Struct(L.HEADER_FMT)
-ROPE = struct.Struct(L.ROPE_FMT)
+ROPE = struct.Struct(L.ROPE_FMT)   # version 3 (L.VERSION)
 TAIL = struct.Struct(L.TAIL_FMT)
+V2_ROPE = struct.Struct(L.V2_ROPE_FMT)
+V2_TAIL = struct.Struct(L.V2_TAIL_FMT)
+#: version -> (rope struct, tail struct)
+RECORDS = {2: (V2_ROPE, V2_TAIL), 3: (ROPE, TAIL)}
 CRC = struct.Struct("<I")
-MAX_RAW_LEN = L.frame_len(L.MAX_ROPES)
-MIN_RAW_LEN = L.frame_len(0)
+MAX_RAW_LEN = max(L.frame_len(L.MAX_ROPES, v) for v in L.VERSIONS)
+MIN_RAW_LEN = min(L.frame_len(0, v) for v in L.VERSIONS)
+#: version -> {raw length: rope count}: the lengths a frame of that version can have
+LENGTHS = {v: {L.frame_len(n, v): n for n in range(L.MAX_ROPES + 1)} for v in L.VERSIONS}
 #: Longest COBS body between two delimiters a valid frame can have (the wire adds one 0x00 each side).
 MAX_BODY_LEN = L.MAX_WIRE_LEN - 2
 #: CRC-32 of a whole raw frame, its CRC field included, when that field is right: the
 #: standard residue of CRC-32 (IEEE). One C call over the frame, no slice, no unpack.
 CRC_RESIDUE = 0x2144DF1C
-#: Version 1 of the layout (a CRC-16/CCITT-FALSE instead of the CRC-32): raw bytes
-#: without ropes. Only to name such a frame when it comes (`old_version`).
-V1_FIXED_LEN = L.FIXED_LEN - 2
+#: Version 1 of the layout (version 2's records, a CRC-16/CCITT-FALSE instead of the
+#: CRC-32): raw bytes without ropes, and per rope. Only to name such a frame when it
+#: comes (`old_version`).
+V1_FIXED_LEN = L.V2_FIXED_LEN - 2
+V1_ROPE_LEN = L.V2_ROPE_LEN
 _NO_MAC = bytes(L.MAC_LEN)
-
-# One struct per rope count: header + ropes + tail in a single unpack.
-_BODY = tuple(
-    struct.Struct("<" + L.HEADER_FMT[1:] + L.ROPE_FMT[1:] * n + L.TAIL_FMT[1:])
-    for n in range(L.MAX_ROPES + 1)
-)
 _NH = len(L.HEADER_FIELDS)
 _NR = len(L.ROPE_FIELDS)
+_NR2 = len(L.V2_ROPE_FIELDS)
+
+# One struct per version and rope count: header + ropes + tail in a single unpack.
+_BODY = {v: tuple(struct.Struct("<" + L.HEADER_FMT[1:] + rope[1:] * n + tail[1:])
+                  for n in range(L.MAX_ROPES + 1))
+         for v, rope, tail in ((2, L.V2_ROPE_FMT, L.V2_TAIL_FMT), (3, L.ROPE_FMT, L.TAIL_FMT))}
 
 DAN_TO_N = 10  # 1 daN = 10 N
 
@@ -63,10 +75,11 @@ class MalformedError(FrameError):
 
 
 class VersionError(MalformedError):
-    """An intact frame of another layout version than L.VERSION (its own CRC checks)."""
+    """An intact frame of a layout version not in L.VERSIONS (its own CRC checks)."""
 
     def __init__(self, version: int):
-        super().__init__(f"frame of layout version {version}: this host decodes version {L.VERSION} only")
+        super().__init__(f"frame of layout version {version}: this host decodes versions "
+                         f"{', '.join(map(str, L.VERSIONS))} only")
         self.version = version
 
 
@@ -84,6 +97,9 @@ class Rope(NamedTuple):
     min_dan: int
     max_dan: int
     raw_kpa: int    # uncompensated tap pressure, window mean; RAW_KPA_ABSENT: none
+    # piston position, window mean, 0.1 mm from mid-stroke (x > 0: pulled out by the rope);
+    # POS_ABSENT: no healthy displacement sample, or a version 2 frame (no position)
+    pos_01mm: int = L.POS_ABSENT
 
     @property
     def absent(self) -> bool:
@@ -94,10 +110,17 @@ class Rope(NamedTuple):
     def mean_n(self) -> int | None:
         return None if self.mean_dan == L.TENSION_ABSENT else self.mean_dan * DAN_TO_N
 
+    @property
+    def position_m(self) -> float | None:
+        """The piston's window-mean position in m from mid-stroke; None when absent."""
+        return None if self.pos_01mm == L.POS_ABSENT else self.pos_01mm * 1e-4
+
 
 @dataclass(slots=True)
 class Frame:
     """One decoded radio frame. `authenticated` is None when no key was configured.
+    `stroke_mask` (version 3; 0 in a version 2 frame): bit i = rope i's piston within the
+    stroke margin of its retracted end during the window, bit 4+i = of its extended end.
 
     Treat as read-only; not frozen because a frozen dataclass costs ~1 us more per frame.
     """
@@ -114,6 +137,7 @@ class Frame:
     speed_mm_s: int
     battery_mv: int
     oil_temp_cc: int
+    stroke_mask: int = 0
     authenticated: bool | None = None
     mac: bytes = field(default=_NO_MAC, repr=False)
 
@@ -141,6 +165,16 @@ class Frame:
             return None
         return self.oil_temp_cc / 100
 
+    @property
+    def stroke_low(self) -> list[bool]:
+        """Per rope: its piston came within the stroke margin of its retracted (low x) end."""
+        return [bool(self.stroke_mask >> (L.STROKE_LOW_SHIFT + i) & 1) for i in range(len(self.ropes))]
+
+    @property
+    def stroke_high(self) -> list[bool]:
+        """Per rope: its piston came within the stroke margin of its extended (high x) end."""
+        return [bool(self.stroke_mask >> (L.STROKE_HIGH_SHIFT + i) & 1) for i in range(len(self.ropes))]
+
     def to_dict(self) -> dict:
         """Plain JSON-ready form: every payload field, ropes as a list of dicts."""
         return {
@@ -154,13 +188,15 @@ class Frame:
             "fault_mask": self.fault_mask,
             "ropes": [
                 {"mean_dan": r.mean_dan, "min_dan": r.min_dan, "max_dan": r.max_dan, "raw_kpa": r.raw_kpa,
-                 "absent": r.mean_dan == L.TENSION_ABSENT}
+                 "absent": r.mean_dan == L.TENSION_ABSENT, "pos_01mm": r.pos_01mm,
+                 "position_absent": r.pos_01mm == L.POS_ABSENT}
                 for r in self.ropes
             ],
             "depth_mm": self.depth_mm,
             "speed_mm_s": self.speed_mm_s,
             "battery_mv": self.battery_mv,
             "oil_temp_cc": self.oil_temp_cc,
+            "stroke_mask": self.stroke_mask,
             "authenticated": self.authenticated,
             "mac": self.mac.hex(),
         }
@@ -172,12 +208,15 @@ class Frame:
 
     def _rest(self) -> tuple:
         return (self.version, self.kind, self.fault_mask, self.time_ms, self.status,
-                self.depth_mm, self.speed_mm_s, self.battery_mv, self.oil_temp_cc)
+                self.depth_mm, self.speed_mm_s, self.battery_mv, self.oil_temp_cc, self.stroke_mask)
 
 
 _make_rope = partial(tuple.__new__, Rope)
 _ROPE_SLICES = tuple(tuple(slice(i, i + _NR) for i in range(_NH, _NH + _NR * n, _NR))
                      for n in range(L.MAX_ROPES + 1))
+_V2_ROPE_SLICES = tuple(tuple(slice(i, i + _NR2) for i in range(_NH, _NH + _NR2 * n, _NR2))
+                        for n in range(L.MAX_ROPES + 1))
+_POS_ABSENT = (L.POS_ABSENT,)
 
 
 KEY_LEN_MIN, KEY_LEN_MAX = 16, 32  # docs/config.md: node.key
@@ -288,10 +327,10 @@ def crc32(data: bytes | bytearray) -> int:
 def old_version(raw: bytes) -> int | None:
     """1 when `raw` (COBS removed) is an intact frame of layout version 1 (30 + 8 N
     bytes, CRC-16/CCITT-FALSE), else None. Called only on a frame that failed
-    this version's length or CRC-32 check: names an old node's frames."""
+    the length or CRC-32 check: names an old node's frames."""
     n = len(raw)
-    if (n >= V1_FIXED_LEN and raw[0] == 1 and (n - V1_FIXED_LEN) % L.ROPE_LEN == 0
-            and n <= V1_FIXED_LEN + L.ROPE_LEN * L.MAX_ROPES
+    if (n >= V1_FIXED_LEN and raw[0] == 1 and (n - V1_FIXED_LEN) % V1_ROPE_LEN == 0
+            and n <= V1_FIXED_LEN + V1_ROPE_LEN * L.MAX_ROPES
             and binascii.crc_hqx(raw[:-2], 0xFFFF) == raw[-2] | (raw[-1] << 8)):
         return 1
     return None
@@ -309,21 +348,37 @@ def encode_frame(
     speed_mm_s: int = 0,
     battery_mv: int = 0,
     oil_temp_cc: int = L.OIL_TEMP_ABSENT,
+    stroke_mask: int = 0,
     kind: int | None = None,
     version: int = L.VERSION,
     key: bytes | None = None,
 ) -> tuple[bytes, bytes]:
-    """Build one frame; return (raw, wire). `ropes` items: Rope or 4-tuples.
+    """Build one frame of layout `version` (2 or 3; another number: a version 3 body with
+    that version byte, a test aid); return (raw, wire). `ropes` items: Rope, 4-tuples
+    (mean, min, max, raw_kpa: the position absent) or 5-tuples (with pos_01mm). A
+    version 2 frame carries neither positions nor `stroke_mask` (refused if given).
 
     kind defaults to DATA when ropes are given, STATUS otherwise. Without a key
     the MAC field is zero (a host-side test aid: real nodes always have a key).
     """
     if kind is None:
         kind = L.KIND_DATA if ropes else L.KIND_STATUS
+    rope_s, tail_s = RECORDS.get(version, RECORDS[3])
     body = bytearray(HEADER.pack(version, kind, node, fault_mask, seq, time_ms, status))
     for r in ropes:
-        body += ROPE.pack(*(r.mean_dan, r.min_dan, r.max_dan, r.raw_kpa) if isinstance(r, Rope) else r)
-    body += TAIL.pack(depth_mm, speed_mm_s, battery_mv, oil_temp_cc)
+        r = tuple(r)
+        if rope_s is V2_ROPE:
+            if len(r) == 5 and r[4] != L.POS_ABSENT:
+                raise ValueError("a version 2 frame carries no piston position")
+            body += V2_ROPE.pack(*r[:4])
+        else:
+            body += ROPE.pack(*r) if len(r) == 5 else ROPE.pack(*r, L.POS_ABSENT)
+    if tail_s is V2_TAIL:
+        if stroke_mask:
+            raise ValueError("a version 2 frame carries no stroke_mask")
+        body += V2_TAIL.pack(depth_mm, speed_mm_s, battery_mv, oil_temp_cc)
+    else:
+        body += TAIL.pack(depth_mm, speed_mm_s, battery_mv, oil_temp_cc, stroke_mask)
     body += mac_of(key, bytes(body)) if key is not None else _NO_MAC
     body += CRC.pack(crc32(body))
     raw = bytes(body)
@@ -346,8 +401,9 @@ def decode_wire(body: bytes) -> bytes:
 def decode_raw(raw: bytes, keys: dict[int, bytes] | None = None) -> Frame:
     """Check and parse one raw frame (COBS already removed).
 
-    Raises CrcError, MalformedError (VersionError: a frame of another layout
-    version) or MacError; the CRC is checked before the MAC. With `keys` (node ->
+    Raises CrcError, MalformedError (VersionError: a frame of a layout version not
+    in L.VERSIONS) or MacError; the CRC is checked first, then the version byte picks
+    the layout and the length must be that version's, then the MAC. With `keys` (node ->
     key) the MAC must match and a node without a key is refused; without keys the
     frame's `authenticated` is None (authenticity not checked).
     """
@@ -361,18 +417,29 @@ def decode_raw(raw: bytes, keys: dict[int, bytes] | None = None) -> Frame:
         if n > MAX_RAW_LEN:
             raise MalformedError(f"frame too long: {n} bytes > {MAX_RAW_LEN}")
         raise CrcError("CRC mismatch")
-    n_ropes = L.ropes_in(n)
-    if n_ropes < 0:
-        raise MalformedError(f"length {n} is not {MIN_RAW_LEN} + {L.ROPE_LEN} x ropes")
-    return _parse(raw, n_ropes, keys)
-
-
-def _parse(raw: bytes, n_ropes: int, keys: dict[int, bytes] | None) -> Frame:
-    """Fields of a CRC-checked raw frame of n_ropes ropes; semantic and MAC checks."""
-    v = _BODY[n_ropes].unpack_from(raw)
-    version, kind, node = v[0], v[1], v[2]
-    if version != L.VERSION:
+    version = raw[0]
+    lengths = LENGTHS.get(version)
+    if lengths is None:
         raise VersionError(version)
+    n_ropes = lengths.get(n)
+    if n_ropes is None:
+        raise MalformedError(length_refusal(n, version))
+    return _parse(raw, n_ropes, keys, version)
+
+
+def length_refusal(n: int, version: int) -> str:
+    """Why a CRC-intact frame of `version` and `n` bytes is refused: its length is not one
+    of that version's."""
+    fixed, rope = L.frame_len(0, version), L.frame_len(1, version) - L.frame_len(0, version)
+    return (f"length {n} is not a version {version} frame's ({fixed} + {rope} x ropes, "
+            f"0..{L.MAX_ROPES} ropes)")
+
+
+def _parse(raw: bytes, n_ropes: int, keys: dict[int, bytes] | None, version: int = L.VERSION) -> Frame:
+    """Fields of a CRC-checked raw frame of layout `version` (in L.VERSIONS, its length
+    checked) and n_ropes ropes; semantic and MAC checks."""
+    v = _BODY[version][n_ropes].unpack_from(raw)
+    kind, node = v[1], v[2]
     if kind == L.KIND_DATA:
         if n_ropes == 0:
             raise MalformedError("data frame without ropes")
@@ -391,7 +458,12 @@ def _parse(raw: bytes, n_ropes: int, keys: dict[int, bytes] | None) -> Frame:
         if not hmac.compare_digest(mac_of(key, raw[:mac_at]), mac):
             raise MacError(f"MAC mismatch for node {node}")
         authenticated = True
-    t = _NH + _NR * n_ropes
-    ropes = tuple(map(_make_rope, map(v.__getitem__, _ROPE_SLICES[n_ropes])))
+    if version == 3:
+        t = _NH + _NR * n_ropes
+        ropes = tuple(map(_make_rope, map(v.__getitem__, _ROPE_SLICES[n_ropes])))
+        return Frame(version, kind, node, v[3], v[4], v[5], v[6], ropes,
+                     v[t], v[t + 1], v[t + 2], v[t + 3], v[t + 4], authenticated, mac)
+    t = _NH + _NR2 * n_ropes
+    ropes = tuple([_make_rope(v[s] + _POS_ABSENT) for s in _V2_ROPE_SLICES[n_ropes]])
     return Frame(version, kind, node, v[3], v[4], v[5], v[6], ropes,
-                 v[t], v[t + 1], v[t + 2], v[t + 3], authenticated, mac)
+                 v[t], v[t + 1], v[t + 2], v[t + 3], 0, authenticated, mac)
