@@ -35,8 +35,9 @@ from ropemon.station.decoder import StreamDecoder
 L = P.L
 KEYS = {1: bytes(range(16)), 2: bytes(range(100, 132))}
 MODES = ("bits", "burst", "wire", "noise")
-V1_BODY_LENS = [P.V1_FIXED_LEN + L.ROPE_LEN * n + 1 for n in range(L.MAX_ROPES + 1)]
-V2_BODY_LENS = [L.frame_len(n) + 1 for n in range(L.MAX_ROPES + 1)]
+V1_BODY_LENS = [P.V1_FIXED_LEN + P.V1_ROPE_LEN * n + 1 for n in range(L.MAX_ROPES + 1)]
+# the body lengths of every layout the host decodes (versions 2 and 3)
+V2_BODY_LENS = [L.frame_len(n, v) + 1 for v in L.VERSIONS for n in range(L.MAX_ROPES + 1)]
 
 
 def frame_pool(rng: random.Random, count: int) -> list[tuple[bytes, bytes]]:
@@ -51,11 +52,13 @@ def frame_pool(rng: random.Random, count: int) -> list[tuple[bytes, bytes]]:
         for _ in range(n):
             m = rng.randint(-500, 30000)
             ropes.append((m, m - rng.randint(0, 300), m + rng.randint(0, 300), rng.randint(0, 65535)))
-        raw, _ = P.encode_frame(node=node, seq=seq[node], time_ms=rng.getrandbits(32), ropes=ropes,
-                                depth_mm=rng.randint(-2**31, 2**31 - 1), speed_mm_s=rng.randint(-32768, 32767),
-                                battery_mv=rng.randint(0, 65535), oil_temp_cc=rng.randint(-32768, 32767),
-                                status=rng.choice((0, 0, L.ST_BATTERY_LOW)), key=KEYS[node])
-        v1 = bytearray(raw[:-L.CRC_LEN])
+        fields = dict(node=node, seq=seq[node], time_ms=rng.getrandbits(32), ropes=ropes,
+                      depth_mm=rng.randint(-2**31, 2**31 - 1), speed_mm_s=rng.randint(-32768, 32767),
+                      battery_mv=rng.randint(0, 65535), oil_temp_cc=rng.randint(-32768, 32767),
+                      status=rng.choice((0, 0, L.ST_BATTERY_LOW)), key=KEYS[node])
+        raw, _ = P.encode_frame(**fields)
+        # version 1 had version 2's records (no positions, no stroke_mask) and a CRC-16
+        v1 = bytearray(P.encode_frame(**fields, version=2)[0][:-L.CRC_LEN])
         v1[0] = 1
         v1 += binascii.crc_hqx(bytes(v1), 0xFFFF).to_bytes(2, "little")
         out.append((raw, bytes(v1)))
@@ -127,7 +130,7 @@ def version_1_takes(body: bytes) -> bool:
         return False
     if P.old_version(raw) != 1:  # version 1's length, version byte and CRC-16
         return False
-    n_ropes = (len(raw) - P.V1_FIXED_LEN) // L.ROPE_LEN
+    n_ropes = (len(raw) - P.V1_FIXED_LEN) // P.V1_ROPE_LEN
     return raw[1] == (L.KIND_DATA if n_ropes else L.KIND_STATUS)
 
 
