@@ -1,12 +1,14 @@
 """The live dashboard drawn at 80x24 (an ssh terminal in the hoist room)."""
+import dataclasses
 import io
 import math
 
 from rich.console import Console
 
-from ropemon.station.monitor import MonitorView, sparkline
+from ropemon.station.monitor import MonitorView, sparkline, stroke_gauge
 from ropemon.station.physical import SiteFigures
-from ropemon.station.protocol import Rope, decode_raw, encode_frame
+from ropemon.station.pipeline import AlarmState
+from ropemon.station.protocol import L, Rope, decode_raw, encode_frame
 
 AREA = 0.0314
 SITE = SiteFigures([AREA] * 4, rated_rope_tension_n=80_000, rated_load_n=320_000,
@@ -50,15 +52,84 @@ def test_each_rope_compensated_raw_deviation_and_total():
     assert "59 %" in " ".join(r["sum"])                          # 188 of 320 kN rated
 
 
+class Status:
+    """A hoist's standing status as the alarm engine gives it (what the view reads of it)."""
+
+    def __init__(self, text, hidden_frac=0.162):
+        self.text, self.hidden_frac = text, hidden_frac
+
+
 def test_worst_case_screen_still_fits_80x24():
-    v = MonitorView(SITE)
+    v = MonitorView(dataclasses.replace(SITE, stroke_m=[0.1] * 4, stroke_margin_m=0.01))
     for k in range(40):
-        v.show_frame(frame(k, dan=(32000, -32000, 32767, 0), raw_kpa=65535, battery_mv=0, status=0x1FF), 9.0)
+        rs = [Rope(d, d, d, 65535, p) for d, p in zip((32000, -32000, 32767, 0), (-32767, 32767, L.POS_ABSENT, 0))]
+        raw, _ = encode_frame(node=1, seq=k, ropes=rs, battery_mv=0, status=0x7FF, fault_mask=0x8F,
+                              stroke_mask=0xFF)
+        v.show_frame(decode_raw(raw), 9.0)
     v.link_rows = [("pithead", "97.1 % crc 3 bad 1"), ("mid-shaft", "45.0 % crc 12 bad 0")]
     v.merge_text = "frames 123456  lost 12  dup 600"
+    v.on_alarms(AlarmState(9.0, (), {}, (), {1: Status("x" * 200)}))
     v.alarm_rows = [(f"alarm {i} " + "x" * 90, i % 2 == 0) for i in range(9)]
     text = draw(v, now_s=99.0)
-    assert "and 4 more" in text and "last frame" in text
+    assert "and 4 more" in text and "last frame" in text and " hoist: xxx" in text
+    assert "FAULT: displacement" in text                  # rope 4's channel (fault_mask bit 7)
+
+
+def test_stroke_gauge_cells():
+    assert stroke_gauge(0.0, 0.1, 0.01) == "[:···█···:]"     # mid-stroke; one cell of margin each end
+    assert stroke_gauge(-0.05, 0.1, 0.01) == "[█·······:]"   # on the retracted end stop
+    assert stroke_gauge(0.0499, 0.1, 0.01) == "[:·······█]"  # at the extended one (x > 0: pulled out)
+    assert stroke_gauge(0.2, 0.1, 0.01) == "[:·······█]"     # beyond the stroke: held at the stop
+    assert stroke_gauge(None, 0.1, 0.03) == "[:::···:::]"    # no position; a wider margin
+    assert stroke_gauge(0.0, None, 0.01) == "" and stroke_gauge(0.0, 0.1, None) == "[····█····]"
+
+
+def v3(seq, pos, stroke_mask=0, fault_mask=0):
+    rs = [Rope(4600, 4500, 4700, 1300, p) for p in pos]
+    raw, _ = encode_frame(node=1, seq=seq, time_ms=seq * 100, ropes=rs, depth_mm=412_300, battery_mv=3710,
+                          stroke_mask=stroke_mask, fault_mask=fault_mask,
+                          status=L.ST_STROKE_LIMIT if stroke_mask else 0)
+    return decode_raw(raw)
+
+
+def test_a_stroke_gauge_per_rope_follows_the_piston_and_marks_the_margin():
+    v = MonitorView(dataclasses.replace(SITE, stroke_m=[0.1] * 4, stroke_margin_m=0.01))
+    v.show_frame(v3(1, (0, 455, -300, L.POS_ABSENT)), 9.9)
+    text = draw(v)
+    r = rows(text)
+    assert "piston mm" in text and "min..max" not in text   # the gauge takes the window's min..max
+    assert r["1"][4:6] == ["[:···█···:]", "+0.0"]
+    assert r["2"][4:6] == ["[:·······█]", "+45.5"]           # in the extended end's margin
+    assert r["3"][4:6] == ["[:█······:]", "-30.0"]
+    assert r["4"][4:6] == ["no", "position"]
+    f = v.last
+    assert v._gauge(f, 1).style == "bold red" and v._gauge(f, 0).style == "" and v._gauge(f, 2).style == ""
+    v.show_frame(v3(2, (200, 455, -300, 0), stroke_mask=1 << 2), 10.0)   # rope 1 moves; rope 3 touched its margin
+    text = draw(v, 10.0)
+    r = rows(text)
+    assert r["1"][4:6] == ["[:·····█·:]", "+20.0"]
+    assert v._gauge(v.last, 2).style == "bold red"          # the node saw it within the margin in the window
+    assert "stroke_limit" in text
+    v.show_frame(v3(3, (200, 455, -300, 0), fault_mask=1 << 5), 10.1)    # rope 2's displacement channel fails
+    assert rows(draw(v, 10.1))["2"][4:6] == ["FAULT:", "displacement"]
+
+
+def test_version_2_frames_keep_the_window_min_max_and_no_gauge():
+    v = MonitorView(dataclasses.replace(SITE, stroke_m=[0.1] * 4, stroke_margin_m=0.01))
+    rs = [Rope(4600, 4500, 4700, 1300)] * 4
+    v.show_frame(decode_raw(encode_frame(node=1, seq=1, ropes=rs, version=2)[0]), 9.9)
+    text = draw(v)
+    assert "min..max" in text and "piston" not in text and rows(text)["1"][4] == "45.0..47.0"
+
+
+def test_the_hoist_status_line_is_status_not_an_alarm():
+    v = MonitorView(SITE)
+    v.show_frame(frame(1), 9.9)
+    v.on_alarms(AlarmState(9.9, (), {}, (), {1: Status("seals can hide 16.2 % at 46 kN per rope")}))
+    text = draw(v)
+    assert " hoist: seals can hide 16.2 % at 46 kN per rope" in text and "alarms: none" in text
+    v.on_alarms(AlarmState(9.9, (), {}, (), {}))             # no band: no line
+    assert "hoist:" not in draw(v)
 
 
 def test_trend_and_alarms_and_stale_link_are_shown():

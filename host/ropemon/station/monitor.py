@@ -3,8 +3,10 @@
 The station (`ropemon.station.pipeline`: receivers -> decode, merge -> alarms,
 SQLite log) with one more listener, `MonitorView`, and the keys. The view fits
 an 80x24 terminal (ssh from the hoist room): per rope compensated and raw
-tension, deviation from the mean, a trend, total load against rated, alarms
-(with the terminal bell), link quality per receiver and the node's battery.
+tension, deviation from the mean, a trend, the piston in its stroke (where the
+frames carry its position), total load against rated, the hoist's standing
+status (the imbalance the seals can hide), alarms (with the terminal bell),
+link quality per receiver and the node's battery.
 Key `a` acknowledges the alarms, `s` shelves one (which, for how long, why:
 each a digit; it returns by itself), `u` unshelves one, `n` shows the next cage
 node (each cage has its own), `r` then `y` accepts a node refused because its
@@ -43,9 +45,11 @@ from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
 from ropemon.station.uncertainty import DeviationBand
 
 TENSION_ABSENT = L.TENSION_ABSENT   # a rope whose sensor failed for the whole window
+POS_ABSENT = getattr(L, "POS_ABSENT", -32768)   # no healthy displacement sample in the window
 
 SPARK = "▁▂▃▄▅▆▇█"
 TREND_LEN = 24           # frames in the sparkline (2.4 s at 10 frames/s)
+GAUGE_CELLS = 9          # the stroke gauge's cells between its end stops
 BELL_REPEAT_S = 5.0      # ring again while an alarm stays unacknowledged
 STALE_S = 2.0            # a node's last frame older than this: its figures are greyed as not current
 
@@ -58,6 +62,36 @@ def sparkline(values: Iterable[float], lo: float, hi: float) -> str:
         k = 0 if span <= 0 else int((v - lo) / span * (len(SPARK) - 1) + 0.5)
         out.append(SPARK[max(0, min(len(SPARK) - 1, k))])
     return "".join(out)
+
+
+def stroke_gauge(pos_m: float | None, stroke_m: float | None, margin_m: float | None,
+                 cells: int = GAUGE_CELLS) -> str:
+    """The piston in its cylinder on one line: `[` the retracted end stop (x = -stroke/2),
+    `]` the extended one (x = +stroke/2, the rope pulling the piston out), `:` a cell within
+    the stroke margin of an end, `·` the free stroke, `█` the piston's cell. "" without the
+    stroke."""
+    if not stroke_m or stroke_m <= 0:
+        return ""
+    half, step, m = stroke_m / 2, stroke_m / cells, max(margin_m or 0.0, 0.0)
+    out = [":" if (k * step < m or (k + 1) * step > stroke_m - m) else "·" for k in range(cells)]
+    if pos_m is not None:
+        out[max(0, min(cells - 1, int((pos_m + half) // step)))] = "█"
+    return "[" + "".join(out) + "]"
+
+
+def piston(frame: Frame, rope: int) -> tuple[float | None, bool, bool]:
+    """(position in m or None, the displacement channel faulted, the node saw the piston within
+    the stroke margin of an end during the window) of one rope (from 0) of a frame."""
+    pos = getattr(frame.ropes[rope], "pos_01mm", POS_ABSENT) if rope < len(frame.ropes) else POS_ABSENT
+    fault = bool(frame.fault_mask >> (getattr(L, "FAULT_DISPLACEMENT_SHIFT", 4) + rope) & 1)
+    mask = getattr(frame, "stroke_mask", 0) or 0
+    near = bool((mask >> rope) & 1 or (mask >> (4 + rope)) & 1)
+    return (None if pos == POS_ABSENT else pos / 10_000), fault, near
+
+
+def has_positions(frame: Frame) -> bool:
+    """The frame's layout carries piston positions (version 3 on)."""
+    return frame.version >= 3 and bool(frame.ropes) and hasattr(frame.ropes[0], "pos_01mm")
 
 
 @dataclass
@@ -88,6 +122,7 @@ class MonitorView(Listener):
         self.alarm_rows: list[tuple[str, bool]] = []  # (text, acknowledged)
         self.refused: dict[int, tuple[int, int]] = {}  # node -> (newest boot, refused boot)
         self.bands: dict[int, list[DeviationBand | None]] = {}  # node -> per rope deviation and band
+        self.hoist: dict[int, Any] = {}         # node -> the hoist's standing status (HoistStatus)
         self.confirm_accept: int | None = None  # node awaiting the operator's `y`
         self.alarms: list[ActiveAlarm] = []     # as alarm_rows, with their ids
         self.shelved: list[ActiveAlarm] = []    # shelved alarms, present or not
@@ -108,6 +143,7 @@ class MonitorView(Listener):
         self.alarm_rows = [(alarm_text(a), not a.latched) for a in state.active]
         self.shelved = [a for a in state.hidden if a.shelved_until is not None]
         self.bands = dict(state.bands)
+        self.hoist = dict(getattr(state, "hoist", {}) or {})
 
     def on_status(self, status: StationStatus) -> None:
         down = {n: r.last_error or "not open" for n, r in status.receivers.items() if not r.connected}
@@ -179,6 +215,9 @@ class MonitorView(Listener):
     # -- drawing ------------------------------------------------------------
     def render(self, now_s: float) -> RenderableType:
         parts: list[RenderableType] = [self._header(now_s), self._ropes(now_s)]
+        status = self._hoist_status()
+        if status is not None:
+            parts.append(status)
         if len(self.nodes) > 1:
             parts.append(self._others(now_s))
         keys = ("a: acknowledge alarms   " + ("s: shelve   " if self.alarms else "")
@@ -234,22 +273,39 @@ class MonitorView(Listener):
         temp = f.oil_temp_c
         t.append(f"  oil {temp:.1f} C" if temp is not None else "  oil -- C")
         t.append(f"  last frame {age:4.1f} s ago", style="bold red reverse" if age > STALE_S else "")
-        flags = [n for n in f.status_flags if n != "temp_absent"]
-        if flags:
-            t.append("  " + " ".join(flags), style="bold yellow")
+        flags = " ".join(n for n in f.status_flags if n != "temp_absent")
+        if flags:      # beside the figures where they fit, else on one line of their own
+            room = 79 - len(t.plain.split("\n")[-1]) - 2
+            t.append(("  " + flags) if len(flags) <= room else ("\n " + (flags if len(flags) <= 78 else
+                                                                          flags[:77] + "…")), style="bold yellow")
         return t
+
+    def _hoist_status(self) -> Text | None:
+        """The hoist's standing status (the imbalance its seals can hide): a status, never an alarm."""
+        st = self.hoist.get(self.shown) if self.shown is not None else None
+        text = getattr(st, "text", None) if st is not None else None
+        if not text:
+            return None
+        return Text(" hoist: " + (text if len(text) <= 71 else text[:70] + "…"), style="cyan")
 
     def _ropes(self, now_s: float | None = None) -> Table:
         kn = "kN"
-        table = Table(box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, expand=False,
-                      show_edge=False)
+        f = self.last
+        # Frames with the pistons' positions: the stroke gauge takes the window's min..max
+        # column (still on the web page, in the log and the export) and the columns close up,
+        # so that the line still fits 80 characters.
+        gauge = f is not None and has_positions(f)
+        table = Table(box=box.SIMPLE_HEAD, padding=(0, 0) if gauge else (0, 1), pad_edge=False,
+                      expand=False, show_edge=False)
         table.add_column("rope", justify="right")
         table.add_column(f"comp {kn}", justify="right")
         table.add_column(f"raw {kn}", justify="right")
         table.add_column("dev %", justify="right", no_wrap=True)
-        table.add_column(f"min..max {kn}", justify="right")
+        if gauge:
+            table.add_column("piston mm", justify="left", no_wrap=True)
+        else:
+            table.add_column(f"min..max {kn}", justify="right")
         table.add_column(f"trend ({self.trend_len / 10:.1f} s)", justify="left", no_wrap=True)
-        f = self.last
         if f is None or not f.ropes:
             why = "no frame yet" if f is None else "STATUS ONLY: node not compensating"
             table.add_row("-", "-", "-", "-", "-", Text(why, style="bold red" if f else "yellow"))
@@ -269,7 +325,8 @@ class MonitorView(Listener):
         raw_ok = True
         for i, r in enumerate(f.ropes):
             if not ok[i]:
-                table.add_row(str(i + 1), Text("FAULT", style="bold red reverse"), "-", "-", "-",
+                table.add_row(str(i + 1), Text("FAULT", style="bold red reverse"), "-", "-",
+                              self._gauge(f, i) if gauge else "-",
                               Text("sensor failed: no tension", style="bold red"))
                 raw_ok = False
                 continue
@@ -286,6 +343,7 @@ class MonitorView(Listener):
                 raw_sum += raw
                 raw_txt = f"{raw / 1000:.1f}"
             table.add_row(str(i + 1), f"{comp[i] / 1000:.1f}", raw_txt, Text(dev_txt, style="dim" if stale else style),
+                          self._gauge(f, i) if gauge else
                           f"{r.min_dan * DAN_TO_N / 1000:.1f}..{r.max_dan * DAN_TO_N / 1000:.1f}",
                           self._spark(i, min_span), style="dim" if stale else None)
         total = sum(used)
@@ -304,6 +362,22 @@ class MonitorView(Listener):
             table.add_row("", Text("STALE", style="bold red reverse"), "", "", "",
                           Text(f"last frame {age:.0f} s ago: not current", style="bold red"))
         return table
+
+    def _gauge(self, f: Frame, rope: int) -> Text:
+        """The stroke gauge of one rope and its position in mm (red: within the stroke margin)."""
+        pos, fault, near = piston(f, rope)
+        if fault:
+            return Text("FAULT: displacement", style="bold red")
+        if pos is None:
+            return Text("no position", style="yellow")
+        strokes = getattr(self.site, "stroke_m", None) or []
+        stroke = strokes[rope] if rope < len(strokes) else None
+        margin = getattr(self.site, "stroke_margin_m", None)
+        bar = stroke_gauge(pos, stroke, margin)
+        if stroke:
+            m = margin or 0.0
+            near = near or abs(pos) >= stroke / 2 - m
+        return Text(f"{bar} {pos * 1000:+.1f}".lstrip(), style="bold red" if near else "")
 
     def _spark(self, rope: int, min_span: float) -> str:
         if rope >= len(self.trend) or not self.trend[rope]:
