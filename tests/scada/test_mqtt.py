@@ -217,7 +217,7 @@ def test_ropemon_serve_starts_the_modbus_and_mqtt_faces_and_stops_them_cleanly(t
         wait(lambda: len(spy.kinds("DBIRTH")) == 2, 30, "births from ropemon serve")
         client = ModbusTcpClient("127.0.0.1", port=port, timeout=3)
         wait(client.connect, 10, "the Modbus server")
-        assert client.read_holding_registers(0, count=2).registers == [1, 2]
+        assert client.read_holding_registers(0, count=2).registers == [2, 2]   # map version 2, 2 hoists
         client.close()
     finally:
         proc.send_signal(signal.SIGTERM)

@@ -36,8 +36,14 @@ NODE1 = {**{f"node1/rope{r}/tension": ("Double", "kN") for r in range(1, 5)},
          "node1/sum": ("Double", "kN"), "node1/depth": ("Double", "m"), "node1/speed": ("Double", "m/s"),
          "node1/battery": ("Double", "V"), "node1/oil_temperature": ("Double", "degC"),
          "node1/status": ("UInt32", None), "node1/frame_seq": ("UInt64", None),
+         **{f"node1/rope{r}/position": ("Double", "mm") for r in range(1, 5)},
+         **{f"node1/rope{r}/near_{end}_end": ("Boolean", None) for r in range(1, 5) for end in ("retracted", "extended")},
+         "node1/hidden_imbalance": ("Double", "%"), "node1/standing_status": ("String", None),
          "alarms/present": ("UInt32", None), "alarms/unacknowledged": ("UInt32", None),
+         "alarms/equalizer_present": ("UInt32", None), "alarms/equalizer_unacknowledged": ("UInt32", None),
          "vouched": ("Boolean", None)}
+ALARM_METRICS = {"alarms/present", "alarms/unacknowledged", "alarms/equalizer_present",
+                 "alarms/equalizer_unacknowledged", "vouched"}
 
 
 def tahu(payloads: list[bytes]) -> list[dict]:
@@ -160,7 +166,7 @@ def test_tahu_reads_births_data_device_death_and_node_death(tmp_path, broker):
             if "node1/frame_seq" in d:
                 data[device].append(d)
             else:
-                assert set(d) == {"alarms/present", "alarms/unacknowledged", "vouched"}
+                assert set(d) == ALARM_METRICS
     h0 = data["h0"]
     assert [int(d["node1/frame_seq"]["value"]) for d in h0] == list(range(1, len(h0) + 1)) and len(h0) == 15
     for k, d in enumerate(h0[:3]):
@@ -326,3 +332,69 @@ def test_the_fleet_names_ddata_from_the_births_and_asks_a_rebirth_when_it_missed
     # a late will of an older connection does not make the fleet forget the new session's aliases
     assert fleet.bdseq[("mine", "shaft-2")] == face.bdseq
     hist.close()
+
+
+def test_tahu_reads_the_pistons_stroke_state_and_standing_status(tmp_path, broker):
+    spy = RawSpy(broker.port)
+    rig = Rig(tmp_path, 1, mqtt_table(broker.port))
+    engine = rig.stations.hoists["h0"].alarms.engine
+    status = SimpleNamespace(hidden_frac=0.16345, text="the seals can hide 16.3 % of a rope's tension")
+    engine.hoist_status = lambda node: status if node == 1 else None   # the standing status, here the test's
+    (face,) = start_faces(rig.stations, rig.file)
+    try:
+        wait(lambda: spy.kinds("DBIRTH"), what="birth")
+        rig.feed("h0")
+        rig.step()                                                         # the standing status: each tick
+        rig.feed("h0", positions=(1234, -500, 0, None), stroke_mask=0b0001_0010)
+        rig.feed("h0", version=2)                                          # a version 2 node: no positions
+        from ropemon.station.mqtt import sparkplug as sp                  # only to know when all three are out
+        wait(lambda: sum(len(sp.decode(m[1]).metrics) > 10 for m in spy.kinds("DDATA")) >= 3, what="3 frames' DDATA")
+    finally:
+        face.stop()
+        rig.close()
+        spy.close()
+    msgs = [m for m in spy.msgs if m[0].split("/")[2] in ("DBIRTH", "DDATA")]
+    decoded = tahu([m[1] for m in msgs])
+    birth = by_name(decoded[0])
+    assert birth["node1/rope1/position"]["properties"]["engUnit"]["value"] == "mm"
+    assert birth["node1/rope1/position"]["type"] == "Double" and birth["node1/standing_status"]["type"] == "String"
+    names = {m["alias"]: m["name"] for m in decoded[0]["metrics"]}
+    frames = [{names[m["alias"]]: m for m in p["metrics"]} for p in decoded[1:]]
+    frames = [d for d in frames if "node1/frame_seq" in d]
+    assert [int(d["node1/frame_seq"]["value"]) for d in frames] == [1, 2, 3]
+    _, v3, v2 = frames
+    assert [v3[f"node1/rope{r}/position"]["value"] for r in range(1, 5)] == [123.4, -50.0, 0.0, None]
+    assert [(v3[f"node1/rope{r}/near_retracted_end"]["value"], v3[f"node1/rope{r}/near_extended_end"]["value"])
+            for r in range(1, 5)] == [(False, True), (True, False), (False, False), (False, False)]
+    assert all(v2[f"node1/rope{r}/position"]["value"] is None for r in range(1, 5))
+    assert all(v2[f"node1/rope{r}/near_extended_end"]["value"] is None for r in range(1, 5))
+    assert v3["node1/hidden_imbalance"]["value"] == 16.345
+    texts = [names[m["alias"]] for p in decoded[1:] for m in p["metrics"] if names[m["alias"]] == "node1/standing_status"]
+    assert len(texts) == 1                                                 # sent when it changes, not each frame
+    sent = next(m for p in decoded[1:] for m in p["metrics"] if names[m["alias"]] == "node1/standing_status")
+    assert sent["value"] == status.text
+
+
+def test_report_exception_sends_a_position_once_it_moved_by_the_mm_deadband():
+    """SparkplugValues alone, report = "exception": a piston position goes out when it moved by
+    the `mm` deadband (0.5 mm by default) since last reported, a stroke state when it changes."""
+    from ropemon.station.mqtt import DEADBANDS, SparkplugValues
+    from ropemon.station.scadavalues import STROKE_HIGH, NodeValues, RopeValue
+
+    face = SimpleNamespace(queue=queue.SimpleQueue(), settings=SimpleNamespace(report="exception",
+                                                                               deadband=dict(DEADBANDS)))
+    v = SparkplugValues(face, "h0", [1])
+    assert DEADBANDS["mm"] == 0.5
+
+    def frame(seq, pos, stroke=0):
+        ropes = (RopeValue(5000, 0.0, pos, stroke),) + (RopeValue(5000, 0.0, 0, 0),) * 3
+        v.changed("frame", NodeValues(1, seq, time.time(), 100.0, 0, 0, ropes, 20000, 0, 0, 12000, None, 3, 0))
+        out = {}
+        while not face.queue.empty():
+            out.update(face.queue.get()[2])
+        return out
+    assert frame(1, 100)["node1/rope1/position"] == 10.0
+    assert "node1/rope1/position" not in frame(2, 104)             # 0.4 mm: within the deadband
+    assert frame(3, 105)["node1/rope1/position"] == 10.5           # 0.5 mm since last reported
+    got = frame(4, 105, STROKE_HIGH)
+    assert got["node1/rope1/near_extended_end"] is True and "node1/rope1/position" not in got

@@ -57,7 +57,7 @@ from ropemon.station.stationfile import StationFileError
 
 log = logging.getLogger(__name__)
 SPARKPLUG_ID = re.compile(r"^[^/+#]{1,64}$")
-DEADBANDS = {"kN": 0.5, "%": 0.1, "m": 0.1, "m/s": 0.05, "V": 0.05, "degC": 0.5}
+DEADBANDS = {"kN": 0.5, "%": 0.1, "m": 0.1, "mm": 0.5, "m/s": 0.05, "V": 0.05, "degC": 0.5}
 DEVICE = "$device"     # a record {DEVICE: "death" | "birth"}: the hoist lost or heard again
 MAX_INFLIGHT = 200     # DDATA published and not yet acknowledged
 BATCH = 200            # outbox rows read at a time
@@ -130,6 +130,7 @@ class SparkplugValues(HoistValues):
         self.units = {name: unit for name, _, unit in sp.hoist_metrics(self.nodes)}
         self.reported: dict[str, Any] = {}
         self._alarms: tuple | None = None
+        self._standing: dict[int, str | None] = {n: None for n in self.nodes}   # the standing_status last queued
         self.silent_s = silent_s
         self.alive = True                 # born with the session; dead while the station hears nothing
         self._heard_s: float | None = None   # the station clock at the newest frame (or the first tick)
@@ -158,17 +159,22 @@ class SparkplugValues(HoistValues):
             if not self.alive:            # heard again: born before this frame's data
                 self.alive = True
                 self.face.queue.put((self.hoist, int(v.wall_s * 1000), {DEVICE: "birth"}))
-        alarms = (self.present_bits, self.unacked_bits, self.vouched)
+        alarms = (self.present_bits, self.unacked_bits, self.vouched, self.present_eq, self.unacked_eq)
         values: dict[str, Any] = {}
         if v is not None:
             values = sp.frame_values(v)
+            hidden = self.standing[v.node].hidden_frac if v.node in self.standing else None
+            values[f"node{v.node}/hidden_imbalance"] = None if hidden is None else round(hidden * 100, 3)
             if self.face.settings.report == "exception":
                 values = self._moved(values)
-        if alarms != self._alarms:
+        if alarms != self._alarms or (self.face.settings.report == "frame" and v is not None):
             self._alarms = alarms
-            values.update({"alarms/present": alarms[0], "alarms/unacknowledged": alarms[1], "vouched": alarms[2]})
-        elif self.face.settings.report == "frame" and v is not None:
-            values.update({"alarms/present": alarms[0], "alarms/unacknowledged": alarms[1], "vouched": alarms[2]})
+            values.update({"alarms/present": alarms[0], "alarms/unacknowledged": alarms[1], "vouched": alarms[2],
+                           "alarms/equalizer_present": alarms[3], "alarms/equalizer_unacknowledged": alarms[4]})
+        for n, st in self.standing.items():       # the standing text: when it changes (and in DBIRTH)
+            if self._standing.get(n) != st.text:
+                self._standing[n] = st.text
+                values[f"node{n}/standing_status"] = st.text
         if values:
             ts = int((v.wall_s if v is not None else time.time()) * 1000)
             self.face.queue.put((self.hoist, ts, values))

@@ -12,8 +12,16 @@ The station is an edge node (`spBv1.0/<group>/NBIRTH/<edge node>`), each hoist a
     node<N>/oil_temperature   Double  degC   null: no temperature input
     node<N>/status            UInt32         the frame's status bits (docs/protocol.md)
     node<N>/frame_seq         UInt64         the frame's sequence number
+    node<N>/rope<R>/position  Double  mm     piston position from mid-stroke; null: no healthy
+                                             displacement sample, or a version 2 node
+    node<N>/rope<R>/near_retracted_end, near_extended_end
+                              Boolean        within the stroke margin of that end in the window
+    node<N>/hidden_imbalance  Double  %      standing status: the imbalance the seals can hide
+    node<N>/standing_status   String         standing status: one line an operator reads
     alarms/present            UInt32         one bit per alarm kind (scadavalues.ALARM_KINDS)
     alarms/unacknowledged     UInt32
+    alarms/equalizer_present, alarms/equalizer_unacknowledged
+                              UInt32         one bit per scadavalues.EQUALIZER_KINDS
     vouched                   Boolean        the station vouches for the ropes (docs/integration.md)
 
 The edge node's own metrics: bdSeq (Int64, as the specification asks) and Node
@@ -26,7 +34,7 @@ import time
 from typing import Any, Iterable
 
 from ropemon.station.mqtt import sparkplug_b_pb2 as pb
-from ropemon.station.scadavalues import NodeValues
+from ropemon.station.scadavalues import STROKE_HIGH, STROKE_LOW, NodeValues
 
 NAMESPACE = "spBv1.0"
 # Sparkplug B datatypes (the specification's numbering)
@@ -53,7 +61,12 @@ def hoist_metrics(nodes: Iterable[int]) -> list[tuple[str, int, str | None]]:
         out += [(f"node{n}/sum", DOUBLE, "kN"), (f"node{n}/depth", DOUBLE, "m"), (f"node{n}/speed", DOUBLE, "m/s"),
                 (f"node{n}/battery", DOUBLE, "V"), (f"node{n}/oil_temperature", DOUBLE, "degC"),
                 (f"node{n}/status", UINT32, None), (f"node{n}/frame_seq", UINT64, None)]
-    return out + [("alarms/present", UINT32, None), ("alarms/unacknowledged", UINT32, None), ("vouched", BOOLEAN, None)]
+        for r in range(1, ROPES + 1):
+            out += [(f"node{n}/rope{r}/position", DOUBLE, "mm"), (f"node{n}/rope{r}/near_retracted_end", BOOLEAN, None),
+                    (f"node{n}/rope{r}/near_extended_end", BOOLEAN, None)]
+        out += [(f"node{n}/hidden_imbalance", DOUBLE, "%"), (f"node{n}/standing_status", STRING, None)]
+    return out + [("alarms/present", UINT32, None), ("alarms/unacknowledged", UINT32, None), ("vouched", BOOLEAN, None),
+                  ("alarms/equalizer_present", UINT32, None), ("alarms/equalizer_unacknowledged", UINT32, None)]
 
 
 def aliases(devices: dict[str, list[tuple[str, int, str | None]]]) -> dict[str, dict[str, int]]:
@@ -86,6 +99,12 @@ def frame_values(v: NodeValues) -> dict[str, Any]:
     out[f"node{n}/oil_temperature"] = v.oil_temp_c
     out[f"node{n}/status"] = v.status & 0xFFFFFFFF
     out[f"node{n}/frame_seq"] = v.seq
+    positions = v.version >= 3              # a version 2 node sends no position: null
+    for r in range(ROPES):
+        rope = v.ropes[r] if r < len(v.ropes) else None
+        out[f"node{n}/rope{r + 1}/position"] = rope.position_mm if rope is not None and positions else None
+        out[f"node{n}/rope{r + 1}/near_retracted_end"] = bool(rope.stroke & STROKE_LOW) if rope and positions else None
+        out[f"node{n}/rope{r + 1}/near_extended_end"] = bool(rope.stroke & STROKE_HIGH) if rope and positions else None
     return out
 
 
