@@ -175,6 +175,28 @@ def test_a_status_only_or_faulted_rope_is_shown_as_such(site):
     assert "PARTIAL SUM: rope 4 missing" in site.client.get("/hoist/north").text
 
 
+def test_the_pistons_and_the_hoist_status_in_the_snapshot_and_the_page(site):
+    ropes = [(5000, 4900, 5100, 20000, p) for p in (0, 123, -456, L.POS_ABSENT)]
+    site.frame(ropes=ropes, stroke_mask=1 << 6, status=L.ST_STROKE_LIMIT)   # rope 3 near its extended end
+    snap = site.attached.ctx.listeners["north"].snapshot()
+    v = snap["nodes"]["1"]
+    assert v["positions"] and [r["pos_mm"] for r in v["ropes"]] == [0.0, 12.3, -45.6, None]
+    assert [(r["near_lo"], r["near_hi"]) for r in v["ropes"]] == [(False, False)] * 2 + [(False, True), (False, False)]
+    assert snap["site"]["stroke_mm"] and len(snap["site"]["stroke_mm"]) == 4 and snap["site"]["margin_mm"] > 0
+    html = site.client.get("/hoist/north").text
+    assert 'class="node panel" id="node-1"' in html            # not "no-pos": the cylinders are shown
+    assert html.count('<svg class="cyl"') == 4 + 1               # one per rope, and the row template's
+    assert 'data-pos="12.3"' in html and "+12.3 mm" in html and 'data-field="hoist-status"' in html
+    # the hoist's standing status (the imbalance the seals can hide) is status, not an alarm
+    st = snap["alarms"]["hoist"]["1"]
+    assert st["text"] and 0 < st["hidden_frac"] < 1
+    assert not any("hidden" in a["kind"] for a in snap["alarms"]["active"])
+    site.frame(ropes=[r[:4] for r in ropes], version=2)        # a version 2 node: no positions, no cylinders
+    v = site.attached.ctx.listeners["north"].snapshot()["nodes"]["1"]
+    assert not v["positions"] and all(r["pos_mm"] is None for r in v["ropes"])
+    assert 'class="node panel no-pos" id="node-1"' in site.client.get("/hoist/north").text
+
+
 # -- the live stream ------------------------------------------------------------------------------
 
 

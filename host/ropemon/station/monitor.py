@@ -35,7 +35,7 @@ from rich.console import Console, Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
-from ropemon.station.alarms import ActiveAlarm, AlarmEvent
+from ropemon.station.alarms import WARNING_KINDS, ActiveAlarm, AlarmEvent
 from ropemon.station.decode_cli import add_key_arguments, node_id
 from ropemon.station.link import DEFAULT_BAUDRATE, Received
 from ropemon.station.physical import SiteFigures, alarm_settings, site_from_configs
@@ -491,8 +491,9 @@ def merge_figures(merger_stats: dict) -> str:
 
 
 def is_warning(text: str) -> bool:
-    """An alarm row of a warning (shown in yellow, after the alarms): DEVIATION POSSIBLE."""
-    return text.startswith("DEVIATION POSSIBLE")
+    """An alarm row of a warning (shown in yellow, after the alarms): a kind of
+    `alarms.WARNING_KINDS` (DEVIATION POSSIBLE, the rope-adjustment advisory)."""
+    return any(text.startswith(k.upper().replace("_", " ")) for k in WARNING_KINDS)
 
 
 def alarm_text(a: ActiveAlarm) -> str:

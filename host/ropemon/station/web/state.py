@@ -4,10 +4,10 @@
 every method of it runs on the station's thread. It keeps, under its own lock,
 
 - the last frame of each cage node, with the figures the page shows (compensated and raw
-  tension per rope in kN, deviation from the mean, sum against rated, depth, speed,
-  battery, oil temperature) and when it came (station clock);
-- the alarm state (`AlarmState`: active, hidden, each rope's band), the links' status,
-  the recent alarm events;
+  tension per rope in kN, deviation from the mean, each piston's position in its stroke,
+  sum against rated, depth, speed, battery, oil temperature) and when it came (station clock);
+- the alarm state (`AlarmState`: active, hidden, each rope's band, each node's standing
+  status), the links' status, the recent alarm events;
 - a ring buffer of the last `TREND_S` seconds of each rope's compensated tension.
 
 Browsers follow it through server-sent events: a client `subscribe`s with a `Subscriber`
@@ -28,7 +28,7 @@ from typing import Any
 
 from ropemon.station.alarms import ActiveAlarm, AlarmEvent
 from ropemon.station.link import Received
-from ropemon.station.monitor import STALE_S, alarm_text, link_figures, merge_figures
+from ropemon.station.monitor import STALE_S, alarm_text, has_positions, link_figures, merge_figures, piston
 from ropemon.station.pipeline import AlarmState, Listener, StationStatus
 from ropemon.station.protocol import DAN_TO_N, Frame, L
 
@@ -113,6 +113,8 @@ def frame_view(f: Frame, at_s: float, area_m2: list[float], rated_load_n: float 
         elif raw_sum is not None:
             raw_sum += raw_n
         c = comp[i]
+        pos_m, pos_fault, near = piston(f, i)
+        mask = getattr(f, "stroke_mask", 0) or 0
         ropes.append({
             "rope": i + 1,
             "comp_kN": _r(c / 1000 if c is not None else None),
@@ -122,6 +124,10 @@ def frame_view(f: Frame, at_s: float, area_m2: list[float], rated_load_n: float 
             "max_kN": _r(r.max_dan * DAN_TO_N / 1000) if c is not None else None,
             "dev": _r((c - mean) / mean, 4) if c is not None and mean > 0 else None,
             "fault": c is None,
+            "pos_mm": _r(pos_m * 1000 if pos_m is not None else None, 1),   # from mid-stroke, + pulled out
+            "pos_fault": pos_fault,                  # the displacement channel failed
+            "near_lo": bool(mask >> i & 1),          # the node saw the piston within the margin of
+            "near_hi": bool(mask >> (4 + i) & 1),    # the retracted / extended end in the window
         })
     total = sum(used)
     missing = [i + 1 for i, ok in enumerate(present) if not ok]
@@ -135,6 +141,7 @@ def frame_view(f: Frame, at_s: float, area_m2: list[float], rated_load_n: float 
         "flags": [n for n in f.status_flags if n != "temp_absent"],
         "ropes": ropes,
         "status_only": not f.ropes,
+        "positions": has_positions(f),
         "sum_kN": _r(total / 1000) if f.ropes else None,
         "raw_sum_kN": _r(raw_sum / 1000) if raw_sum is not None and f.ropes else None,
         "partial": bool(missing),
@@ -152,6 +159,11 @@ def alarm_view(a: ActiveAlarm, first_out: bool = False) -> dict:
         "raised_s": a.raised_s, "cleared_s": a.cleared_s, "acked_s": a.acked_s, "acked_by": a.acked_by,
         "shelved_until": a.shelved_until, "note": a.note, "first_out": first_out,
     }
+
+
+def hoist_view(st: Any) -> dict:
+    """A node's standing status (`AlarmEngine.hoist_status`): shown as status, never as an alarm."""
+    return {"text": getattr(st, "text", ""), "hidden_frac": _r(getattr(st, "hidden_frac", None), 4)}
 
 
 def event_view(e: AlarmEvent) -> dict:
@@ -182,6 +194,9 @@ class WebListener(Listener):
             "shaft_m": getattr(spec, "shaft_m", None),
             "stale_s": STALE_S,
             "ropes": len(site.cylinder_area_m2) or None,
+            # each cylinder's stroke (end stops at +-stroke/2 from mid-stroke) and the margin, mm
+            "stroke_mm": [_r(x * 1000, 1) for x in (getattr(site, "stroke_m", None) or [])] or None,
+            "margin_mm": _r(site.stroke_margin_m * 1000, 1) if getattr(site, "stroke_margin_m", None) else None,
         }
         self.trend_s = trend_s
         self._lock = threading.RLock()
@@ -189,7 +204,7 @@ class WebListener(Listener):
         self._summary_subs: set[Subscriber] = set()
         self.nodes: dict[int, dict] = {}
         self.trend: dict[int, deque[tuple[float, list[float | None]]]] = {}
-        self.alarms: dict = {"time_s": None, "active": [], "hidden": [], "bands": {}}
+        self.alarms: dict = {"time_s": None, "active": [], "hidden": [], "bands": {}, "hoist": {}}
         self._alarms_text = ""
         self.status: dict = {}
         self.events: deque[dict] = deque(maxlen=EVENTS_KEPT)
@@ -229,7 +244,8 @@ class WebListener(Listener):
                                              "d_min": _r(b.d_min, 4), "d_max": _r(b.d_max, 4)}
                           for b in bl] for n, bl in state.bands.items()}
         view = {"active": [alarm_view(a, a.id == first) for a in state.active],
-                "hidden": [alarm_view(a) for a in state.hidden], "bands": bands}
+                "hidden": [alarm_view(a) for a in state.hidden], "bands": bands,
+                "hoist": {str(n): hoist_view(st) for n, st in (getattr(state, "hoist", None) or {}).items()}}
         text = dumps(view)
         with self._lock:
             self.now = state.time_s

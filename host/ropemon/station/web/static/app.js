@@ -164,7 +164,7 @@
   });
 
   // -- the live page -------------------------------------------------------------------------------
-  const live = { site: {}, bands: {}, maxDepth: {}, charts: {}, trend: {}, unacked: 0, alarmsSeen: false };
+  const live = { site: {}, bands: {}, hoist: {}, maxDepth: {}, charts: {}, trend: {}, unacked: 0, alarmsSeen: false };
 
   function ensureNode(n) {
     let panel = document.getElementById("node-" + n);
@@ -177,6 +177,7 @@
     const after = $$(".node", nodes).find((p) => parseInt(p.dataset.node, 10) > parseInt(n, 10));
     nodes.insertBefore(panel, after || $("#no-frames"));
     $("#no-frames").hidden = true;
+    if (live.hoist) setTimeout(renderHoistStatus, 0);
     return panel;
   }
 
@@ -215,9 +216,44 @@
     bar.className = "devbar" + (Math.abs(dev) > limit ? " over" : (Math.abs(dev) > 0.8 * limit || reach >= limit ? " near" : ""));
   }
 
+  /** One cylinder: the end stops at the ends of the drawn stroke, the margins inside them, the
+   *  piston at its position (x > 0: pulled out by the rope, to the right) and its rod. */
+  const CYL_X0 = 10, CYL_W = 180;
+  function cylinder(row, r, stroke, margin) {
+    const svg = field(row, "cyl");
+    const val = field(row, "pos");
+    if (!svg) return;
+    const pos = fin(r.pos_mm) ? r.pos_mm : null;
+    svg.dataset.pos = pos === null ? "" : String(pos);
+    svg.classList.toggle("nostroke", !fin(stroke) || stroke <= 0);
+    svg.classList.toggle("unknown", pos === null);
+    let near = !!(r.near_lo || r.near_hi);
+    if (fin(stroke) && stroke > 0) {
+      const m = fin(margin) ? Math.min(margin, stroke / 2) : 0;
+      const mw = (m / stroke) * CYL_W;
+      field(row, "margin-lo").setAttribute("width", mw.toFixed(2));
+      const hi = field(row, "margin-hi");
+      hi.setAttribute("x", (CYL_X0 + CYL_W - mw).toFixed(2));
+      hi.setAttribute("width", mw.toFixed(2));
+      if (pos !== null) {
+        const x = CYL_X0 + Math.max(0, Math.min(1, (pos + stroke / 2) / stroke)) * CYL_W;
+        const p = field(row, "piston");
+        p.setAttribute("x", (x - 3).toFixed(2));
+        svg.dataset.px = x.toFixed(2);
+        field(row, "rod").setAttribute("x1", x.toFixed(2));
+        near = near || Math.abs(pos) >= stroke / 2 - m;
+      }
+    }
+    svg.dataset.near = near ? "true" : "false";
+    setText(val, r.pos_fault ? "FAULT: displacement" : (pos === null ? "no position" : signed(pos, 1) + " mm"));
+    val.classList.toggle("bad", near || !!r.pos_fault);
+  }
+
   function renderNode(v) {
     const panel = ensureNode(v.node);
     panel.dataset.t = v.t;
+    panel.classList.toggle("no-pos", !v.positions);
+    const strokes = live.site.stroke_mm || [];
     const limit = live.site.imbalance_frac || 0.1;
     const bands = live.bands[String(v.node)] || [];
     v.ropes.forEach((r, i) => {
@@ -229,6 +265,7 @@
       setText(field(row, "dev"), fin(r.dev) ? signed(r.dev * 100, 1) + " %" + (band && fin(band.band) ? " ±" + num(band.band * 100, 1) : "") : "");
       setText(field(row, "range"), r.min_kN !== null ? num(r.min_kN, 1) + "..." + num(r.max_kN, 1) : "");
       devBar(field(row, "devbar"), r.dev, band, limit);
+      if (v.positions) cylinder(row, r, strokes[i], live.site.margin_mm);
     });
     $$("tr.rope", field(panel, "ropes")).forEach((row) => { if (parseInt(row.dataset.rope, 10) > v.ropes.length) row.remove(); });
     setText(field(panel, "sum-label"), v.partial ? "part" : "sum");
@@ -302,8 +339,21 @@
     $$("button[data-alarm-id]", row).forEach((b) => { b.dataset.alarmId = id; });
   }
 
+  /** Each node's standing status (the imbalance its seals can hide): status, not an alarm. */
+  function renderHoistStatus() {
+    $$(".node[data-node]").forEach((panel) => {
+      const st = live.hoist[panel.dataset.node];
+      const el = field(panel, "hoist-status");
+      if (!el) return;
+      el.hidden = !(st && st.text);
+      setText(el, st && st.text ? "hoist: " + st.text : "");
+    });
+  }
+
   function renderAlarms(al) {
     live.bands = al.bands || {};
+    live.hoist = al.hoist || {};
+    renderHoistStatus();
     const tb = $("#alarm-rows");
     if (!tb) return;
     const have = new Map($$("tr[data-alarm-id]", tb).map((r) => [r.dataset.alarmId, r]));
