@@ -126,3 +126,38 @@ def test_a_historian_that_cannot_be_written_keeps_everything_and_retries(tmp_pat
     wait(lambda: acks == [1, 2], 5, "acknowledged once written")
     assert [r[3] for r in stored(tmp_path)] == [1, 2] and fleet.error is None
     stop(fleet)
+
+
+def test_a_historian_made_before_the_positions_gets_the_column_and_keeps_its_rows(tmp_path):
+    db = tmp_path / "old.db"
+    con = sqlite3.connect(str(db))
+    con.executescript("""
+CREATE TABLE tension (
+    group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL, node INTEGER NOT NULL,
+    rope INTEGER NOT NULL, ts_ms INTEGER NOT NULL, tension_kn REAL, frame_seq INTEGER NOT NULL,
+    historical INTEGER NOT NULL, arrival INTEGER NOT NULL,
+    PRIMARY KEY (group_id, edge_node, device, node, frame_seq, rope));
+INSERT INTO tension VALUES ('mine', 'edge', 'h0', 1, 1, 1000, 50.0, 1, 0, 1);
+""")
+    con.close()
+    h = Historian(db)
+    h.write([("mine", "edge", "h0", 1, 1, 2000, 51.0, 2, False, -12.5),
+             ("mine", "edge", "h0", 1, 2, 2000, 52.0, 2, False)])       # a row without a position
+    got = h.conn.execute("SELECT frame_seq, rope, tension_kn, position_mm, arrival FROM tension "
+                         "ORDER BY arrival").fetchall()
+    h.close()
+    assert got == [(1, 1, 50.0, None, 1), (2, 1, 51.0, -12.5, 2), (2, 2, 52.0, None, 3)]
+
+
+def test_a_position_that_is_not_a_finite_number_is_refused_and_its_tension_written(tmp_path):
+    fleet, acks = rig(tmp_path)
+    for mid, pos in ((1, -12.5), (2, float("nan")), (3, None)):
+        p = sp.decode(ddata(1, mid, mid))
+        sp.add_metric(p, "node1/rope1/position", sp.DOUBLE, pos, p.timestamp)
+        put(fleet, mid, "edge", p.SerializeToString())
+    fleet._writer.start()
+    wait(lambda: acks == [1, 2, 3], 5, "every message acknowledged")
+    got = fleet.historian.conn.execute("SELECT frame_seq, tension_kn, position_mm FROM tension ORDER BY arrival").fetchall()
+    assert got == [(1, 12.5, -12.5), (2, 12.5, None), (3, 12.5, None)]
+    assert fleet.stats["refused"] == 1
+    stop(fleet)

@@ -335,7 +335,12 @@ def test_the_fleet_names_ddata_from_the_births_and_asks_a_rebirth_when_it_missed
 
 
 def test_tahu_reads_the_pistons_stroke_state_and_standing_status(tmp_path, broker):
+    from ropemon.station.mqtt.fleet import Fleet, Historian
     spy = RawSpy(broker.port)
+    hist = Historian(tmp_path / "fleet.db")
+    fleet = Fleet(hist, port=broker.port, group="mine", client_id="fleet-positions")
+    fleet.start()
+    assert fleet.connected.wait(5)
     rig = Rig(tmp_path, 1, mqtt_table(broker.port))
     engine = rig.stations.hoists["h0"].alarms.engine
     status = SimpleNamespace(hidden_frac=0.16345, text="the seals can hide 16.3 % of a rope's tension")
@@ -349,10 +354,18 @@ def test_tahu_reads_the_pistons_stroke_state_and_standing_status(tmp_path, broke
         rig.feed("h0", version=2)                                          # a version 2 node: no positions
         from ropemon.station.mqtt import sparkplug as sp                  # only to know when all three are out
         wait(lambda: sum(len(sp.decode(m[1]).metrics) > 10 for m in spy.kinds("DDATA")) >= 3, what="3 frames' DDATA")
+        wait(lambda: hist.conn.execute("SELECT COUNT(*) FROM tension").fetchone()[0] == 3 * 4, what="the fleet's rows")
     finally:
         face.stop()
         rig.close()
+        fleet.stop()
         spy.close()
+    # the fleet historian keeps each rope's position beside its tension (NULL: none in that frame)
+    got = hist.conn.execute("SELECT frame_seq, rope, tension_kn, position_mm FROM tension WHERE frame_seq > 1 "
+                            "ORDER BY frame_seq, rope").fetchall()
+    hist.close()
+    assert got == [(2, 1, 50.0, 123.4), (2, 2, 51.0, -50.0), (2, 3, 49.0, 0.0), (2, 4, 50.0, None),
+                   (3, 1, 50.0, None), (3, 2, 51.0, None), (3, 3, 49.0, None), (3, 4, 50.0, None)]
     msgs = [m for m in spy.msgs if m[0].split("/")[2] in ("DBIRTH", "DDATA")]
     decoded = tahu([m[1] for m in msgs])
     birth = by_name(decoded[0])

@@ -3,9 +3,11 @@
 Subscribes to `spBv1.0/<group>/#` (all groups by default) with a persistent session (QoS 1,
 clean_session false, a fixed client id: what the broker queues while the consumer is away
 is delivered when it returns), decodes each payload and writes every rope's tension of
-every DDATA to a historian table:
+every DDATA, with its piston position of the same DDATA (NULL when it carried none), to a
+historian table:
 
-    tension(group_id, edge_node, device, node, rope, ts_ms, tension_kn, frame_seq, historical, arrival)
+    tension(group_id, edge_node, device, node, rope, ts_ms, tension_kn, frame_seq, historical, arrival,
+            position_mm)
 
 SQLite (`--db`, default fleet.db), or PostgreSQL/TimescaleDB with `--dsn` (psycopg, not
 installed by ropemon: `pip install 'psycopg[binary]'`; on TimescaleDB the table becomes a
@@ -65,6 +67,7 @@ from typing import Any
 
 log = logging.getLogger(__name__)
 TENSION = re.compile(r"^node([0-9]+)/rope([0-9]+)/tension$")
+POSITION = re.compile(r"^node([0-9]+)/rope([0-9]+)/position$")
 SEQ = re.compile(r"^node([0-9]+)/frame_seq$")
 MAX_NODE = 255           # a node id is one byte (docs/protocol.md)
 MAX_ROPE = 255           # ropes count from 1
@@ -80,7 +83,7 @@ SQLITE_SCHEMA = """
 CREATE TABLE IF NOT EXISTS tension (
     group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL, node INTEGER NOT NULL,
     rope INTEGER NOT NULL, ts_ms INTEGER NOT NULL, tension_kn REAL, frame_seq INTEGER NOT NULL,
-    historical INTEGER NOT NULL, arrival INTEGER NOT NULL,
+    historical INTEGER NOT NULL, arrival INTEGER NOT NULL, position_mm REAL,
     PRIMARY KEY (group_id, edge_node, device, node, frame_seq, rope));
 CREATE TABLE IF NOT EXISTS held (
     id INTEGER PRIMARY KEY, group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL,
@@ -90,12 +93,17 @@ PG_SCHEMA = """
 CREATE TABLE IF NOT EXISTS tension (
     group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL, node INTEGER NOT NULL,
     rope INTEGER NOT NULL, ts TIMESTAMPTZ NOT NULL, tension_kn DOUBLE PRECISION, frame_seq BIGINT NOT NULL,
-    historical BOOLEAN NOT NULL, arrival BIGINT NOT NULL,
+    historical BOOLEAN NOT NULL, arrival BIGINT NOT NULL, position_mm DOUBLE PRECISION,
     PRIMARY KEY (group_id, edge_node, device, node, frame_seq, rope, ts));
+ALTER TABLE tension ADD COLUMN IF NOT EXISTS position_mm DOUBLE PRECISION;
 CREATE TABLE IF NOT EXISTS held (
     id BIGINT PRIMARY KEY, group_id TEXT NOT NULL, edge_node TEXT NOT NULL, device TEXT NOT NULL,
     topic TEXT NOT NULL, payload BYTEA NOT NULL, arrival_ms BIGINT NOT NULL);
 """
+
+
+_COLUMNS = "group_id, edge_node, device, node, rope, {ts}, tension_kn, frame_seq, historical, arrival, position_mm"
+SQLITE_COLUMNS, PG_COLUMNS = _COLUMNS.format(ts="ts_ms"), _COLUMNS.format(ts="ts")
 
 
 class Historian:
@@ -119,24 +127,27 @@ class Historian:
             self.conn = sqlite3.connect(str(db or "fleet.db"), check_same_thread=False)
             self.conn.execute("PRAGMA journal_mode=WAL")   # readers go on while a batch commits
             self.conn.executescript(SQLITE_SCHEMA)
+            if "position_mm" not in {r[1] for r in self.conn.execute("PRAGMA table_info(tension)")}:
+                with self.conn:     # a historian made before the pistons' positions: the column added
+                    self.conn.execute("ALTER TABLE tension ADD COLUMN position_mm REAL")
             self.arrival = self.conn.execute("SELECT COALESCE(MAX(arrival), 0) FROM tension").fetchone()[0]
 
     def write(self, rows: list[tuple], hold: list[tuple] = (), unhold: list[int] = ()) -> None:
         """One transaction. rows: (group, edge, device, node, rope, ts_ms, tension_kn, frame_seq,
-        historical); hold: held messages to keep (id, group, edge, device, topic, payload, arrival_ms);
-        unhold: the ids of held messages to delete (named and written, or dropped)."""
+        historical[, position_mm]); hold: held messages to keep (id, group, edge, device, topic,
+        payload, arrival_ms); unhold: the ids of held messages to delete (named and written, or dropped)."""
         out = []
         for r in rows:
             self.arrival += 1
-            out.append((*r, self.arrival))
+            out.append((*r[:9], self.arrival, r[9] if len(r) > 9 else None))
         gone = [(i,) for i in unhold]
         if self.pg:
             try:
                 with self.conn.cursor() as cur:
                     if out:
                         cur.executemany(
-                            "INSERT INTO tension VALUES (%s, %s, %s, %s, %s, to_timestamp(%s / 1000.0), %s, %s, %s, %s) "
-                            "ON CONFLICT DO NOTHING", out)
+                            f"INSERT INTO tension ({PG_COLUMNS}) VALUES (%s, %s, %s, %s, %s, to_timestamp(%s / 1000.0), "
+                            "%s, %s, %s, %s, %s) ON CONFLICT DO NOTHING", out)
                     if hold:
                         cur.executemany("INSERT INTO held VALUES (%s, %s, %s, %s, %s, %s, %s) ON CONFLICT DO NOTHING",
                                         list(hold))
@@ -151,7 +162,8 @@ class Historian:
             try:
                 with self.conn:
                     if out:
-                        self.conn.executemany("INSERT OR IGNORE INTO tension VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", out)
+                        self.conn.executemany(f"INSERT OR IGNORE INTO tension ({SQLITE_COLUMNS}) "
+                                              "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", out)
                     if hold:
                         self.conn.executemany("INSERT OR IGNORE INTO held VALUES (?, ?, ?, ?, ?, ?, ?)", list(hold))
                     if gone:
@@ -270,12 +282,12 @@ class Fleet:
     def _name(self, name: str) -> tuple[str, int, int] | None:
         """("t", node, rope) of a tension, ("s", node, 0) of a frame_seq, ("bad", 0, 0) of either
         with a node or rope number the station cannot have sent, None of any other metric."""
-        t = TENSION.match(name)
+        t = TENSION.match(name) or POSITION.match(name)
         if t is not None:
             node, rope = t.group(1), t.group(2)
             if len(node) > 3 or len(rope) > 3 or not (0 <= int(node) <= MAX_NODE and 1 <= int(rope) <= MAX_ROPE):
                 return ("bad", 0, 0)
-            return ("t", int(node), int(rope))
+            return ("t" if name.endswith("/tension") else "p", int(node), int(rope))
         s = SEQ.match(name)
         if s is None:
             return None
@@ -364,6 +376,7 @@ class Fleet:
         self.stats["ddata"] += 1
         seqs: dict[int, Any] = {}
         tensions = []
+        positions: dict[tuple[int, int], float | None] = {}
         names = self._names
         for m in p.metrics:
             name = m.name or aliases[m.alias]
@@ -380,6 +393,14 @@ class Fleet:
                     self._refuse(topic, f"{name} = {v!r:.40}: not an integer 0..2**63-1 (nor its node's tensions)")
                     v = ...
                 seqs[what[1]] = v
+            elif what[0] == "p":
+                v = sp.metric_value(m)
+                if type(v) is int:
+                    v = float(v)
+                if v is not None and (type(v) is not float or not math.isfinite(v)):
+                    self._refuse(topic, f"{name} = {v!r:.40}: neither null nor a finite number (stored as NULL)")
+                    v = None
+                positions[(what[1], what[2])] = v
             else:
                 tensions.append((what[1], what[2], m))
         rows = []
@@ -399,7 +420,8 @@ class Fleet:
             if not 0 <= m.timestamp <= MAX_TS_MS:
                 self._refuse(topic, f"node{node}/rope{rope}/tension: timestamp {m.timestamp} past year 9999")
                 continue
-            rows.append((group, edge, device, node, rope, m.timestamp, v, seq, bool(m.is_historical)))
+            rows.append((group, edge, device, node, rope, m.timestamp, v, seq, bool(m.is_historical),
+                         positions.get((node, rope))))
             self.stats["historical"] += bool(m.is_historical)
         return rows
 
