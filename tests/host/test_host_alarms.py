@@ -429,6 +429,10 @@ def test_a_hold_of_whole_frame_periods_does_not_depend_on_float_rounding():
 
 
 # ---------------------------------------------------------------- deviation_possible: the band
+# DEVIATION POSSIBLE is the station before it watched the equalizer (the evaluation's baseline):
+# `legacy_deviation_possible=True, equalizer=None`. The station as it is raises none (below).
+
+LEGACY = {"legacy_deviation_possible": True, "equalizer": None}
 
 BAND_PHYS = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,   # 1 kPa -> 10 N
              "friction": {"Fs": {"intercept": 0.0, "slope": 600.0}, "Fc": {"intercept": 0.0, "slope": 400.0},
@@ -436,17 +440,17 @@ BAND_PHYS = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,   # 1 kPa -> 10 N
              "band_anchor": True, "band_margin": 0.10}   # the anchor's path (opt-in)
 
 
-def test_by_default_seals_that_can_hold_the_limit_keep_deviation_possible_standing():
-    """Anchoring off (the default): the band is the seals' physical range. Seals whose static
-    friction can hold more than 10 % of the mean keep DEVIATION POSSIBLE standing on every rope
-    at 0 % shown; seals that cannot (a light seal) raise nothing."""
+def test_legacy_seals_that_can_hold_the_limit_keep_deviation_possible_standing():
+    """The legacy station, anchoring off (the default): the band is the seals' physical range.
+    Seals whose static friction can hold more than 10 % of the mean keep DEVIATION POSSIBLE
+    standing on every rope at 0 % shown; seals that cannot (a light seal) raise nothing."""
     from ropemon.station.uncertainty import BandParams
 
     def run(slope):
         phys = {**BAND_PHYS, "friction": {"Fs": {"intercept": 0.0, "slope": slope},
                                           "Fc": {"intercept": 0.0, "slope": 0.6 * slope}, "residual": 10.0}}
         del phys["band_anchor"], phys["band_margin"]
-        eng = AlarmEngine(AlarmSettings(band=BandParams.from_physical(phys)))
+        eng = AlarmEngine(AlarmSettings(band=BandParams.from_physical(phys), **LEGACY))
         for k in range(30):
             eng.update(band_frame([(5200, 0.0)] * 4, k), k * DT)
         return sorted(a.rope for a in eng.active() if a.kind == "deviation_possible")
@@ -462,7 +466,7 @@ def test_deviation_possible_clears_when_the_ropes_are_unloaded():
     from ropemon.station.uncertainty import BandParams
 
     phys = {k: v for k, v in BAND_PHYS.items() if k not in ("band_anchor", "band_margin")}
-    eng = AlarmEngine(AlarmSettings(band=BandParams.from_physical(phys)))
+    eng = AlarmEngine(AlarmSettings(band=BandParams.from_physical(phys), **LEGACY))
     k = 0
     for k in range(30):
         eng.update(band_frame([(5200, 0.0)] * 4, k), k * DT)
@@ -472,9 +476,9 @@ def test_deviation_possible_clears_when_the_ropes_are_unloaded():
     assert not [a for a in eng.active() if a.present and a.kind == "deviation_possible"]
 
 
-def band_engine():
+def band_engine(**kw):
     from ropemon.station.uncertainty import BandParams
-    return AlarmEngine(AlarmSettings(band=BandParams.from_physical(BAND_PHYS)))
+    return AlarmEngine(AlarmSettings(band=BandParams.from_physical(BAND_PHYS), **{**LEGACY, **kw}))
 
 
 def band_frame(ropes, seq, fault_mask=0):
@@ -488,8 +492,8 @@ class BandRun:
     """Frames at DT; first every rope's estimate driven to +2 kN (Fc) by a pressure rise of 10 kN of
     p A, beyond S: every rope anchored, the band at its floor (100 N)."""
 
-    def __init__(self):
-        self.eng, self.seq, self.events = band_engine(), 0, []
+    def __init__(self, **kw):
+        self.eng, self.seq, self.events = band_engine(**kw), 0, []
         for k in range(11):
             self.feed([(4200 + 100 * k, 2000.0)] * 4)
 
@@ -581,6 +585,44 @@ def test_a_rope_without_tension_raises_sensor_fault_and_is_not_judged_possible()
     assert "sensor_fault" in kinds
     assert not any(a.kind == "deviation_possible" and a.rope == 1 for a in r.eng.active())
     assert r.eng.deviation_bands(1)[1] is None
+
+
+def test_the_station_raises_no_standing_warning_and_states_the_hidden_imbalance():
+    """Where the legacy station keeps DEVIATION POSSIBLE standing on every rope (seals that can
+    hold the limit), the station raises nothing: the imbalance the seals can hide is the hoist's
+    standing status, at the current mean rope tension, with the band beside each deviation."""
+    from ropemon.station.uncertainty import BandParams, hidden_reach
+
+    phys = {**BAND_PHYS, "friction": {"Fs": {"intercept": 0.0, "slope": 600.0},
+                                      "Fc": {"intercept": 0.0, "slope": 360.0}, "residual": 10.0}}
+    del phys["band_anchor"], phys["band_margin"]
+    band = BandParams.from_physical(phys)
+    for legacy, expect in ((True, [0, 1, 2, 3]), (False, [])):
+        eng = AlarmEngine(AlarmSettings(band=band, legacy_deviation_possible=legacy))
+        ev = []
+        for k in range(600):                                # a minute at rest
+            ev += eng.update(band_frame([(5200, 0.0)] * 4, k), k * DT)
+        assert sorted(a.rope for a in eng.active() if a.kind == "deviation_possible") == expect
+        if not legacy:
+            assert ev == [] and eng.active() == []
+            st = eng.hoist_status(1)
+            assert st.hidden_frac == pytest.approx(hidden_reach(band, 52000.0)) and st.hidden_frac > 0.10
+            assert st.rope_n == pytest.approx(52000.0) and st.limit == 0.10
+            assert "can hide an imbalance up to" in st.text and "52.0 kN per rope (limit 10%)" in st.text
+            assert [b is not None and b.reach > 0.10 for b in eng.deviation_bands(1)] == [True] * 4
+            assert eng.hoist_status(2) is None              # never heard
+
+
+def test_hoist_status_without_a_band_is_none_and_names_a_version_2_node():
+    eng = AlarmEngine()
+    run(eng, [dev_row(0.0)] * 3)
+    assert eng.hoist_status(1) is None
+    from ropemon.station.protocol import Frame, Rope
+    f = Frame(2, 0, 1, 0, 9, 900, 0, (Rope(5000, 5000, 5000, 5000),) * 4, 0, 0, 7400, L.OIL_TEMP_ABSENT)
+    eng.update(f, 10.0)
+    st = eng.hoist_status(1)
+    assert st.hidden_frac is None and st.positions is False
+    assert "node 1 sends no piston positions (layout version 2)" in st.text
 
 
 def test_without_friction_lines_there_is_no_band():

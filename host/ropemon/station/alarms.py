@@ -9,9 +9,11 @@ raises nor clears. A raised alarm latches until acknowledged. Every raise, clear
 and acknowledgement is returned as an `AlarmEvent` with time and values (the
 caller logs them, e.g. `Store.add_event`).
 
-Kinds: deviation (a rope vs the mean of the ropes), deviation_possible (a warning: the
-band of the deviation reaches the limit while the node's deviation does not; from
-`ropemon.station.uncertainty`, only with `AlarmSettings.band`), overload (total vs rated),
+Kinds: deviation (a rope vs the mean of the ropes), deviation_possible (only with
+`AlarmSettings.legacy_deviation_possible`, the station before it watched the equalizer: a
+warning that the band of the deviation reaches the limit while the node's deviation does not;
+the seals' static friction makes that stand on every rope: the imbalance the seals can hide is
+the hoist's standing status instead, `AlarmEngine.hoist_status`), overload (total vs rated),
 slack (a rope below a floor), sensor_fault (fault bits), sensor_stuck (a rope's
 pressure frozen while the others move, see `_StuckTracker`), config_fault, silent
 (no frame from a node: also a configured node never heard since the station started),
@@ -19,7 +21,12 @@ no_data (no frame from any node since the station started, no node configured),
 battery_low, pressure_noise (the node's noise_changed bit: its transmitters' noise moved
 beyond what it follows without a re-check), node_imbalance (the node's own imbalance bit),
 link_integrity (MAC failures or replays), receiver_down (a receiver's port not open),
-station_fault (a part of the station failing, e.g. the log cannot be written).
+station_fault (a part of the station failing, e.g. the log cannot be written); and from the
+piston positions of layout version 3 (`ropemon.station.equalizer`, with `AlarmSettings.equalizer`):
+stroke_limit (a piston within the stroke margin of an end), not_equalizing (a rope whose piston
+does not share the oil's motion over a load change: closed valve, blocked hose, seized seal),
+oil_loss (the trapped oil's balance drifting) and rope_adjust (an advisory: the pistons' rest
+positions trend towards an end from wind to wind).
 
 Fail-safe: the station raises an alarm whenever it cannot vouch for the ropes (no frame,
 a receiver down, a station part failing); it is never quiet because it sees nothing.
@@ -39,15 +46,21 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+from ropemon.station.equalizer import (AdjustForecast, EqualizerSettings, EqualizingTracker, OilTracker,
+                                       RestTracker, has_positions, positions, stroke_check)
 from ropemon.station.protocol import DAN_TO_N, L, Frame
-from ropemon.station.uncertainty import BandParams, DeviationBand, RopeInterval, SealBandTracker, deviation_bounds
+from ropemon.station.uncertainty import (BandParams, DeviationBand, RopeInterval, SealBandTracker, deviation_bounds,
+                                         hidden_reach)
 
 #: Alarm flood: more than this many raises within FLOOD_S (ISA-18.2's 10 per 10 minutes).
 FLOOD_RAISES, FLOOD_S = 10, 600.0
 #: Priority of each kind (1 highest); kinds not listed are 1.
-PRIORITY = {"battery_low": 2, "pressure_noise": 2, "sensor_stuck": 2, "alarm_flood": 2, "deviation_possible": 3}
+PRIORITY = {"battery_low": 2, "pressure_noise": 2, "sensor_stuck": 2, "alarm_flood": 2, "oil_loss": 2,
+            "deviation_possible": 3, "rope_adjust": 3}
 #: Kinds whose worst value is the lowest (the others: the largest in magnitude).
-WORST_LOW = frozenset({"slack", "battery_low"})
+WORST_LOW = frozenset({"slack", "battery_low", "not_equalizing", "rope_adjust"})
+#: Kinds judged on a rope's piston position: not judged while its displacement channel fails.
+POSITION_KINDS = ("stroke_limit", "not_equalizing")
 SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
 # A condition "held for 0.5 s" over frames 0.1 s apart holds at the sixth frame, whatever the
 # float rounding of the two times (38 * 0.1 and 43 * 0.1 are 0.49999999999999 apart).
@@ -92,8 +105,14 @@ class AlarmSettings:
     receiver_timing: Timing = Timing(raise_after_s=0.0, clear_after_s=2.0, min_frames=1)
     nodes: tuple[int, ...] = ()             # the nodes the station is configured for: silent until heard
     # the seal's friction lines and the band's parameters (ropemon.station.uncertainty): with them the
-    # engine keeps a band per rope and raises deviation_possible; None: no band, no such warning
+    # engine keeps a band per rope (`deviation_bands`) and the hoist's standing status (`hoist_status`);
+    # None: no band
     band: BandParams | None = None
+    # the station before it watched the equalizer (the evaluation's baseline): deviation_possible
+    # raised whenever the band reaches the limit (with the seals' friction: on every rope, always)
+    legacy_deviation_possible: bool = False
+    # the equalizer's alarms from the piston positions (ropemon.station.equalizer); None: none
+    equalizer: EqualizerSettings | None = EqualizerSettings()
 
     @classmethod
     def from_loads(cls, rated_load_dan: int, empty_load_dan: int, n_ropes: int,
@@ -228,11 +247,32 @@ class ActiveAlarm:
 
     @property
     def warning(self) -> bool:
-        """A warning (lower priority than the alarms): deviation_possible."""
+        """A warning or advisory (lower priority than the alarms): deviation_possible, rope_adjust."""
         return self.kind in WARNING_KINDS
 
 
-WARNING_KINDS = frozenset({"deviation_possible"})
+WARNING_KINDS = frozenset({"deviation_possible", "rope_adjust"})
+
+
+@dataclass(frozen=True)
+class HoistStatus:
+    """A node's hoist as it stands (not an alarm: nothing the operator does clears it).
+
+    `hidden_frac`: the imbalance (fraction of the mean) the seals' static friction can hide at
+    the current mean rope tension (`uncertainty.hidden_reach`; None: no band, or the ropes
+    unloaded); `text`: one line for an operator; `notes`: what the station cannot watch on this
+    node (no piston positions, no oil balance); `forecast`: per rope the rest positions' trend
+    (`equalizer.adjust_forecast`, empty before enough winds)."""
+
+    node: int
+    hidden_frac: float | None
+    rope_n: float | None
+    limit: float | None
+    positions: bool | None            # the node sends piston positions (layout version 3)
+    text: str
+    notes: tuple[str, ...] = ()
+    forecast: tuple[AdjustForecast | None, ...] = ()
+    oil_balance_m3: float | None = None   # oil lost since the station started watching (+: lost)
 
 
 def _fault_ropes(mask: int) -> str:
@@ -330,6 +370,12 @@ class AlarmEngine:
         self._started_s: float | None = None      # the first update or tick: when the station began to look
         self._down_since: dict[str, float] = {}   # receiver -> when its port was first seen down
         self._raises: deque[float] = deque()       # times of annunciated raises (the flood count)
+        self._equalizing: dict[int, EqualizingTracker] = {}
+        self._oil: dict[int, OilTracker] = {}
+        self._rests: dict[int, RestTracker] = {}
+        self._forecast: dict[int, list[AdjustForecast | None]] = {}
+        self._layout: dict[int, int] = {}            # node -> layout version of its last frame
+        self._mean_rope_n: dict[int, float | None] = {}
         self.events: deque[AlarmEvent] = deque(maxlen=10000)  # recent history; the store keeps all
 
     # -- inputs ---------------------------------------------------------------
@@ -353,13 +399,9 @@ class AlarmEngine:
         judged = {i for i, _ in present}
         for i in range(len(ropes)):
             for kind in ("deviation", "deviation_possible", "slack"):
-                a = self._alarms.get(f"{kind}:n{node}:r{i}")
-                if a is not None:
-                    was, a.suppressed = a.suppressed, i not in judged
-                    if a.suppressed:
-                        a.latched = False
-                    elif was:
-                        a.latched = a.present   # annunciated again: a present alarm needs an ack
+                self._suppress(node, i, kind, i not in judged)
+        if ropes:
+            self._mean_rope_n[node] = (sum(t for _, t in present) / len(present) * DAN_TO_N) if present else None
         if s.band is not None and s.deviation_frac is not None and ropes:
             tr = self._bands.get(node)
             if tr is None:
@@ -379,7 +421,7 @@ class AlarmEngine:
                     self._step(ev, f"deviation:n{node}:r{i}", "deviation", node, i, s.timing, now_s,
                                a > thr, a < thr - s.deviation_hysteresis_frac, round(dev, 4), thr,
                                f"rope {i + 1} {t} daN is {dev:+.1%} from the mean {mean:.0f} daN")
-            if s.band is not None and s.deviation_frac is not None:
+            if s.band is not None and s.deviation_frac is not None and s.legacy_deviation_possible:
                 # after the deviation alarms: the warning yields to a raised certain alarm
                 self._check_possible(ev, node, self._bands[node].last, now_s, None)
             if s.rated_load_dan is not None:
@@ -396,6 +438,8 @@ class AlarmEngine:
                                f"rope {i + 1} {t} daN below slack floor {s.slack_dan} daN")
         if s.stuck_s is not None:
             self._check_stuck(ev, node, ropes, now_s, s.stuck_s)
+        if s.equalizer is not None and ropes:
+            self._check_equalizer(ev, frame, now_s, s.equalizer)
         fault = bool(frame.status & SENSOR_FAULT_BITS) or frame.fault_mask != 0
         flags = ",".join(f for f in frame.status_flags if f.endswith("_fault") and f != "config_fault")
         self._step(ev, f"sensor_fault:n{node}", "sensor_fault", node, None, s.fault_timing, now_s,
@@ -454,7 +498,7 @@ class AlarmEngine:
             self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
                        quiet > s.silent_s, quiet <= s.silent_s, round(quiet, 3), s.silent_s,
                        f"no frame from node {node} for {quiet:.1f} s")
-            if node in self._bands and quiet > 0:
+            if node in self._bands and quiet > 0 and s.legacy_deviation_possible:
                 self._check_possible(ev, node, self._bands[node].intervals(quiet), now_s, quiet)
         return self._log(ev)
 
@@ -579,7 +623,161 @@ class AlarmEngine:
         age = 0.0 if now_s is None else max(0.0, now_s - self._last_frame_s.get(node, now_s))
         return deviation_bounds(tr.intervals(age))
 
+    def hoist_status(self, node: int) -> HoistStatus | None:
+        """`node`'s hoist as it stands (`HoistStatus`): the imbalance the seals can hide at its last
+        frame's mean rope tension, and what the station cannot watch there. None without a band
+        (no seal friction lines in the config), unless there is something else to say (a node
+        sending no piston positions); None for a node never heard."""
+        s = self.settings
+        if node not in self._last_frame_s:
+            return None
+        version = self._layout.get(node)
+        positions_sent = None if version is None else version >= 3
+        notes: list[str] = []
+        if positions_sent is False:
+            notes.append(f"node {node} sends no piston positions (layout version {version}): end stops, "
+                         "equalizing and oil loss not watched")
+        q = s.equalizer
+        if positions_sent and q is not None and not (q.areas_m2 and any(q.compliance_m_per_pa)):
+            notes.append("oil loss not watched: the config has no cylinder areas or hydraulic compliance")
+        if positions_sent and q is not None and not q.stroke_m:
+            notes.append("stroke unknown: the end stops only from the node's stroke flags, no rope-adjust forecast")
+        if s.band is None and positions_sent is not False:
+            return None
+        limit = s.deviation_frac
+        rope_n = self._mean_rope_n.get(node)
+        hidden = None
+        if s.band is not None and rope_n is not None and rope_n >= s.deviation_min_mean_dan * DAN_TO_N:
+            hidden = hidden_reach(s.band, rope_n)
+        if hidden is not None:
+            within = "" if limit is None else (f" (limit {limit:.0%})" if hidden >= limit else
+                                                f" (within the {limit:.0%} limit)")
+            text = (f"the seals can hide an imbalance up to {hidden:.1%} at {rope_n / 1e3:.1f} kN per rope{within}: "
+                    "check the rope tensions by other means")
+        elif s.band is not None:
+            text = "ropes unloaded: no imbalance to hide"
+        else:
+            text = "no seal friction lines in the config: the imbalance the seals can hide is not known"
+        if notes and positions_sent is False:
+            text += "; " + notes[0]
+        oil = self._oil.get(node)
+        return HoistStatus(node, hidden, rope_n, limit, positions_sent, text, tuple(notes),
+                           tuple(self._forecast.get(node, ())),
+                           None if oil is None or oil.last is None else oil.last.balance_m3)
+
     # -- internals ------------------------------------------------------------
+
+    def _suppress(self, node: int, rope: int, kind: str, suppressed: bool) -> None:
+        """A rope's alarm of `kind` suppressed by design while its sensor is not judged."""
+        a = self._alarms.get(f"{kind}:n{node}:r{rope}")
+        if a is not None:
+            was, a.suppressed = a.suppressed, suppressed
+            if a.suppressed:
+                a.latched = False
+            elif was:
+                a.latched = a.present   # annunciated again: a present alarm needs an ack
+
+    def _check_equalizer(self, ev, frame: Frame, now_s: float, q: EqualizerSettings) -> None:
+        """stroke_limit, not_equalizing, oil_loss and rope_adjust from the frame's piston positions
+        (`ropemon.station.equalizer`). A frame without positions (layout version 2) judges none:
+        `hoist_status` says so."""
+        node = frame.node
+        self._layout[node] = frame.version
+        if not has_positions(frame):
+            return
+        xs = positions(frame)
+        for i in range(len(frame.ropes)):
+            for kind in POSITION_KINDS:
+                self._suppress(node, i, kind, xs[i] is None)
+        strokes = stroke_check(frame, q)
+        timing = Timing(raise_after_s=0.0, clear_after_s=q.stroke_clear_s, min_frames=1)
+        for i, sr in enumerate(strokes):
+            if sr is None:
+                continue
+            aid = f"stroke_limit:n{node}:r{i}"
+            if sr.end is None and aid not in self._alarms:
+                continue
+            stroke = q.per_rope(q.stroke_m, i)
+            pos_mm = sr.pos_m * 1e3
+            where = (f" (end stop at {'+' if sr.end == 'extended' else '-'}{stroke * 500:.0f} mm, margin "
+                     f"{q.margin_m * 1e3:.0f} mm)" if stroke and q.margin_m is not None else " (the node's stroke flag)")
+            thr = None
+            if stroke and q.margin_m is not None:
+                thr = round((stroke / 2 - q.margin_m) * 1e3 * (1 if (sr.end or "extended") == "extended" else -1), 1)
+            if sr.end == "extended":
+                todo = ("the rope is short against the others, or oil was lost: stop winding people, land the cage, "
+                        "adjust the rope (lengthen it) or refill the cylinders")
+            elif sr.end == "retracted":
+                todo = ("the rope is long against the others (creep, slip), or its cylinder holds too much oil: stop "
+                        "winding people, land the cage, adjust the rope (shorten it) or level the cylinders' oil")
+            else:
+                todo = "out of the margin"
+            msg = (f"rope {i + 1} piston at its {sr.end} end: {pos_mm:+.1f} mm from mid-stroke{where}: the "
+                   f"equalizer no longer equalizes this rope, its deviation can no longer be ruled out; {todo}"
+                   if sr.end else f"rope {i + 1} piston at {pos_mm:+.1f} mm from mid-stroke: {todo}")
+            self._step(ev, aid, "stroke_limit", node, i, timing, now_s, sr.end is not None, sr.clear,
+                       round(pos_mm, 1), thr, msg)
+        tr = self._equalizing.get(node)
+        if tr is None:
+            tr = self._equalizing[node] = EqualizingTracker(q)
+        skip = [sr is not None and sr.end is not None for sr in strokes]
+        timing = Timing(raise_after_s=q.equalize_raise_s, clear_after_s=q.equalize_clear_s,
+                        min_frames=q.equalize_min_frames)
+        for i, pt in enumerate(tr.update(frame, now_s, skip)):
+            if pt is None:
+                continue
+            aid = f"not_equalizing:n{node}:r{i}"
+            if not pt.lags and aid not in self._alarms:
+                continue
+            share = None if pt.ratio is None else round(abs(pt.ratio), 3)
+            if pt.lags:
+                msg = (f"rope {i + 1} not equalizing: {pt.cause}; the equalizer no longer shares its load and its "
+                       "deviation can no longer be ruled out: stop winding people at the next landing, check the "
+                       "rope's stop valves and hose, and its seal")
+            else:
+                msg = (f"rope {i + 1} piston moved {pt.own_m * 1e3:+.2f} mm with the others' {pt.others_m * 1e3:+.2f} mm"
+                       + (": equalizing again" if pt.follows else ""))
+            self._step(ev, aid, "not_equalizing", node, i, timing, now_s, pt.lags, pt.follows, share,
+                       q.lag_ratio, msg)
+        oil = self._oil.get(node)
+        if oil is None:
+            oil = self._oil[node] = OilTracker(q)
+        st = oil.update(frame, now_s)
+        if st is not None:
+            aid = f"oil_loss:n{node}"
+            bad = st.lost_m3 > st.band_m3
+            if bad or aid in self._alarms:
+                timing = Timing(raise_after_s=q.oil_raise_s, clear_after_s=q.oil_clear_s, min_frames=q.oil_min_frames)
+                self._step(ev, aid, "oil_loss", node, None, timing, now_s, bad, st.lost_m3 < st.band_m3 / 2,
+                           round(st.lost_m3 * 1e3, 3), round(st.band_m3 * 1e3, 3),
+                           f"oil loss: {st.lost_m3 * 1e3:.2f} L in the last {st.window_s:.0f} s "
+                           f"({st.rate_m3_s * 6e4:.2f} L/min), beyond the {st.band_m3 * 1e3:.2f} L the compression and "
+                           "temperature explain: the equalizer is losing oil (a leak at a cylinder, hose or the "
+                           "connecting assembly); stop winding people at the next landing, find the leak and refill "
+                           "before the pistons reach their ends")
+        rests = self._rests.get(node)
+        if rests is None:
+            rests = self._rests[node] = RestTracker(q)
+        if rests.update(frame, now_s):
+            fc = self._forecast[node] = rests.forecast()
+            timing = Timing(raise_after_s=0.0, clear_after_s=0.0, min_frames=1)
+            for i, f in enumerate(fc):
+                aid = f"rope_adjust:n{node}:r{i}"
+                left = None if f is None else f.winds_left
+                due = left is not None and left <= q.adjust_winds
+                if not due and aid not in self._alarms:
+                    continue
+                stroke = q.per_rope(q.stroke_m, i) or 0.0
+                limit = (stroke / 2 - (q.margin_m or 0.0)) * 1e3
+                msg = (f"rope {i + 1} needs adjusting: its piston's rest position moves {f.trend_m * 1e3:+.2f} mm per "
+                       f"wind towards its {f.end} end ({f.last_m * 1e3:+.1f} mm now, margin at "
+                       f"{'+' if f.end == 'extended' else '-'}{limit:.0f} mm): {left:.0f} winds left; adjust the rope "
+                       "lengths (re-balance the cylinders) at the next maintenance stop"
+                       if f is not None and left is not None else f"rope {i + 1}: no trend towards an end")
+                self._step(ev, aid, "rope_adjust", node, i, timing, now_s, due,
+                           left is None or left > q.adjust_clear_winds, None if left is None else round(left, 1),
+                           q.adjust_winds, msg)
+
 
     def _check_stuck(self, ev, node: int, ropes, now_s: float, stuck_s: float) -> None:
         s = self.settings

@@ -31,6 +31,7 @@ from typing import Any
 from ropemon.commission import tomlfields
 from ropemon.station import files
 from ropemon.station.alarms import AlarmSettings
+from ropemon.station.equalizer import EqualizerSettings
 from ropemon.station.protocol import DAN_TO_N, KEY_LEN_MAX, KEY_LEN_MIN, L
 from ropemon.station.uncertainty import DEFAULTS as BAND_DEFAULTS
 from ropemon.station.uncertainty import BandParams, Line
@@ -728,18 +729,40 @@ def site_from_configs(paths: list[str]) -> SiteFigures:
     return figures[0][1] if figures else SiteFigures()
 
 
+def equalizer_settings(site: SiteFigures) -> EqualizerSettings:
+    """The equalizer alarms' figures from the node config (`ropemon.station.equalizer`): the cylinder
+    areas, the stroke and its margin, and where the figures carry them the hydraulic compliance,
+    the displacement channel's noise and the samples per frame; the thresholds' defaults."""
+    kw: dict[str, Any] = {"areas_m2": tuple(site.cylinder_area_m2),
+                          "stroke_m": tuple(getattr(site, "stroke_m", None) or ()),
+                          "margin_m": getattr(site, "stroke_margin_m", None)}
+    k = getattr(site, "hydraulic_compliance_m_per_pa", None)
+    if k:
+        kw["compliance_m_per_pa"] = tuple(k)
+    noise = getattr(site, "displacement_noise_m", None)
+    if noise:
+        kw["displacement_noise_m"] = noise
+    per_frame = getattr(site, "samples_per_frame", None)
+    if per_frame:
+        kw["samples_per_frame"] = int(per_frame)
+    return EqualizerSettings(**kw)
+
+
 def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
     """Alarm thresholds from the node config's figures (regulation defaults otherwise).
 
     With the empty conveyance's weight (`physical.conveyance_weight_N`, written by `ropemon config`)
     the slack-rope alarm is on: a rope below `slack_frac` of its share of that load. With the seal's
-    friction lines (`physical.friction`) each rope gets a band and DEVIATION POSSIBLE is on."""
+    friction lines (`physical.friction`) each rope gets a band and the hoist its standing status
+    (the imbalance the seals can hide). The equalizer's alarms (stroke limit, not equalizing, oil
+    loss, rope adjustment) from the areas, stroke and compliance (`equalizer_settings`)."""
     kw: dict[str, Any] = dict(
         deviation_frac=site.imbalance_frac,
         battery_low_mv=int(site.battery_low_v * 1000) if site.battery_low_v else None,
         silent_s=silent_s,
         overload_frac=site.overload_frac,
         band=site.band,
+        equalizer=equalizer_settings(site),
     )
     rated_dan = int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None
     n_ropes = len(site.cylinder_area_m2)

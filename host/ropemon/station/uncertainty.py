@@ -343,6 +343,24 @@ def deviation_bounds(iv: Sequence[RopeInterval]) -> list[DeviationBand | None]:
     return out
 
 
+def hidden_reach(band: BandParams, rope_n: float) -> float:
+    """The imbalance (a fraction of the mean) the seals' static friction can hide with the ropes
+    equal at rope tension `rope_n` (N): the largest deviation any rope's band allows when no seal
+    is vouched for, each rope's true tension anywhere in `[T - S, T + S]` at its pressure `T / A`.
+    The hoist's standing figure (`ropemon config` prints it at the empty and the rated tension;
+    the station shows it at the current mean tension): inside it the pressures and positions
+    cannot tell an imbalance. 0.0 for a tension <= 0 (unloaded ropes: no deviation)."""
+    if not math.isfinite(rope_n):
+        raise ValueError(f"rope_n: {rope_n!r} is not a finite tension")
+    if rope_n <= 0:
+        return 0.0
+    ivs = []
+    for area in band.areas_m2:
+        s, _fc, _floor = band.limits(rope_n / area / 1000.0)
+        ivs.append(RopeInterval(rope_n, max(0.0, rope_n - s), rope_n + s, rope_n, s, False))
+    return max((b.reach for b in deviation_bounds(ivs) if b is not None), default=0.0)
+
+
 def _median(xs: Iterable[float]) -> float:
     v = sorted(xs)
     m = len(v) // 2

@@ -1,0 +1,519 @@
+"""The tension equalizer's health from the node's frames: pure trackers the alarm engine runs.
+
+The cylinders' rod-less cavities share one oil manifold, so a load change (the loading, an
+acceleration, the unloading: the ropes' pressures move together) moves every piston: its
+oil compresses by `k dp` (`k`: the hydraulic compliance, m/Pa per rope) and the oil that
+flows between the cylinders equalises the ropes. What the frames of layout version 3 show
+of that (each rope's piston position `pos_01mm`, the node's `stroke_mask`):
+
+- `stroke_check`: a piston within the stroke margin of an end (the node's mask, set at any
+  sample of the window, or the window mean within the margin). There the equalizer no
+  longer equalizes that rope: its tension is no longer `p A` +- the seal's friction.
+- `EqualizingTracker`: a rope whose piston does not share the others' motion over a load
+  change (a closed stop valve, a blocked hose, a seized seal), told apart by its pressure:
+  departing from the others' (its tap reads a cylinder cut off from the manifold), or
+  following them while its piston stays (a seized seal when it does not move at all).
+- `OilTracker`: the trapped oil volume `sum A_i x_i`, less the compression `sum A_i k_i p_i`
+  and the thermal expansion, drifting: oil lost, with the rate.
+- `RestTracker` and `adjust_forecast`: each piston's position at the rests between winds,
+  its trend from wind to wind (ropes creeping or slipping unequally on the Koepe wheel)
+  and the winds left before it reaches its margin.
+
+Every tracker keeps O(ropes) state (the rest log and the oil window a fixed number of
+entries) and does constant work per frame; time is the caller's `now_s`, so a sequence of
+frames replays the same. A rope whose displacement channel faulted in the window
+(fault_mask bit 4+i) or that has no position is never judged here: SENSOR FAULT names it.
+Units: positions in m from mid-stroke, x > 0 the piston pulled out by its rope (docs/model.md).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import NamedTuple, Sequence
+
+from ropemon.station.protocol import Frame, L
+
+SEQ_BOOT_SHIFT = 20   # seq = (boot << 20) | count (docs/protocol.md)
+POS_ABSENT = getattr(L, "POS_ABSENT", -32768)
+STROKE_LOW_SHIFT = getattr(L, "STROKE_LOW_SHIFT", 0)
+STROKE_HIGH_SHIFT = getattr(L, "STROKE_HIGH_SHIFT", 4)
+DISPLACEMENT_SHIFT = L.FAULT_DISPLACEMENT_SHIFT
+#: Thermal expansion of a mineral hydraulic oil (ISO VG46: 6.5-7.5e-4 per K).
+OIL_EXPANSION_PER_K = 7e-4
+
+
+@dataclass(frozen=True)
+class EqualizerSettings:
+    """The equalizer alarms' figures and thresholds (docs/operator.md, "The equalizer").
+
+    Figures from the node config (`ropemon.station.physical.alarm_settings`): empty or None where
+    unknown, and then what needs them is not judged (a stroke alarm from the node's mask alone,
+    no oil balance without the areas)."""
+
+    areas_m2: tuple[float, ...] = ()             # per rope
+    stroke_m: tuple[float, ...] = ()             # per rope; end stops at +-stroke/2 from mid-stroke
+    margin_m: float | None = None                # the margin band within this of an end
+    compliance_m_per_pa: tuple[float, ...] = ()  # k per rope (x moves k dp with pressure)
+    # stroke_limit: raised on the first frame in the margin; cleared once the piston is this much
+    # further from the end than the margin (and the node's mask is clear) for stroke_clear_s
+    stroke_hysteresis_m: float = 0.002
+    stroke_clear_s: float = 2.0
+    # not_equalizing: over a load change the others' pistons moved at least max(move_min_m,
+    # move_sigmas x the rms noise of a difference of two frame means) while this rope's moved at
+    # most lag_ratio of theirs (seized_ratio: not at all); clears when it moved follow_ratio of theirs
+    displacement_noise_m: float = 2e-5           # rms per sample (physical.displacement_noise_m)
+    samples_per_frame: int = 20                  # sample_hz / frame_hz
+    move_sigmas: float = 12.0
+    move_min_m: float = 5e-5
+    lag_ratio: float = 0.5
+    seized_ratio: float = 0.1
+    follow_ratio: float = 0.8
+    departure_kpa: float = 30.0                  # pressure departing from the others' by more than
+    departure_frac: float = 0.2                  # max(this kPa, this share of their change)
+    reanchor_m: float = 1e-3                     # the others moved this far: a new reference
+    anchor_max_s: float = 60.0                   # or this long with no load change
+    equalize_raise_s: float = 1.0
+    equalize_clear_s: float = 2.0
+    equalize_min_frames: int = 5
+    # oil_loss: the oil balance lost more than oil_band_m3 within oil_window_s
+    oil_band_m3: float = 3e-5                    # 30 mL
+    oil_window_s: float = 120.0
+    oil_expansion_per_k: float = OIL_EXPANSION_PER_K
+    oil_volume_m3: float | None = None           # None: twice the cylinders' swept volume
+    oil_raise_s: float = 2.0
+    oil_clear_s: float = 30.0
+    oil_min_frames: int = 10
+    # rope_adjust: rests (|speed| <= rest_speed_mm_s for rest_s) per wind; raise when a piston's
+    # trend reaches its margin within adjust_winds winds
+    rest_speed_mm_s: int = 5
+    rest_s: float = 3.0
+    rest_skip_s: float = 1.0                     # the bounce after the stop is not averaged
+    adjust_winds: float = 10.0
+    adjust_clear_winds: float = 15.0
+    adjust_keep: int = 20                        # rests kept for the trend
+    adjust_min_rests: int = 4
+    adjust_trend_min_m: float = 5e-5             # per wind: slower is no trend
+
+    def __post_init__(self) -> None:
+        for name in ("stroke_hysteresis_m", "stroke_clear_s", "displacement_noise_m", "move_sigmas",
+                     "move_min_m", "departure_kpa", "departure_frac", "reanchor_m", "anchor_max_s",
+                     "equalize_raise_s", "equalize_clear_s", "oil_band_m3", "oil_window_s",
+                     "oil_expansion_per_k", "oil_raise_s", "oil_clear_s", "rest_s", "rest_skip_s",
+                     "adjust_winds", "adjust_clear_winds", "adjust_trend_min_m"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"equalizer.{name}: must be a finite number >= 0, got {v!r}")
+        if not 0 < self.seized_ratio < self.lag_ratio < self.follow_ratio <= 1:
+            raise ValueError("equalizer: needs 0 < seized_ratio < lag_ratio < follow_ratio <= 1, got "
+                             f"{self.seized_ratio}, {self.lag_ratio}, {self.follow_ratio}")
+        if self.samples_per_frame < 1 or self.adjust_keep < 2 or self.adjust_min_rests < 2:
+            raise ValueError("equalizer: samples_per_frame >= 1, adjust_keep and adjust_min_rests >= 2")
+        if self.adjust_clear_winds < self.adjust_winds:
+            raise ValueError("equalizer.adjust_clear_winds: must be at least adjust_winds")
+        if self.margin_m is not None and not (math.isfinite(self.margin_m) and self.margin_m >= 0):
+            raise ValueError(f"equalizer.margin_m: must be >= 0, got {self.margin_m!r}")
+        for name in ("areas_m2", "stroke_m", "compliance_m_per_pa"):
+            if any(not math.isfinite(v) or v < 0 for v in getattr(self, name)):
+                raise ValueError(f"equalizer.{name}: must be finite and >= 0")
+
+    def per_rope(self, values: tuple[float, ...], i: int) -> float | None:
+        """Rope i's figure (the last one for more ropes than figures); None when unknown."""
+        if not values:
+            return None
+        return values[i] if i < len(values) else values[-1]
+
+    @property
+    def move_threshold_m(self) -> float:
+        """The others' motion that makes a load change: above the noise of two frame means."""
+        sigma = self.displacement_noise_m / math.sqrt(self.samples_per_frame) * math.sqrt(2.0)
+        return max(self.move_min_m, self.move_sigmas * sigma)
+
+
+def positions(frame: Frame) -> list[float | None]:
+    """Each rope's piston position (m) a judge may use: None where the frame has none (version 2,
+    no healthy sample) or the rope's displacement channel faulted in the window."""
+    out: list[float | None] = []
+    for i, r in enumerate(frame.ropes):
+        pos = getattr(r, "pos_01mm", POS_ABSENT)
+        if pos == POS_ABSENT or frame.fault_mask >> (DISPLACEMENT_SHIFT + i) & 1:
+            out.append(None)
+        else:
+            out.append(pos * 1e-4)
+    return out
+
+
+def has_positions(frame: Frame) -> bool:
+    """The frame's layout carries piston positions (version 3 and later)."""
+    return frame.version >= 3
+
+
+# ------------------------------------------------------------------ stroke limit
+
+
+class StrokeRope(NamedTuple):
+    """One rope's stroke check in a frame: `end` "retracted" (low x) or "extended" (high x) when
+    the piston is within the margin of it, else None; `clear`: far enough from both ends (margin
+    plus hysteresis, the node's mask clear) for the alarm to clear."""
+
+    end: str | None
+    pos_m: float | None
+    clear: bool
+
+
+def stroke_check(frame: Frame, s: EqualizerSettings) -> list[StrokeRope | None]:
+    """Per rope: the stroke check, None for a rope not judged (no position, displacement fault)."""
+    out: list[StrokeRope | None] = []
+    mask = getattr(frame, "stroke_mask", 0)
+    for i, pos in enumerate(positions(frame)):
+        if pos is None:
+            out.append(None)
+            continue
+        low = bool(mask >> (STROKE_LOW_SHIFT + i) & 1)
+        high = bool(mask >> (STROKE_HIGH_SHIFT + i) & 1)
+        stroke = s.per_rope(s.stroke_m, i)
+        clear = not (low or high)
+        if stroke and s.margin_m is not None:
+            half = stroke / 2.0
+            low = low or pos <= -half + s.margin_m
+            high = high or pos >= half - s.margin_m
+            clear = clear and -half + s.margin_m + s.stroke_hysteresis_m < pos < half - s.margin_m - s.stroke_hysteresis_m
+        end = ("extended" if pos >= 0 else "retracted") if (low and high) else \
+              "retracted" if low else "extended" if high else None
+        out.append(StrokeRope(end, pos, clear and end is None))
+    return out
+
+
+# ------------------------------------------------------------------ not equalizing
+
+
+class Participation(NamedTuple):
+    """One rope's share of the oil's motion since the tracker's reference (a quiet frame before
+    the load change). `lags`: the others moved beyond the threshold and this rope at most
+    `lag_ratio` of it; `follows`: at least `follow_ratio` of it; neither: no evidence (no load
+    change yet). `cause` names what the pressure and the position tell apart."""
+
+    lags: bool
+    follows: bool
+    ratio: float | None          # own motion / the others' (median) motion
+    own_m: float
+    others_m: float
+    departure_kpa: float         # own pressure change less the others' (median)
+    others_kpa: float            # the others' pressure change
+    cause: str
+
+
+class EqualizingTracker:
+    """Per node: each rope's piston motion against the others' over a load change (module doc).
+
+    The reference is one frame's positions and pressures; the motion since it is judged each
+    frame. It moves on (a new reference) once the others have moved `reanchor_m` with no rope
+    lagging, every `anchor_max_s` (so a rope that lagged is judged afresh), when the set of judged ropes changes,
+    after a node reset or a gap in the frames. Healthy pistons move alike: each by its
+    compression `k dp` and the oil that flows between them (a balancing stroke moves one piston
+    far and the others back by its volume: a rope moving more than the others is equalizing).
+    So a rope is judged against the median of the others' motion, never the rope alone.
+    """
+
+    def __init__(self, s: EqualizerSettings) -> None:
+        self.s = s
+        self._ref_x: list[float | None] = []
+        self._ref_p: list[float | None] = []
+        self._ref_s: float | None = None
+        self._last_ms: int | None = None
+        self._boot: int | None = None
+        self.last: list[Participation | None] = []
+
+    def reset(self) -> None:
+        self._ref_s = None
+
+    def update(self, frame: Frame, now_s: float, skip: Sequence[bool] = ()) -> list[Participation | None]:
+        """Take the node's next frame; per rope its participation, None where not judged (no
+        position or pressure, `skip[i]`: e.g. the piston in its stroke margin)."""
+        s = self.s
+        n = len(frame.ropes)
+        boot = frame.seq >> SEQ_BOOT_SHIFT
+        if self._last_ms is not None:
+            gap_s = ((frame.time_ms - self._last_ms) % (1 << 32)) / 1000.0
+            if boot != self._boot or gap_s > 2.0:
+                self.reset()
+        self._last_ms, self._boot = frame.time_ms, boot
+        xs = positions(frame)
+        ps = [None if r.raw_kpa == L.RAW_KPA_ABSENT else float(r.raw_kpa) for r in frame.ropes]
+        usable = [xs[i] is not None and ps[i] is not None for i in range(n)]
+        if (self._ref_s is None or len(self._ref_x) != n
+                or usable != [x is not None and p is not None for x, p in zip(self._ref_x, self._ref_p)]):
+            self._anchor(xs, ps, usable, now_s)
+            self.last = [None] * n
+            return self.last
+        if sum(usable) < 2:
+            self.last = [None] * n
+            return self.last
+        dx = [xs[i] - self._ref_x[i] if usable[i] else None for i in range(n)]
+        dp = [ps[i] - self._ref_p[i] if usable[i] else None for i in range(n)]
+        thr = s.move_threshold_m
+        out: list[Participation | None] = []
+        moved_all = 0.0
+        any_lag = False
+        for i in range(n):
+            if not usable[i]:
+                out.append(None)
+                continue
+            ox = _median([dx[j] for j in range(n) if j != i and usable[j]])
+            op = _median([dp[j] for j in range(n) if j != i and usable[j]])
+            own = dx[i]
+            dep = dp[i] - op
+            moved_all = max(moved_all, abs(ox))
+            if abs(ox) < thr:
+                out.append(Participation(False, False, None, own, ox, dep, op, ""))
+                continue
+            ratio = own / ox
+            share = abs(own) / abs(ox)
+            lags = share <= s.lag_ratio
+            follows = share >= s.follow_ratio
+            if i < len(skip) and skip[i]:
+                lags = False
+            cause = ""
+            if lags:
+                any_lag = True
+                departs = abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
+                if departs:
+                    cause = (f"its pressure departs {dep:+.0f} kPa from the others' ({op:+.0f} kPa) while its "
+                             f"piston moved {own * 1e3:+.2f} mm against their {ox * 1e3:+.2f} mm: a stop valve "
+                             "closed between its pressure tap and the manifold (its cylinder cut off)")
+                elif share <= s.seized_ratio:
+                    cause = (f"its piston did not move ({own * 1e3:+.2f} mm) while the others moved "
+                             f"{ox * 1e3:+.2f} mm and its pressure followed theirs: a seized seal (or its "
+                             "cylinder's oil shut in at the cylinder)")
+                else:
+                    cause = (f"its piston moved {own * 1e3:+.2f} mm, {share:.0%} of the others' {ox * 1e3:+.2f} mm, "
+                             "while its pressure followed theirs: its oil does not reach the manifold (a stop "
+                             "valve closed on the cylinder's side of the tap, or a blocked hose)")
+            out.append(Participation(lags, follows, ratio, own, ox, dep, op, cause))
+        self.last = out
+        if (moved_all >= s.reanchor_m and not any_lag) or now_s - self._ref_s >= s.anchor_max_s:
+            self._anchor(xs, ps, usable, now_s)
+        return out
+
+    def _anchor(self, xs, ps, usable, now_s: float) -> None:
+        self._ref_x = [x if u else None for x, u in zip(xs, usable)]
+        self._ref_p = [p if u else None for p, u in zip(ps, usable)]
+        self._ref_s = now_s
+
+
+# ------------------------------------------------------------------ oil loss
+
+
+class OilState(NamedTuple):
+    """The oil balance: `lost_m3` within the window (`window_s` long, up to now), its rate, the
+    band it is judged against (the setting plus the thermal allowance), the temperature used."""
+
+    lost_m3: float
+    rate_m3_s: float
+    window_s: float
+    band_m3: float
+    balance_m3: float            # the oil lost since the tracker's start (or reset)
+
+
+class OilTracker:
+    """Per node: the trapped oil's balance (module doc).
+
+    `balance = sum A_i (x_i - k_i p_i) + alpha V_oil (T - T_0)`: with no oil lost it stays
+    constant through load changes (the compression is `k p`) and temperature changes (with the
+    frame's oil temperature); oil lost pulls the pistons out and raises it. Judged over a
+    sliding window (a fixed ring of entries) against a band, so the slow drift the station
+    cannot explain (the oil's temperature without a temperature input, k's error) never adds
+    up over days. Needs the cylinder areas and the compliance (without `k` a wind's pressure
+    change alone moves the pistons by about a millimetre: tens of mL), and every rope's position
+    and pressure; a frame without them restarts the window."""
+
+    SLOTS = 24
+
+    def __init__(self, s: EqualizerSettings, n_ropes: int | None = None) -> None:
+        self.s = s
+        self._ring: deque[tuple[float, float, float | None]] = deque(maxlen=self.SLOTS + 1)
+        self._last_ms: int | None = None
+        self._boot: int | None = None
+        self._t0: float | None = None     # oil temperature at the start, C
+        self._b0: float | None = None
+        self.last: OilState | None = None
+
+    def reset(self) -> None:
+        self._ring.clear()
+        self._t0 = self._b0 = None
+
+    def oil_volume_m3(self, n: int) -> float:
+        s = self.s
+        if s.oil_volume_m3 is not None:
+            return s.oil_volume_m3
+        if s.areas_m2 and s.stroke_m:
+            return 2.0 * sum((s.per_rope(s.areas_m2, i) or 0.0) * (s.per_rope(s.stroke_m, i) or 0.0)
+                             for i in range(n))
+        return 0.0
+
+    def update(self, frame: Frame, now_s: float) -> OilState | None:
+        s = self.s
+        n = len(frame.ropes)
+        boot = frame.seq >> SEQ_BOOT_SHIFT
+        if self._last_ms is not None:
+            gap_s = ((frame.time_ms - self._last_ms) % (1 << 32)) / 1000.0
+            if boot != self._boot or gap_s > 2.0:
+                self.reset()
+        self._last_ms, self._boot = frame.time_ms, boot
+        if not s.areas_m2 or not any(s.compliance_m_per_pa) or n == 0:
+            self.last = None
+            return None
+        xs = positions(frame)
+        bal = 0.0
+        for i, r in enumerate(frame.ropes):
+            if xs[i] is None or r.raw_kpa == L.RAW_KPA_ABSENT:
+                self.reset()
+                self.last = None
+                return None
+            a = s.per_rope(s.areas_m2, i) or 0.0
+            k = s.per_rope(s.compliance_m_per_pa, i) or 0.0
+            bal += a * (xs[i] - k * r.raw_kpa * 1000.0)
+        temp = None if frame.oil_temp_cc == L.OIL_TEMP_ABSENT else frame.oil_temp_cc / 100.0
+        vol = self.oil_volume_m3(n)
+        if temp is not None:
+            if self._t0 is None:
+                self._t0 = temp
+            bal += s.oil_expansion_per_k * vol * (temp - self._t0)
+        if self._b0 is None:
+            self._b0 = bal
+        ring = self._ring
+        step = s.oil_window_s / self.SLOTS
+        if not ring or now_s - ring[-1][0] >= step:
+            ring.append((now_s, bal, temp))
+        t_old, b_old, temp_old = ring[0]
+        span = now_s - t_old
+        lost = bal - b_old
+        # the band: the setting, plus the expansion an error of 1 K in the station's idea of the
+        # oil's temperature change would make where it knows the temperature (the volume is a guess)
+        band = s.oil_band_m3
+        if temp is not None and temp_old is not None:
+            band += s.oil_expansion_per_k * vol * 0.25 * abs(temp - temp_old)
+        self.last = OilState(lost, lost / span if span > 0 else 0.0, span, band, bal - self._b0)
+        return self.last
+
+
+# ------------------------------------------------------------------ rope adjustment
+
+
+class AdjustForecast(NamedTuple):
+    """One rope's rest positions across winds: the least-squares trend (m per wind), the fitted
+    position at the last wind, the end it heads for, and the winds left before it reaches
+    that end's margin (0: already within; None: no trend)."""
+
+    trend_m: float
+    last_m: float
+    end: str                 # "extended" (trend > 0) or "retracted"
+    winds_left: float | None
+
+
+def adjust_forecast(rests: Sequence[Sequence[float | None]], stroke_m: float | Sequence[float],
+                    margin_m: float | None, min_winds: int = 3,
+                    trend_min_m: float = 0.0) -> list[AdjustForecast | None]:
+    """Per rope, from `rests` (per wind, oldest first, each a list of per-rope rest positions in m,
+    None where unknown): the trend and the winds left before the piston reaches its margin
+    (`stroke_m` per rope or one for all, end stops at +-stroke/2; `margin_m` None: 0). None for a
+    rope with fewer than `min_winds` rests. A trend slower than `trend_min_m` per wind gives
+    winds_left None (no end in sight). ValueError for a stroke or margin that is not positive."""
+    n = max((len(r) for r in rests), default=0)
+    strokes = [stroke_m] * n if isinstance(stroke_m, (int, float)) else list(stroke_m)
+    margin = 0.0 if margin_m is None else float(margin_m)
+    if margin < 0 or not math.isfinite(margin):
+        raise ValueError(f"margin_m: must be >= 0, got {margin_m!r}")
+    out: list[AdjustForecast | None] = []
+    for i in range(n):
+        pts = [(k, float(w[i])) for k, w in enumerate(rests) if i < len(w) and w[i] is not None]
+        if len(pts) < max(2, min_winds):
+            out.append(None)
+            continue
+        ks = [k for k, _ in pts]
+        km = sum(ks) / len(ks)
+        xm = sum(x for _, x in pts) / len(pts)
+        sxx = sum((k - km) ** 2 for k in ks)
+        slope = sum((k - km) * (x - xm) for k, x in pts) / sxx if sxx > 0 else 0.0
+        last_k = len(rests) - 1
+        last = xm + slope * (last_k - km)
+        stroke = strokes[i] if i < len(strokes) else (strokes[-1] if strokes else None)
+        if stroke is None or not (stroke > 0 and math.isfinite(stroke)):
+            raise ValueError(f"stroke_m: rope {i + 1} needs a positive stroke, got {stroke!r}")
+        limit = stroke / 2.0 - margin
+        end = "extended" if slope > 0 else "retracted"
+        if abs(slope) <= trend_min_m or slope == 0.0:
+            left = None
+        else:
+            room = limit - last if slope > 0 else last + limit
+            left = max(0.0, room / abs(slope))
+        out.append(AdjustForecast(slope, last, end, left))
+    return out
+
+
+class RestTracker:
+    """Per node: each piston's mean position over every rest (|speed| <= rest_speed_mm_s for at
+    least rest_s, the first rest_skip_s of bounce left out), one per wind, the last adjust_keep
+    kept. With a compliance the positions are taken at the first rest's pressure (`x - k (p - p_0)`),
+    so a loaded and an empty landing compare. A rope without a position in any frame of the rest
+    has None for it."""
+
+    def __init__(self, s: EqualizerSettings) -> None:
+        self.s = s
+        self.rests: deque[list[float | None]] = deque(maxlen=s.adjust_keep)
+        self._since: float | None = None        # the rest began
+        self._sum: list[float] = []
+        self._cnt: list[int] = []
+        self._bad: list[bool] = []
+        self._psum: list[float] = []
+        self._p0: list[float | None] = []
+
+    def update(self, frame: Frame, now_s: float) -> bool:
+        """Take a frame; True when a rest just ended (a new entry in `rests`)."""
+        s = self.s
+        n = len(frame.ropes)
+        still = abs(frame.speed_mm_s) <= s.rest_speed_mm_s
+        if still:
+            if self._since is None:
+                self._since = now_s
+                self._sum, self._cnt, self._bad = [0.0] * n, [0] * n, [False] * n
+                self._psum = [0.0] * n
+            if now_s - self._since >= s.rest_skip_s and len(self._sum) == n:
+                for i, x in enumerate(positions(frame)):
+                    kpa = frame.ropes[i].raw_kpa
+                    if x is None or kpa == L.RAW_KPA_ABSENT:
+                        self._bad[i] = True
+                    else:
+                        self._sum[i] += x
+                        self._psum[i] += kpa * 1000.0
+                        self._cnt[i] += 1
+            return False
+        ended = self._since is not None and now_s - self._since >= s.rest_s and any(self._cnt)
+        if ended:
+            if len(self._p0) != len(self._sum):
+                self._p0 = [None] * len(self._sum)
+            rest: list[float | None] = []
+            for i, (sx, c, bad) in enumerate(zip(self._sum, self._cnt, self._bad)):
+                if bad or not c:
+                    rest.append(None)
+                    continue
+                x, p = sx / c, self._psum[i] / c
+                k = s.per_rope(s.compliance_m_per_pa, i) or 0.0
+                if self._p0[i] is None:
+                    self._p0[i] = p
+                rest.append(x - k * (p - self._p0[i]))
+            self.rests.append(rest)
+        self._since = None
+        return ended
+
+    def forecast(self) -> list[AdjustForecast | None]:
+        s = self.s
+        if not s.stroke_m or not self.rests:
+            return []
+        return adjust_forecast(list(self.rests), s.stroke_m, s.margin_m, s.adjust_min_rests, s.adjust_trend_min_m)
+
+
+def _median(xs: list[float]) -> float:
+    v = sorted(xs)
+    m = len(v) // 2
+    return v[m] if len(v) % 2 else (v[m - 1] + v[m]) / 2.0
