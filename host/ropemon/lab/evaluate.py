@@ -100,11 +100,17 @@ def _site_play(sigmas: float):
     return change
 
 
-def _duty(doc: dict) -> None:
-    del doc["trip"]
-    doc["duty"] = {"trips": 50, "payload_kg": [0.0, 12000.0], "oil_temp_C": [0.0, 40.0],
+def duty_doc(doc: dict, trips: int = 50, seed: int = 50) -> None:
+    """The scenario document's [trip] replaced by a duty cycle of `trips` winds of the field trip's
+    hoist: payload 0-12 t, oil 0-40 C, short rests and loads; `seed` draws them."""
+    doc.pop("trip", None)
+    doc["duty"] = {"trips": trips, "payload_kg": [0.0, 12000.0], "oil_temp_C": [0.0, 40.0],
                    "rest_s": [6.0, 12.0], "load_s": [4.0, 8.0], "v_max_m_s": 10.0, "a_max_m_s2": 0.75,
-                   "jerk_m_s3": 0.5, "seed": 50}
+                   "jerk_m_s3": 0.5, "seed": seed}
+
+
+def _duty(doc: dict) -> None:
+    duty_doc(doc)
 
 
 VARIANTS = {

@@ -17,6 +17,7 @@ as the targets of issue 6 say.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -350,4 +351,179 @@ def alarm_assessment(est_n: np.ndarray, truth_n: np.ndarray, excluded: np.ndarra
                     "detected_frac": detected / frames if frames else float("nan")}
         if frame_s is not None:
             out[key].update(false_alarms=false_alarms, missed_alarm_frames=missed_alarm)
+    return out
+
+
+# ---------------------------------------------------------------- the station's alarm events
+#
+# Scored from the alarm events the station's engine gives on a wind's frames (`AlarmEvent`s or
+# their `to_dict()`), times in s of node time; ropes from 0. Hand-checked in
+# tests/evaluate/test_alarm_scoring.py.
+
+DEVIATION_LIMIT = 0.10
+SILENT_MIN_S = 2.0          # a rope truly beyond the limit this long must be alarmed on
+STANDING_SHARE = 0.9        # an alarm present this share of the wind's motion stands through it
+CHATTER_RAISES, CHATTER_S = 2, 60.0   # raised more than this many times within this: chattering
+ADVISORY_KINDS = frozenset({"rope_adjust"})   # advisories: they never cover a silent rope
+# alarms that are true on a healthy hoist when a rope is truly beyond the limit
+TRUE_DEVIATION_KINDS = frozenset({"deviation", "node_imbalance"})
+
+
+@dataclass(frozen=True)
+class AlarmSpan:
+    """One raise of one alarm to its clear (t_clear None: still present at the end)."""
+
+    alarm: str
+    kind: str
+    node: int | None
+    rope: int | None
+    t_raise: float
+    t_clear: float | None
+
+    def end(self, t_end: float) -> float:
+        return t_end if self.t_clear is None else self.t_clear
+
+
+def _ev(e, key: str):
+    return e[key] if isinstance(e, dict) else getattr(e, key)
+
+
+def alarm_spans(events) -> list[AlarmSpan]:
+    """The raise-to-clear spans of every alarm, in raise order. A raise not annunciated (the rope's
+    sensor failed, shelved) is no span; a clear without a raise is ignored."""
+    open_: dict[str, tuple] = {}
+    spans: list[AlarmSpan] = []
+    for e in sorted(events, key=lambda e: _ev(e, "time_s")):
+        action, aid = _ev(e, "action"), _ev(e, "alarm")
+        if action == "raise" and aid not in open_:
+            if not (e.get("annunciated", True) if isinstance(e, dict) else getattr(e, "annunciated", True)):
+                continue
+            open_[aid] = (_ev(e, "kind"), _ev(e, "node"), _ev(e, "rope"), float(_ev(e, "time_s")), len(spans))
+            spans.append(None)  # type: ignore[arg-type]
+        elif action == "clear" and aid in open_:
+            kind, node, rope, t0, k = open_.pop(aid)
+            spans[k] = AlarmSpan(aid, kind, node, rope, t0, float(_ev(e, "time_s")))
+    for aid, (kind, node, rope, t0, k) in open_.items():
+        spans[k] = AlarmSpan(aid, kind, node, rope, t0, None)
+    return spans
+
+
+def _beyond_during(beyond_t: np.ndarray | None, beyond: np.ndarray | None, rope: int | None,
+                   t0: float, t1: float) -> bool:
+    """Whether a rope (any rope: None) was truly beyond the limit at any time in [t0, t1]."""
+    if beyond is None or beyond_t is None:
+        return False
+    m = (beyond_t >= t0) & (beyond_t <= t1)
+    b = beyond[m] if rope is None else beyond[m, rope]
+    return bool(np.any(b))
+
+
+def excluded_span(s: AlarmSpan, t_end: float, beyond_t=None, beyond=None) -> str | None:
+    """Why a healthy hoist's alarm does not count against it (None: it counts): NODE SILENT after
+    the wind's last frame, or a deviation alarm (DEVIATION on a rope, the node's own imbalance
+    bit) while that rope (any rope) was truly beyond the limit, from SILENT_MIN_S before its raise."""
+    if s.kind == "silent" and s.t_raise >= t_end:
+        return "node silent after the wind"
+    if s.kind in TRUE_DEVIATION_KINDS and _beyond_during(beyond_t, beyond, s.rope, s.t_raise - SILENT_MIN_S,
+                                                          s.end(t_end)):
+        return "rope truly beyond the limit"
+    return None
+
+
+def healthy_alarm_figures(events, wind: tuple[float, float], t_end: float, beyond_t=None, beyond=None) -> dict:
+    """A healthy hoist's alarms over one wind: `raised` (the raises that count), `standing` (alarms
+    present for STANDING_SHARE or more of the wind's motion, `wind` = (start, end)), `chattering`
+    (alarms raised more than CHATTER_RAISES times within CHATTER_S), `excluded` (raises that do not
+    count, by reason: `excluded_span`), `kinds` (counting raises by kind).
+
+    beyond_t, beyond: frame times and (frames, ropes) booleans: the rope's true deviation beyond
+    the limit."""
+    spans = alarm_spans(events)
+    counted, excluded, kinds = [], {}, {}
+    for s in spans:
+        why = excluded_span(s, t_end, beyond_t, beyond)
+        if why:
+            excluded[why] = excluded.get(why, 0) + 1
+        else:
+            counted.append(s)
+            kinds[s.kind] = kinds.get(s.kind, 0) + 1
+    w0, w1 = wind
+    standing = []
+    if w1 > w0:
+        for aid in sorted({s.alarm for s in counted}):
+            cover = sum(max(0.0, min(s.end(t_end), w1) - max(s.t_raise, w0)) for s in counted if s.alarm == aid)
+            if cover >= STANDING_SHARE * (w1 - w0):
+                standing.append(aid)
+    chattering = []
+    for aid in sorted({s.alarm for s in counted}):
+        t = sorted(s.t_raise for s in counted if s.alarm == aid)
+        if any(t[i + CHATTER_RAISES] - t[i] <= CHATTER_S for i in range(len(t) - CHATTER_RAISES)):
+            chattering.append(aid)
+    return {"raised": len(counted), "standing": standing, "chattering": chattering, "excluded": excluded,
+            "kinds": kinds}
+
+
+def fault_alarm_figures(events, kinds, rope: int | None, onset_s: float, event_s: float,
+                        deadline_s: float) -> dict:
+    """How the station met one fault: the first raise of one of `kinds` on `rope` (None: a node's
+    alarm, any rope) at or after `onset_s` (the fault's start); `latency_s` from `event_s` (the
+    physical event: e.g. the piston entering its margin); `in_time` when by `deadline_s`.
+    `wrong_rope`: such a raise came only on other ropes (their numbers, from 0). `raised`: every
+    kind raised from the onset (counts), what today's station shows on the fault."""
+    spans = [s for s in alarm_spans(events) if s.t_raise >= onset_s - 1e-9]
+    raised: dict[str, int] = {}
+    for s in spans:
+        raised[s.kind] = raised.get(s.kind, 0) + 1
+    mine = [s for s in spans if s.kind in kinds and (rope is None or s.rope == rope)]
+    others = sorted({s.rope for s in spans if s.kind in kinds and rope is not None and s.rope != rope
+                     and s.rope is not None})
+    out = {"alarmed": bool(mine), "raised": raised, "wrong_rope": others if not mine else [],
+           "t_alarm_s": None, "latency_s": None, "in_time": False}
+    if mine:
+        t = mine[0].t_raise
+        out.update(t_alarm_s=round(t, 3), latency_s=round(t - event_s, 3), in_time=bool(t <= deadline_s + 1e-9))
+    on_rope = [s for s in spans if rope is not None and s.rope == rope and s.kind not in ADVISORY_KINDS]
+    out["any_on_rope"] = {"kind": on_rope[0].kind, "t_s": round(on_rope[0].t_raise, 3)} if on_rope else None
+    return out
+
+
+def silent_ropes(events, times_s: np.ndarray, d_true: np.ndarray, hidden_frac: np.ndarray | None,
+                 valid: np.ndarray | None = None) -> dict:
+    """Ropes the station left silent: a rope truly beyond DEVIATION_LIMIT for SILENT_MIN_S or more
+    without any alarm on that rope (other than an advisory) present at any time of the episode.
+
+    times_s: frame times; d_true: (frames, ropes) true deviations from the mean (fractions);
+    hidden_frac: (frames,) or (frames, ropes) the imbalance the seals can hide as the commissioning
+    states it (`uncertainty.hidden_reach` at the rope tension), or None. An episode whose true
+    deviation stayed within it is `within_hidden`, else `beyond_hidden` (without hidden_frac:
+    `unsplit`). valid: frames that count (not in a shock's hold)."""
+    times_s = np.asarray(times_s, float)
+    d = np.abs(np.asarray(d_true, float))
+    ok = np.ones(len(times_s), bool) if valid is None else np.asarray(valid, bool)
+    t_end = float(times_s[-1]) if len(times_s) else 0.0
+    spans = [s for s in alarm_spans(events) if s.rope is not None and s.kind not in ADVISORY_KINDS]
+    hid = None if hidden_frac is None else np.asarray(hidden_frac, float)
+    if hid is not None and hid.ndim == 1:
+        hid = np.repeat(hid[:, None], d.shape[1], axis=1)
+    out: dict = {"episodes": 0, "within_hidden": [], "beyond_hidden": [], "unsplit": []}
+    frame_s = float(np.median(np.diff(times_s))) if len(times_s) > 1 else 0.1
+    need = int(math.ceil(SILENT_MIN_S / frame_s - 1e-9))
+    for r in range(d.shape[1]):
+        m = np.concatenate([[False], (d[:, r] > DEVIATION_LIMIT) & ok, [False]])
+        edges = np.flatnonzero(np.diff(m.astype(int)))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a < need:
+                continue
+            out["episodes"] += 1
+            t0, t1 = float(times_s[a]), float(times_s[b - 1])
+            if any(s.rope == r and s.t_raise <= t1 and s.end(t_end) >= t0 for s in spans):
+                continue
+            ep = {"rope": r + 1, "t0_s": round(t0, 1), "t1_s": round(t1, 1),
+                  "true_max_pct": round(float(d[a:b, r].max()) * 100, 2)}
+            if hid is None:
+                out["unsplit"].append(ep)
+                continue
+            ep["hidden_pct"] = round(float(np.min(hid[a:b, r])) * 100, 2)
+            within = bool(np.all(d[a:b, r] <= hid[a:b, r]))
+            out["within_hidden" if within else "beyond_hidden"].append(ep)
     return out

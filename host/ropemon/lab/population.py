@@ -189,6 +189,191 @@ def change_site(h: Hoist):
     return change
 
 
+# ---------------------------------------------------------------- faults
+
+# Each scoring hoist is also run with one drawn fault (`draw_fault`), a class of FAULT_CLASSES
+# and its size and onset from FAULT_RANGES (uniform unless `log`). The draw is sized about the
+# alarm's threshold, so that some faults cross it within the wind and some do not; whether one
+# did is read from the faulted run's truth (`fault_truth`), never from the draw.
+FAULT_CLASSES = ("stroke_offset", "stroke_creep", "valve_closed", "leak", "seized_seal")
+DUTY_CLASS = "creep_duty"    # unequal rope creep across a duty cycle (`draw_duty_fault`)
+FAULT_RANGES = {
+    # stroke_offset: the rope's length offset puts its piston this far short of its stroke margin
+    # at its closest predicted approach through the wind (negative: that far into the margin)
+    "stroke_gap_m": (-0.006, 0.008, "lin"),
+    # stroke_creep: the piston starts this far short of its margin ...
+    "creep_start_gap_m": (0.006, 0.030, "lin"),
+    # ... and the rope's groove creep through the wind is set to bring it this far short at the end
+    "creep_end_gap_m": (-0.008, 0.008, "lin"),
+    "valve_at_s": (0.0, 125.0, "lin"),          # a stop valve closed at this time (the run is 128 s)
+    "leak_rate_L_min": (0.02, 0.5, "log"),
+    "leak_at_s": (0.0, 10.0, "lin"),            # before the wind starts: a whole wind follows
+    "seize_factor": (2.0, 50.0, "log"),         # the seized seal's forces x this
+    "seize_at_s": (0.0, 60.0, "lin"),
+    # creep_duty: the rope creeps so that its piston would reach its margin after this many winds
+    "duty_winds_to_margin": (20.0, 90.0, "lin"),
+}
+DUTY_TRIPS = 50
+VALVE_SIDES = ("manifold", "cylinder")
+OIL_LOSS_TARGET_L_MIN = 0.1     # the target: oil loss of this much or more alarmed within one wind
+
+
+@dataclass(frozen=True)
+class FaultDraw:
+    """One hoist's drawn fault: what the plant does, as scenario tables (docs/simulator.md)."""
+
+    seed: int
+    kind: str                 # one of FAULT_CLASSES, or DUTY_CLASS
+    rope: int                 # from 1; 0: the manifold (a leak of the connecting assembly)
+    params: dict              # the drawn values (FAULT_RANGES' keys), end ("retracted"/"extended"), side
+    faults: tuple = ()        # the plant's [[faults]] tables
+    offsets_m: tuple | None = None      # plant.ropes.offsets_m in place of the hoist's
+    groove_creep: tuple | None = None   # plant.ropes.groove_creep in place of the hoist's
+
+    def describe(self) -> str:
+        p = self.params
+        where = "the manifold" if self.rope == 0 else f"rope {self.rope}"
+        if self.kind == "stroke_offset":
+            return (f"stroke limit by offset: rope {self.rope}'s piston {p['stroke_gap_m'] * 1e3:+.1f} mm from its "
+                    f"{p['end']} margin at its closest")
+        if self.kind == "stroke_creep":
+            return (f"stroke limit by creep: rope {self.rope}'s piston from {p['creep_start_gap_m'] * 1e3:.1f} mm "
+                    f"to {p['creep_end_gap_m'] * 1e3:+.1f} mm of its {p['end']} margin through the wind")
+        if self.kind == "valve_closed":
+            return f"valve closed ({p['side']} side) on rope {self.rope} at {p['valve_at_s']:.0f} s"
+        if self.kind == "leak":
+            return f"leak {p['leak_rate_L_min']:.3f} L/min from {where} at {p['leak_at_s']:.0f} s"
+        if self.kind == "seized_seal":
+            return f"seal seized x{p['seize_factor']:.1f} on rope {self.rope} at {p['seize_at_s']:.0f} s"
+        return (f"rope {self.rope} creeping {self.faults[0]['mm_per_wind'][self.rope - 1]:+.2f} mm per wind "
+                f"({p['end']} margin in about {p['duty_winds_to_margin']:.0f} winds)")
+
+
+def _fault_uniform(rng: np.random.Generator, key: str) -> float:
+    lo, hi, kind = FAULT_RANGES[key]
+    if kind == "log":
+        return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+    return float(rng.uniform(lo, hi))
+
+
+def site_stroke(site_path=None) -> tuple[float, float]:
+    """(stroke_m, stroke_margin_m) of the field trip's site ([cylinders]; the margin's default 0.01 m)."""
+    import tomllib
+    from pathlib import Path
+
+    path = Path(site_path) if site_path else Path(__file__).resolve().parents[3] / "scenarios" / "paper-site.toml"
+    cyl = tomllib.loads(path.read_text())["cylinders"]
+    if isinstance(cyl, list):
+        cyl = cyl[0]
+    return float(cyl["stroke_m"]), float(cyl.get("stroke_margin_m", 0.01))
+
+
+# the wind of the field trip: the wheel winds this much rope (808 m to 2 m)
+WOUND_M = 806.0
+
+
+def _spread(rope: int, shift: float) -> np.ndarray:
+    """Per-rope length offsets that move `rope`'s piston by -shift and each other's by +shift/3,
+    each within 2/3 of the shift (the pistons sit at the mean offset minus each rope's)."""
+    d = np.full(ROPES, -2.0 * shift / 3.0)
+    d[rope] = 2.0 * shift / 3.0
+    return d
+
+
+def predicted_x(h: Hoist) -> tuple[np.ndarray, np.ndarray]:
+    """The pistons' positions (m from mid-stroke) the hoist's own offsets and groove creep put them
+    at, at the start and at the end of the wind, ignoring the load and what the seals hold."""
+    d = np.asarray(h.offsets_m, float)
+    c = np.asarray(h.groove_creep, float)
+    x0 = d.mean() - d
+    return x0, x0 + (c - c.mean()) * WOUND_M
+
+
+def draw_fault(seed: int, hoist: Hoist | None = None) -> FaultDraw:
+    """The drawn fault of one seed's hoist (reproducible: the same seed, the same fault)."""
+    h = hoist or draw(seed)
+    rng = np.random.default_rng([seed, 0xFA17])
+    kind = FAULT_CLASSES[int(rng.integers(len(FAULT_CLASSES)))]
+    rope = int(rng.integers(ROPES))          # from 0 here
+    sign = 1.0 if rng.random() < 0.5 else -1.0   # +1: the extended end (x > 0), -1: the retracted
+    end = "extended" if sign > 0 else "retracted"
+    stroke, margin = site_stroke()
+    edge = stroke / 2 - margin               # the margin's inner edge, from mid-stroke
+    x0, x1 = predicted_x(h)
+    params: dict = {}
+    if kind == "stroke_offset":
+        gap = _fault_uniform(rng, "stroke_gap_m")
+        closest = max(sign * x0[rope], sign * x1[rope])
+        shift = -sign * (edge - gap - closest)   # move the piston by -shift
+        offsets = np.asarray(h.offsets_m, float) + _spread(rope, shift)
+        params = {"stroke_gap_m": round(gap, 5), "end": end}
+        return FaultDraw(seed, kind, rope + 1, params, (), tuple(round(float(o), 5) for o in offsets), None)
+    if kind == "stroke_creep":
+        g0, g1 = _fault_uniform(rng, "creep_start_gap_m"), _fault_uniform(rng, "creep_end_gap_m")
+        shift0 = -sign * (edge - g0 - sign * x0[rope])
+        offsets = np.asarray(h.offsets_m, float) + _spread(rope, shift0)
+        # the travel toward the end the hoist's own creep leaves to make up
+        travel = (g0 - g1) - sign * (x1[rope] - x0[rope])
+        # groove creep moves the pistons the other way: by + the spread over the wound length
+        creep = np.asarray(h.groove_creep, float) + _spread(rope, sign * travel) / WOUND_M
+        params = {"creep_start_gap_m": round(g0, 5), "creep_end_gap_m": round(g1, 5), "end": end}
+        return FaultDraw(seed, kind, rope + 1, params, (), tuple(round(float(o), 5) for o in offsets),
+                         tuple(float(f"{c:.4e}") for c in creep))
+    if kind == "valve_closed":
+        side = VALVE_SIDES[int(rng.integers(len(VALVE_SIDES)))]
+        at = round(_fault_uniform(rng, "valve_at_s"), 1)
+        params = {"valve_at_s": at, "side": side}
+        return FaultDraw(seed, kind, rope + 1, params,
+                         ({"kind": "valve_closed", "rope": rope + 1, "at_s": at, "side": side},))
+    if kind == "leak":
+        where = int(rng.integers(ROPES + 1))     # 0: the manifold
+        rate, at = round(_fault_uniform(rng, "leak_rate_L_min"), 4), round(_fault_uniform(rng, "leak_at_s"), 1)
+        params = {"leak_rate_L_min": rate, "leak_at_s": at}
+        return FaultDraw(seed, kind, where, params,
+                         ({"kind": "leak", "rope": where, "rate_L_min": rate, "at_s": at},))
+    factor, at = round(_fault_uniform(rng, "seize_factor"), 2), round(_fault_uniform(rng, "seize_at_s"), 1)
+    params = {"seize_factor": factor, "seize_at_s": at}
+    return FaultDraw(seed, kind, rope + 1, params,
+                     ({"kind": "seized_seal", "rope": rope + 1, "factor": factor, "at_s": at},))
+
+
+def draw_duty_fault(seed: int, hoist: Hoist | None = None) -> FaultDraw:
+    """The creep of one seed's hoist across a duty cycle of DUTY_TRIPS winds: one rope creeps
+    (slips on the wheel) so that its piston's rest position would reach its margin after a
+    drawn number of winds; the hoist's own groove creep (which parts the ropes up and back down)
+    is kept."""
+    h = hoist or draw(seed)
+    rng = np.random.default_rng([seed, 0xD07])
+    rope = int(rng.integers(ROPES))
+    sign = 1.0 if rng.random() < 0.5 else -1.0
+    winds = _fault_uniform(rng, "duty_winds_to_margin")
+    stroke, margin = site_stroke()
+    x0, _ = predicted_x(h)
+    gap = (stroke / 2 - margin) - sign * x0[rope]       # from its rest position to its margin
+    # a rope lengthening by L moves its piston by -3L/4 (the others by +L/4)
+    mm = np.zeros(ROPES)
+    mm[rope] = -sign * gap / winds * 4.0 / 3.0 * 1e3
+    params = {"duty_winds_to_margin": round(winds, 1), "end": "extended" if sign > 0 else "retracted"}
+    return FaultDraw(seed, DUTY_CLASS, rope + 1, params,
+                     ({"kind": "creep", "mm_per_wind": [round(float(m), 4) for m in mm]},))
+
+
+def change_fault(f: FaultDraw):
+    """The change to the hoist's scenario document (after `change_doc`) that adds the fault."""
+    def change(doc: dict) -> None:
+        plant = doc["plant"]
+        if f.offsets_m is not None:
+            plant["ropes"]["offsets_m"] = list(f.offsets_m)
+        if f.groove_creep is not None:
+            plant["ropes"]["groove_creep"] = list(f.groove_creep)
+        if f.faults:
+            doc["faults"] = [dict(t) for t in f.faults]
+        if f.kind == DUTY_CLASS:
+            from ropemon.lab.evaluate import duty_doc
+            duty_doc(doc, DUTY_TRIPS, seed=f.seed)
+    return change
+
+
 # ---------------------------------------------------------------- scoring
 
 
@@ -299,6 +484,241 @@ def quantiles(values) -> dict:
     return {"median": round(float(np.median(v)), 4), "p95": round(float(np.percentile(v, 95)), 4), "n": int(v.size)}
 
 
+# ---------------------------------------------------------------- faults: truth and scoring
+
+# The alarm each fault class must raise (`ropemon.station.alarms` kinds) and what it is held to.
+FAULT_ALARM_KINDS = {"stroke_offset": ("stroke_limit",), "stroke_creep": ("stroke_limit",),
+                     "valve_closed": ("not_equalizing",), "seized_seal": ("not_equalizing",),
+                     "leak": ("oil_loss",), DUTY_CLASS: ("rope_adjust",)}
+STROKE_DEADLINE_S = 1.0          # stroke limit within 1 s of the piston entering its margin
+LOAD_CHANGE_GRACE_S = 1.0        # not equalizing: by the end of the load change that shows it, and this
+NOT_EQUALIZING_MIN_TRAVEL_M = 0.2e-3   # a load change shows a rope not equalizing when the others'
+NOT_EQUALIZING_SHARE = 0.75            # pistons travel this much (median) and it less than this share of it
+ADVISORY_LEAD_WINDS = 5          # the adjustment advisory at least this many winds before the margin
+LOAD_CHANGE_MERGE_S = 0.5
+
+
+def load_changes(truth, hz: float) -> list[tuple[float, float]]:
+    """The wind's load changes from the truth: the payload changing (loading, unloading) or the
+    wheel accelerating (`metrics.PhaseRules.accel_m_s2`), as (start, end) s; changes closer
+    than LOAD_CHANGE_MERGE_S are one, shorter ones are dropped."""
+    from ropemon.lab.metrics import PhaseRules
+
+    payload = np.asarray(truth["payload_kg"], float)
+    a = np.asarray(truth["wheel_accel_m_s2"], float)
+    on = (np.abs(a) > PhaseRules().accel_m_s2) | np.concatenate([[False], np.diff(payload) != 0])
+    spans = [(a0 / hz, b0 / hz) for a0, b0 in episodes(on)]
+    merged: list[list[float]] = []
+    for t0, t1 in spans:
+        if merged and t0 - merged[-1][1] < LOAD_CHANGE_MERGE_S:
+            merged[-1][1] = t1
+        else:
+            merged.append([t0, t1])
+    return [(t0, t1) for t0, t1 in merged if t1 - t0 >= LOAD_CHANGE_MERGE_S]
+
+
+def wind_phases(meta: dict) -> list[tuple[float, float]]:
+    """(start, end) s of each wind (the cage moving) of a run, from its phases."""
+    return [(float(p["t0_s"]), float(p["t1_s"])) for p in meta.get("phases", []) if p.get("kind") == "wind"]
+
+
+def fault_truth(f: FaultDraw, truth, meta: dict, hz: float, stroke_m: float, margin_m: float) -> dict:
+    """What the faulted run's truth says of its fault: whether it crossed its alarm's threshold
+    within the run (`crossed`, `why`), its onset, the physical event the alarm answers (`event_s`)
+    and the alarm's deadline. Rope from 0 (None: the node's)."""
+    t = np.asarray(truth["t_s"], float) if "t_s" in truth else np.arange(len(truth["tension_N"])) / hz
+    t_end = float(t[-1])
+    x = np.asarray(truth["piston_x_m"], float)
+    edge = stroke_m / 2 - margin_m
+    r = f.rope - 1
+    out = {"rope": r if f.rope > 0 and f.kind != "leak" else None, "onset_s": 0.0, "event_s": None,
+           "deadline_s": None, "crossed": False, "why": ""}
+    if f.kind in ("stroke_offset", "stroke_creep", DUTY_CLASS):
+        inside = np.flatnonzero(np.abs(x[:, r]) >= edge)
+        closest = float(edge - np.abs(x[:, r]).max())
+        out["closest_gap_mm"] = round(closest * 1e3, 2)
+        if not inside.size:
+            out["why"] = f"the piston stayed {closest * 1e3:.1f} mm short of its margin"
+            return out
+        t_in = float(t[inside[0]])
+        out.update(event_s=t_in, crossed=True, why=f"the piston entered its margin at {t_in:.1f} s")
+        if f.kind == DUTY_CLASS:
+            winds = wind_phases(meta)
+            out["entry_wind"] = sum(1 for w0, _ in winds if w0 <= t_in)
+            out["winds"] = len(winds)
+            out["deadline_s"] = None   # held in winds (`ADVISORY_LEAD_WINDS`), not seconds
+        else:
+            out["deadline_s"] = t_in + STROKE_DEADLINE_S
+        return out
+    if f.kind == "leak":
+        onset = float(f.params["leak_at_s"])
+        rate = float(f.params["leak_rate_L_min"])
+        if "leaked_m3" in truth:
+            leaked = np.asarray(truth["leaked_m3"], float)
+            k0 = int(np.searchsorted(t, onset))
+            if t_end > onset + 1.0 and k0 < len(t):
+                rate = float((leaked[-1] - leaked[k0]) / (t_end - t[k0]) * 60e3)
+        out.update(onset_s=onset, event_s=onset, deadline_s=t_end, leak_L_min=round(rate, 4))
+        out["crossed"] = rate >= OIL_LOSS_TARGET_L_MIN and onset < t_end
+        out["why"] = (f"{rate:.3f} L/min from {onset:.0f} s, "
+                      f"{'at or beyond' if out['crossed'] else 'below'} {OIL_LOSS_TARGET_L_MIN} L/min")
+        return out
+    onset = float(f.params.get("valve_at_s", f.params.get("seize_at_s", 0.0)))
+    if f.kind == "valve_closed" and "valve_open" in truth:
+        shut = np.flatnonzero(np.asarray(truth["valve_open"], float)[:, r] < 0.5)
+        if not shut.size:
+            out.update(onset_s=onset, why="the valve never closed in the run")
+            return out
+        onset = float(t[shut[0]])
+    out["onset_s"] = onset
+    hz_ = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else hz
+    for c0, c1 in load_changes(truth, hz_):
+        if c1 <= onset:
+            continue
+        k = (t >= max(c0, onset)) & (t <= c1)
+        if not k.any():
+            continue
+        travel = x[k].max(axis=0) - x[k].min(axis=0)
+        others = float(np.median(np.delete(travel, r)))
+        if not (others >= NOT_EQUALIZING_MIN_TRAVEL_M and travel[r] < NOT_EQUALIZING_SHARE * others):
+            continue
+        out.update(event_s=max(c0, onset), deadline_s=c1 + LOAD_CHANGE_GRACE_S, crossed=True,
+                   why=f"the load change at {c0:.1f}-{c1:.1f} s (its piston {travel[r] * 1e3:.2f} mm, "
+                       f"the others {others * 1e3:.2f} mm)")
+        return out
+    out["why"] = "its piston still moved with the others in every load change after the onset"
+    return out
+
+
+def station_settings(physical: dict) -> dict:
+    """The alarm settings the station takes from this config (`physical.alarm_settings`, as
+    `ropemon monitor` and `ropemon replay --db` do): `station`; and today's station before the
+    equalizer's alarms, `legacy` (`legacy_deviation_possible=True, equalizer=None`)."""
+    from ropemon.station.physical import Physical, SiteFigures, alarm_settings
+
+    s = alarm_settings(SiteFigures.from_physical(Physical.from_dict(physical)))
+    names = {fl.name for fl in dataclasses.fields(s)}
+    legacy = {"legacy_deviation_possible": True, "equalizer": None}
+    return {"station": s, "legacy": dataclasses.replace(s, **{k: v for k, v in legacy.items() if k in names}),
+            "legacy_distinct": set(legacy) <= names}
+
+
+def station_events(frames, settings) -> list:
+    """The alarm events of the station's engine on a run's frames, on the frames' node time, the
+    station's loop ticking every `replay.TICK_S` between them (as `ropemon replay --db`)."""
+    from ropemon.commission.replay import TICK_S
+    from ropemon.station.alarms import AlarmEngine
+
+    eng = AlarmEngine(settings)
+    events: list = []
+    next_tick = None
+    for f in frames:
+        t = f.time_ms / 1000.0
+        if next_tick is None:
+            next_tick = t
+        while next_tick <= t:
+            events += eng.tick(next_tick)
+            next_tick += TICK_S
+        events += eng.update(f, t)
+    return events
+
+
+def frame_truth(truth, frames, hz: int, physical: dict):
+    """Per frame: node times, true deviations from the mean (frames, ropes), frames that count
+    (not in a shock's hold), and the imbalance the seals can hide at the true mean rope tension
+    (`uncertainty.hidden_reach`; None where the station has no such function)."""
+    from ropemon.lab import evaluate as EV
+    from ropemon.lab import metrics as M
+
+    w = hz // int(physical["frame_hz"])
+    n = min(len(frames), len(truth["tension_N"]) // w)
+    truth_n = np.asarray(truth["tension_N"], float)[: n * w]
+    _p, excluded, _s, _pl = EV.scoring_masks(truth, truth_n, hz, float(physical["rated_rope_tension_N"]),
+                                             float(physical["hall_marks_m"][-1]))
+    t_n = M.window_means(truth_n, w)
+    valid = M.window_means(excluded.astype(float), w) == 0.0
+    times = np.array([f.time_ms / 1000.0 for f in frames[:n]])
+    d = M.deviation_from_mean(t_n)
+    hidden = None
+    try:
+        from ropemon.station.uncertainty import BandParams, hidden_reach
+    except ImportError:
+        hidden_reach = None
+    if hidden_reach is not None and physical.get("friction"):
+        band = BandParams.from_physical(physical)
+        hidden = np.array([hidden_reach(band, float(m)) for m in t_n.mean(axis=1)])
+    return times, d, valid, hidden
+
+
+def score_alarms(frames, truth, meta, hz: int, physical: dict, settings: dict, fault: FaultDraw | None = None,
+                 stroke: tuple[float, float] | None = None) -> dict:
+    """The Targets' figures of one run (a healthy wind, or the faulted one with `fault`) for each
+    alarm configuration of `settings` (`station_settings`): the healthy-hoist figures, or the fault's;
+    the silent ropes either way."""
+    from ropemon.lab import metrics as M
+
+    times, d, valid, hidden = frame_truth(truth, frames, hz, physical)
+    frames = frames[: len(times)]
+    beyond = np.abs(d) > M.DEVIATION_LIMIT
+    t_end = float(times[-1]) if len(times) else 0.0
+    winds = wind_phases(meta)
+    out: dict = {"hidden_known": hidden is not None}
+    ft = None
+    if fault is not None:
+        stroke = stroke or site_stroke()
+        ft = fault_truth(fault, truth, meta, hz, *stroke)
+        out["truth"] = {k: v for k, v in ft.items()}
+    for which in ("station", "legacy"):
+        ev = station_events(frames, settings[which])
+        fig: dict = {"silent": M.silent_ropes(ev, times, d, hidden, valid)}
+        if fault is None:
+            wind = winds[0] if winds else (0.0, t_end)
+            fig["healthy"] = M.healthy_alarm_figures(ev, wind, t_end, times, beyond)
+        else:
+            fig["fault"] = M.fault_alarm_figures(ev, FAULT_ALARM_KINDS[fault.kind], ft["rope"], ft["onset_s"],
+                                                 ft["event_s"] if ft["event_s"] is not None else ft["onset_s"],
+                                                 ft["deadline_s"] if ft["deadline_s"] is not None else t_end)
+            if fault.kind == DUTY_CLASS:
+                fig["fault"]["advisory_wind"] = (sum(1 for w0, _ in winds if w0 <= fig["fault"]["t_alarm_s"])
+                                                 if fig["fault"]["t_alarm_s"] is not None else None)
+                if ft.get("entry_wind") is not None and fig["fault"]["advisory_wind"] is not None:
+                    lead = ft["entry_wind"] - fig["fault"]["advisory_wind"]
+                    fig["fault"]["lead_winds"] = lead
+                    fig["fault"]["in_time"] = lead >= ADVISORY_LEAD_WINDS
+                else:
+                    fig["fault"]["lead_winds"] = None
+                    fig["fault"]["in_time"] = False
+        out[which] = fig
+    return out
+
+
+def run_fault(h: Hoist, f: FaultDraw, wind_dir, physical: dict, settings: dict, seed: int) -> dict:
+    """Simulate the hoist with its fault (the same plant and noise seed as its healthy wind), run
+    the node as commissioned on it (the healthy wind's config) and score the alarms."""
+    import shutil
+    import time
+    from pathlib import Path
+
+    from ropemon.lab import evaluate as EV
+    from ropemon.lab.rundir import NODE_EVALUATED
+
+    t0 = time.monotonic()
+    fdir = Path(wind_dir) / ("duty" if f.kind == DUTY_CLASS else "fault")
+    out: dict = {"class": f.kind, "rope": f.rope, "params": f.params, "faults": [dict(t) for t in f.faults],
+                 "describe": f.describe()}
+    try:
+        EV.simulate(h.name, fdir / "sim", seed, change_fault(f))
+        fdir.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(Path(wind_dir) / NODE_EVALUATED, fdir / NODE_EVALUATED)
+        frames = EV.firmware_frames(physical, RunDir(fdir).sensors_path, fdir, fdir / NODE_EVALUATED)
+        run = RunDir(fdir)
+        out.update(score_alarms(frames, run.truth, run.meta, run.sample_hz, physical, settings, f))
+    except (EV.EvaluationError, OSError, ValueError, KeyError) as e:
+        out["error"] = f"{type(e).__name__}: {e}"
+    out["wall_s"] = round(time.monotonic() - t0, 1)
+    return out
+
+
 # ---------------------------------------------------------------- running
 
 
@@ -320,8 +740,12 @@ def engine_factories(physical: dict) -> dict:
     return {"baseline": baseline, "node": node}
 
 
-def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) -> dict:
-    """Draw, commission, run and score one hoist's wind (module doc); errors are reported."""
+def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None, faults: bool = False,
+             duty: bool = False) -> dict:
+    """Draw, commission, run and score one hoist's wind (module doc); errors are reported. The
+    station's alarms on it are scored for the Targets (`score_alarms`, `targets.healthy`); with
+    `faults` the hoist is run again with its drawn fault (`draw_fault`, `targets.fault`), with
+    `duty` through a duty cycle with creep (`draw_duty_fault`, `targets.duty`)."""
     import time
     from pathlib import Path
 
@@ -370,6 +794,16 @@ def run_wind(seed: int, work, firmware: bool = True, bed: dict | None = None) ->
                 "natural": alarm_figures(c.frames, truth, frame_s, factory, valid),
                 "superposed": superposed_alarm_figures(c.frames, truth, frame_s, factory, area, valid)}
         out["ideal_bound"] = ideal_bound_figures(RunDir(wind_dir).truth, case.physical)
+        settings = station_settings(case.physical)
+        run = RunDir(wind_dir)
+        out["targets"] = {"legacy_distinct": settings["legacy_distinct"],
+                          "healthy": score_alarms(case.frames, run.truth, run.meta, case.sample_hz, case.physical,
+                                                  settings)}
+        if faults:
+            out["targets"]["fault"] = run_fault(h, draw_fault(seed, h), wind_dir, case.physical, settings, seed)
+        if duty:
+            out["targets"]["duty"] = run_fault(h, draw_duty_fault(seed, h), wind_dir, case.physical, settings,
+                                               seed)
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out
 
@@ -402,20 +836,26 @@ def baseline_case(case, wind_dir):
                                estimates={E.FULL_COMPENSATION: ref}, physical=ph)
 
 
-def run(seeds, work, jobs: int = 2, firmware: bool = True, bed: dict | None = None, log=None) -> list[dict]:
-    """`run_wind` over the seeds, `jobs` at a time (processes), in seed order."""
+def run(seeds, work, jobs: int = 2, firmware: bool = True, bed: dict | None = None, log=None,
+        faults: bool = False, duty_seeds=()) -> list[dict]:
+    """`run_wind` over the seeds, `jobs` at a time (processes), in seed order; `faults` and
+    `duty_seeds` (the seeds also run through a duty cycle with creep) as `run_wind` takes them."""
     from concurrent.futures import ProcessPoolExecutor
 
     seeds = list(seeds)
+    duty_seeds = set(duty_seeds)
     if jobs <= 1:
         results = []
         for s in seeds:
-            results.append(run_wind(s, work, firmware, bed))
+            results.append(run_wind(s, work, firmware, bed, faults, s in duty_seeds))
             if log:
                 log(_line(results[-1]))
         return results
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(run_wind, s, work, firmware, bed) for s in seeds]
+        # the long duty cycles first, so they do not finish last on their own
+        order = sorted(seeds, key=lambda s: s not in duty_seeds)
+        submitted = {s: pool.submit(run_wind, s, work, firmware, bed, faults, s in duty_seeds) for s in order}
+        futures = [submitted[s] for s in seeds]
         results = []
         for f in futures:
             results.append(f.result())
@@ -430,9 +870,20 @@ def _line(r: dict) -> str:
     fw = r.get("estimators", {}).get("firmware", {})
     al = r.get("alarms", {}).get("node", {})
     silent = len(al.get("natural", {}).get("silent", [])) + len(al.get("superposed", {}).get("silent", []))
+    tail = ""
+    for key in ("fault", "duty"):
+        fa = r.get("targets", {}).get(key)
+        if fa is None:
+            continue
+        if "error" in fa:
+            tail += f"; {fa['class']}: ERROR {fa['error']}"
+            continue
+        st = fa["station"]["fault"]
+        tail += (f"; {fa['describe']}: {'crossed' if fa['truth']['crossed'] else 'not crossed'}, "
+                 + (f"alarmed {st['latency_s']:+.1f} s" if st["alarmed"] else "not alarmed"))
     return (f"{PREFIX}{r['seed']}: {r['hoist']}: rope RMS {fw.get('rope_rms_pct', float('nan')):.2f} %, "
             f"pithead {fw.get('pithead_total_pct', float('nan')):+.2f} %, silent {silent}, "
-            f"false {al.get('natural', {}).get('false_warnings', '-')} ({r['wall_s']} s)")
+            f"false {al.get('natural', {}).get('false_warnings', '-')}{tail} ({r['wall_s']} s)")
 
 
 def summary(results: list[dict], which: str) -> dict:
