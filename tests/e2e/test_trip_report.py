@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from ropemon.cli import main
-from ropemon.station.protocol import Rope, decode_raw, encode_frame
+from ropemon.station.protocol import L, Rope, decode_raw, encode_frame
 from ropemon.station.report import HoistLoad, trip_table, trips_from_store
 from ropemon.station.store import Store
 
@@ -12,8 +12,9 @@ AREA = 0.0314
 LOAD = HoistLoad(cage_kg=8180, tail_ropes=2, tail_kg_per_m=6.62, shaft_m=810)
 
 
-def wind(store, t0_s=0.0, seq0=0, down=True):
-    """10 s rest, a 100 s wind at 9 m/s, 10 s rest; tensions per phase known."""
+def wind(store, t0_s=0.0, seq0=0, down=True, pos_01mm=None):
+    """10 s rest, a 100 s wind at 9 m/s, 10 s rest; tensions per phase known; with `pos_01mm`
+    (per rope) the pistons stand there throughout."""
     seq = seq0
     top = [46_300, 46_400, 46_200, 46_500]          # N, compensated at the pithead
     bottom = [30_000, 30_100, 29_900, 30_000]
@@ -25,7 +26,8 @@ def wind(store, t0_s=0.0, seq0=0, down=True):
         depth_m = 810 * frac
         comp = top if frac < 0.5 else bottom
         raw_kpa = [int(0.83 * c / AREA / 1000) for c in comp]   # raw reads 17 % low
-        ropes = [Rope(c // 10, c // 10 - 5, c // 10 + 5, p) for c, p in zip(comp, raw_kpa)]
+        ropes = [Rope(c // 10, c // 10 - 5, c // 10 + 5, p, *([] if pos_01mm is None else [pos_01mm[i]]))
+                 for i, (c, p) in enumerate(zip(comp, raw_kpa))]
         raw, _ = encode_frame(node=3, seq=seq, time_ms=int((t0_s + t) * 1000), ropes=ropes,
                               depth_mm=int(depth_m * 1000), speed_mm_s=(9000 if down else -9000) if moving else 0,
                               battery_mv=3900)
@@ -180,3 +182,55 @@ def test_a_loadings_rope_stretch_does_not_start_the_trip(tmp_path):
     assert trip.direction == "bottom -> pithead"
     assert trip.start.comp_n == pytest.approx([loaded] * 4)
     assert trip.start.t_s > 40_000 / 1000
+
+
+def creeping_winds(db, trips=8):
+    """`trips` winds, down then up; the pistons' rest positions creep per wind: rope 1 +1 mm,
+    rope 2 not at all, rope 3 -0.5 mm, rope 4 without a position (its channel failed)."""
+    with Store(db) as st:
+        seq = 0
+        for k in range(trips):
+            seq = wind(st, 200.0 * k, seq, down=k % 2 == 0, pos_01mm=[10 * k, 0, -5 * k, L.POS_ABSENT])
+
+
+def test_rest_positions_per_trip_and_the_rope_adjustment_forecast(tmp_path):
+    from ropemon.station.report import adjust_table, rest_positions
+    db = tmp_path / "log.db"
+    creeping_winds(db)
+    with Store(db, readonly=True) as st:
+        trips = trips_from_store(st, [AREA] * 4, 810)
+    assert len(trips) == 8
+    assert trips[2].end.pos_m[:3] == pytest.approx([0.002, 0.0, -0.001])
+    text = trip_table(trips[2], LOAD)
+    rows = [ln.split() for ln in text.splitlines()[text.splitlines().index(
+        next(ln for ln in text.splitlines() if ln.split()[:2] == ["piston", "mm"])) + 1:]]
+    assert rows == [["rope", "1", "+2.0", "+2.0"], ["rope", "2", "+0.0", "+0.0"],   # where it left, arrived
+                    ["rope", "3", "-1.0", "-1.0"], ["rope", "4", "--", "--"]]
+    pit = rest_positions(trips, "pithead")
+    assert pit[0] == [None] * 4 and pit[1][:3] == pytest.approx([0.001, 0.0, -0.0005])
+    fc = adjust_table(trips, [0.1] * 4, 0.01).splitlines()
+    assert fc[0].startswith("rope adjustment (node 3): the pistons' rest positions across 8 trips")
+    # +1 mm per wind, at +7 mm after the 8th wind: (40 - 7) / 1 winds before the extended end's margin
+    assert fc[1] == "  at the pithead: rope 1: +1.00 mm/wind, at +7.0 mm, 33 winds left before the extended end's margin"
+    assert fc[2].split(": ", 1)[1] == "+0.00 mm/wind, at +0.0 mm, no end in sight"
+    assert fc[3].endswith("-0.50 mm/wind, at -3.5 mm, 73 winds left before the retracted end's margin")
+    assert fc[4].endswith("rope 4: no position at its rests")
+    assert fc[5].startswith("  at the bottom: rope 1: +1.00 mm/wind, at +7.0 mm, 33 winds left")
+    assert "give --config" in adjust_table(trips, None, None)
+
+
+def test_report_command_prints_the_forecast_with_the_stroke_from_the_config(tmp_path, capsys):
+    import json
+    from ropemon.commission.nodejson import example_physical, make_node_json
+    db = tmp_path / "log.db"
+    creeping_winds(db, trips=6)
+    cfg = tmp_path / "node.json"
+    phys = example_physical()
+    cfg.write_text(json.dumps(make_node_json(phys, node_id=3, key=bytes(16))))
+    cfg.chmod(0o600)
+    assert main(["report", str(db), "--out", str(tmp_path / "rep"), "--config", str(cfg)]) == 0
+    out = capsys.readouterr().out
+    stroke_mm = phys["stroke_m"][0] * 1000
+    assert "piston mm" in out and f"(stroke {stroke_mm:g} mm, margin " in out
+    assert "at the pithead: rope 1: +1.00 mm/wind, at +5.0 mm" in out
+    assert "rope adjustment (node 3)" in (tmp_path / "rep" / "report.txt").read_text()

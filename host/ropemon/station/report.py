@@ -3,7 +3,11 @@
 Like the paper's field-test table: for every wind, each rope's tension raw
 (p_tap x A) and compensated at the pithead rest and at the shaft-bottom rest,
 and their sum against the theoretical static load
-(cage + payload + tail ropes hanging below the cage) x g.
+(cage + payload + tail ropes hanging below the cage) x g. Where the frames carry
+the pistons' positions: each piston's position at each rest, and across the
+trips in the log the rope-adjustment forecast (`equalizer.adjust_forecast`): per
+landing, each piston's rest-position trend per wind and the winds left before it
+reaches the stroke margin.
 """
 from __future__ import annotations
 
@@ -36,6 +40,7 @@ class FrameTable:
     comp_n: np.ndarray       # (frames, ropes) compensated window-mean tension
     raw_kpa: np.ndarray      # (frames, ropes) tap pressure window mean
     status: np.ndarray
+    pos_m: np.ndarray | None = None   # (frames, ropes) piston position from mid-stroke; NaN: none
 
     @classmethod
     def from_frames(cls, frames, ordered: bool = False) -> "FrameTable":
@@ -56,6 +61,8 @@ class FrameTable:
             raw_kpa=np.array([[r.raw_kpa if r.raw_kpa != L.RAW_KPA_ABSENT else np.nan
                                for r in f.ropes] for f in fs], float).reshape(len(fs), n),
             status=np.array([f.status for f in fs], int),
+            pos_m=np.array([[np.nan if p is None else p for p in (getattr(r, "position_m", None) for r in f.ropes)]
+                            for f in fs], float).reshape(len(fs), n),
         )
 
     def __len__(self) -> int:
@@ -66,7 +73,11 @@ class FrameTable:
 
     def take(self, sel) -> "FrameTable":
         return FrameTable(self.t_s[sel], self.depth_m[sel], self.speed_m_s[sel], self.comp_n[sel],
-                          self.raw_kpa[sel], self.status[sel])
+                          self.raw_kpa[sel], self.status[sel], None if self.pos_m is None else self.pos_m[sel])
+
+    @property
+    def has_positions(self) -> bool:
+        return self.pos_m is not None and bool(np.isfinite(self.pos_m).any())
 
 
 @dataclass
@@ -105,6 +116,7 @@ class Rest:
     raw_n: np.ndarray        # per rope, mean over the settled rest
     comp_n: np.ndarray
     t_s: float = 0.0         # node time in the middle of the averaged frames
+    pos_m: np.ndarray | None = None   # per rope, the piston's mean position over the rest; NaN: none
 
 
 @dataclass
@@ -152,7 +164,8 @@ def rest_of(ft: FrameTable, area_m2: list[float], shaft_m: float, side: str) -> 
         warnings.simplefilter("ignore", RuntimeWarning)
         return Rest("pithead" if depth < 0.5 * shaft_m else "bottom", depth, len(sel),
                     np.nanmean(ft.raw_n(area_m2)[sel], axis=0), np.nanmean(ft.comp_n[sel], axis=0),
-                    float(np.median(ft.t_s[sel])))
+                    float(np.median(ft.t_s[sel])),
+                    np.nanmean(ft.pos_m[sel], axis=0) if ft.has_positions else None)
 
 
 def _travel_m(ft: FrameTable, ids: np.ndarray, tr) -> float:
@@ -234,6 +247,65 @@ def trip_table(trip: Trip, load: HoistLoad | None,
         lines += [row, err]
         if not payload_kg:
             lines.append(f"{'':>12}  (empty cage assumed: give --payload-kg when it was loaded)")
+    if any(r.pos_m is not None for _, r in rests):
+        lines.append(f"{'piston mm':>12}" + "".join(f"{w:>22}" for w in cols))
+        for i in range(ropes):
+            row = f"{'rope ' + str(i + 1):>12}"
+            for _, r in rests:
+                x = r.pos_m[i] if r.pos_m is not None else np.nan
+                row += f"{x * 1000:+22.1f}" if np.isfinite(x) else f"{'--':>22}"
+            lines.append(row)
+    return "\n".join(lines)
+
+
+def rest_positions(trips: list[Trip], where: str) -> list[list[float | None]]:
+    """One entry per trip (a wind), oldest first: each piston's position at the rest the trip
+    arrived at if that is `where`, else None for every rope (the winds between two arrivals at
+    that landing still count as winds)."""
+    out: list[list[float | None]] = []
+    for t in trips:
+        r = t.end
+        n = t.frames.comp_n.shape[1]
+        if r is None or r.where != where or r.pos_m is None:
+            out.append([None] * n)
+        else:
+            out.append([float(x) if np.isfinite(x) else None for x in r.pos_m])
+    return out
+
+
+def adjust_table(trips: list[Trip], stroke_m: list[float] | None, margin_m: float | None) -> str:
+    """The rope-adjustment forecast across the log's trips, per node and landing (the loads at
+    one landing compare): each piston's rest-position trend per wind, where it stands, and the
+    winds left before it reaches the margin of the end it heads for. "" without positions."""
+    from ropemon.station.equalizer import adjust_forecast
+
+    lines: list[str] = []
+    for node in sorted({t.node for t in trips}):
+        mine = [t for t in trips if t.node == node]
+        if not any(t.end is not None and t.end.pos_m is not None for t in mine):
+            continue
+        head = f"rope adjustment (node {node}): the pistons' rest positions across {len(mine)} trips"
+        if not stroke_m:
+            lines += [head, "  give --config node.json (its physical.stroke_m) for the winds left before a margin"]
+            continue
+        margin_txt = f", margin {margin_m * 1000:.0f} mm" if margin_m else ""
+        strokes = sorted({round(s * 1000, 1) for s in stroke_m})
+        lines.append(head + f" (stroke {', '.join(f'{s:g}' for s in strokes)} mm{margin_txt})")
+        for where in ("pithead", "bottom"):
+            rests = rest_positions(mine, where)
+            if not any(x is not None for w in rests for x in w):
+                continue
+            fc = adjust_forecast(rests, stroke_m, margin_m)
+            for i, f in enumerate(fc):
+                label = f"  at the {where}: rope {i + 1}" if i == 0 else f"{'':>{len(where) + 11}}rope {i + 1}"
+                if f is None:
+                    seen = any(i < len(w) and w[i] is not None for w in rests)
+                    lines.append(f"{label}: {'too few rests for a trend' if seen else 'no position at its rests'}")
+                    continue
+                left = ("no end in sight" if f.winds_left is None else
+                        f"within the {f.end} end's margin now: adjust the rope" if f.winds_left <= 0 else
+                        f"{f.winds_left:.0f} winds left before the {f.end} end's margin")
+                lines.append(f"{label}: {f.trend_m * 1000:+.2f} mm/wind, at {f.last_m * 1000:+.1f} mm, {left}")
     return "\n".join(lines)
 
 
@@ -272,11 +344,27 @@ def plot_trip(trip: Trip, area_m2: list[float], out: Path) -> Path:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("db", help="ropemon SQLite log (ropemon monitor --db, ropemon demo)")
     p.add_argument("--out", default=None, help="directory for the PNG plots and report.txt (default: beside DB)")
-    p.add_argument("--config", help="node.json: cylinder areas for the raw tension p x A")
+    p.add_argument("--config", help="node.json: cylinder areas for the raw tension p x A, and the stroke")
     p.add_argument("--area-m2", type=float, help="rod-less piston area of every cylinder, instead of --config")
     p.add_argument("--site", help="SITE.toml: cage mass, tail ropes and shaft depth for the theoretical load")
     p.add_argument("--payload-kg", type=float, nargs=2, metavar=("AT_PITHEAD", "AT_BOTTOM"),
                    help="payload in the cage at the pithead and at the bottom rest (default empty)")
+
+
+def stroke_from(args: argparse.Namespace) -> tuple[list[float] | None, float | None]:
+    """Each cylinder's stroke and the stroke margin (m): from --config, else --site, else unknown."""
+    if args.config:
+        from ropemon.station.physical import SiteFigures
+        f = SiteFigures.from_node_json(args.config)
+        return (list(f.stroke_m) or None), f.stroke_margin_m
+    if args.site:
+        from ropemon.commission.site import SiteError, in_file, load_site
+        try:
+            cyl = load_site(args.site).cylinders
+        except SiteError as e:
+            raise in_file(e, args.site) from None
+        return [c.stroke_m for c in cyl], cyl[0].stroke_margin_m if cyl else None
+    return None, None
 
 
 def areas_from(args: argparse.Namespace) -> list[float]:
@@ -290,8 +378,11 @@ def areas_from(args: argparse.Namespace) -> list[float]:
 
 def write_report(store, out_dir: Path, area_m2: list[float], load: HoistLoad | None,
                  payload_kg: dict[str, float] | Callable[[float], float] | None = None,
-                 shaft_m: float | None = None) -> tuple[str, list[Path]]:
-    """The text report and one PNG per trip; returns (text, files written)."""
+                 shaft_m: float | None = None, stroke_m: list[float] | None = None,
+                 margin_m: float | None = None) -> tuple[str, list[Path]]:
+    """The text report and one PNG per trip, then the rope-adjustment forecast where the frames
+    carry positions (`stroke_m` per rope and `margin_m` for the winds left); returns (text,
+    files written)."""
     trips = trips_from_store(store, area_m2, shaft_m if shaft_m else (load.shaft_m if load else None))
     if not trips:
         return "no trips in this log (the cage never moved, or the log is empty)", []
@@ -302,6 +393,9 @@ def write_report(store, out_dir: Path, area_m2: list[float], load: HoistLoad | N
         png = plot_trip(trip, area_m2, out_dir / f"trip{trip.number:03d}-node{trip.node}.png")
         parts.append(f"  plot: {png}")
         files.append(png)
+    forecast = adjust_table(trips, stroke_m, margin_m)
+    if forecast:
+        parts.append(forecast)
     text = "\n\n".join(parts)
     (out_dir / "report.txt").write_text(text + "\n")
     files.append(out_dir / "report.txt")
@@ -324,6 +418,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         area = areas_from(args)
         load = HoistLoad.from_site(args.site) if args.site else None
+        stroke, margin = stroke_from(args)
     except (ValueError, OSError) as e:
         print(f"ropemon report: {e}", file=sys.stderr)
         return 2
@@ -335,7 +430,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         out = Path(args.out) if args.out else db.with_suffix("").parent / (db.stem + "-report")
-        text, _files = write_report(store, out, area, load, payload)
+        text, _files = write_report(store, out, area, load, payload, stroke_m=stroke, margin_m=margin)
     finally:
         store.close()
     print(text)
