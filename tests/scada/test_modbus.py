@@ -11,7 +11,7 @@ from pymodbus.client import ModbusTcpClient  # noqa: E402
 
 from ropemon.station import modbus as M  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
-from ropemon.station.scadavalues import ALARM_KINDS  # noqa: E402
+from ropemon.station.scadavalues import ALARM_KINDS, EQUALIZER_KINDS  # noqa: E402
 from ropemon.station.stationfile import StationFileError  # noqa: E402
 from scada_rig import Rig, free_port  # noqa: E402
 
@@ -197,17 +197,21 @@ def test_version_2_reads_the_positions_back_and_keeps_version_1s_registers(tmp_p
         assert [b1[n + 29 + r] for r in range(4)] == [2500, 2500, 2500, 3000] and b1[n + 33] == 100
         # the version 2 node: no positions, no stroke bits
         assert [s16(b0[n + 22 + r]) for r in range(4)] == [-32768] * 4 and b0[n + 26] == 0 and b0[n + 27] == 2
-        # version 1's registers: the same values for the same tensions, with or without positions
-        assert [b0[a] for a in V1_HOIST if a not in (2, 3, 4, 5)] == [b1[a] for a in V1_HOIST if a not in (2, 3, 4, 5)]
+        # version 1's registers: the same values for the same tensions, with or without positions,
+        # but for the alarm the stroke mask raises (below)
+        assert [b0[a] for a in V1_HOIST if a not in (1, 2, 3, 4, 5)] == [b1[a] for a in V1_HOIST
+                                                                         if a not in (1, 2, 3, 4, 5)]
+        assert b0[1] == 0b01001 and b1[1] == 0b01111       # vouched, every node heard; h1: an alarm, unacknowledged
         assert [b0[n + a] for a in V1_NODE] == [b1[n + a] for a in V1_NODE]
         assert [s16(b1[n + 12 + 2 * r]) for r in range(4)] == [5000, 5100, 4900, -32768]
         assert [s16(b1[n + 13 + 2 * r]) for r in range(4)] == [0, 200, -200, -32768]
         assert s32(b1[n + 6], b1[n + 7]) == 812_345 and s16(b1[n + 8]) == -9500 and b1[n + 9] == 11_900
         assert s32(b1[n + 20], b1[n + 21]) == 1
-        # an equalizer alarm: its own bit in the version 2 words, "any other kind" (bit 16) in version 1's
-        other = s32(b1[2], b1[3]) & (1 << 16)
-        eq = s32(b1[M.EQ_PRESENT], b1[M.EQ_PRESENT + 1])
-        assert bool(other) == bool(eq)
+        # the stroke limit the mask shows is an alarm: its own bit in the version 2 words, "any other
+        # kind" (bit 16) in version 1's; none on the version 2 node
+        assert s32(b1[2], b1[3]) == s32(b1[4], b1[5]) == 1 << 16
+        assert s32(b1[9], b1[10]) == s32(b1[11], b1[12]) == 1 << EQUALIZER_KINDS.index("stroke_limit")
+        assert s32(b0[2], b0[3]) == s32(b0[9], b0[10]) == 0
     finally:
         client.close()
         for f in faces:
@@ -218,12 +222,15 @@ def test_version_2_reads_the_positions_back_and_keeps_version_1s_registers(tmp_p
 def test_version_2_carries_the_equalizer_alarms_and_the_standing_status(served):
     from ropemon.station.alarms import ActiveAlarm
     from ropemon.station.pipeline import AlarmState
-    from ropemon.station.scadavalues import EQUALIZER_KINDS
     rig, face, client = served(1)
     rig.feed("h0", positions=(10, 20, 30, 40))
     rig.step()
     v = _listener(rig, "h0")
-    assert s16(block(client, 0)[M.NODE_BASE + M.N_HIDDEN]) == -32768        # no standing status yet
+    # the standing status: the alarm engine's hidden imbalance at this rope tension, 0.01 %
+    st = rig.stations.hoists["h0"].alarms.engine.hoist_status(1)
+    assert st is not None and 0 < st.hidden_frac < 1
+    assert s16(block(client, 0)[M.NODE_BASE + M.N_HIDDEN]) == round(st.hidden_frac * 10000)
+    # the equalizer's alarm kinds, each its bit (a hand-made alarm state, every kind at once)
 
     def alarm(kind, rope, present, latched):
         return ActiveAlarm(f"{kind}:n1:r{rope}", kind, 1, rope, present, latched, None, None, kind, 1.0)

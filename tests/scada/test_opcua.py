@@ -501,3 +501,32 @@ def test_the_nodes_standing_status_hidden_imbalance_and_its_text(rig, client_cer
     finally:
         if real is None:
             del engine.hoist_status
+
+
+def test_a_stroke_limit_is_an_alarm_condition_on_its_rope(rig, client_cert):
+    """A piston within the stroke margin (the frame's stroke mask) raises the station's
+    stroke_limit alarm: an AlarmConditionType event whose source is that rope's object."""
+    async def go():
+        c = await connect(rig, client_cert)
+        try:
+            idx = await c.get_namespace_index("urn:ropemon:opcua")
+            events = []
+
+            class Handler:
+                def event_notification(self, event):
+                    events.append(event)
+            sub = await c.create_subscription(50, Handler())
+            await sub.subscribe_alarms_and_conditions(c.nodes.server, ua.ObjectIds.AlarmConditionType)
+            feed(rig, [5000, 5000, 5000, 5000], positions=(0, 0, 0, 0), n=3)
+            feed(rig, [5000, 5000, 5000, 5000], positions=(0, 0, 1230, 0), stroke_mask=1 << (4 + 2), n=3)
+
+            async def raised():
+                return [e for e in events if e.ConditionName == "stroke_limit:n1:r2" and getattr(e, "ActiveState/Id")]
+            (ev,) = (await until(raised))[:1]
+            assert ev.SourceNode == ua.NodeId("north.n1.r3", idx)
+            assert ev.Severity == 800 and ev.Retain is True and "rope 3" in ev.Message.Text
+            assert await c.get_node(ua.NodeId("north.n1.r3.NearExtendedEnd", idx)).read_value() is True
+            await sub.delete()
+        finally:
+            await c.disconnect()
+    asyncio.run(go())
