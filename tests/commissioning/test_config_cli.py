@@ -185,11 +185,80 @@ def test_empty_load_is_a_host_only_key_the_node_ignores(site_dir):
 
 
 def test_config_says_when_the_seals_are_too_strong_for_the_band_to_vouch_for_the_limit(site_dir, capsys):
-    """The paper's worn seal can hold more than a tenth of a rope's load: `ropemon config` says
-    DEVIATION POSSIBLE will stand until the seals are seen to slide."""
+    """The paper's worn seal can hold more than a tenth of a rope's load: `ropemon config` prints
+    the imbalance the seals can hide at the empty and the rated rope tension, and warns that it is
+    beyond the limit: the hoist's standing status on every face, what to do about it."""
+    from ropemon.commission.config_cli import deviation_cover
+
     assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(site_dir / "node.json")]) == 0
-    err = capsys.readouterr().err
-    assert "deviation alarm: the seals may hold up to" in err and "DEVIATION POSSIBLE will stand" in err
+    cap = capsys.readouterr()
+    site = load_site(site_dir / "paper-site.toml")
+    ph = json.loads((site_dir / "node.json").read_text())["physical"]
+    c = deviation_cover(ph, site.hoist.empty_load_N / 4, site.hoist.rated_rope_tension_N)
+    assert c["empty_reach"] > 0.1 and c["rated_reach"] > 0.1
+    line = next(x for x in cap.out.splitlines() if x.startswith("hidden imbalance"))
+    assert "the hoist's standing status, shown on every face" in line
+    assert (f"hide an imbalance of up to {c['empty_reach']:.1%} with the cage empty at the pithead "
+            f"({site.hoist.empty_load_N / 4e3:.1f} kN a rope)") in line
+    assert f"up to {c['rated_reach']:.1%} at the rated rope tension (80.0 kN)" in line and "limit is 10%" in line
+    assert "hidden imbalance: the seals can hide an imbalance of up to" in cap.err
+    assert "beyond the 10% limit" in cap.err and "standing status on every face (not an alarm)" in cap.err
+    assert "lower-friction seals" in cap.err and "by other means" in cap.err
+    assert "DEVIATION POSSIBLE" not in cap.err + cap.out
+
+
+def test_config_prints_the_stroke_margins(site_dir, capsys):
+    assert ropemon(["config", str(site_dir / "paper-site.toml"), "--out", str(site_dir / "node.json")]) == 0
+    out = capsys.readouterr().out
+    assert ("stroke 200 mm (every rope): end stops at -100.0 and +100.0 mm from mid-stroke; margin 10.0 mm: "
+            "the stroke-limit band starts at -90.0 mm (retracted) and +90.0 mm (extended); travel tolerance "
+            "5.0 mm: a reading beyond +-105.0 mm is the displacement channel's fault") in out
+    from ropemon.commission.config_cli import stroke_lines
+    ph = json.loads((site_dir / "node.json").read_text())["physical"]
+    ph2 = dict(ph, stroke_m=[0.2, 0.2, 0.3, 0.2], stroke_margin_m=0.02, travel_tolerance_m=0.0)
+    assert stroke_lines(ph2) == [
+        "stroke 200 mm (rope 1, 2, 4): end stops at -100.0 and +100.0 mm from mid-stroke; margin 20.0 mm: the "
+        "stroke-limit band starts at -80.0 mm (retracted) and +80.0 mm (extended); travel tolerance 0.0 mm: a "
+        "reading beyond +-100.0 mm is the displacement channel's fault",
+        "stroke 300 mm (rope 3): end stops at -150.0 and +150.0 mm from mid-stroke; margin 20.0 mm: the "
+        "stroke-limit band starts at -130.0 mm (retracted) and +130.0 mm (extended); travel tolerance 0.0 mm: a "
+        "reading beyond +-150.0 mm is the displacement channel's fault"]
+    bare = {k: v for k, v in ph.items() if k not in ("stroke_m", "stroke_margin_m", "travel_tolerance_m")}
+    assert stroke_lines(bare) == ["stroke: not known (no stroke_m): no stroke limit is checked"]
+
+
+def test_stroke_and_zero_reach_the_node_section(site_dir):
+    """stroke_m, stroke_margin_m and travel_tolerance_m go into `physical` and the node's
+    stroke keys (um/256 from mid-stroke); zero_m is folded into the channel's range_m, so the
+    node's position (and the float reference's) is from mid-stroke."""
+    from docedit import edited
+    import tomllib
+    from ropemon.commission.site import parse_site
+
+    site = load_site(site_dir / "paper-site.toml")
+    ph = physical_from_site(site)
+    assert (ph["stroke_m"], ph["stroke_margin_m"], ph["travel_tolerance_m"]) == ([0.2] * 4, 0.01, 0.005)
+    nd = make_node_json(ph)["node"]
+    assert nd["stroke_lo_q8um"] == [round(-0.09 * 256e6)] * 4 == [-23040000] * 4
+    assert nd["stroke_hi_q8um"] == [23040000] * 4
+    assert nd["travel_lo_q8um"] == [-26880000] * 4 and nd["travel_hi_q8um"] == [26880000] * 4
+    doc = tomllib.loads((site_dir / "paper-site.toml").read_text())
+    d = edited(edited(doc, "sensors.displacement.zero_m", 0.02), "cylinders.stroke_margin_m", 0.015)
+    d = edited(d, "sensors.displacement.travel_tolerance_m", 0.0)
+    site2 = parse_site(d, site_dir / "paper-site.toml")
+    ph2 = physical_from_site(site2)
+    assert ph2["displacement_channels"][0]["range_m"] == pytest.approx([-0.12, 0.08])
+    nd2 = make_node_json(ph2)["node"]
+    assert nd2["displacement"][0]["q8um_at_lo"] == round(-0.12 * 256e6)
+    assert nd2["displacement"][0]["q8um_mul"] == nd["displacement"][0]["q8um_mul"]  # the scale is unchanged
+    assert nd2["stroke_lo_q8um"][0] == round(-0.085 * 256e6) and nd2["travel_hi_q8um"][0] == round(0.1 * 256e6)
+    assert node_module("config").parse(make_node_json(ph2)) is not None
+    # the transmitter reads 0.02 m at mid-stroke: the node's position there is 0
+    ch = site2.sensors.displacement[0]
+    counts_mid = ch.counts_lo + (0.02 - ch.range_m[0]) / (ch.range_m[1] - ch.range_m[0]) * (ch.counts_hi - ch.counts_lo)
+    d0 = nd2["displacement"][0]
+    x_q8um = d0["q8um_at_lo"] + ((round(counts_mid) - d0["counts_lo"]) * d0["q8um_mul"] >> d0["q8um_shift"])
+    assert abs(x_q8um) < 256 * 10  # within 10 um (a count is 5 um)
 
 
 def test_deviation_cover_hand_checked():
@@ -255,3 +324,24 @@ def test_a_site_with_the_simulators_plant_table_is_refused(site_dir, capsys):
     for scenario in scenarios:  # the scenarios keep theirs; the site description has none
         assert "plant" in tomllib.loads(scenario.read_text()), scenario
     assert "plant" not in tomllib.loads((SCEN / "paper-site.toml").read_text())
+
+
+def test_config_warns_when_a_transmitter_cannot_read_into_a_stroke_band(site_dir):
+    """+-100 mm transmitters read -105 .. +112.5 mm (3.6 .. 21 mA): the 200 mm stroke's bands
+    (from -+90 mm) are readable. With zero_m = 0.03 (mid-stroke reads +30 mm) the transmitter
+    reads -135 .. +82.5 mm from mid-stroke: short of the extended band, which starts at +90 mm."""
+    import tomllib
+
+    from docedit import edited
+    from ropemon.commission.config_cli import stroke_warnings
+    from ropemon.commission.site import parse_site
+
+    path = site_dir / "paper-site.toml"
+    assert stroke_warnings(load_site(path)) == []
+    doc = tomllib.loads(path.read_text())
+    w = stroke_warnings(parse_site(edited(doc, "sensors.displacement.zero_m", 0.03), path))
+    assert w == [f"stroke: rope {i}'s displacement transmitter reads only to +82.5 mm from mid-stroke, short of "
+                 "the extended end's stroke-limit band (from +90.0 mm): a piston there shows as the transmitter's "
+                 "fault, not as a stroke limit" for i in range(1, 5)]
+    w = stroke_warnings(parse_site(edited(doc, "sensors.displacement.zero_m", -0.02), path))
+    assert len(w) == 4 and "reads only to -85.0 mm" in w[0] and "retracted end's stroke-limit band (from -90.0 mm)" in w[0]

@@ -58,6 +58,16 @@ BAD = [
     ("sensors.pressure.range_MPa", [0.0, 10.0], "sensors.pressure[0].range_MPa: top 10 MPa is below 130 %"),
     ("sensors.pressure.range_MPa", [25.0, 0.0], "sensors.pressure.range_MPa: high must be > low"),
     ("sensors.displacement.range_m", [-0.5, 0.5], "sensors.displacement.range_m: span 1 m exceeds"),
+    ("cylinders.stroke_margin_m", 0.0, "cylinders.stroke_margin_m: must be > 0, got 0"),
+    ("cylinders.stroke_margin_m", 0.05, "cylinders.stroke_margin_m: must be < stroke_m/4 = 0.05 m"),
+    ("cylinders.stroke_margin_m", "10 mm", "cylinders.stroke_margin_m: must be a number"),
+    ("cylinders.stroke_m", 20.0, "cylinders.stroke_m: must be <= 10, got 20"),
+    ("sensors.displacement.zero_m", 0.15, "sensors.displacement.zero_m: the channel's reading at mid-stroke must "
+                                          "be within its range_m -0.1..0.1 m, got 0.15"),
+    ("sensors.displacement.zero_m", math.nan, "sensors.displacement.zero_m: must be finite"),
+    ("sensors.displacement.travel_tolerance_m", -0.001, "sensors.displacement.travel_tolerance_m: must be >= 0"),
+    ("sensors.displacement.travel_tolerance_m", 0.2, "sensors.displacement.travel_tolerance_m: must be <= 0.1"),
+    ("sensors.displacement.zero_mm", 0.0, "sensors.displacement.zero_mm: unknown field"),
     ("sensors.hall_marks_m", [2.0, 808.0, 405.0], "sensors.hall_marks_m: must be strictly ascending"),
     ("sensors.adc_bits", 24, "sensors.adc_bits: must be <= 16"),
     ("rates.frame_hz", 7, "rates.frame_hz: sample_hz (200) must be a multiple of it"),
@@ -92,6 +102,41 @@ def test_per_rope_array_of_cylinders_is_accepted(doc):
     cyl[2]["bore_m"] = 0.11
     site = parse_site(edited(doc, "cylinders", cyl), PAPER_SITE)
     assert site.cylinders[2].bore_m == 0.11 and site.cylinders[0].bore_m == 0.1
+
+
+def test_stroke_fields_and_their_defaults(doc):
+    site = parse_site(doc, PAPER_SITE)
+    assert [c.stroke_margin_m for c in site.cylinders] == [0.01] * 4
+    assert [(c.zero_m, c.travel_tolerance_m) for c in site.sensors.displacement] == [(0.0, 0.005)] * 4
+    d = edited(edited(doc, "cylinders.stroke_margin_m", delete=True), "sensors.displacement.travel_tolerance_m",
+               delete=True)
+    d = edited(d, "sensors.displacement.zero_m", delete=True)
+    site = parse_site(d, PAPER_SITE)  # the documented defaults
+    assert site.cylinders[0].stroke_margin_m == 0.01 and site.sensors.displacement[0].travel_tolerance_m == 0.005
+    assert site.sensors.displacement[0].zero_m == 0.0
+    site = parse_site(edited(doc, "sensors.displacement.zero_m", 0.025), PAPER_SITE)
+    assert site.sensors.displacement[0].range_from_mid_m == pytest.approx((-0.125, 0.075))
+
+
+def test_the_node_holds_one_margin_and_one_tolerance_for_all_ropes(doc):
+    cyl = [dict(doc["cylinders"]) for _ in range(4)]
+    cyl[1]["stroke_margin_m"] = 0.02
+    with pytest.raises(SiteError, match=r"^cylinders.stroke_margin_m: must be the same for every rope "
+                                        r"\(one stroke margin\), got 0.01, 0.02, 0.01, 0.01"):
+        parse_site(edited(doc, "cylinders", cyl), PAPER_SITE)
+    disp = [dict(doc["sensors"]["displacement"]) for _ in range(4)]
+    disp[3]["travel_tolerance_m"] = 0.01
+    with pytest.raises(SiteError, match=r"^sensors.displacement.travel_tolerance_m: must be the same for every"):
+        parse_site(edited(doc, "sensors.displacement", disp), PAPER_SITE)
+    disp = [dict(doc["sensors"]["displacement"]) for _ in range(4)]
+    disp[2]["zero_m"] = 0.003  # a zero per transmitter is fine
+    site = parse_site(edited(doc, "sensors.displacement", disp), PAPER_SITE)
+    assert [c.zero_m for c in site.sensors.displacement] == [0.0, 0.0, 0.003, 0.0]
+    cyl = [dict(doc["cylinders"]) for _ in range(4)]
+    cyl[0]["stroke_m"] = 0.03  # the default margin 0.01 is not below 0.03/4 for this cylinder
+    disp = [dict(doc["sensors"]["displacement"], range_m=[-0.015, 0.015]) for _ in range(4)]
+    with pytest.raises(SiteError, match=r"^cylinders\[0\].stroke_margin_m: must be < stroke_m/4 = 0.0075 m"):
+        parse_site(edited(edited(doc, "cylinders", cyl), "sensors.displacement", disp), PAPER_SITE)
 
 
 def test_key_from_file_and_not_both(doc, tmp_path):

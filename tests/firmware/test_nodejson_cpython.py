@@ -282,3 +282,27 @@ def test_the_pressure_step_limit_is_derived_written_or_off_and_checked_on_both_s
         with pytest.raises(config.ConfigError) as e:
             config.parse_node(nd)
         assert e.value.field == "node." + ".".join(str(k) for k in path).replace(".2.", "[2].")
+
+
+def test_the_stroke_keys_are_built_in_um_256_from_mid_stroke():
+    """stroke_lo/hi: where the margin band starts at the retracted / extended end; travel_lo/hi:
+    beyond them a reading is the channel's fault. Per rope, from physical.stroke_m."""
+    from ropemon.commission.nodejson import STROKE_OFF_Q8UM, stroke_limits
+
+    ph = dict(example_physical(), stroke_m=[0.1, 0.1, 0.12, 0.1], stroke_margin_m=0.008, travel_tolerance_m=0.002)
+    nd = build_node_section(ph)
+    assert nd["stroke_lo_q8um"] == [round(-0.042 * 256e6)] * 2 + [round(-0.052 * 256e6), round(-0.042 * 256e6)]
+    assert nd["stroke_hi_q8um"][2] == round(0.052 * 256e6) == 13312000
+    assert nd["travel_lo_q8um"][0] == -round(0.052 * 256e6) and nd["travel_hi_q8um"][2] == round(0.062 * 256e6)
+    assert config.parse_node(nd) is not None
+    # the defaults: margin 10 mm, tolerance 5 mm
+    d = stroke_limits({k: v for k, v in dict(example_physical(), stroke_m=[0.2] * 4).items()
+                       if k not in ("stroke_margin_m", "travel_tolerance_m")})
+    assert d["stroke_hi_q8um"] == [round(0.09 * 256e6)] * 4 and d["travel_hi_q8um"] == [round(0.105 * 256e6)] * 4
+    # no stroke known: nothing checked, beyond any position a channel can read
+    bare = {k: v for k, v in example_physical().items()
+            if k not in ("stroke_m", "stroke_margin_m", "travel_tolerance_m")}
+    d = stroke_limits(bare)
+    assert d == {"stroke_lo_q8um": [-STROKE_OFF_Q8UM] * 4, "stroke_hi_q8um": [STROKE_OFF_Q8UM] * 4,
+                 "travel_lo_q8um": [-STROKE_OFF_Q8UM] * 4, "travel_hi_q8um": [STROKE_OFF_Q8UM] * 4}
+    assert build_node_section(bare)["stroke_hi_q8um"] == [STROKE_OFF_Q8UM] * 4

@@ -5,7 +5,9 @@ tables, the friction fit and the optional hydraulic compliance fit) ->
 ropemon.commission.nodejson.make_node_json (fixed-point `node` section with the node's id
 and key, every integer proved within +-2**30, schema, CRC, SHA-256) -> node.json, written
 with mode 0600 (it holds the key). A site file, friction or compliance fit that cannot be
-used is refused with the field and the reason, exit 1.
+used is refused with the field and the reason, exit 1. It prints what the site is commissioned with, including the imbalance
+the seals can hide (`deviation_cover`: the hoist's standing status, which the station shows
+on every face) and the stroke margins (`stroke_lines`).
 """
 from __future__ import annotations
 
@@ -51,18 +53,41 @@ def site_warnings(site: Site, doc: dict[str, Any], friction_doc: dict[str, Any] 
                    "the displacement channel's resolution either way)")
     cover = deviation_cover(doc["physical"], site.hoist.empty_load_N / site.hoist.ropes,
                             site.hoist.rated_rope_tension_N)
-    if cover is not None and cover["empty_reach"] >= cover["limit"]:
+    if cover is not None and max(cover["empty_reach"], cover["rated_reach"]) >= cover["limit"]:
+        where = [f"{cover[k + '_reach']:.1%} {what}" for k, what in
+                 (("empty", "with the cage empty at the pithead"), ("rated", "at the rated rope tension"))
+                 if cover[k + "_reach"] >= cover["limit"]]
         out.append(
-            f"deviation alarm: the seals may hold up to +-{cover['empty_s_N'] / 1e3:.1f} kN per rope with the cage "
-            f"empty at the pithead ({cover['empty_rope_N'] / 1e3:.1f} kN a rope), so with no rope's seal seen "
-            f"sliding the station's band reaches +-{cover['empty_reach']:.1%} of deviation there "
-            f"({cover['rated_reach']:.1%} at the rated rope tension), beyond the {cover['limit']:.0%} limit: "
-            "DEVIATION POSSIBLE will stand whenever the node has not seen the seals slide; check the ropes' "
-            "balance by other means (docs/accuracy.md, \"What to distrust and what to do\")")
+            f"hidden imbalance: the seals can hide an imbalance of up to {' and '.join(where)}, beyond the "
+            f"{cover['limit']:.0%} limit: this instrument cannot show a rope within that band to be within the "
+            "limit. The station shows it as the hoist's standing status on every face (not an alarm); fit "
+            "lower-friction seals or check the rope tensions periodically by other means (docs/commissioning.md, "
+            "\"The imbalance the seals can hide\")")
+    out += stroke_warnings(site)
     if site.sensors.temperature is None:
         temps = site.oil.table_temps_C
         out.append(f"oil: no temperature input: losses are compensated at {site.oil.temp_assumed_C:g} C; "
                    f"the table covers {temps[0]:g}..{temps[-1]:g} C for a node with an input")
+    return out
+
+
+def stroke_warnings(site: Site) -> list[str]:
+    """A displacement transmitter that cannot read into a stroke-limit band: the node reads a
+    4-20 mA channel from 3.6 to 21 mA (NAMUR NE43), beyond is the channel's fault, so a piston
+    in a band beyond that shows as a transmitter fault, not as a stroke limit."""
+    out = []
+    for i, (cyl, ch) in enumerate(zip(site.cylinders, site.sensors.displacement)):
+        lo, hi = sorted(ch.range_from_mid_m)
+        span = hi - lo
+        reach = (lo - span * 0.4 / 16, hi + span / 16) if ch.counts_hi > ch.counts_lo else \
+            (lo - span / 16, hi + span * 0.4 / 16)
+        half, m = cyl.stroke_m / 2, cyl.stroke_margin_m
+        for end, band, readable, ok in (("retracted", -half + m, reach[0], reach[0] <= -half + m),
+                                        ("extended", half - m, reach[1], reach[1] >= half - m)):
+            if not ok:
+                out.append(f"stroke: rope {i + 1}'s displacement transmitter reads only to {readable * 1e3:+.1f} mm "
+                           f"from mid-stroke, short of the {end} end's stroke-limit band (from {band * 1e3:+.1f} mm): "
+                           "a piston there shows as the transmitter's fault, not as a stroke limit")
     return out
 
 
@@ -84,6 +109,40 @@ def deviation_cover(physical: dict[str, Any], empty_rope_n: float, rated_rope_n:
         out[f"{name}_rope_N"] = t
         out[f"{name}_s_N"] = ivs[0].s
         out[f"{name}_reach"] = max(b.reach for b in deviation_bounds(ivs) if b is not None)
+    return out
+
+
+def cover_lines(cover: dict[str, float] | None) -> list[str]:
+    """The printout of `deviation_cover`: what the seals can hide, at the empty and the rated
+    rope tension, beside the limit."""
+    if cover is None:
+        return ["hidden imbalance: not known (no friction lines)"]
+    return [f"hidden imbalance (the hoist's standing status, shown on every face): with no rope's seal seen "
+            f"sliding, the seals can hold +-{cover['empty_s_N'] / 1e3:.1f} kN a rope and hide an imbalance of "
+            f"up to {cover['empty_reach']:.1%} with the cage empty at the pithead "
+            f"({cover['empty_rope_N'] / 1e3:.1f} kN a rope), +-{cover['rated_s_N'] / 1e3:.1f} kN and up to "
+            f"{cover['rated_reach']:.1%} at the rated rope tension ({cover['rated_rope_N'] / 1e3:.1f} kN); "
+            f"the limit is {cover['limit']:.0%}"]
+
+
+def stroke_lines(ph: dict[str, Any]) -> list[str]:
+    """The printout of the stroke: per distinct stroke, the end stops, the margin and where its
+    band starts each side, and the travel tolerance (positions from mid-stroke, x > 0 pulled out)."""
+    from ropemon.station.physical import Physical
+
+    p = Physical.from_dict(ph)
+    if p.stroke_m is None:
+        return ["stroke: not known (no stroke_m): no stroke limit is checked"]
+    m, tol = p.stroke_margin, p.travel_tolerance
+    out = []
+    for s in sorted(set(p.stroke_m)):
+        ropes = [i + 1 for i, x in enumerate(p.stroke_m) if x == s]
+        which = "every rope" if len(ropes) == p.ropes else "rope " + ", ".join(map(str, ropes))
+        out.append(f"stroke {s * 1e3:.0f} mm ({which}): end stops at -{s / 2 * 1e3:.1f} and +{s / 2 * 1e3:.1f} mm "
+                   f"from mid-stroke; margin {m * 1e3:.1f} mm: the stroke-limit band starts at "
+                   f"{(-s / 2 + m) * 1e3:+.1f} mm (retracted) and {(s / 2 - m) * 1e3:+.1f} mm (extended); "
+                   f"travel tolerance {tol * 1e3:.1f} mm: a reading beyond +-{(s / 2 + tol) * 1e3:.1f} mm is "
+                   "the displacement channel's fault")
     return out
 
 
@@ -117,6 +176,8 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
         f"pipe loss at {q_max * 6e4:.1f} L/min and {ph['oil_temp_assumed_C']:g} C: up to {worst / 1e6:.3f} MPa "
         f"({worst * min(ph['cylinder_area_m2']) / 1e3:.2f} kN of rope tension)",
         *hydraulic,
+        *cover_lines(deviation_cover(ph, h.empty_load_N / h.ropes, h.rated_rope_tension_N)),
+        *stroke_lines(ph),
         f"config CRC 0x{doc['crc']:04x}, schema {doc['schema']}",
     ])
 

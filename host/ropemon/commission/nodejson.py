@@ -374,6 +374,32 @@ def sigma0_max(ph: dict | Physical) -> float:
     return 0.99 * (1 << 19) * 16e6 / dx_max_q8um
 
 
+STROKE_OFF_Q8UM = 1 << 25  # beyond any position a displacement channel reads (checked above)
+
+
+def stroke_limits(ph: dict | Physical) -> dict[str, list[int]]:
+    """The node's stroke keys, per rope, in its um/256 from mid-stroke (x > 0: pulled out):
+    `stroke_lo_q8um` / `stroke_hi_q8um`, where the margin band starts at the retracted /
+    extended end (-stroke/2 + margin, stroke/2 - margin), and `travel_lo_q8um` /
+    `travel_hi_q8um`, beyond which a reading is the channel's fault (-+(stroke/2 + travel
+    tolerance)). Without `physical.stroke_m` all four are +-STROKE_OFF_Q8UM: no position is
+    ever in a band or beyond the travel (nothing checked)."""
+    p = as_physical(ph)
+    if p.stroke_m is None:
+        off = [STROKE_OFF_Q8UM] * p.ropes
+        return {"stroke_lo_q8um": [-x for x in off], "stroke_hi_q8um": off,
+                "travel_lo_q8um": [-x for x in off], "travel_hi_q8um": off}
+    margin, tol = p.stroke_margin, p.travel_tolerance
+    out = {"stroke_lo_q8um": [round((-s / 2 + margin) * 256e6) for s in p.stroke_m],
+           "stroke_hi_q8um": [round((s / 2 - margin) * 256e6) for s in p.stroke_m],
+           "travel_lo_q8um": [-round((s / 2 + tol) * 256e6) for s in p.stroke_m],
+           "travel_hi_q8um": [round((s / 2 + tol) * 256e6) for s in p.stroke_m]}
+    for key, values in out.items():
+        for i, v in enumerate(values):
+            _check(f"physical.stroke_m[{i}] ({key}, um/256)", v, I30)
+    return out
+
+
 def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, key: bytes = EXAMPLE_KEY) -> dict:
     """The integer node section for physical section `ph` and the node's id and key (raises
     ValueError naming the field)."""
@@ -449,6 +475,7 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
         displacement.append({"counts_lo": clo, "fault_lo_counts": flo, "fault_hi_counts": fhi,
                              "q8um_at_lo": round(lo * 256e6), "q8um_mul": dm, "q8um_shift": ds})
     nd["displacement"] = displacement
+    nd.update(stroke_limits(p))
 
     v_max = pp["v_max"]
     dx_max = round(v_max / fs * 256e6)
@@ -676,6 +703,8 @@ def example_physical() -> dict:
       per rope = 5.9 MPa; rated rope tension 100 kN (12.7 MPa).
     - 4-20 mA transmitters, 0-25 MPa and +-50 mm, read by ADS1115 across 150 ohm
       shunts: 4 mA = 9600 counts, 20 mA = 48000 counts (docs/model.md, ADC front end).
+    - stroke 100 mm (end stops at +-50 mm, the transmitters' span), stroke-limit margin
+      10 mm, travel tolerance 5 mm.
     - LuGre seal: Fs = 1.5 kN + 1.0 kN/MPa (7.4 kN at 5.9 MPa, which holds the
       pithead reading ~16 % low), Fc = 1.0 kN + 0.6 kN/MPa, vs = 2 mm/s falling
       0.04 mm/s per MPa, sigma2 = 20 + 2 kN s/m per MPa, sigma0 = 2e7 N/m
@@ -700,6 +729,11 @@ def example_physical() -> dict:
         "adc_bits": 16,
         "pressure_channels": [dict(chan_p) for _ in range(4)],
         "displacement_channels": [dict(chan_x) for _ in range(4)],
+        # the 100 mm the +-50 mm transmitters span: end stops at +-50 mm, the stroke-limit
+        # band within 10 mm of each
+        "stroke_m": [0.1] * 4,
+        "stroke_margin_m": 0.01,
+        "travel_tolerance_m": 0.005,
         "speed_m_per_pulse": 0.01,
         "hall_marks_m": [5.0, 200.0, 400.0, 600.0, 805.0],
         "battery_V_per_count": 2e-4,

@@ -33,6 +33,12 @@ VALVE_TYPES = ("ball", "gate", "globe", "plug", "butterfly", "check-swing", "che
 # Per-channel limits the node can represent (the stream words are u16).
 _U16_MAX = 0xFFFF
 
+# The stroke's defaults (docs/config.md): the margin band within this of either end stop,
+# and how far beyond an end stop a displacement reading is still believed (beyond: the
+# channel's fault, never a stroke limit).
+STROKE_MARGIN_M = 0.01
+TRAVEL_TOLERANCE_M = 0.005
+
 
 class SiteError(ValueError):
     """A site file that cannot be used; the message names the field and the reason."""
@@ -82,8 +88,9 @@ class Alarms:
 class Cylinder:
     bore_m: float
     area_m2: float             # rod-less piston area (pi bore^2 / 4 unless given)
-    stroke_m: float
+    stroke_m: float            # end stops at +-stroke_m/2 from mid-stroke
     max_speed_m_s: float       # largest piston speed the loss table must cover
+    stroke_margin_m: float = STROKE_MARGIN_M  # the stroke-limit band: within this of either end stop
 
 
 @dataclass(frozen=True)
@@ -141,7 +148,14 @@ class PressureChannel:
 class DisplacementChannel:
     counts_lo: int
     counts_hi: int
-    range_m: tuple[float, float]
+    range_m: tuple[float, float]   # the transmitter's reading at counts_lo and counts_hi
+    zero_m: float = 0.0            # its reading with the piston at mid-stroke
+    travel_tolerance_m: float = TRAVEL_TOLERANCE_M  # a reading beyond +-(stroke/2 + this): the channel's fault
+
+    @property
+    def range_from_mid_m(self) -> tuple[float, float]:
+        """range_m from mid-stroke (x > 0: piston pulled out), as node.json's `physical` holds it."""
+        return (self.range_m[0] - self.zero_m, self.range_m[1] - self.zero_m)
 
 
 @dataclass(frozen=True)
@@ -291,8 +305,13 @@ def _cylinder(t: _Table) -> Cylinder:
     area = t.number("area_m2", circle, gt=0)
     if area > circle * 1.0001:
         raise SiteError(f"{t.field('area_m2')}: must not exceed pi*bore^2/4 = {circle:.6g} m^2, got {area:g}")
-    c = Cylinder(bore_m=bore, area_m2=area, stroke_m=t.number("stroke_m", gt=0),
-                 max_speed_m_s=t.number("max_speed_m_s", gt=0, le=10))
+    stroke = t.number("stroke_m", gt=0, le=10.0)
+    margin = t.number("stroke_margin_m", STROKE_MARGIN_M, gt=0)
+    if not margin < stroke / 4:
+        raise SiteError(f"{t.field('stroke_margin_m')}: must be < stroke_m/4 = {stroke / 4:g} m (the margin bands "
+                        f"at both ends must leave half the stroke free), got {margin:g}")
+    c = Cylinder(bore_m=bore, area_m2=area, stroke_m=stroke,
+                 max_speed_m_s=t.number("max_speed_m_s", gt=0, le=10), stroke_margin_m=margin)
     t.finish()
     return c
 
@@ -411,8 +430,15 @@ def _pressure_channel(t: _Table, full: int) -> PressureChannel:
 
 
 def _displacement_channel(t: _Table, full: int, stroke_m: float) -> DisplacementChannel:
-    c = DisplacementChannel(counts_lo=_counts(t, "counts_lo", full), counts_hi=_counts(t, "counts_hi", full),
-                            range_m=_pair(t, "range_m"))
+    lo_hi = dict(counts_lo=_counts(t, "counts_lo", full), counts_hi=_counts(t, "counts_hi", full),
+                 range_m=_pair(t, "range_m"))
+    rng = lo_hi["range_m"]
+    zero = t.number("zero_m", 0.0)
+    if not min(rng) <= zero <= max(rng):
+        raise SiteError(f"{t.field('zero_m')}: the channel's reading at mid-stroke must be within its range_m "
+                        f"{rng[0]:g}..{rng[1]:g} m, got {zero:g}")
+    tol = t.number("travel_tolerance_m", TRAVEL_TOLERANCE_M, ge=0, le=stroke_m / 2)
+    c = DisplacementChannel(**lo_hi, zero_m=zero, travel_tolerance_m=tol)
     t.finish()
     if c.counts_hi == c.counts_lo:
         raise SiteError(f"{t.field('counts_hi')}: must differ from counts_lo")
@@ -422,12 +448,21 @@ def _displacement_channel(t: _Table, full: int, stroke_m: float) -> Displacement
     return c
 
 
+def _same_for_every_rope(values: list[float], name: str, what: str) -> None:
+    """The node holds one `what` for all ropes: refuse per-rope tables that give different ones."""
+    if any(v != values[0] for v in values):
+        raise SiteError(f"{name}: must be the same for every rope ({what}), got "
+                        f"{', '.join(f'{v:g}' for v in values)}")
+
+
 def _sensors(t: _Table, ropes: int, cylinders: tuple[Cylinder, ...]) -> Sensors:
     bits = t.integer("adc_bits", 16, lo=8, hi=16)
     full = (1 << bits) - 1
     pressure = tuple(_pressure_channel(c, full) for c in _per_rope(t, "pressure", ropes))
     displacement = tuple(_displacement_channel(c, full, cylinders[i].stroke_m)
                          for i, c in enumerate(_per_rope(t, "displacement", ropes)))
+    _same_for_every_rope([c.travel_tolerance_m for c in displacement], "sensors.displacement.travel_tolerance_m",
+                         "one travel tolerance")
     marks_raw = t.raw("hall_marks_m")
     name = t.field("hall_marks_m")
     if not isinstance(marks_raw, list) or not marks_raw:
@@ -499,6 +534,7 @@ def parse_site(doc: dict[str, Any], path: Path | str = "SITE.toml") -> Site:
     hoist = _hoist(top.table("hoist"))
     alarms = _alarms(top.table("alarms"))
     cylinders = tuple(_cylinder(t) for t in _per_rope(top, "cylinders", hoist.ropes))
+    _same_for_every_rope([c.stroke_margin_m for c in cylinders], "cylinders.stroke_margin_m", "one stroke margin")
     pipes = tuple(_pipe(t) for t in _per_rope(top, "pipes", hoist.ropes))
     oil = _oil(top.table("oil"))
     sensors = _sensors(top.table("sensors"), hoist.ropes, cylinders)
@@ -732,8 +768,12 @@ def physical_from_site(site: Site, friction: dict[str, Any] | None = None,
         "adc_bits": s.adc_bits,
         "pressure_channels": [{"counts_4mA": c.counts_4mA, "counts_20mA": c.counts_20mA,
                                "range_Pa": [c.range_MPa[0] * 1e6, c.range_MPa[1] * 1e6]} for c in s.pressure],
+        # range_m from mid-stroke: the transmitter's zero_m folded in (docs/config.md)
         "displacement_channels": [{"counts_lo": c.counts_lo, "counts_hi": c.counts_hi,
-                                   "range_m": [c.range_m[0], c.range_m[1]]} for c in s.displacement],
+                                   "range_m": list(c.range_from_mid_m)} for c in s.displacement],
+        "stroke_m": [c.stroke_m for c in site.cylinders],
+        "stroke_margin_m": site.cylinders[0].stroke_margin_m,
+        "travel_tolerance_m": s.displacement[0].travel_tolerance_m,
         "speed_m_per_pulse": s.speed_m_per_pulse,
         "hall_marks_m": list(s.hall_marks_m),
         "start_depth_m": site.hoist.start_depth_m,

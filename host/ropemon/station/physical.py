@@ -111,6 +111,12 @@ NODE_DEFAULTS: dict[str, Any] = {
 COMPLIANCE_DEFAULTS: dict[str, float] = {
     "friction_cutoff_hz": 0.03, "friction_warmup_s": 2.0, "friction_play_sigmas": 1.45,
     "rest_sigmas": 1.12, "rest_play_sigmas": 4.5, "noise_follow_s": 20.0}
+# The stroke (docs/config.md): end stops at +-stroke_m/2 from mid-stroke. With `stroke_m`
+# written, the node flags a piston within `stroke_margin_m` of an end (stroke_mask) and takes a
+# reading beyond +-(stroke_m/2 + travel_tolerance_m) for its displacement channel's fault;
+# these are the defaults of the two (`Physical.stroke_margin`, `Physical.travel_tolerance`).
+STROKE_DEFAULTS = {"stroke_margin_m": 0.01, "travel_tolerance_m": 0.005}
+STROKE_MAX_M = 10.0
 # the host's alarm settings when `physical` does not name them
 HOST_DEFAULTS = {"slack_frac": 0.60, "overload_frac": 1.0}
 
@@ -178,7 +184,9 @@ class PressureChannel:
 
 @dataclass(frozen=True)
 class DisplacementChannel:
-    """A piston position transmitter, linear in the ADC counts (x > 0: piston pulled out)."""
+    """A piston position transmitter, linear in the ADC counts (x > 0: piston pulled out).
+    range_m: the positions at counts_lo and counts_hi from mid-stroke (`ropemon config`
+    folds SITE.toml's zero_m, the transmitter's reading at mid-stroke, into it)."""
 
     counts_lo: int
     counts_hi: int
@@ -305,6 +313,10 @@ class Physical:
     friction_p_max_MPa: float | None = None
     pressure_step_max_Pa: float | None = None
     pressure_step_recover_s: float | None = None
+    # the stroke (STROKE_DEFAULTS): per rope, m; None: not known, no stroke limit checked
+    stroke_m: tuple[float, ...] | None = None
+    stroke_margin_m: float | None = None
+    travel_tolerance_m: float | None = None
     # host only (the node section and its CRC do not depend on them)
     friction_residual_frac: ResidualFrac | None = None
     conveyance_weight_N: float | None = None
@@ -337,6 +349,23 @@ class Physical:
         if self.has_compliance and key in COMPLIANCE_DEFAULTS:
             return COMPLIANCE_DEFAULTS[key]
         return NODE_DEFAULTS[key]
+
+    @property
+    def stroke_margin(self) -> float | None:
+        """The stroke-limit margin the node uses (m): as written, else its default; None
+        without a stroke."""
+        if self.stroke_m is None:
+            return None
+        return self.stroke_margin_m if self.stroke_margin_m is not None else STROKE_DEFAULTS["stroke_margin_m"]
+
+    @property
+    def travel_tolerance(self) -> float | None:
+        """How far beyond an end stop a displacement reading is still believed (m); None
+        without a stroke."""
+        if self.stroke_m is None:
+            return None
+        return (self.travel_tolerance_m if self.travel_tolerance_m is not None
+                else STROKE_DEFAULTS["travel_tolerance_m"])
 
     @property
     def sensor_p_max_Pa(self) -> float:
@@ -477,6 +506,27 @@ def _loss(t: tomlfields.Table, ropes: int) -> LossTable:
     return LossTable(temps, flows, tuple(dp))
 
 
+def _stroke(t: tomlfields.Table, kw: dict[str, Any], n: int) -> None:
+    """stroke_m (per rope), stroke_margin_m and travel_tolerance_m into `kw`, checked: the
+    margin bands at both ends leave half the shortest stroke free; the tolerance within
+    half of it. A margin or tolerance without a stroke is refused (it would do nothing)."""
+    if t.raw("stroke_m", None) is not None:
+        kw["stroke_m"] = _numbers(t, "stroke_m", n, what="strokes in m, one per rope", gt=0, le=STROKE_MAX_M)
+    stroke = kw.get("stroke_m")
+    for key in STROKE_DEFAULTS:
+        if t.raw(key, None) is not None and stroke is None:
+            raise PhysicalError(f"{t.field(key)}: needs stroke_m (the cylinders' stroke, one per rope)")
+    if stroke is None:
+        return
+    if t.raw("stroke_margin_m", None) is not None:
+        kw["stroke_margin_m"] = t.number("stroke_margin_m", gt=0, lt=min(stroke) / 4)
+    elif not STROKE_DEFAULTS["stroke_margin_m"] < min(stroke) / 4:
+        raise PhysicalError(f"{t.field('stroke_margin_m')}: the default {STROKE_DEFAULTS['stroke_margin_m']:g} m is "
+                            f"not below stroke_m/4 = {min(stroke) / 4:g} m here; give a value")
+    if t.raw("travel_tolerance_m", None) is not None:
+        kw["travel_tolerance_m"] = t.number("travel_tolerance_m", ge=0, le=min(stroke) / 2)
+
+
 def _limit(bound: float | str, kw: dict[str, Any]) -> float:
     if not isinstance(bound, str):
         return bound
@@ -545,6 +595,7 @@ def _parse(d: Any, where: str) -> Physical:
                                     "here; give a value")
     if t.has("slide_follow"):
         kw["slide_follow"] = t.boolean("slide_follow")
+    _stroke(t, kw, n)
 
     def eff(key: str) -> Any:
         v = kw.get(key)
@@ -695,6 +746,8 @@ class SiteFigures:
     slack_frac: float = HOST_DEFAULTS["slack_frac"]        # slack below this share of a rope's part of conveyance_weight_n
     overload_frac: float = HOST_DEFAULTS["overload_frac"]  # overload above this share of rated_load_n
     band: BandParams | None = None           # the seal's friction lines: each rope's band (ropemon.station.uncertainty)
+    stroke_m: list[float] = field(default_factory=list)  # per rope, end stops at +-stroke/2; empty: unknown
+    stroke_margin_m: float | None = None     # the stroke-limit band within this of an end; None: no stroke
 
     @classmethod
     def from_physical(cls, p: Physical) -> "SiteFigures":
@@ -709,6 +762,8 @@ class SiteFigures:
             slack_frac=p.slack_frac if p.slack_frac is not None else HOST_DEFAULTS["slack_frac"],
             overload_frac=p.overload_frac if p.overload_frac is not None else HOST_DEFAULTS["overload_frac"],
             band=p.band(),
+            stroke_m=list(p.stroke_m or ()),
+            stroke_margin_m=p.stroke_margin,
         )
 
     @classmethod
