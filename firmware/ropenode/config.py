@@ -106,7 +106,8 @@ q8um_shift 0 30
 _LIMIT = 1 << 29
 _STROKE = (("travel_lo_q8um", -_LIMIT), ("stroke_lo_q8um", -_LIMIT), ("stroke_hi_q8um", _LIMIT),
            ("travel_hi_q8um", _LIMIT))
-# A position the node holds: within this at both fault limits of its channel (um/256, 131 mm).
+# A position the node holds: below this in size at both fault limits of its channel (um/256,
+# 131 mm), so a stroke or travel limit at +-this is never reached.
 POSITION_MAX_Q8UM = 1 << 25
 # Friction parameters linear in sensor pressure, {at_0, slope_mul, slope_shift}:
 # key, lo and hi of at_0, lo over 0..p_kpa_max; each becomes the attribute `key` = (at0, mul, shift).
@@ -344,7 +345,7 @@ def parse_node(nd):
         for j in (1, 2):  # the positions at both fault limits bound every position the node holds
             _range("node.displacement[%d].q8um_mul" % i, dc[b + 3] + (((dc[b + j] - dc[b]) * dc[b + 4])
                                                                      >> dc[b + 5]),
-                   -POSITION_MAX_Q8UM, POSITION_MAX_Q8UM)
+                   1 - POSITION_MAX_Q8UM, POSITION_MAX_Q8UM - 1)
     for key, default in _STROKE:
         v = nd.get(key, default)
         if type(v) is int:

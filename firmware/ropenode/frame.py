@@ -1,8 +1,8 @@
 """Frame packing: layout.py fields -> truncated HMAC-SHA256 -> CRC-32 -> 0x00 + COBS + 0x00.
 
 docs/protocol.md is the spec. The HMAC key blocks (key XOR ipad/opad) are
-built once per key; each frame costs two SHA-256 runs over at most 64 + 56
-bytes, and the CRC-32 over 60 (`ropenode.crc32`: 16-bit halves, allocation-free).
+built once per key; each frame costs two SHA-256 runs over at most 64 + 65
+bytes, and the CRC-32 over 69 (`ropenode.crc32`: 16-bit halves, allocation-free).
 Called once per frame window, never per sample.
 """
 import hashlib
@@ -44,9 +44,10 @@ class FrameWriter:
         self.raw_mv = memoryview(self.raw)
 
     def pack(self, kind, fault_mask, seq, time_ms, status, ropes, depth_mm, speed_mm_s,
-             battery_mv, oil_temp_cc):
-        """Fill header, rope records (`ropes` is a list of (mean, min, max, raw_kpa)
-        or None for none) and tail; return the length before MAC and CRC.
+             battery_mv, oil_temp_cc, stroke_mask=0):
+        """Fill header, rope records (`ropes` is a list of (mean, min, max, raw_kpa,
+        pos_01mm) or None for none) and tail; return the length before MAC and CRC.
+        Layout `layout.VERSION` (3) only: the node sends no other.
 
         `seq` and `time_ms` are (low, high) 16-bit halves of the u32 fields."""
         raw = self.raw
@@ -55,9 +56,10 @@ class FrameWriter:
         o = layout.HEADER_LEN
         if ropes:
             for r in ropes:
-                struct.pack_into(layout.ROPE_FMT, raw, o, r[0], r[1], r[2], r[3])
+                struct.pack_into(layout.ROPE_FMT, raw, o, r[0], r[1], r[2], r[3], r[4])
                 o += layout.ROPE_LEN
-        struct.pack_into(layout.TAIL_FMT, raw, o, depth_mm, speed_mm_s, battery_mv, oil_temp_cc)
+        struct.pack_into(layout.TAIL_FMT, raw, o, depth_mm, speed_mm_s, battery_mv, oil_temp_cc,
+                         stroke_mask)
         return o + layout.TAIL_LEN
 
     def seal_into(self, n, wire):

@@ -4,7 +4,8 @@
     S = state(cfg)          # state and per-sample outputs: array('i')
     closed = step(S, P, rec, n)   # 1 when a frame window just closed
 
-`step` does, for n ropes: NAMUR and pressure-step checks and calibration (channels), filtered
+`step` does, for n ropes: NAMUR and pressure-step checks and calibration (channels), the
+positions' travel check and stroke margins, filtered
 velocity, pipe-loss table, noise-robust LuGre friction, tension, window
 statistics; then oil temperature, depth/speed from the pulse counter and Hall
 marks, node time, and at the end of a frame window the frame's fields (OUT_*).
@@ -101,8 +102,9 @@ _PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n heal
 _RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
 _RTH = const(_RPLAYS + ROPES_MAX)  # activity below which a rope is quiet, um/65536 (0: no rest hold)
 _PCAL = const(_RTH + ROPES_MAX)  # 10 ints per rope (config.py order)
-_DCAL = const(_PCAL + 10 * ROPES_MAX)    # 6 ints per rope
-_GEXP = const(_DCAL + 6 * ROPES_MAX)     # exp(-u^2), Q14
+_DCAL = const(_PCAL + 10 * ROPES_MAX)    # 10 ints per rope: the channel's 6 (config.py order), then
+# travel_lo, stroke_lo, stroke_hi, travel_hi (um/256)
+_GEXP = const(_DCAL + 10 * ROPES_MAX)    # exp(-u^2), Q14
 _TEMPS = const(_GEXP + GEXP_POINTS)      # loss table temperatures, centi-degC
 _VBP = const(_TEMPS + TEMPS_MAX)         # loss velocity points, then forces, then marks
 
@@ -187,13 +189,19 @@ _PPREV = const(195)    # per rope: the pressure channel's last count within NAMU
 _PBAD = const(199)     # per rope: samples of plausible steps still needed after an implausible one
 _TOREM = const(203)    # per rope: error-feedback remainder of the take-over, um/256 / 256
 _TRREM = const(207)    # per rope: that of its slide-following share
-_S_LEN = const(211)
+_XSUM = const(211)     # per rope: the window's sum of the healthy positions, um (rounded)
+_XCNT = const(215)     # per rope: the window's samples with a healthy displacement
+_WSTROKE = const(219)  # the window's stroke mask (OR over its samples)
+OUT_POS = const(220)   # the closed window, per rope: mean position, 0.1 mm, or POS_ABSENT
+OUT_STROKE = const(224)  # its stroke mask: bit i at the low (retracted) end, 4+i at the high
+_S_LEN = const(225)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)  # counter glitch, or a Hall mark with no pulses
 TENSION_ABSENT = const(-32768)  # layout.TENSION_ABSENT
 RAW_KPA_ABSENT = const(0xFFFF)  # layout.RAW_KPA_ABSENT
+POS_ABSENT = const(-32768)      # layout.POS_ABSENT
 
 
 def pack(c):
@@ -216,11 +224,17 @@ def pack(c):
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS),
-                     (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP),
+                     (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.gexp_q14, _GEXP),
                      (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]),
                      (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
             p[off + j] = src[j]
+    lims = (c.travel_lo_q8um, c.stroke_lo_q8um, c.stroke_hi_q8um, c.travel_hi_q8um)
+    for i in range(n):
+        for j in range(6):
+            p[_DCAL + 10 * i + j] = c.displacement[6 * i + j]
+        for j in range(4):
+            p[_DCAL + 10 * i + 6 + j] = lims[j][i]
     return p
 
 
@@ -270,13 +284,26 @@ def step(S, P, rec, n):
                 S[P_KPA16 + i] = (P[b + 3] << 4) + ((d * P[b + 4]) >> (P[b + 5] - 4))  # kpa_shift >= 4
                 S[RAW_N + i] = P[b + 6] + ((d * P[b + 7]) >> P[b + 8])
                 seen |= 1 << i
+        # the position: beyond the cylinder's travel it is a displacement fault (as outside
+        # its counts' limits: held, never a stroke bit); healthy, it enters the window's
+        # stroke mask and its mean (um, rounded: |x| < 2**17 um, so a window's sum < 2**28)
         c = rec[n + i]
-        b = _DCAL + 6 * i
+        b = _DCAL + 10 * i
         if c < P[b + 1] or c > P[b + 2]:
             mask |= 16 << i
         else:
-            S[X_Q8UM + i] = P[b + 3] + (((c - P[b]) * P[b + 4]) >> P[b + 5])
-            seen |= 16 << i
+            d = P[b + 3] + (((c - P[b]) * P[b + 4]) >> P[b + 5])
+            if d < P[b + 6] or d > P[b + 9]:
+                mask |= 16 << i
+            else:
+                S[X_Q8UM + i] = d
+                seen |= 16 << i
+                if d <= P[b + 7]:
+                    S[_WSTROKE] |= 1 << i
+                elif d >= P[b + 8]:
+                    S[_WSTROKE] |= 16 << i
+                S[_XSUM + i] += (d + 128) >> 8
+                S[_XCNT + i] += 1
     S[SEEN] = seen
     S[FAULTS] = mask
     allb = (1 << n) - 1
@@ -968,6 +995,19 @@ def step(S, P, rec, n):
         S[COUNT + i] = 0
         S[MIN_N + i] = _BIG
         S[MAX_N + i] = -_BIG
+        # the mean position, um -> 0.1 mm rounded as the tensions are, clamped to int16
+        # (not POS_ABSENT); POS_ABSENT without a healthy displacement sample
+        c = S[_XCNT + i]
+        t = POS_ABSENT
+        if c != 0:
+            t = (S[_XSUM + i] + 50 * c) // (100 * c)
+            if t > 32767:
+                t = 32767
+            elif t < -32767:
+                t = -32767
+        S[OUT_POS + i] = t
+        S[_XSUM + i] = 0
+        S[_XCNT + i] = 0
     flags = 0
     if used > 1 and tot > 0:
         lim = P[_IMB]
@@ -1005,6 +1045,8 @@ def step(S, P, rec, n):
     S[OUT_FLAGS] = flags
     S[OUT_FAULTS] = S[WFAULTS]
     S[WFAULTS] = 0
+    S[OUT_STROKE] = S[_WSTROKE]
+    S[_WSTROKE] = 0
     S[OUT_TEMP_CC] = S[TEMP_CC]
     S[OUT_SEC] = S[SEC]
     S[OUT_SUB] = S[SUB]

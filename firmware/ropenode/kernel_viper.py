@@ -78,7 +78,7 @@ _RPLAYS = const(_PLAYS + ROPES_MAX)
 _RTH = const(_RPLAYS + ROPES_MAX)
 _PCAL = const(_RTH + ROPES_MAX)
 _DCAL = const(_PCAL + 10 * ROPES_MAX)
-_GEXP = const(_DCAL + 6 * ROPES_MAX)
+_GEXP = const(_DCAL + 10 * ROPES_MAX)
 _TEMPS = const(_GEXP + GEXP_POINTS)
 _VBP = const(_TEMPS + TEMPS_MAX)
 SEEN = const(0)
@@ -161,12 +161,18 @@ _PPREV = const(195)
 _PBAD = const(199)
 _TOREM = const(203)
 _TRREM = const(207)
-_S_LEN = const(211)
+_XSUM = const(211)
+_XCNT = const(215)
+_WSTROKE = const(219)
+OUT_POS = const(220)
+OUT_STROKE = const(224)
+_S_LEN = const(225)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
 TENSION_ABSENT = const(-32768)
 RAW_KPA_ABSENT = const(65535)
+POS_ABSENT = const(-32768)
 
 def pack(c):
     """The config array P from a validated config.Config."""
@@ -178,9 +184,15 @@ def pack(c):
     head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift, c.slide_lo_q8um, c.slide_span_q8um, c.step_recover)
     for j in range(len(head)):
         p[j] = head[j]
-    for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.displacement, _DCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
+    for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
             p[off + j] = src[j]
+    lims = (c.travel_lo_q8um, c.stroke_lo_q8um, c.stroke_hi_q8um, c.travel_hi_q8um)
+    for i in range(n):
+        for j in range(6):
+            p[_DCAL + 10 * i + j] = c.displacement[6 * i + j]
+        for j in range(4):
+            p[_DCAL + 10 * i + 6 + j] = lims[j][i]
     return p
 
 def state(c):
@@ -228,12 +240,22 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
                 S[RAW_N + i] = (P[b + 6] ^ s31) - s31 + (d * ((P[b + 7] ^ s31) - s31) >> (P[b + 8] ^ s31) - s31)
                 seen |= 1 << i
         c = rec[n + i]
-        b = _DCAL + 6 * i
+        b = _DCAL + 10 * i
         if c < (P[b + 1] ^ s31) - s31 or c > (P[b + 2] ^ s31) - s31:
             mask |= 16 << i
         else:
-            S[X_Q8UM + i] = (P[b + 3] ^ s31) - s31 + ((c - ((P[b] ^ s31) - s31)) * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31)
-            seen |= 16 << i
+            d = (P[b + 3] ^ s31) - s31 + ((c - ((P[b] ^ s31) - s31)) * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31)
+            if d < (P[b + 6] ^ s31) - s31 or d > (P[b + 9] ^ s31) - s31:
+                mask |= 16 << i
+            else:
+                S[X_Q8UM + i] = d
+                seen |= 16 << i
+                if d <= (P[b + 7] ^ s31) - s31:
+                    S[_WSTROKE] |= 1 << i
+                elif d >= (P[b + 8] ^ s31) - s31:
+                    S[_WSTROKE] |= 16 << i
+                S[_XSUM + i] += d + 128 >> 8
+                S[_XCNT + i] += 1
     S[SEEN] = seen
     S[FAULTS] = mask
     allb = (1 << n) - 1
@@ -835,6 +857,17 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
         S[COUNT + i] = 0
         S[MIN_N + i] = _BIG
         S[MAX_N + i] = -_BIG
+        c = (S[_XCNT + i] ^ s31) - s31
+        t = POS_ABSENT
+        if c != 0:
+            t = ((S[_XSUM + i] ^ s31) - s31 + 50 * c) // (100 * c)
+            if t > 32767:
+                t = 32767
+            elif t < -32767:
+                t = -32767
+        S[OUT_POS + i] = t
+        S[_XSUM + i] = 0
+        S[_XCNT + i] = 0
     flags = 0
     if used > 1 and tot > 0:
         lim = (P[_IMB] ^ s31) - s31
@@ -869,6 +902,8 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
     S[OUT_FLAGS] = flags
     S[OUT_FAULTS] = (S[WFAULTS] ^ s31) - s31
     S[WFAULTS] = 0
+    S[OUT_STROKE] = (S[_WSTROKE] ^ s31) - s31
+    S[_WSTROKE] = 0
     S[OUT_TEMP_CC] = (S[TEMP_CC] ^ s31) - s31
     S[OUT_SEC] = (S[SEC] ^ s31) - s31
     S[OUT_SUB] = (S[SUB] ^ s31) - s31

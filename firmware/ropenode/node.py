@@ -121,8 +121,9 @@ class Node:
         else:
             S = self.S
             o = K.OUT_ROPES
-            ropes = [(S[o + 4 * i], S[o + 4 * i + 1], S[o + 4 * i + 2], S[o + 4 * i + 3])
+            ropes = [(S[o + 4 * i], S[o + 4 * i + 1], S[o + 4 * i + 2], S[o + 4 * i + 3], S[K.OUT_POS + i])
                      for i in range(self.n)]
+            stroke = S[K.OUT_STROKE]
             f = S[K.OUT_FAULTS]
             flags = S[K.OUT_FLAGS]
             t = S[K.OUT_TEMP_CC]
@@ -138,11 +139,13 @@ class Node:
                 status |= layout.ST_SPEED_FAULT
             if t == layout.OIL_TEMP_ABSENT:
                 status |= layout.ST_TEMP_ABSENT
+            if stroke:
+                status |= layout.ST_STROKE_LIMIT
             r = S[K.NOISE_Q10] - 1024
             if self.follows_noise and (r > layout.NOISE_TOL_Q10 or r < -layout.NOISE_TOL_Q10):
                 status |= layout.ST_NOISE_CHANGED
             n = wr.pack(layout.KIND_DATA, f, self.frame_seq.next(), self._time_ms(), status, ropes, S[K.OUT_DEPTH_MM],
-                        S[K.OUT_SPEED], S[K.OUT_BATT_MV], t)
+                        S[K.OUT_SPEED], S[K.OUT_BATT_MV], t, stroke)
         self.ready = False
         return wr.seal_into(n, buf)
 

@@ -39,11 +39,11 @@ def load_node_json():
 
 
 def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64, slide_span_q8um=1 << 20,
-                step_max_counts=None, step_recover=None):
+                step_max_counts=None, step_recover=None, stroke=False):
     """The shipped node.json changed (fewer ropes, an oil temperature input, the largest
     hydraulic compliance the node accepts with a warm-up, noise following from
     `noise_ref_q6`, slide following over `slide_span_q8um`, the pressure step check's
-    limit and recovery), CRC renewed."""
+    limit and recovery, the travel and stroke margins of `stroke_doc`), CRC renewed."""
     from ropenode.config import canonical
     from ropenode.crc16 import crc16
     doc = load_node_json()
@@ -58,6 +58,9 @@ def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64
         nd["friction"]["area_q8"] = nd["friction"]["area_q8"][:ropes]
         for key in ("play_q8um", "rest_play_q8um", "rest_q16um"):  # for 1..ropes healthy channels
             nd["friction"][key] = nd["friction"][key][:ropes]
+        for key in ("travel_lo_q8um", "stroke_lo_q8um", "stroke_hi_q8um", "travel_hi_q8um"):
+            if type(nd.get(key)) is list:
+                nd[key] = nd[key][:ropes]
     if compliance:
         # k = 1 um/kPa: k times 100 MPa is 0.1 m, the config check's limit; stroke tracking
         # at its extremes (the fastest low-passes, areas 0.5 and 1.5 of the mean, a stroke
@@ -85,6 +88,8 @@ def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64
             ch["step_max_counts"] = step_max_counts
     if step_recover is not None:
         nd["step_recover"] = step_recover
+    if stroke:
+        stroke_doc(nd)
     if temp_fitted:
         # 4-20 mA = 9600..48000 counts = -20..+80 C; loss table rows clamp at both ends
         nd["temperature"] = {"fitted": 1, "counts_at_0c": 17280, "cc_mul": 8533, "cc_shift": 15,
@@ -92,6 +97,19 @@ def variant_doc(ropes=None, temp_fitted=False, compliance=False, noise_ref_q6=64
                              "assumed_cc": nd["temperature"]["assumed_cc"]}
     doc["crc"] = crc16(canonical(nd))
     return doc
+
+
+def stroke_doc(nd):
+    """Travel limits and stroke margins in node section `nd`: travel +-45 mm, the margins from
+    +-40 mm (rope i's i mm further in): the streams' pistons (-52.5..57.5 mm between their
+    channels' fault limits) run into the margins and beyond the travel."""
+    q = 256000  # um/256 per mm
+    n = nd["ropes"]
+    nd["travel_lo_q8um"] = -45 * q
+    nd["stroke_lo_q8um"] = [(i - 40) * q for i in range(n)]
+    nd["stroke_hi_q8um"] = [(40 - i) * q for i in range(n)]
+    nd["travel_hi_q8um"] = 45 * q
+    return nd
 
 
 def build_node(doc=None):
@@ -285,6 +303,35 @@ def test_inputs_cover_faults_and_rails():
     assert len(set(words)) > SAMPLES // 4
 
 
+def test_stroke_variant_reaches_the_margins_and_beyond_the_travel():
+    """The stroke variant's streams take every rope into both margins and beyond its travel
+    (so the allocation, range and viper checks run those branches)."""
+    from ropenode.node import K
+    node, ropes, chans = build_node(variant_doc(stroke=True))
+    recs = hot_path_records(ropes, chans, SAMPLES)
+    w = 2 * ropes + 4
+    rec = array.array("H", bytes(2 * w))
+    strokes = 0
+    travel = 0
+    positions = 0
+    for k in range(SAMPLES):
+        rec[:] = recs[k * w:(k + 1) * w]
+        in_counts = 0
+        for i in range(ropes):
+            if chans[i][4] <= rec[ropes + i] <= chans[i][5]:
+                in_counts |= 16 << i
+        if node.sample(rec):
+            strokes |= node.S[K.OUT_STROKE]
+            for i in range(ropes):
+                if node.S[K.OUT_POS + i] != -32768:
+                    positions |= 1 << i
+        travel |= node.S[K.FAULTS] & in_counts  # faulted with its counts within their limits
+    full = (1 << ropes) - 1
+    assert strokes == full | (full << 4), strokes
+    assert travel == full << 4, travel
+    assert positions == full
+
+
 def test_sample_is_allocation_free_over_1000_samples():
     node, ropes, chans = build_node()
     recs = hot_path_records(ropes, chans, SAMPLES)
@@ -309,8 +356,8 @@ def test_sample_allocation_free_with_temperature_input_and_one_rope():
     (loss-table rows re-selected as the temperature moves), N = 1, and a hydraulic
     compliance with its warm-up (the LuGre position from pressure)."""
     for fitted, doc in ((True, variant_doc(temp_fitted=True)), (True, variant_doc(ropes=1, temp_fitted=True)),
-                        (False, variant_doc(ropes=3)), (False, variant_doc(compliance=True)),
-                        (False, variant_doc(compliance=True, step_max_counts=0)),
+                        (False, variant_doc(ropes=3, stroke=True)), (False, variant_doc(compliance=True)),
+                        (False, variant_doc(compliance=True, step_max_counts=0, stroke=True)),
                         (False, variant_doc(compliance=True, step_max_counts=20000, step_recover=2))):
         node, ropes, chans = build_node(doc)
         recs = hot_path_records(ropes, chans, 1200, seed=ropes)

@@ -42,17 +42,37 @@ class Rand:
         return s & 0xFF
 
 
-def test_good_vectors_pack_exactly():
+def _vectors(version):
+    """The good vectors of layout `version`: "good" holds version 3 (what the node sends),
+    "good_v2" version 2 (what an older node sends)."""
     vec = load_json("tests/vectors/frames.json")
     assert vec["layout_version"] == layout.VERSION
-    assert len(vec["good"]) >= 3
-    for v in vec["good"]:
+    out = [v for v in vec["good"] + vec.get("good_v2", []) if v["fields"]["version"] == version]
+    assert [v["fields"]["version"] for v in vec["good"]] == [layout.VERSION] * len(vec["good"])
+    return out
+
+
+def test_vectors_hold_both_versions_the_host_decodes():
+    v3 = _vectors(3)
+    v2 = _vectors(2)
+    assert layout.VERSION == 3 and layout.VERSIONS == (2, 3)
+    assert len(v3) >= 3 and len(v2) >= 1
+    pos = [r[4] for v in v3 for r in v["fields"]["ropes"]]
+    assert layout.POS_ABSENT in pos and len(set(pos)) > 2  # absent and present positions
+    masks = [v["fields"]["stroke_mask"] for v in v3]
+    assert 0 in masks and any(m & 0x0F for m in masks) and any(m & 0xF0 for m in masks)
+
+
+def test_good_vectors_pack_exactly():
+    vectors = _vectors(layout.VERSION)
+    assert len(vectors) >= 3
+    for v in vectors:
         f = v["fields"]
         w = FrameWriter(f["node"], unhex(v["key_hex"]))
         n = w.pack(f["kind"], f["fault_mask"], (f["seq"] & 0xFFFF, f["seq"] >> 16),
                    (f["time_ms"] & 0xFFFF, f["time_ms"] >> 16), f["status"],
                    f["ropes"] or None, f["depth_mm"], f["speed_mm_s"], f["battery_mv"],
-                   f["oil_temp_cc"])
+                   f["oil_temp_cc"], f["stroke_mask"])
         wire = bytearray(layout.MAX_WIRE_LEN)
         m = w.seal_into(n, wire)
         raw = unhex(v["raw_hex"])
@@ -62,6 +82,31 @@ def test_good_vectors_pack_exactly():
         assert crc32_of(raw[:-4]) == struct.unpack("<I", raw[-4:])[0], v["name"]
         if lib_crc32 is not None:
             assert lib_crc32(raw[:-4]) == struct.unpack("<I", raw[-4:])[0], v["name"]
+
+
+def test_version_2_vectors_follow_the_v2_layout():
+    """The node sends no version 2 frame; the host's (an older node's) are the V2_* layout:
+    lengths, fields, MAC and CRC-32 as layout.py says."""
+    vectors = _vectors(2)
+    assert vectors
+    for v in vectors:
+        f = v["fields"]
+        raw = unhex(v["raw_hex"])
+        n = len(f["ropes"])
+        assert len(raw) == layout.frame_len(n, 2) and layout.ropes_in(len(raw), 2) == n, v["name"]
+        assert layout.ropes_in(len(raw), 3) != n, v["name"]
+        assert raw[0] == 2 and raw[3] == f["fault_mask"] and raw[2] == f["node"]
+        o = layout.HEADER_LEN
+        for r in f["ropes"]:
+            assert struct.unpack_from(layout.V2_ROPE_FMT, raw, o) == tuple(r[:4]), v["name"]
+            o += layout.V2_ROPE_LEN
+        assert struct.unpack_from(layout.V2_TAIL_FMT, raw, o) == (
+            f["depth_mm"], f["speed_mm_s"], f["battery_mv"], f["oil_temp_cc"]), v["name"]
+        o += layout.V2_TAIL_LEN
+        assert raw[o:o + layout.MAC_LEN] == Hmac(unhex(v["key_hex"])).digest(raw[:o])[:layout.MAC_LEN]
+        assert crc32_of(raw[:-4]) == struct.unpack("<I", raw[-4:])[0], v["name"]
+        wire = unhex(v["wire_hex"])
+        assert frame_raw(wire, len(wire)) == raw, v["name"]
 
 
 def test_crc32_check_value():
@@ -108,14 +153,19 @@ def test_hmac_long_key_rfc4231_case_6():
 
 def test_cobs_round_trip_and_crc_trailer():
     w = FrameWriter(7, bytes(range(16)))
-    ropes = [(0, -1, 32767, 0), (-32768, 0, 0, 65535), (1, 256, 0, 0), (0, 0, 0, 0)]
-    n = w.pack(layout.KIND_DATA, 0, (0, 0), (0, 0), 0, ropes, 0, 0, 0, 0)
+    ropes = [(0, -1, 32767, 0, 0), (-32768, 0, 0, 65535, -32768), (1, 256, 0, 0, 32767), (0, 0, 0, 0, -1)]
+    n = w.pack(layout.KIND_DATA, 0, (0, 0), (0, 0), 0, ropes, 0, 0, 0, 0, 0x81)
     wire = bytearray(layout.MAX_WIRE_LEN)
     m = w.seal_into(n, wire)
-    assert m == layout.MAX_WIRE_LEN and wire[0] == 0 and wire[m - 1] == 0  # 0x00 before and after
+    assert m == layout.MAX_WIRE_LEN == 76 and wire[0] == 0 and wire[m - 1] == 0  # 0x00 before and after
     assert all(b != 0 for b in wire[1:m - 1])
     raw = frame_raw(wire, m)  # checks the CRC-32 too
-    assert len(raw) == layout.frame_len(4) == 64
+    assert len(raw) == layout.frame_len(4) == 73 and layout.ropes_in(73) == 4
+    assert raw[0] == 3 and raw[n - 1] == 0x81  # the version, and the stroke mask last in the tail
+    o = layout.HEADER_LEN
+    for r in ropes:
+        assert struct.unpack_from(layout.ROPE_FMT, raw, o) == r
+        o += layout.ROPE_LEN
     assert raw[:len(raw) - layout.MAC_LEN - layout.CRC_LEN] == bytes(w.raw[:n])
 
 

@@ -189,8 +189,9 @@ def run_armed(monitor: RangeMonitor, seeds=(1, 7, 99), count=1600) -> int:
     from ropenode import layout
     from ropenode.node import K
     runs = [(None, seed) for seed in seeds] + [
-        (test_alloc.variant_doc(temp_fitted=True), 5), (test_alloc.variant_doc(ropes=1, temp_fitted=True), 6),
-        (test_alloc.variant_doc(compliance=True), 8), (test_alloc.variant_doc(compliance=True, noise_ref_q6=1 << 18, slide_span_q8um=1), 9)]
+        (test_alloc.variant_doc(temp_fitted=True, stroke=True), 5), (test_alloc.variant_doc(ropes=1, temp_fitted=True), 6),
+        (test_alloc.variant_doc(compliance=True), 8),
+        (test_alloc.variant_doc(compliance=True, noise_ref_q6=1 << 18, slide_span_q8um=1, stroke=True), 9)]
     done = 0
     for doc, seed in runs:
         node, ropes, chans = test_alloc.build_node(doc)
@@ -229,6 +230,46 @@ def test_hot_path_intermediates_stay_within_small_int_range():
     assert any("crc32.py" in loc for loc in monitor.peak)  # frames were sealed under the check: CRC-32 too
     worst = max(monitor.peak.items(), key=lambda kv: kv[1])
     print(f"largest hot-path intermediate: {worst[1]} ({worst[1].bit_length()} bits) at {worst[0]}")
+
+
+def test_position_sums_of_the_longest_window_stay_small():
+    """The longest window config.py allows (1000 samples: sample_hz 1000, frame_hz 1), every
+    piston held at the largest position a config can give (its channel's fault limit moved
+    to within 2**25 um/256, each sign): the window's position sum (about 2**27) and its
+    mean stay within +-2**30, and the mean is that position in 0.1 mm."""
+    import array
+
+    kernel_src = (Path(__file__).parents[2] / "firmware" / "ropenode" / "kernel.py").read_text()
+    line = next(k + 1 for k, t in enumerate(kernel_src.splitlines()) if "S[_XSUM + i] +=" in t)
+    with instrumented_firmware() as monitor:
+        import test_alloc
+        from ropenode.config import parse_node
+        from ropenode.node import K, Node
+        for sign in (1, -1):
+            nd = test_alloc.load_node_json()["node"]
+            nd.update(sample_hz=1000, frame_hz=1)
+            nd["shaft"].update(max_pulses_per_sample=1, mm_per_pulse_q16=500000)
+            for ch in nd["displacement"]:
+                j = "fault_hi_counts" if sign > 0 else "fault_lo_counts"
+                x = ch["q8um_at_lo"] + (((ch[j] - ch["counts_lo"]) * ch["q8um_mul"]) >> ch["q8um_shift"])
+                ch["q8um_at_lo"] += sign * ((1 << 25) - 1) - x
+            cfg = parse_node(nd)
+            node = Node(cfg)
+            assert node.window_len == 1000
+            d = cfg.displacement
+            rec = array.array("H", [30000] * 4 + [d[1 + (sign > 0)]] * 4 + [40000, 0xFFFF, 0, 0])
+            closed = 0
+            monitor.armed = True
+            try:
+                for _ in range(2000):
+                    closed += node.sample(rec)
+            finally:
+                monitor.armed = False
+            assert closed == 2
+            want = sign * round(((1 << 25) - 1) / 256 / 100)  # 0.1 mm
+            assert node.rope(K.OUT_POS) == [want] * 4, (node.rope(K.OUT_POS), want)
+    peak = max(v for loc, v in monitor.peak.items() if loc.startswith(f"firmware/ropenode/kernel.py:{line}:"))
+    assert 1 << 26 < peak < 1 << 28, peak
 
 
 def test_crc32_intermediates_stay_within_16_bits():

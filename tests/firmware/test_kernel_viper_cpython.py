@@ -102,8 +102,8 @@ def compare(doc, recs, ropes, tag):
 
 total = 0
 for doc, ropes_seed in ((None, 1), (T.variant_doc(temp_fitted=True), 5),
-                        (T.variant_doc(ropes=1, temp_fitted=True), 6), (T.variant_doc(ropes=3), 3),
-                        (T.variant_doc(compliance=True), 8)):
+                        (T.variant_doc(ropes=1, temp_fitted=True), 6), (T.variant_doc(ropes=3, stroke=True), 3),
+                        (T.variant_doc(compliance=True, stroke=True), 8)):
     node, ropes, chans = T.build_node(doc)
     w = 2 * ropes + 4
     recs = T.hot_path_records(ropes, chans, 2400, ropes_seed)

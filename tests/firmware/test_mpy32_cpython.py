@@ -282,6 +282,9 @@ def fuzz_config(seed: int, steps: int = 240) -> dict:
         nd["loss"][key] = nd["loss"][key][:ropes]
     for key in ("compliance_q", "area_q8", "play_q8um", "rest_play_q8um", "rest_q16um"):  # as test_alloc.variant_doc
         nd["friction"][key] = nd["friction"][key][:ropes]
+    for key, _ in config._STROKE:  # the travel and stroke limits, per rope (absent: off)
+        v = nd.get(key, _)
+        nd[key] = (v if type(v) is list else [v] * 4)[:ropes]
     slots = []  # (dict, key, lo, hi)
     for name, lo, hi in _table(config._FIELDS):
         sec, _, key = name.rpartition(".")
@@ -291,6 +294,8 @@ def fuzz_config(seed: int, steps: int = 240) -> dict:
     for chans, table in ((nd["pressure"], config._PRESSURE), (nd["displacement"], config._DISPLACEMENT)):
         for ch in chans:
             slots += [(ch, name, lo, hi) for name, lo, hi in _table(table)]
+    for key, _ in config._STROKE:
+        slots += [(nd[key], i, -config._LIMIT, config._LIMIT) for i in range(ropes)]
     for name, lo, hi, _ in _table(config._LINEAR):
         lin = nd["friction"][name]
         slots += [(lin, "at_0", lo, hi), (lin, "slope_mul", -(1 << 15), 1 << 15), (lin, "slope_shift", 0, 30)]

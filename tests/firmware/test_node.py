@@ -187,8 +187,9 @@ def test_steady_input_gives_steady_frames():
     # still piston: no flow, no friction: T = p A; mid counts -> 13.4 MPa * 7.854e-3 m^2
     pa = (MID - 9600) * 25e6 / 38400
     t_dan = pa * 0.00785398 / 10
-    for mean, lo, hi, kpa in ropes:
+    for mean, lo, hi, kpa, pos in ropes:
         assert lo == mean == hi and abs(mean - t_dan) <= 1, (mean, t_dan)
+        assert pos == 31  # mid counts: 3.125 mm from mid-stroke (docs/model.md), 0.1 mm rounded
         assert abs(kpa - pa / 1000) <= 1.5  # kPa are truncated
     assert [f[0][4] for f in frames] == list(range(10))
     assert tail[2] == 12000  # 60000 counts * 0.2 mV
@@ -203,7 +204,8 @@ def test_namur_fault_flags_and_excludes_the_rope():
         frames = _run(node, rec, 20)
         h, ropes, tail = frames[0]
         assert h[3] == 0x02 and h[6] & layout.ST_PRESSURE_FAULT
-        assert ropes[1] == (layout.TENSION_ABSENT,) * 3 + (layout.RAW_KPA_ABSENT,)
+        assert ropes[1][:4] == (layout.TENSION_ABSENT,) * 3 + (layout.RAW_KPA_ABSENT,)
+        assert ropes[1][4] == 31  # its position is still seen
         assert ropes[0][0] == ropes[2][0] == ropes[3][0] != layout.TENSION_ABSENT
         assert node.S[K.GOOD] == 0b1101
     rec[1] = 8640  # 3.6 mA exactly is still a signal
@@ -218,6 +220,155 @@ def test_displacement_fault_flags_the_rope():
     h, ropes, tail = _run(node, rec, 20)[0]
     assert h[3] == 0x80 and h[6] & layout.ST_DISPLACEMENT_FAULT
     assert ropes[3][0] == layout.TENSION_ABSENT
+    assert ropes[3][4] == layout.POS_ABSENT and ropes[2][4] == 31
+    assert tail[4] == 0 and h[6] & layout.ST_STROKE_LIMIT == 0
+
+
+# The shipped node.json's displacement channels: counts 9600..48000 over -0.05..0.05 m.
+Q8 = 256e6  # um/256 per m
+
+
+def _counts(x_m):
+    return round(9600 + (x_m + 0.05) * 384000)
+
+
+def _limits(nd, key):
+    """Node section nd's per-rope `key` (a stroke or travel limit)."""
+    v = nd[key]
+    return [v] * N if type(v) is int else v
+
+
+def _stroke_cfg(**over):
+    """The shipped config with the travel at +-45 mm and the stroke margins at +-40 mm."""
+    doc = node_doc()
+    nd = doc["node"]
+    nd["travel_lo_q8um"] = round(-0.045 * Q8)
+    nd["stroke_lo_q8um"] = [round(-0.040 * Q8)] * N
+    nd["stroke_hi_q8um"] = [round(0.040 * Q8)] * N
+    nd["travel_hi_q8um"] = round(0.045 * Q8)
+    nd.update(over)
+    return parse(_resigned(doc))
+
+
+def test_position_mean_over_the_window_in_01mm():
+    node = Node(parse(node_doc()))
+    rec = _rec()
+    buf = bytearray(layout.MAX_WIRE_LEN)
+    frames = []
+    xs = []
+    for k in range(40):  # rope 0 ramps -20 mm -> +19 mm, rope 1 steps, rope 2 still, rope 3 at -37.5 mm
+        xs.append(-0.020 + 0.001 * k)
+        rec[N] = _counts(xs[-1])
+        rec[N + 1] = _counts(0.010 if k % 20 < 5 else -0.002)
+        rec[N + 2] = MID
+        rec[N + 3] = _counts(-0.0375)
+        if node.sample(rec):
+            frames.append(_decode(buf, node.frame_into(buf)))
+    assert len(frames) == 2
+    for w, (h, ropes, tail) in enumerate(frames):
+        want = sum(xs[20 * w:20 * w + 20]) / 20 * 1e4  # 0.1 mm
+        assert abs(ropes[0][4] - want) <= 0.51, (w, ropes[0][4], want)
+        assert ropes[1][4] == round((5 * 0.010 - 15 * 0.002) / 20 * 1e4) == 10
+        assert ropes[2][4] == 31 and ropes[3][4] == -375
+        assert tail[4] == 0 and h[6] & layout.ST_STROKE_LIMIT == 0
+    assert (frames[0][1][0][4], frames[1][1][0][4]) == (-105, 95)
+
+
+def test_one_sample_in_the_stroke_margin_sets_its_bit_for_the_window():
+    node = Node(_stroke_cfg())
+    rec = _rec()
+    _run(node, rec, 20)
+    rec[N + 1] = _counts(0.042)   # rope 1 into the extended end's margin for one sample
+    assert node.sample(rec) is False
+    rec[N + 1] = MID
+    (h, ropes, tail), = _run(node, rec, 19)
+    assert tail[4] == 16 << 1 and h[6] & layout.ST_STROKE_LIMIT
+    assert h[3] == 0 and h[6] & layout.ST_DISPLACEMENT_FAULT == 0
+    (h, ropes, tail), = _run(node, rec, 20)  # the next window: clear again
+    assert tail[4] == 0 and h[6] & layout.ST_STROKE_LIMIT == 0
+    rec[N + 3] = _counts(-0.0401)  # rope 3 in the retracted end's margin, rope 0 at the extended's
+    rec[N] = _counts(0.0401)
+    (h, ropes, tail), = _run(node, rec, 20)
+    assert tail[4] == (1 << 3) | (16 << 0) and h[6] & layout.ST_STROKE_LIMIT
+    assert ropes[3][4] == -401 and ropes[0][4] == 401 and h[3] == 0
+    rec[N + 3] = _counts(-0.039)  # inside the margins: no bit
+    rec[N] = _counts(0.039)
+    (h, ropes, tail), = _run(node, rec, 20)
+    assert tail[4] == 0
+
+
+def test_a_position_exactly_at_a_stroke_limit_is_in_the_margin():
+    cfg = parse(node_doc())
+    d = cfg.displacement  # rope 2's channel: counts_lo, .., q8um_at_lo, mul, shift
+
+    def x_of(c):
+        return d[12 + 3] + (((c - d[12]) * d[12 + 4]) >> d[12 + 5])
+    lo, hi = x_of(13440), x_of(44928)
+    m = round(0.040 * Q8)
+    node = Node(_stroke_cfg(stroke_lo_q8um=[-m, -m, lo, -m], stroke_hi_q8um=[m, m, hi, m]))
+    rec = _rec()
+    for c, bits in ((13440, 1 << 2), (13441, 0), (44928, 16 << 2), (44927, 0)):
+        rec[N + 2] = c
+        (h, ropes, tail), = _run(node, rec, 20)
+        assert node.S[K.X_Q8UM + 2] == x_of(c) and tail[4] == bits, (c, tail[4])
+
+
+def test_a_reading_beyond_the_travel_is_a_displacement_fault_never_a_stroke():
+    node = Node(_stroke_cfg())
+    rec = _rec()
+    _run(node, rec, 20)
+    held = node.S[K.X_Q8UM + 2]
+    rec[N + 2] = _counts(0.047)   # beyond +45 mm for one sample: a broken transmitter
+    rec[N] = _counts(-0.047)      # and rope 0 beyond -45 mm
+    node.sample(rec)
+    assert node.S[K.X_Q8UM + 2] == held and node.S[K.FAULTS] == (16 << 2) | (16 << 0)  # held, as for NAMUR
+    rec[N + 2] = rec[N] = MID
+    (h, ropes, tail), = _run(node, rec, 19)
+    assert h[3] == (16 << 2) | (16 << 0) and h[6] & layout.ST_DISPLACEMENT_FAULT
+    assert tail[4] == 0 and h[6] & layout.ST_STROKE_LIMIT == 0
+    assert ropes[2][4] == 31 and ropes[0][4] == 31  # the mean of the healthy samples only
+    rec[N + 2] = _counts(0.047)   # beyond for a whole window: no position, no tension
+    (h, ropes, tail), = _run(node, rec, 20)
+    assert ropes[2][4] == layout.POS_ABSENT and ropes[2][0] == layout.TENSION_ABSENT
+    assert h[3] == 16 << 2 and tail[4] == 0
+    # without travel limits (an older node.json) the same reading is a position in the margin
+    node = Node(_stroke_cfg(travel_lo_q8um=-(1 << 29), travel_hi_q8um=1 << 29))
+    (h, ropes, tail), = _run(node, rec, 20)
+    assert h[3] == 0 and tail[4] == 16 << 2 and ropes[2][4] == 470
+
+
+def test_the_position_zero_shifts_only_the_positions():
+    """The compensation works on position differences: moving the displacement calibration's
+    zero by 50 mm (and the limits with it) leaves every tension bit for bit, and moves the
+    reported positions by 500 x 0.1 mm."""
+    shift = round(0.050 * Q8)
+    doc = node_doc()
+    nd = doc["node"]
+    for ch in nd["displacement"]:
+        ch["q8um_at_lo"] += shift
+    for key in ("travel_lo_q8um", "stroke_lo_q8um", "stroke_hi_q8um", "travel_hi_q8um"):
+        if key in nd:  # (absent: no limit to move)
+            nd[key] = [x + shift for x in _limits(nd, key)]
+    a = Node(parse(node_doc()))
+    b = Node(parse(_resigned(doc)))
+    rec = _rec()
+    buf = bytearray(layout.MAX_WIRE_LEN)
+    seed = 12345
+    for k in range(600):
+        seed = (seed * 1103515245 + 12345) & 0x7FFFFFFF
+        for i in range(N):
+            t = (k * (i + 3) * 5) % 400
+            rec[N + i] = _counts(-0.03 + 0.0003 * (t if t < 200 else 400 - t))
+            rec[i] = MID + ((seed >> (4 + i)) % 801) - 400
+        ra = a.sample(rec)
+        assert ra == b.sample(rec)
+        assert a.rope(K.TENSION_N) == b.rope(K.TENSION_N), k
+        if ra:
+            fa = _decode(buf, a.frame_into(buf))
+            fb = _decode(buf, b.frame_into(buf))
+            assert fa[0][3] == fb[0][3] == 0 and fa[2] == fb[2]
+            for ra_, rb_ in zip(fa[1], fb[1]):
+                assert ra_[:4] == rb_[:4] and rb_[4] == ra_[4] + 500, (k, ra_, rb_)
 
 
 def test_lugre_stays_bounded_where_explicit_euler_diverges():
@@ -322,8 +473,8 @@ def test_record_of_the_wrong_length_is_refused():
 def test_kernel_copies_of_shared_constants_agree():
     """kernel.py restates a few constants (viper inlines only its own module's consts)."""
     from ropenode import config
-    assert (K.TEMP_ABSENT, K.TENSION_ABSENT, K.RAW_KPA_ABSENT) == (
-        layout.OIL_TEMP_ABSENT, layout.TENSION_ABSENT, layout.RAW_KPA_ABSENT)
+    assert (K.TEMP_ABSENT, K.TENSION_ABSENT, K.RAW_KPA_ABSENT, K.POS_ABSENT) == (
+        layout.OIL_TEMP_ABSENT, layout.TENSION_ABSENT, layout.RAW_KPA_ABSENT, layout.POS_ABSENT)
     assert K.ROPES_MAX == layout.MAX_ROPES and K.GEXP_POINTS == config.GEXP_POINTS
     assert K.TEMPS_MAX == config.MAX_LOSS_TEMPS
 
