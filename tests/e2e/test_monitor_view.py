@@ -3,6 +3,7 @@ import dataclasses
 import io
 import math
 
+import pytest
 from rich.console import Console
 
 from ropemon.station.monitor import MonitorView, sparkline, stroke_gauge
@@ -55,8 +56,8 @@ def test_each_rope_compensated_raw_deviation_and_total():
 class Status:
     """A hoist's standing status as the alarm engine gives it (what the view reads of it)."""
 
-    def __init__(self, text, hidden_frac=0.162):
-        self.text, self.hidden_frac = text, hidden_frac
+    def __init__(self, text, hidden_frac=None, rope_n=None, limit=0.10, notes=()):
+        self.text, self.hidden_frac, self.rope_n, self.limit, self.notes = text, hidden_frac, rope_n, limit, notes
 
 
 def test_worst_case_screen_still_fits_80x24():
@@ -128,6 +129,11 @@ def test_the_hoist_status_line_is_status_not_an_alarm():
     v.on_alarms(AlarmState(9.9, (), {}, (), {1: Status("seals can hide 16.2 % at 46 kN per rope")}))
     text = draw(v)
     assert " hoist: seals can hide 16.2 % at 46 kN per rope" in text and "alarms: none" in text
+    v.on_alarms(AlarmState(9.9, (), {}, (), {1: Status("long", 0.162, 46_400.0)}))
+    assert " hoist: seals can hide 16.2 % at 46.4 kN/rope, beyond the 10 % limit\n" in draw(v)
+    v.on_alarms(AlarmState(9.9, (), {}, (), {1: Status("long", 0.052, 46_400.0, notes=("oil loss not watched",))}))
+    line = next(ln for ln in draw(v).splitlines() if ln.startswith(" hoist: "))
+    assert line == " hoist: seals can hide 5.2 % at 46.4 kN/rope, within the 10 % limit; oil loss …"   # 79 wide
     v.on_alarms(AlarmState(9.9, (), {}, (), {}))             # no band: no line
     assert "hoist:" not in draw(v)
 
@@ -180,9 +186,13 @@ def test_two_cage_nodes_one_shown_the_other_summarised_and_switchable():
     assert rows(text)["sum"][1] == "120.0"
 
 
-def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
-    """With the seal's friction lines each rope shows its deviation's band; a rope whose estimate
-    flipped while its pressure barely moved reads +6 % but may reach 10 %: DEVIATION POSSIBLE, yellow."""
+@pytest.mark.parametrize("legacy", [False, True])
+def test_band_beside_the_deviation_the_hoist_status_and_legacy_deviation_possible(legacy):
+    """With the seal's friction lines each rope shows its deviation's band, and the hoist's
+    standing status says what imbalance the seals can hide. A rope whose estimate flipped while
+    its pressure barely moved reads +6 % but may reach 10 %: no alarm (the seals' reach is the
+    hoist's figure, shown as status); only today's station (`legacy_deviation_possible`, the
+    evaluation's baseline) raises DEVIATION POSSIBLE for it, in the warning colour."""
     from ropemon.station.physical import alarm_settings
     from station_rig import Rig
     from ropemon.station.uncertainty import BandParams
@@ -193,7 +203,8 @@ def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
     site = SiteFigures([0.01] * 4, rated_rope_tension_n=80_000, imbalance_frac=0.10,
                        band=BandParams.from_physical(phys))
     clk = [0.0]
-    s = Rig(None, alarm_settings(site), site, lambda: clk[0])
+    settings = dataclasses.replace(alarm_settings(site), legacy_deviation_possible=legacy)
+    s = Rig(None, settings, site, lambda: clk[0])
 
     def send(seq, ropes):          # (tension daN, friction estimate N) per rope
         rs = [Rope(t, t, t, round((t * 10 - f) / 10)) for t, f in ropes]
@@ -205,9 +216,14 @@ def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
     for k in range(11, 20):        # at rest, every rope on its anchor
         send(k, [(5200, 2000.0)] * 4)
     s.tick()
-    r = rows(draw(s.view, clk[0]))
+    text = draw(s.view, clk[0])
+    r = rows(text)
     assert r["1"][3:5] == ["+0.0", "+-0.3"]    # deviation % and its band: 100 N floors on 52 kN ropes
     assert not s.alarms.active()
+    hidden = s.alarms.hoist_status(1)
+    assert hidden is not None and hidden.hidden_frac > 0
+    assert f" hoist: seals can hide {hidden.hidden_frac * 100:.1f} % at 52.0 kN/rope, " in text
+    assert "alarms: none" in text
     flipped = round(5200 * 3 * 1.06 / 2.94)
     for k in range(20, 40):
         send(k, [(5200, 2000.0)] * 3 + [(flipped, -2000.0)])
@@ -215,6 +231,9 @@ def test_band_beside_the_deviation_and_deviation_possible_in_warning_colour():
     text = draw(s.view, clk[0])
     r = rows(text)
     assert r["4"][3] == "+6.0" and float(r["4"][4].removeprefix("+-")) >= 4.0
+    if not legacy:
+        assert "DEVIATION POSSIBLE" not in text and "alarms: none" in text and " hoist: " in text
+        return
     assert "DEVIATION POSSIBLE rope 4: +6.0 % +-" in text and "from mean: may reach 10 %" in text
     alarms = s.view._alarms()
     assert any(sp.style == "bold yellow" for sp in alarms.spans)

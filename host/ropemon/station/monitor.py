@@ -283,7 +283,7 @@ class MonitorView(Listener):
     def _hoist_status(self) -> Text | None:
         """The hoist's standing status (the imbalance its seals can hide): a status, never an alarm."""
         st = self.hoist.get(self.shown) if self.shown is not None else None
-        text = getattr(st, "text", None) if st is not None else None
+        text = hoist_line(st) if st is not None else ""
         if not text:
             return None
         return Text(" hoist: " + (text if len(text) <= 71 else text[:70] + "…"), style="cyan")
@@ -452,6 +452,20 @@ def shelved_text(a: ActiveAlarm) -> str:
     """One shelved alarm: what, until when (local time), why and who."""
     until = datetime.datetime.fromtimestamp(a.shelved_until).strftime("%H:%M") if a.shelved_until else "?"
     return f"{a.kind.replace('_', ' ')}{f' rope {a.rope + 1}' if a.rope is not None else ''} until {until} ({a.note})"
+
+
+def hoist_line(st: Any) -> str:
+    """The hoist's standing status (`alarms.HoistStatus`) short enough for the terminal: the
+    imbalance the seals can hide at the current rope tension against the limit, then what the
+    station cannot watch on this node; else the status's own text."""
+    hidden, rope_n, limit = (getattr(st, k, None) for k in ("hidden_frac", "rope_n", "limit"))
+    notes = list(getattr(st, "notes", ()) or ())
+    if hidden is None or rope_n is None:
+        return getattr(st, "text", "") or ""
+    line = f"seals can hide {hidden * 100:.1f} % at {rope_n / 1000:.1f} kN/rope"
+    if limit:
+        line += f", {'beyond' if hidden >= limit else 'within'} the {limit * 100:.0f} % limit"
+    return "; ".join([line] + notes)
 
 
 def link_figures(merger_stats: dict, counts: dict[str, Any], down: dict[str, str] | None = None,
