@@ -509,12 +509,15 @@ def test_a_user_removed_from_the_file_loses_the_session_rights(site, tmp_path):
 
 
 def test_history_trips_and_csv_from_the_log(site):
+    def at(pos_01mm):              # every rope's tension as the default frame's, its piston at pos_01mm
+        return [(5000, 4900, 5100, 20000, pos_01mm + 10 * i) for i in range(4)]
+
     for _ in range(40):                                    # at the bottom, resting
-        site.frame(depth_mm=60_000, speed_mm_s=0)
+        site.frame(depth_mm=60_000, speed_mm_s=0, ropes=at(12))
     for k in range(120):                                   # a wind up at 4 m/s: 48 m
-        site.frame(depth_mm=60_000 - k * 400, speed_mm_s=-4000)
+        site.frame(depth_mm=60_000 - k * 400, speed_mm_s=-4000, ropes=at(12))
     for _ in range(60):                                    # at the pithead, resting
-        site.frame(depth_mm=12_000, speed_mm_s=0)
+        site.frame(depth_mm=12_000, speed_mm_s=0, ropes=at(-25))
     site.stations.hoists["north"].store.commit()          # what the reader sees: committed frames
     c = site.client
     h = c.get("/hoist/north/history.json", params={"node": 1, "hours": 1}).json()
@@ -534,6 +537,10 @@ def test_history_trips_and_csv_from_the_log(site):
     csv_text = c.get(f"/hoist/north/trips/{ids[0]}.csv").text
     head, first = csv_text.splitlines()[:2]
     assert head.startswith("rx_time,rx_time_utc,node_time_s,depth_m") and "rope4_raw_kN" in head
+    assert head.endswith("rope4_pos_mm") and first.endswith(",1.200,2.200,3.200,4.200")
+    pistons = re.search(r'<table id="trip-pistons".*?</table>', trip.text, re.S).group(0)
+    row2 = re.search(r'<tr data-row="rope 2">(.*?)</tr>', pistons, re.S).group(1)
+    assert re.findall(r"<td>([^<]*)</td>", row2) == ["+2.2", "-1.5"]   # where it left, where it arrived
     series = c.get(f"/hoist/north/trips/{ids[0]}.json").json()
     assert len(series["comp"]) == 4 and len(series["t"]) == len(csv_text.splitlines()) - 1
     assert c.get("/hoist/north/trips/999999").status_code == 404

@@ -246,8 +246,13 @@ def rest_rows(report: Trip) -> dict:
                                                   for _, r in rests]} for i in range(n)]
     rows.append({"label": "sum", "cells": [(_f(np.sum(r.raw_n) / 1000, 1), _f(np.sum(r.comp_n) / 1000, 1))
                                            for _, r in rests]})
+    pistons = []
+    if any(r.pos_m is not None for _, r in rests):   # each piston's rest position, mm from mid-stroke
+        pistons = [{"label": f"rope {i + 1}",
+                    "cells": [_f(r.pos_m[i] * 1000, 1) if r.pos_m is not None else None for _, r in rests]}
+                   for i in range(n)]
     return {"columns": [c for c, _ in rests], "depths": [_f(r.depth_m, 1) for _, r in rests],
-            "frames": [r.frames for _, r in rests], "rows": rows}
+            "frames": [r.frames for _, r in rests], "rows": rows, "pistons": pistons}
 
 
 def trip_series(detail: dict) -> dict:
@@ -273,12 +278,17 @@ def trip_csv(detail: dict) -> str:
     n = ft.comp_n.shape[1]
     buf = io.StringIO()
     w = csv.writer(buf)
+    pos = ft.has_positions
     w.writerow(["rx_time", "rx_time_utc", "node_time_s", "depth_m", "speed_m_s"]
-               + [f"rope{i + 1}_comp_kN" for i in range(n)] + [f"rope{i + 1}_raw_kN" for i in range(n)])
+               + [f"rope{i + 1}_comp_kN" for i in range(n)] + [f"rope{i + 1}_raw_kN" for i in range(n)]
+               + ([f"rope{i + 1}_pos_mm" for i in range(n)] if pos else []))
     for k in range(len(ft)):
         rx = detail["rx"][k]
         utc = datetime.datetime.fromtimestamp(rx, datetime.timezone.utc).isoformat(timespec="milliseconds")
         vals = [ft.comp_n[k, i] / 1000 for i in range(n)] + [raw[k, i] / 1000 for i in range(n)]
+        if pos:
+            assert ft.pos_m is not None
+            vals += [ft.pos_m[k, i] * 1000 for i in range(n)]
         w.writerow([f"{rx:.3f}", utc.replace("+00:00", "Z"), f"{ft.t_s[k]:.3f}", f"{ft.depth_m[k]:.3f}",
                     f"{ft.speed_m_s[k]:.3f}"] + ["" if not math.isfinite(v) else f"{v:.3f}" for v in vals])
     return buf.getvalue()
