@@ -174,10 +174,7 @@ def _listener(rig, hoist):
 
 def test_version_2_reads_the_positions_back_and_keeps_version_1s_registers(tmp_path):
     port = free_port()
-    rig = Rig(tmp_path, 2, f"[modbus]\nport = {port}\n")
-    for h in rig.stations.hoists.values():          # the site's stroke (EURange of the gauge)
-        h.site.stroke_m = [0.25, 0.25, 0.25, 0.30]
-        h.site.stroke_margin_m = 0.01
+    rig = Rig(tmp_path, 2, f"[modbus]\nport = {port}\n")     # stroke 0.1 m, margin 0.01 m (node.json)
     faces = start_faces(rig.stations, rig.file)
     client = ModbusTcpClient("127.0.0.1", port=port, timeout=3)
     try:
@@ -186,15 +183,15 @@ def test_version_2_reads_the_positions_back_and_keeps_version_1s_registers(tmp_p
         rig.step()
         frame = dict(depth_mm=812_345, speed_mm_s=-9500, battery_mv=11_900, oil_temp_cc=2150)
         rig.feed("h0", (5000, 5100, 4900, None), version=2, **frame)             # a version 2 node
-        rig.feed("h1", (5000, 5100, 4900, None), positions=(1234, -500, 0, None),   # version 3
+        rig.feed("h1", (5000, 5100, 4900, None), positions=(423, -455, 0, None),    # version 3
                  stroke_mask=0b0001_0010, **frame)
         rig.step()
         b0, b1 = block(client, 0), block(client, 1)
         n = 20
         # the version 3 node: position 0.1 mm signed, the stroke mask, the layout version
-        assert [s16(b1[n + 22 + r]) for r in range(4)] == [1234, -500, 0, -32768]
+        assert [s16(b1[n + 22 + r]) for r in range(4)] == [423, -455, 0, -32768]
         assert b1[n + 26] == 0x12 and b1[n + 27] == 3
-        assert [b1[n + 29 + r] for r in range(4)] == [2500, 2500, 2500, 3000] and b1[n + 33] == 100
+        assert [b1[n + 29 + r] for r in range(4)] == [1000] * 4 and b1[n + 33] == 100     # the stroke, the margin
         # the version 2 node: no positions, no stroke bits
         assert [s16(b0[n + 22 + r]) for r in range(4)] == [-32768] * 4 and b0[n + 26] == 0 and b0[n + 27] == 2
         # version 1's registers: the same values for the same tensions, with or without positions,

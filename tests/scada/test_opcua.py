@@ -68,9 +68,6 @@ users = "users.toml"
     sf = load_station_file(d / "station.toml")
     clock = [time.time()]
     stations = StationSet(sf, clock=lambda: clock[0])
-    site = stations.hoists["north"].site
-    if not getattr(site, "stroke_m", None):       # the cylinders' stroke: the pistons' EURange
-        site.stroke_m = [0.25, 0.25, 0.25, 0.30]
     faces = start_faces(stations, sf)
     rig = {"dir": d, "url": f"opc.tcp://127.0.0.1:{port}/ropemon", "stations": stations, "clock": clock,
            "seq": [100], "face": faces[0]}
@@ -437,9 +434,9 @@ def test_piston_positions_in_mm_with_the_stroke_as_eurange_and_the_stroke_limit_
         try:
             idx = await c.get_namespace_index("urn:ropemon:opcua")
             node = {k: c.get_node(ua.NodeId(f"north.n1.r{k}.Position", idx)) for k in range(1, 5)}
-            feed(rig, [5000, 5100, 4900, 5000], positions=(1234, -500, 0, None), stroke_mask=0b0001_0010)
-            await until(lambda: _value_is(node[1], 123.4))
-            assert await node[2].read_value() == pytest.approx(-50.0)
+            feed(rig, [5000, 5100, 4900, 5000], positions=(423, -455, 0, None), stroke_mask=0b0001_0010)
+            await until(lambda: _value_is(node[1], 42.3))
+            assert await node[2].read_value() == pytest.approx(-45.5)
             assert await node[3].read_value() == 0.0
             with pytest.raises(ua.UaStatusCodeError, match="BadSensorFailure"):     # no healthy sample
                 await node[4].read_value()
@@ -447,9 +444,10 @@ def test_piston_positions_in_mm_with_the_stroke_as_eurange_and_the_stroke_limit_
                                                      f"{idx}:Rope2", f"{idx}:Position"])
             eu = await (await rope2.get_child("0:EngineeringUnits")).read_value()
             assert eu.DisplayName.Text == "mm" and eu.UnitId == 0x4D4D54                    # UNECE MMT
+            assert strokes == [0.1] * 4                                  # node.json's stroke_m
             for k in (1, 4):
                 rng = await (await node[k].get_child("0:EURange")).read_value()     # the end stops
-                assert (rng.Low, rng.High) == pytest.approx((-strokes[k - 1] * 500, strokes[k - 1] * 500))
+                assert (rng.Low, rng.High) == pytest.approx((-50.0, 50.0))
             near = {(k, end): await c.get_node(ua.NodeId(f"north.n1.r{k}.Near{end}End", idx)).read_value()
                     for k in range(1, 5) for end in ("Retracted", "Extended")}
             assert {key for key, v in near.items() if v} == {(1, "Extended"), (2, "Retracted")}
@@ -518,7 +516,7 @@ def test_a_stroke_limit_is_an_alarm_condition_on_its_rope(rig, client_cert):
             sub = await c.create_subscription(50, Handler())
             await sub.subscribe_alarms_and_conditions(c.nodes.server, ua.ObjectIds.AlarmConditionType)
             feed(rig, [5000, 5000, 5000, 5000], positions=(0, 0, 0, 0), n=3)
-            feed(rig, [5000, 5000, 5000, 5000], positions=(0, 0, 1230, 0), stroke_mask=1 << (4 + 2), n=3)
+            feed(rig, [5000, 5000, 5000, 5000], positions=(0, 0, 450, 0), stroke_mask=1 << (4 + 2), n=3)
 
             async def raised():
                 return [e for e in events if e.ConditionName == "stroke_limit:n1:r2" and getattr(e, "ActiveState/Id")]

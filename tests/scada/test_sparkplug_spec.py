@@ -166,7 +166,7 @@ def test_tahu_reads_births_data_device_death_and_node_death(tmp_path, broker):
             if "node1/frame_seq" in d:
                 data[device].append(d)
             else:
-                assert set(d) == ALARM_METRICS
+                assert set(d) <= ALARM_METRICS | {"node1/standing_status"}   # or the standing status's text
     h0 = data["h0"]
     assert [int(d["node1/frame_seq"]["value"]) for d in h0] == list(range(1, len(h0) + 1)) and len(h0) == 15
     for k, d in enumerate(h0[:3]):
@@ -350,7 +350,7 @@ def test_tahu_reads_the_pistons_stroke_state_and_standing_status(tmp_path, broke
         wait(lambda: spy.kinds("DBIRTH"), what="birth")
         rig.feed("h0")
         rig.step()                                                         # the standing status: each tick
-        rig.feed("h0", positions=(1234, -500, 0, None), stroke_mask=0b0001_0010)
+        rig.feed("h0", positions=(423, -455, 0, None), stroke_mask=0b0001_0010)
         rig.feed("h0", version=2)                                          # a version 2 node: no positions
         from ropemon.station.mqtt import sparkplug as sp                  # only to know when all three are out
         wait(lambda: sum(len(sp.decode(m[1]).metrics) > 10 for m in spy.kinds("DDATA")) >= 3, what="3 frames' DDATA")
@@ -364,7 +364,7 @@ def test_tahu_reads_the_pistons_stroke_state_and_standing_status(tmp_path, broke
     got = hist.conn.execute("SELECT frame_seq, rope, tension_kn, position_mm FROM tension WHERE frame_seq > 1 "
                             "ORDER BY frame_seq, rope").fetchall()
     hist.close()
-    assert got == [(2, 1, 50.0, 123.4), (2, 2, 51.0, -50.0), (2, 3, 49.0, 0.0), (2, 4, 50.0, None),
+    assert got == [(2, 1, 50.0, 42.3), (2, 2, 51.0, -45.5), (2, 3, 49.0, 0.0), (2, 4, 50.0, None),
                    (3, 1, 50.0, None), (3, 2, 51.0, None), (3, 3, 49.0, None), (3, 4, 50.0, None)]
     msgs = [m for m in spy.msgs if m[0].split("/")[2] in ("DBIRTH", "DDATA")]
     decoded = tahu([m[1] for m in msgs])
@@ -376,7 +376,7 @@ def test_tahu_reads_the_pistons_stroke_state_and_standing_status(tmp_path, broke
     frames = [d for d in frames if "node1/frame_seq" in d]
     assert [int(d["node1/frame_seq"]["value"]) for d in frames] == [1, 2, 3]
     _, v3, v2 = frames
-    assert [v3[f"node1/rope{r}/position"]["value"] for r in range(1, 5)] == [123.4, -50.0, 0.0, None]
+    assert [v3[f"node1/rope{r}/position"]["value"] for r in range(1, 5)] == [42.3, -45.5, 0.0, None]
     assert [(v3[f"node1/rope{r}/near_retracted_end"]["value"], v3[f"node1/rope{r}/near_extended_end"]["value"])
             for r in range(1, 5)] == [(False, True), (True, False), (False, False), (False, False)]
     assert all(v2[f"node1/rope{r}/position"]["value"] is None for r in range(1, 5))
@@ -411,3 +411,27 @@ def test_report_exception_sends_a_position_once_it_moved_by_the_mm_deadband():
     assert frame(3, 105)["node1/rope1/position"] == 10.5           # 0.5 mm since last reported
     got = frame(4, 105, STROKE_HIGH)
     assert got["node1/rope1/near_extended_end"] is True and "node1/rope1/position" not in got
+
+
+def test_the_standing_status_text_goes_out_when_it_changes_at_most_every_10_s():
+    """SparkplugValues alone: the text follows the mean rope tension, so it is sent when it
+    changes, at most every STANDING_EVERY_S (then the newest); hidden_imbalance with each frame."""
+    from ropemon.station.mqtt import STANDING_EVERY_S, SparkplugValues
+    from ropemon.station.pipeline import AlarmState
+
+    face = SimpleNamespace(queue=queue.SimpleQueue(), settings=SimpleNamespace(report="frame"))
+    v = SparkplugValues(face, "h0", [1], silent_s=1e9)
+    assert STANDING_EVERY_S == 10.0
+
+    def tick(t, text):
+        v.on_status(SimpleNamespace(time_s=t, receivers={}))
+        v.on_alarms(AlarmState(t, (), {}, (), {1: SimpleNamespace(hidden_frac=0.2, text=text)}))
+        out = []
+        while not face.queue.empty():
+            out += [x for k, x in face.queue.get()[2].items() if k == "node1/standing_status"]
+        return out
+    assert tick(100.0, "a") == ["a"]
+    assert tick(101.0, "b") == []            # changed within 10 s: held back
+    assert tick(105.0, "c") == []
+    assert tick(110.0, "c") == ["c"]         # the newest, once 10 s passed
+    assert tick(125.0, "c") == []            # unchanged: not sent again

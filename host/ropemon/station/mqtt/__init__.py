@@ -65,6 +65,7 @@ FRESH_MAX = 5000       # records kept in memory to publish (older ones are read 
 DELETE_EVERY = 200     # acknowledged rows deleted from the outbox together, this many ...
 DELETE_S = 0.1         # ... or after this long
 RETRY_S = (0.5, 5.0)   # reconnect back-off, first and longest
+STANDING_EVERY_S = 10.0   # a node's standing_status text (it follows the rope tension) sent at most this often
 POLL_S = 0.005         # the connection's incoming packets (acknowledgements, commands) read this often at most
 
 
@@ -131,6 +132,7 @@ class SparkplugValues(HoistValues):
         self.reported: dict[str, Any] = {}
         self._alarms: tuple | None = None
         self._standing: dict[int, str | None] = {n: None for n in self.nodes}   # the standing_status last queued
+        self._standing_s: dict[int, float] = {}      # ... and when (the station clock)
         self.silent_s = silent_s
         self.alive = True                 # born with the session; dead while the station hears nothing
         self._heard_s: float | None = None   # the station clock at the newest frame (or the first tick)
@@ -171,9 +173,10 @@ class SparkplugValues(HoistValues):
             self._alarms = alarms
             values.update({"alarms/present": alarms[0], "alarms/unacknowledged": alarms[1], "vouched": alarms[2],
                            "alarms/equalizer_present": alarms[3], "alarms/equalizer_unacknowledged": alarms[4]})
-        for n, st in self.standing.items():       # the standing text: when it changes (and in DBIRTH)
-            if self._standing.get(n) != st.text:
-                self._standing[n] = st.text
+        for n, st in self.standing.items():       # the standing text: when it changes, at most every
+            now = self.station_s                  # STANDING_EVERY_S (the newest then), and in DBIRTH
+            if self._standing.get(n) != st.text and now - self._standing_s.get(n, -1e18) >= STANDING_EVERY_S:
+                self._standing[n], self._standing_s[n] = st.text, now
                 values[f"node{n}/standing_status"] = st.text
         if values:
             ts = int((v.wall_s if v is not None else time.time()) * 1000)
