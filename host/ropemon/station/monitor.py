@@ -45,7 +45,7 @@ from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
 from ropemon.station.uncertainty import DeviationBand
 
 TENSION_ABSENT = L.TENSION_ABSENT   # a rope whose sensor failed for the whole window
-POS_ABSENT = getattr(L, "POS_ABSENT", -32768)   # no healthy displacement sample in the window
+POS_ABSENT = L.POS_ABSENT   # no healthy displacement sample in the window
 
 SPARK = "▁▂▃▄▅▆▇█"
 TREND_LEN = 24           # frames in the sparkline (2.4 s at 10 frames/s)
@@ -82,16 +82,16 @@ def stroke_gauge(pos_m: float | None, stroke_m: float | None, margin_m: float | 
 def piston(frame: Frame, rope: int) -> tuple[float | None, bool, bool]:
     """(position in m or None, the displacement channel faulted, the node saw the piston within
     the stroke margin of an end during the window) of one rope (from 0) of a frame."""
-    pos = getattr(frame.ropes[rope], "pos_01mm", POS_ABSENT) if rope < len(frame.ropes) else POS_ABSENT
-    fault = bool(frame.fault_mask >> (getattr(L, "FAULT_DISPLACEMENT_SHIFT", 4) + rope) & 1)
-    mask = getattr(frame, "stroke_mask", 0) or 0
-    near = bool((mask >> rope) & 1 or (mask >> (4 + rope)) & 1)
+    pos = frame.ropes[rope].pos_01mm if rope < len(frame.ropes) else POS_ABSENT
+    fault = bool(frame.fault_mask >> (L.FAULT_DISPLACEMENT_SHIFT + rope) & 1)
+    mask = frame.stroke_mask
+    near = bool(mask >> (L.STROKE_LOW_SHIFT + rope) & 1 or mask >> (L.STROKE_HIGH_SHIFT + rope) & 1)
     return (None if pos == POS_ABSENT else pos / 10_000), fault, near
 
 
 def has_positions(frame: Frame) -> bool:
     """The frame's layout carries piston positions (version 3 on)."""
-    return frame.version >= 3 and bool(frame.ropes) and hasattr(frame.ropes[0], "pos_01mm")
+    return frame.version >= 3 and bool(frame.ropes)
 
 
 @dataclass
@@ -143,7 +143,7 @@ class MonitorView(Listener):
         self.alarm_rows = [(alarm_text(a), not a.latched) for a in state.active]
         self.shelved = [a for a in state.hidden if a.shelved_until is not None]
         self.bands = dict(state.bands)
-        self.hoist = dict(getattr(state, "hoist", {}) or {})
+        self.hoist = dict(state.hoist)
 
     def on_status(self, status: StationStatus) -> None:
         down = {n: r.last_error or "not open" for n, r in status.receivers.items() if not r.connected}
@@ -370,9 +370,9 @@ class MonitorView(Listener):
             return Text("FAULT: displacement", style="bold red")
         if pos is None:
             return Text("no position", style="yellow")
-        strokes = getattr(self.site, "stroke_m", None) or []
+        strokes = self.site.stroke_m
         stroke = strokes[rope] if rope < len(strokes) else None
-        margin = getattr(self.site, "stroke_margin_m", None)
+        margin = self.site.stroke_margin_m
         bar = stroke_gauge(pos, stroke, margin)
         if stroke:
             m = margin or 0.0

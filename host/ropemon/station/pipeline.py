@@ -424,13 +424,11 @@ class AlarmListener(Listener):
 
     def _publish_state(self, now_s: float) -> None:
         e = self.engine
-        status = getattr(e, "hoist_status", None)
         hoist = {}
-        if status is not None:
-            for n in e.nodes():
-                st = status(n)
-                if st is not None:
-                    hoist[n] = st
+        for n in e.nodes():
+            st = e.hoist_status(n)
+            if st is not None:
+                hoist[n] = st
         self.publish(AlarmState(now_s, tuple(e.active()), {n: e.deviation_bands(n, now_s) for n in e.nodes()},
                                 tuple(e.hidden()), hoist))
 

@@ -61,7 +61,7 @@ class FrameTable:
             raw_kpa=np.array([[r.raw_kpa if r.raw_kpa != L.RAW_KPA_ABSENT else np.nan
                                for r in f.ropes] for f in fs], float).reshape(len(fs), n),
             status=np.array([f.status for f in fs], int),
-            pos_m=np.array([[np.nan if p is None else p for p in (getattr(r, "position_m", None) for r in f.ropes)]
+            pos_m=np.array([[np.nan if r.position_m is None else r.position_m for r in f.ropes]
                             for f in fs], float).reshape(len(fs), n),
         )
 

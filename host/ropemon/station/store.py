@@ -27,10 +27,7 @@ OIL_TEMP_ABSENT = L.OIL_TEMP_ABSENT
 SCHEMA_VERSION = 2
 #: what opening an older file adds (docs/storage.md): version -> [(table, column, type)]
 _MIGRATIONS = {2: [("frames", "stroke_mask", "INTEGER"), ("ropes", "pos_01mm", "INTEGER")]}
-POS_ABSENT = getattr(L, "POS_ABSENT", -32768)
-#: the running protocol's Rope and Frame carry the piston's position and the stroke mask
-_ROPE_POS = "pos_01mm" in Rope._fields
-_FRAME_STROKE = "stroke_mask" in getattr(Frame, "__dataclass_fields__", {})
+POS_ABSENT = L.POS_ABSENT
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -153,8 +150,7 @@ class StoreError(RuntimeError):
 
 def _pos(r: Rope) -> int | None:
     """A rope record's piston position for the log (0.1 mm), None where the frame has none."""
-    pos = getattr(r, "pos_01mm", POS_ABSENT)
-    return None if pos == POS_ABSENT else pos
+    return None if r.pos_01mm == POS_ABSENT else r.pos_01mm
 
 
 @dataclass(frozen=True)
@@ -286,7 +282,7 @@ class Store:
             (rx_time, receiver, frame.node, frame.seq, frame.version, frame.kind, frame.time_ms,
              frame.status, frame.fault_mask, frame.depth_mm, frame.speed_mm_s, frame.battery_mv,
              frame.oil_temp_cc, None if frame.authenticated is None else int(frame.authenticated), frame.mac,
-             getattr(frame, "stroke_mask", 0) if frame.version >= 3 else None))
+             frame.stroke_mask if frame.version >= 3 else None))
         fid = int(cur.lastrowid or 0)
         if frame.ropes:
             self.db.executemany(
@@ -449,15 +445,13 @@ class Store:
                 cur = self.db.execute(sql + "BETWEEN ? AND ? ORDER BY frame_id, rope",
                                       (min(r[0] for r in rows), max(r[0] for r in rows)))
             for fid, _i, *vals in cur:
-                pos = vals.pop()
-                if _ROPE_POS:
-                    vals.append(POS_ABSENT if pos is None else pos)
+                if vals[-1] is None:
+                    vals[-1] = POS_ABSENT
                 ropes.setdefault(fid, []).append(Rope(*vals))
         out = []
         for fid, rx, rcv, node_, seq, ver, kind, tms, st, fm, dep, spd, bat, oil, auth, mac, smask in rows:
-            extra = {"stroke_mask": smask or 0} if _FRAME_STROKE else {}
             f = Frame(ver, kind, node_, fm, seq, tms, st, tuple(ropes.get(fid, ())), dep, spd, bat, oil,
-                      authenticated=None if auth is None else bool(auth), mac=bytes(mac), **extra)
+                      stroke_mask=smask or 0, authenticated=None if auth is None else bool(auth), mac=bytes(mac))
             out.append(StoredFrame(fid, rx, rcv, f))
         return out
 

@@ -114,7 +114,7 @@ def frame_view(f: Frame, at_s: float, area_m2: list[float], rated_load_n: float 
             raw_sum += raw_n
         c = comp[i]
         pos_m, pos_fault, near = piston(f, i)
-        mask = getattr(f, "stroke_mask", 0) or 0
+        mask = f.stroke_mask
         ropes.append({
             "rope": i + 1,
             "comp_kN": _r(c / 1000 if c is not None else None),
@@ -126,8 +126,8 @@ def frame_view(f: Frame, at_s: float, area_m2: list[float], rated_load_n: float 
             "fault": c is None,
             "pos_mm": _r(pos_m * 1000 if pos_m is not None else None, 1),   # from mid-stroke, + pulled out
             "pos_fault": pos_fault,                  # the displacement channel failed
-            "near_lo": bool(mask >> i & 1),          # the node saw the piston within the margin of
-            "near_hi": bool(mask >> (4 + i) & 1),    # the retracted / extended end in the window
+            "near_lo": bool(mask >> (L.STROKE_LOW_SHIFT + i) & 1),    # the node saw the piston within the
+            "near_hi": bool(mask >> (L.STROKE_HIGH_SHIFT + i) & 1),   # margin of the retracted / extended end
         })
     total = sum(used)
     missing = [i + 1 for i, ok in enumerate(present) if not ok]
@@ -195,8 +195,8 @@ class WebListener(Listener):
             "stale_s": STALE_S,
             "ropes": len(site.cylinder_area_m2) or None,
             # each cylinder's stroke (end stops at +-stroke/2 from mid-stroke) and the margin, mm
-            "stroke_mm": [_r(x * 1000, 1) for x in (getattr(site, "stroke_m", None) or [])] or None,
-            "margin_mm": _r(site.stroke_margin_m * 1000, 1) if getattr(site, "stroke_margin_m", None) else None,
+            "stroke_mm": [_r(x * 1000, 1) for x in site.stroke_m] or None,
+            "margin_mm": _r(site.stroke_margin_m * 1000, 1) if site.stroke_margin_m else None,
         }
         self.trend_s = trend_s
         self._lock = threading.RLock()
@@ -245,7 +245,7 @@ class WebListener(Listener):
                           for b in bl] for n, bl in state.bands.items()}
         view = {"active": [alarm_view(a, a.id == first) for a in state.active],
                 "hidden": [alarm_view(a) for a in state.hidden], "bands": bands,
-                "hoist": {str(n): hoist_view(st) for n, st in (getattr(state, "hoist", None) or {}).items()}}
+                "hoist": {str(n): hoist_view(st) for n, st in state.hoist.items()}}
         text = dumps(view)
         with self._lock:
             self.now = state.time_s
