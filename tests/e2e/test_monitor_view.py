@@ -238,3 +238,13 @@ def test_band_beside_the_deviation_the_hoist_status_and_legacy_deviation_possibl
     alarms = s.view._alarms()
     assert any(sp.style == "bold yellow" for sp in alarms.spans)
     assert not any(sp.style == "bold red" for sp in alarms.spans)
+
+def test_the_rope_adjustment_advisory_is_a_warning_in_yellow():
+    v = MonitorView(SITE)
+    v.show_frame(frame(1), 9.9)
+    v.alarm_rows = [("ROPE ADJUST rope 2: rest position +0.80 mm/wind, 12 winds left", False)]
+    spans = {sp.style for sp in v._alarms().spans}
+    assert "bold yellow reverse" in spans and "bold yellow" in spans and "bold red" not in spans
+    v.alarm_rows.insert(0, ("STROKE LIMIT rope 3: rope 3 piston at its retracted end", False))
+    spans = {sp.style for sp in v._alarms().spans}
+    assert "bold red reverse" in spans and "bold red" in spans and "bold yellow" in spans
