@@ -39,10 +39,11 @@ def test_arbitrary_bytes(data, keyed):
 
 
 @FAST
-@given(st.integers(0, 2**32), st.integers(1, 60), st.booleans(), st.integers(0, 40), st.booleans())
-def test_damaged_duplicated_streams(seed, count, keyed, flips, dup):
+@given(st.integers(0, 2**32), st.integers(1, 60), st.booleans(), st.integers(0, 40), st.booleans(), st.booleans())
+def test_damaged_duplicated_streams(seed, count, keyed, flips, dup, mixed):
+    """`mixed`: frames of layout versions 2 and 3 interleaved (positions and stroke bits in 3's)."""
     rng = random.Random(seed)
-    wires = [w for _, w in frame_set(seed, count, keyed)]
+    wires = [w for _, w in frame_set(seed, count, keyed, mixed=mixed)]
     if dup:
         wires += rng.sample(wires, min(5, len(wires)))  # replays when keyed
         rng.shuffle(wires)

@@ -206,6 +206,16 @@ def test_length_is_checked_for_the_version_byte():
     with pytest.raises(VersionError, match="layout version 4"):
         decode_raw(recrc(b"\x04" + raw3[1:]))
     assert decode_raw(raw2).version == 2 and decode_raw(raw3).version == 3
+    # the batch decoder counts them as the streaming decoder does
+    from cobs import cobs
+    from ropemon.station.batch import decode_bytes
+    bad = [recrc(b"\x02" + raw3[1:]), recrc(b"\x03" + raw2[1:]), recrc(b"\x04" + raw3[1:]), raw2, raw3]
+    data = b"".join(b"\x00" + cobs.encode(r) + b"\x00" for r in bad)
+    dec = StreamDecoder()
+    assert [f.version for f in dec.feed(data)] == [2, 3]
+    assert dec.counts.malformed == 3 and dec.versions == {4: 1}
+    b = decode_bytes(data)
+    assert b.counts == dec.counts and [f.version for f in b.frames()] == [2, 3]
 
 
 def test_junk_without_a_delimiter_does_not_cost_the_next_frame():
