@@ -61,7 +61,7 @@ BAD = [
     ("cylinders.stroke_margin_m", 0.0, "cylinders.stroke_margin_m: must be > 0, got 0"),
     ("cylinders.stroke_margin_m", 0.05, "cylinders.stroke_margin_m: must be < stroke_m/4 = 0.05 m"),
     ("cylinders.stroke_margin_m", "10 mm", "cylinders.stroke_margin_m: must be a number"),
-    ("cylinders.stroke_m", 20.0, "cylinders.stroke_m: must be <= 10, got 20"),
+    ("cylinders.stroke_m", 20.0, "cylinders.stroke_m: must be <= 4, got 20"),
     ("sensors.displacement.zero_m", 0.15, "sensors.displacement.zero_m: the channel's reading at mid-stroke must "
                                           "be within its range_m -0.1..0.1 m, got 0.15"),
     ("sensors.displacement.zero_m", math.nan, "sensors.displacement.zero_m: must be finite"),

@@ -306,3 +306,10 @@ def test_the_stroke_keys_are_built_in_um_256_from_mid_stroke():
     assert d == {"stroke_lo_q8um": [-STROKE_OFF_Q8UM] * 4, "stroke_hi_q8um": [STROKE_OFF_Q8UM] * 4,
                  "travel_lo_q8um": [-STROKE_OFF_Q8UM] * 4, "travel_hi_q8um": [STROKE_OFF_Q8UM] * 4}
     assert build_node_section(bare)["stroke_hi_q8um"] == [STROKE_OFF_Q8UM] * 4
+
+
+def test_a_stroke_beyond_what_the_node_holds_is_refused_by_name():
+    """The node holds its stroke and travel limits within +-2**29 um/256 (2.1 m from mid-stroke)."""
+    ph = dict(example_physical(), stroke_m=[4.0] * 4, travel_tolerance_m=0.2)
+    with pytest.raises(ValueError, match=r"^physical.stroke_m\[0\] \(travel_lo_q8um, um/256\): the node would compute"):
+        build_node_section(ph)

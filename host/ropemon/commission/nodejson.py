@@ -375,6 +375,7 @@ def sigma0_max(ph: dict | Physical) -> float:
 
 
 STROKE_OFF_Q8UM = 1 << 25  # beyond any position a displacement channel reads (checked above)
+STROKE_LIMIT_Q8UM = 1 << 29  # the node's range of the stroke and travel keys
 
 
 def stroke_limits(ph: dict | Physical) -> dict[str, list[int]]:
@@ -396,7 +397,7 @@ def stroke_limits(ph: dict | Physical) -> dict[str, list[int]]:
            "travel_hi_q8um": [round((s / 2 + tol) * 256e6) for s in p.stroke_m]}
     for key, values in out.items():
         for i, v in enumerate(values):
-            _check(f"physical.stroke_m[{i}] ({key}, um/256)", v, I30)
+            _check(f"physical.stroke_m[{i}] ({key}, um/256)", v, STROKE_LIMIT_Q8UM + 1)
     return out
 
 

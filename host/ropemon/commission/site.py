@@ -305,7 +305,7 @@ def _cylinder(t: _Table) -> Cylinder:
     area = t.number("area_m2", circle, gt=0)
     if area > circle * 1.0001:
         raise SiteError(f"{t.field('area_m2')}: must not exceed pi*bore^2/4 = {circle:.6g} m^2, got {area:g}")
-    stroke = t.number("stroke_m", gt=0, le=10.0)
+    stroke = t.number("stroke_m", gt=0, le=physical_section.STROKE_MAX_M)
     margin = t.number("stroke_margin_m", STROKE_MARGIN_M, gt=0)
     if not margin < stroke / 4:
         raise SiteError(f"{t.field('stroke_margin_m')}: must be < stroke_m/4 = {stroke / 4:g} m (the margin bands "

@@ -116,7 +116,7 @@ COMPLIANCE_DEFAULTS: dict[str, float] = {
 # reading beyond +-(stroke_m/2 + travel_tolerance_m) for its displacement channel's fault;
 # these are the defaults of the two (`Physical.stroke_margin`, `Physical.travel_tolerance`).
 STROKE_DEFAULTS = {"stroke_margin_m": 0.01, "travel_tolerance_m": 0.005}
-STROKE_MAX_M = 10.0
+STROKE_MAX_M = 4.0   # the node holds positions within +-2**29 um/256 (2.1 m)
 # the host's alarm settings when `physical` does not name them
 HOST_DEFAULTS = {"slack_frac": 0.60, "overload_frac": 1.0}
 
