@@ -981,6 +981,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="population seeds: scoring (101-200, the reported figures: no setting was chosen "
                         "on them) or tuning (1-20, where settings are chosen); default scoring")
     p.add_argument("--jobs", type=int, default=2, help="population winds run at a time (default 2)")
+    p.add_argument("--faults", action="store_true",
+                   help="with --population: also run each hoist with one drawn fault and score the station's "
+                        "alarms against the Targets (faults.md, faults.json)")
+    p.add_argument("--duty-cycles", type=int, default=0, metavar="K",
+                   help=f"with --faults: the first K hoists also through a {population.DUTY_TRIPS}-wind duty cycle "
+                        "with one rope creeping (the adjustment advisory); default 0")
 
 
 def default_scenarios() -> list[str]:
@@ -1027,28 +1033,45 @@ def run_population(args: argparse.Namespace) -> int:
         print(f"ropemon evaluate: --population must be 1..{len(pool)} for the {args.seeds} seeds", file=sys.stderr)
         return 2
     seeds = pool[: args.population]
+    if args.duty_cycles and not args.faults:
+        print("ropemon evaluate: --duty-cycles needs --faults", file=sys.stderr)
+        return 2
+    if not 0 <= args.duty_cycles <= args.population:
+        print(f"ropemon evaluate: --duty-cycles must be 0..{args.population} (the hoists run)", file=sys.stderr)
+        return 2
+    if args.faults and args.no_firmware:
+        print("ropemon evaluate: --faults scores the station on the node's frames: it needs the firmware",
+              file=sys.stderr)
+        return 2
     log = (lambda s: print(s, file=sys.stderr, flush=True))
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="ropemon-population-") as tmp:
         work = args.out / "population" if args.out else Path(tmp)
         winds = population.run(seeds, work, args.jobs, not args.no_firmware,
-                               BED_QUICK if args.quick else None, log)
+                               BED_QUICK if args.quick else None, log, args.faults, seeds[: args.duty_cycles])
     out = jsonable({"population": population.summary(winds, "node"),
                     "baseline": population.summary(winds, "baseline"),
                     "by_law": population.by_law(winds), "seeds": args.seeds, "quick": bool(args.quick),
                     "wall_s": round(time.monotonic() - t0, 1), "winds": winds})
+    if args.faults:
+        out["targets"] = jsonable(population.targets_summary(winds))
     md = population.markdown(out)
+    command = (f"ropemon evaluate --population {args.population} --seeds {args.seeds}"
+               f"{' --quick' if args.quick else ''}")
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "population.json").write_text(json.dumps(out, indent=1, allow_nan=False) + "\n")
-        (args.out / "population.md").write_text(
-            f"Made by `ropemon evaluate --population {args.population} --seeds {args.seeds}"
-            f"{' --quick' if args.quick else ''}`\n\n" + md)
+        (args.out / "population.md").write_text(f"Made by `{command}`\n\n" + md)
+        if args.faults:
+            fault_cmd = command + " --faults" + (f" --duty-cycles {args.duty_cycles}" if args.duty_cycles else "")
+            (args.out / "faults.md").write_text(population.targets_markdown(out, fault_cmd))
     if args.json:
         json.dump(out, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     else:
         print(md)
+        if args.faults:
+            print(population.targets_markdown(out, "ropemon evaluate " + " ".join(sys.argv[2:])))
     return 1 if out["population"]["errors"] else 0
 
 

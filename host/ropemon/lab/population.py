@@ -1161,3 +1161,180 @@ def ideal_bound_figures(truth, physical: dict, margin: float = IDEAL_MARGIN, fra
             "superposed_warning_share": round(float(np.mean(sup_shares)), 4) if sup_shares else None,
             "superposed_missed_frames": sup_missed,
             "coverage_min": round(float(coverage.min()), 4), "margin": margin}
+
+
+# ---------------------------------------------------------------- the Targets' table
+
+CONFIGS = ("station", "legacy")
+CLASS_TARGETS = {"stroke_offset": "stroke limit within 1 s at p95", "stroke_creep": "stroke limit within 1 s at p95",
+                 "valve_closed": "within the load change that shows it",
+                 "seized_seal": "within the load change that shows it",
+                 "leak": f"oil loss >= {OIL_LOSS_TARGET_L_MIN} L/min within the wind",
+                 DUTY_CLASS: f"advisory >= {ADVISORY_LEAD_WINDS} winds before the margin"}
+
+
+def _stats(values) -> dict:
+    v = np.asarray([x for x in values if x is not None], float)
+    if not v.size:
+        return {"median": None, "p95": None, "max": None, "min": None, "n": 0}
+    return {"median": round(float(np.median(v)), 2), "p95": round(float(np.percentile(v, 95)), 2),
+            "max": round(float(v.max()), 2), "min": round(float(v.min()), 2), "n": int(v.size)}
+
+
+def _count(into: dict, add: dict) -> None:
+    for k, v in add.items():
+        into[k] = into.get(k, 0) + v
+
+
+def targets_summary(results: list[dict]) -> dict:
+    """The Targets' figures over the winds (`run_wind`'s `targets`), per alarm configuration."""
+    scored = [r for r in results if "targets" in r]
+    out: dict = {"hoists": len(scored), "legacy_distinct": all(r["targets"]["legacy_distinct"] for r in scored),
+                 "hidden_known": all(r["targets"]["healthy"]["hidden_known"] for r in scored)}
+    for which in CONFIGS:
+        healthy = [r["targets"]["healthy"][which] for r in scored]
+        h = {"winds": len(healthy), "standing_winds": 0, "standing": {}, "raised": 0, "chattering": 0,
+             "kinds": {}, "excluded": {}}
+        for fig in healthy:
+            hh = fig["healthy"]
+            h["standing_winds"] += bool(hh["standing"])
+            _count(h["standing"], {aid.split(":")[0]: 1 for aid in hh["standing"]})
+            h["raised"] += hh["raised"]
+            h["chattering"] += len(hh["chattering"])
+            _count(h["kinds"], hh["kinds"])
+            _count(h["excluded"], hh["excluded"])
+        h["raised_per_wind"] = round(h["raised"] / len(healthy), 3) if healthy else None
+        silent = {"healthy": {"within_hidden": 0, "beyond_hidden": 0, "unsplit": 0},
+                  "faulted": {"within_hidden": 0, "beyond_hidden": 0, "unsplit": 0}}
+        for fig in healthy:
+            for k in silent["healthy"]:
+                silent["healthy"][k] += len(fig["silent"][k])
+        classes: dict = {}
+        for r in scored:
+            for key in ("fault", "duty"):
+                fa = r["targets"].get(key)
+                if fa is None:
+                    continue
+                c = classes.setdefault(fa["class"], {"drawn": 0, "errors": 0, "crossed": 0, "alarmed": 0,
+                                                     "in_time": 0, "wrong_rope": 0, "missed": 0,
+                                                     "not_crossed_alarmed": 0, "latency": [], "lead_winds": [],
+                                                     "raised": {}, "any_on_rope": 0})
+                c["drawn"] += 1
+                if "error" in fa:
+                    c["errors"] += 1
+                    continue
+                for k in silent["faulted"]:
+                    silent["faulted"][k] += len(fa[which]["silent"][k])
+                f = fa[which]["fault"]
+                if not fa["truth"]["crossed"]:
+                    c["not_crossed_alarmed"] += bool(f["alarmed"])
+                    continue
+                c["crossed"] += 1
+                _count(c["raised"], f["raised"])
+                c["any_on_rope"] += f["any_on_rope"] is not None or (fa["truth"]["rope"] is None and bool(f["raised"]))
+                if f["alarmed"]:
+                    c["alarmed"] += 1
+                    c["in_time"] += bool(f["in_time"])
+                    c["latency"].append(f["latency_s"])
+                    if f.get("lead_winds") is not None:
+                        c["lead_winds"].append(f["lead_winds"])
+                elif f["wrong_rope"]:
+                    c["wrong_rope"] += 1
+                else:
+                    c["missed"] += 1
+        for c in classes.values():
+            c["latency"] = _stats(c["latency"])
+            c["lead_winds"] = _stats(c["lead_winds"])
+        out[which] = {"healthy": h, "silent": silent, "classes": classes}
+    return out
+
+
+def _cell(x, fmt="{}") -> str:
+    return "-" if x is None else fmt.format(x)
+
+
+def _lat(st: dict) -> str:
+    if not st or st.get("median") is None:
+        return "-"
+    return f"{st['median']:+.1f} / {st['p95']:+.1f} / {st['max']:+.1f}"
+
+
+def targets_markdown(out: dict, command: str) -> str:
+    """docs/evaluation/faults.md: the Targets, fault class by fault class, today's station beside."""
+    from ropemon.lab.metrics import STANDING_SHARE
+
+    t = out["targets"]
+    st, lg = t["station"], t["legacy"]
+    hs, hl = st["healthy"], lg["healthy"]
+    n_duty = sum(c["drawn"] for c in (st["classes"].get(DUTY_CLASS, {}),) if c)
+    lines = [f"Made by `{command}`", "",
+             f"{t['hoists']} scored hoists of the {out['seeds']} seeds, each run healthy and with one drawn fault"
+             + (f"; {n_duty} also through a {DUTY_TRIPS}-wind duty cycle with one rope creeping" if n_duty else "")
+             + f"; {out['wall_s']} s. *station*: the alarms as shipped (`physical.alarm_settings` of the "
+             "commissioned config); *today's station*: the same with `legacy_deviation_possible=True, "
+             "equalizer=None`, the station before the equalizer's alarms. Both on the same node frames "
+             "(`population.station_events`, as `ropemon replay --db`)."
+             + ("" if t["legacy_distinct"] else " **These alarm settings have no legacy switch: both columns are "
+                                               "the same station.**"), ""]
+    ex_s = ", ".join(f"{k}: {v}" for k, v in hs["excluded"].items()) or "none"
+    ex_l = ", ".join(f"{k}: {v}" for k, v in hl["excluded"].items()) or "none"
+
+    def kinds(d: dict) -> str:
+        return ", ".join(f"{k} {v}" for k, v in sorted(d.items(), key=lambda kv: -kv[1])) or "none"
+    lines += [f"| healthy hoists ({hs['winds']} winds) | target | station | today's station |", "|---|---|---|---|",
+              f"| winds with an alarm standing through {STANDING_SHARE:.0%} or more of the wind | 0 | "
+              f"{hs['standing_winds']} ({kinds(hs['standing'])}) | {hl['standing_winds']} ({kinds(hl['standing'])}) |",
+              f"| alarms raised per healthy wind | at most 0.05 | {_cell(hs['raised_per_wind'])} ({kinds(hs['kinds'])}) "
+              f"| {_cell(hl['raised_per_wind'])} ({kinds(hl['kinds'])}) |",
+              f"| chattering alarms (raised more than twice in a minute) | 0 | {hs['chattering']} | {hl['chattering']} |",
+              f"| raises not counted | - | {ex_s} | {ex_l} |", ""]
+    lines += ["| fault class | drawn | crossed its threshold | station: alarmed on the right rope (in time) | "
+              "wrong rope | missed | station: event to alarm, s, median / p95 / max | target | "
+              "today's station: any alarm on the rope | today's station raised | not crossed, alarmed anyway |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for cls in (*FAULT_CLASSES, DUTY_CLASS):
+        c, cl = st["classes"].get(cls), lg["classes"].get(cls)
+        if not c:
+            continue
+        timing = _lat(c["latency"]) if cls != DUTY_CLASS else (
+            f"{c['lead_winds']['median']:g} winds ahead (least {c['lead_winds']['min']:g})"
+            if c["lead_winds"]["n"] else "-")
+        errors = f" ({c['errors']} errors)" if c["errors"] else ""
+        lines.append(f"| {cls.replace('_', ' ')} | {c['drawn']}{errors} "
+                     f"| {c['crossed']} | {c['alarmed']} ({c['in_time']}) | {c['wrong_rope']} | {c['missed']} "
+                     f"| {timing} | {CLASS_TARGETS[cls]} | {cl['any_on_rope']} of {cl['crossed']} "
+                     f"| {kinds(cl['raised'])} | {c['not_crossed_alarmed']} |")
+    sh, sf = st["silent"], lg["silent"]
+    lines += ["", "Silent ropes: a rope truly beyond 10 % for 2 s or more without an alarm on it (an advisory does "
+              "not count), healthy winds + faulted winds:", "",
+              "| silent ropes | target | station | today's station |", "|---|---|---|---|"]
+    if t["hidden_known"]:
+        lines += [f"| true deviation within the imbalance the commissioning says the seals can hide | reported | "
+                  f"{sh['healthy']['within_hidden']} + {sh['faulted']['within_hidden']} | "
+                  f"{sf['healthy']['within_hidden']} + {sf['faulted']['within_hidden']} |",
+                  f"| beyond it | 0 | {sh['healthy']['beyond_hidden']} + {sh['faulted']['beyond_hidden']} | "
+                  f"{sf['healthy']['beyond_hidden']} + {sf['faulted']['beyond_hidden']} |"]
+    else:
+        lines.append(f"| all (the station gives no hidden imbalance to split them by) | - | "
+                     f"{sh['healthy']['unsplit']} + {sh['faulted']['unsplit']} | "
+                     f"{sf['healthy']['unsplit']} + {sf['faulted']['unsplit']} |")
+    lines += ["", "| seed | fault | crossed (truth) | station | today's station raised |", "|---|---|---|---|---|"]
+    for r in out["winds"]:
+        for key in ("fault", "duty"):
+            fa = r.get("targets", {}).get(key)
+            if fa is None:
+                continue
+            if "error" in fa:
+                lines.append(f"| {r['seed']} | {fa['describe']} | ERROR: {fa['error']} | | |")
+                continue
+            f, fl = fa["station"]["fault"], fa["legacy"]["fault"]
+            tr = fa["truth"]
+            res = (f"{'in time' if f['in_time'] else 'LATE'} {f['latency_s']:+.1f} s" if f["alarmed"] else
+                   f"wrong rope {', '.join(str(x + 1) for x in f['wrong_rope'])}" if f["wrong_rope"] else
+                   "not alarmed")
+            if f.get("lead_winds") is not None:
+                res += f", {f['lead_winds']} winds ahead"
+            lines.append(f"| {r['seed']} | {fa['describe']} | {'yes' if tr['crossed'] else 'no'}: {tr['why']} "
+                         f"| {res} | {kinds(fl['raised'])} |")
+    return "\n".join(lines) + "\n"
+
