@@ -353,3 +353,25 @@ def test_keys_from_options_merges_key_and_config_options(tmp_path):
     with pytest.raises(ValueError, match="--accept-rewound needs node keys"):
         keys_from_options([], [], accept_rewound=[1], env={})
     assert keys_from_options([f"1:{k1}"], [], accept_rewound=[1], env={}) == {1: KEYS[1]}
+
+
+def test_ropemon_decode_prints_positions_and_stroke_bits_of_both_versions(tmp_path):
+    """`ropemon decode` of a capture of a version 3 and a version 2 node: one JSON line each, with
+    pos_01mm, position_absent and stroke_mask (absent / 0 for the version 2 node)."""
+    import subprocess
+    import sys
+
+    data = (encode_frame(node=1, seq=1, ropes=[(4000, 3990, 4010, 5000, 905), (4000, 3990, 4010, 5000, L.POS_ABSENT)],
+                         stroke_mask=1 << L.STROKE_HIGH_SHIFT, status=L.ST_STROKE_LIMIT)[1]
+            + encode_frame(node=2, seq=1, ropes=[(4000, 3990, 4010, 5000)], version=2)[1])
+    p = tmp_path / "cap.bin"
+    p.write_bytes(data)
+    r = subprocess.run([sys.executable, "-m", "ropemon.cli", "decode", str(p)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    v3, v2 = [json.loads(x) for x in r.stdout.splitlines()]
+    assert (v3["version"], v3["stroke_mask"], v3["status_flags"]) == (3, 0x10, ["stroke_limit"])
+    assert [(x["pos_01mm"], x["position_absent"]) for x in v3["ropes"]] == [(905, False), (L.POS_ABSENT, True)]
+    assert (v2["version"], v2["stroke_mask"]) == (2, 0)
+    assert [(x["pos_01mm"], x["position_absent"]) for x in v2["ropes"]] == [(L.POS_ABSENT, True)]
+    assert "frames_ok=2" in r.stderr
