@@ -627,3 +627,32 @@ def test_the_face_serves_over_http_and_says_where_and_refuses_a_busy_port(tmp_pa
         face.stop()
         stations.close()
     assert not face.thread.is_alive()
+
+
+def test_the_hoist_status_goes_out_at_once_when_it_comes_then_at_most_once_a_second():
+    from types import SimpleNamespace
+
+    from ropemon.station.alarms import HoistStatus
+    from ropemon.station.physical import SiteFigures
+    from ropemon.station.pipeline import AlarmState
+    from ropemon.station.web.state import WebListener
+
+    lst = WebListener(SimpleNamespace(id="h", name="H", site=SiteFigures([0.01] * 4)))
+    sent: list[tuple[float, str, str]] = []
+    lst._broadcast = lambda event, data: sent.append((lst.now, event, data))   # type: ignore[method-assign]
+
+    def state(t, kn):
+        if kn is None:
+            return AlarmState(t, (), {}, (), {})
+        st = HoistStatus(1, 0.03, kn * 1000, 0.10, True, f"the seals can hide 3.0% at {kn:.1f} kN per rope")
+        return AlarmState(t, (), {}, (), {1: st})
+
+    lst.on_alarms(state(0.0, None))
+    for k in range(1, 31):                      # 4 ticks a second for 7.5 s, the rope tension changing each
+        lst.on_alarms(state(k * 0.25, 40.0 + k))
+    hoist = [(t, json.loads(d)) for t, ev, d in sent if ev == "hoist"]
+    assert hoist[0] == (0.0, {}) and hoist[1][0] == 0.25           # the status came: at once
+    assert all(b[0] - a[0] >= 1.0 for a, b in zip(hoist[1:], hoist[2:]))
+    assert 7 <= len(hoist) <= 9
+    assert lst.snapshot()["alarms"]["hoist"] == hoist[-1][1]
+    assert hoist[-1][1]["1"]["hidden_frac"] == 0.03

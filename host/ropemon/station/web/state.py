@@ -12,7 +12,7 @@ every method of it runs on the station's thread. It keeps, under its own lock,
 
 Browsers follow it through server-sent events: a client `subscribe`s with a `Subscriber`
 (an asyncio queue on the web's event loop) and gets, atomically, a full snapshot, then every
-change as a delta ("frame", "alarms", "status", "event"), pushed from the station's thread with
+change as a delta ("frame", "alarms", "status", "hoist", "event"), pushed from the station's thread with
 `loop.call_soon_threadsafe`. The queue is bounded: a client that does not keep up is dropped
 (its stream ends; the browser reconnects and gets a new snapshot), so the station never waits
 for a browser. Messages are JSON text, serialised once for all clients.
@@ -204,7 +204,9 @@ class WebListener(Listener):
         self._summary_subs: set[Subscriber] = set()
         self.nodes: dict[int, dict] = {}
         self.trend: dict[int, deque[tuple[float, list[float | None]]]] = {}
-        self.alarms: dict = {"time_s": None, "active": [], "hidden": [], "bands": {}, "hoist": {}}
+        self.alarms: dict = {"time_s": None, "active": [], "hidden": [], "bands": {}}
+        self.hoist: dict = {}                    # node -> its standing status (hoist_view)
+        self._hoist_sent: tuple[float, str] | None = None
         self._alarms_text = ""
         self.status: dict = {}
         self.events: deque[dict] = deque(maxlen=EVENTS_KEPT)
@@ -244,11 +246,20 @@ class WebListener(Listener):
                                              "d_min": _r(b.d_min, 4), "d_max": _r(b.d_max, 4)}
                           for b in bl] for n, bl in state.bands.items()}
         view = {"active": [alarm_view(a, a.id == first) for a in state.active],
-                "hidden": [alarm_view(a) for a in state.hidden], "bands": bands,
-                "hoist": {str(n): hoist_view(st) for n, st in state.hoist.items()}}
+                "hidden": [alarm_view(a) for a in state.hidden], "bands": bands}
         text = dumps(view)
+        hoist = {str(n): hoist_view(st) for n, st in state.hoist.items()}
+        hoist_text = dumps(hoist)
         with self._lock:
             self.now = state.time_s
+            # the standing status follows the rope tension: a change of its figures at most once
+            # a second, a node's status coming or going at once
+            sent = self._hoist_sent
+            if sent is None or hoist.keys() != self.hoist.keys() or (
+                    hoist_text != sent[1] and (state.time_s - sent[0] >= STATUS_EVERY_S or state.time_s < sent[0])):
+                self.hoist = hoist
+                self._hoist_sent = (state.time_s, hoist_text)
+                self._broadcast("hoist", hoist_text)
             if text == self._alarms_text:
                 return
             self._alarms_text = text
@@ -311,7 +322,8 @@ class WebListener(Listener):
     def _copy(self, trend: bool) -> tuple:
         """What a snapshot needs, copied under the lock (the views it holds are replaced, never
         changed, on the station's thread): quick, so the station never waits long."""
-        return (self.now, dict(self.nodes), self.alarms, self.status, list(self.events)[-50:], self.stopped,
+        return (self.now, dict(self.nodes), dict(self.alarms, hoist=self.hoist), self.status,
+                list(self.events)[-50:], self.stopped,
                 {n: list(tr) for n, tr in self.trend.items()} if trend else None)
 
     def _snapshot(self, copied: tuple) -> dict:

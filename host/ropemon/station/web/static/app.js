@@ -352,8 +352,7 @@
 
   function renderAlarms(al) {
     live.bands = al.bands || {};
-    live.hoist = al.hoist || {};
-    renderHoistStatus();
+    if (al.hoist) { live.hoist = al.hoist; renderHoistStatus(); }
     const tb = $("#alarm-rows");
     if (!tb) return;
     const have = new Map($$("tr[data-alarm-id]", tb).map((r) => [r.dataset.alarmId, r]));
@@ -546,6 +545,7 @@
       },
       frame(v) { renderNode(v); if (!v.status_only) trendPoint(v); },
       alarms: renderAlarms,
+      hoist(h) { live.hoist = h; renderHoistStatus(); },
       status: renderStatus,
       event(e) {
         addEvent(e, true);
