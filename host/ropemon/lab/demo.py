@@ -180,9 +180,11 @@ class FrameKeeper(Listener):
 
     def __init__(self) -> None:
         self.frames: list[Frame] = []
+        self.last_rx_s: float | None = None   # the station's time of the last new frame
 
     def on_frame(self, item: Received, now_s: float) -> None:
         self.frames.append(item.frame)
+        self.last_rx_s = now_s
 
 
 @dataclass
@@ -602,7 +604,7 @@ def run(args: argparse.Namespace) -> int:
         acc = accuracy(host.kept.frames, truth, t_truth, site.cylinder_area_m2,
                        site.rated_rope_tension_n or 1.0, 1.0 / phys["frame_hz"])
         plot = plot_demo(acc, out / "demo.png") if acc.get("frames") else None
-        summary = summarize(sent, result, host, acc, written)
+        summary = summarize(sent, result, host, acc, written, site)
         summary["files"] = {"database": str(db) if db else None, "plot": str(plot) if plot else None,
                             "frames": str(frames_bin), "config": str(node_json), "report": str(out / "report"),
                             "site": json.loads((sim_dir / "truth.json").read_text()).get("site_file")}
@@ -624,8 +626,58 @@ def run(args: argparse.Namespace) -> int:
     return 0 if summary["host"]["foreign_frames"] == 0 else 1
 
 
-def summarize(sent: Sent, result: radio.RadioResult, host: DemoHost, acc: dict, written: dict[str, int]) -> dict:
-    """Frames sent/received/lost, per-receiver link quality, alarms, accuracy: plain JSON."""
+def pistons(frames: list[Frame], site=None) -> dict:
+    """Each rope's piston over the frames received (mm from mid-stroke, x > 0 pulled out by its
+    rope): first, last, least and most, and the frames whose stroke flags put it in a margin;
+    the end stops and margins where the config gives the stroke."""
+    ropes = max((len(f.ropes) for f in frames), default=0)
+    out: dict = {"ropes": [], "stroke_mm": None, "margin_mm": None}
+    if site is not None and getattr(site, "stroke_m", None):
+        out["stroke_mm"] = [round(s * 1e3, 1) for s in site.stroke_m]
+        out["margin_mm"] = None if site.stroke_margin_m is None else round(site.stroke_margin_m * 1e3, 1)
+    for i in range(ropes):
+        xs = [f.ropes[i].position_m for f in frames if i < len(f.ropes) and f.ropes[i].position_m is not None]
+        low = sum(1 for f in frames if i < len(f.ropes) and f.stroke_low[i])
+        high = sum(1 for f in frames if i < len(f.ropes) and f.stroke_high[i])
+        out["ropes"].append({"rope": i + 1, "frames": len(xs),
+                             **({"first_mm": round(xs[0] * 1e3, 1), "last_mm": round(xs[-1] * 1e3, 1),
+                                 "min_mm": round(min(xs) * 1e3, 1), "max_mm": round(max(xs) * 1e3, 1)} if xs else {}),
+                             "frames_retracted_margin": low, "frames_extended_margin": high})
+    return out
+
+
+def alarms_at_end(host: DemoHost) -> dict:
+    """The alarms as the wind ends: those raised (every raise), those standing (present) at the
+    end, and the raises other than the node falling silent after its last frame (the end of the
+    wind): a healthy wind has none."""
+    engine = host.alarms.engine
+    last = host.kept.last_rx_s
+    events = list(engine.events)
+    beyond_silence = [e for e in events if e.action == "raise"
+                      and not (e.kind == "silent" and last is not None and e.time_s >= last)]
+    standing = [a for a in engine.active() if a.present]
+    return {"standing": [{"alarm": a.id, "kind": a.kind, "rope": None if a.rope is None else a.rope + 1,
+                          "message": a.message} for a in standing],
+            "raised_but_end_silence": [{"alarm": e.alarm, "kind": e.kind,
+                                        "rope": None if e.rope is None else e.rope + 1, "message": e.message}
+                                       for e in beyond_silence]}
+
+
+def hoist_statuses(host: DemoHost) -> list[dict]:
+    """Each node's standing status (`AlarmEngine.hoist_status`: not an alarm) as the wind ends."""
+    engine = host.alarms.engine
+    out = []
+    for node in engine.nodes():
+        st = engine.hoist_status(node) if hasattr(engine, "hoist_status") else None
+        if st is not None:
+            out.append({"node": node, "text": st.text, "hidden_frac": st.hidden_frac, "notes": list(st.notes)})
+    return out
+
+
+def summarize(sent: Sent, result: radio.RadioResult, host: DemoHost, acc: dict, written: dict[str, int],
+              site=None) -> dict:
+    """Frames sent/received/lost, per-receiver link quality, pistons, the hoist's standing status,
+    alarms, accuracy: plain JSON."""
     by_seq = {(f.node, f.seq): f for f in sent.frames}
     session = host.station
     frames, events = host.kept.frames, host.alarms.engine.events
@@ -663,7 +715,9 @@ def summarize(sent: Sent, result: radio.RadioResult, host: DemoHost, acc: dict, 
             "stored_frames": host.store.committed_frames if host.store is not None else None,
         },
         "receivers": receivers,
-        "alarms": {"raised": raises, "events": [e.to_dict() for e in events][:50]},
+        "alarms": {"raised": raises, "events": [e.to_dict() for e in events][:50], **alarms_at_end(host)},
+        "pistons": pistons(frames, site),
+        "hoist_status": hoist_statuses(host),
         "accuracy": {k: v for k, v in acc.items() if not k.startswith("_")},
     }
 
@@ -685,10 +739,34 @@ def format_summary(s: dict) -> str:
         bins = [f"{a:.0f}..{b:.0f} m {100 * sh:.0f}%" for a, b, sh in r.get("share_by_depth", []) if sh is not None]
         for k in range(0, len(bins), 5):
             lines.append("      " + "  ".join(bins[k:k + 5]))
-    raised = s["alarms"]["raised"]
+    lines += format_pistons(s.get("pistons") or {})
+    for st in s.get("hoist_status") or []:
+        lines += [""] + _wrap(f"hoist status, node {st['node']} (standing, not an alarm): {st['text']}")
+        for n in st["notes"]:
+            lines += _wrap("  " + n, "    ")
+    al = s["alarms"]
+    raised = al["raised"]
     lines += ["", "alarms raised: " + (", ".join(f"{k} x{v}" for k, v in raised.items()) or "none")]
-    for e in s["alarms"]["events"][:8]:
-        lines.append(f"  {e['action']:5} {e['alarm']:22} {e['message']}")
+    by_rope: dict[int, list[str]] = {}
+    for e in al["events"]:
+        if e["action"] == "raise" and e.get("rope") is not None and e["kind"] not in by_rope.get(e["rope"] + 1, []):
+            by_rope.setdefault(e["rope"] + 1, []).append(e["kind"])
+    if by_rope:
+        lines += _wrap("  on the ropes: " + "; ".join(f"rope {r} {', '.join(k)}" for r, k in sorted(by_rope.items())),
+                       "    ")
+    for e in al["events"][:8]:
+        lines += _wrap(f"  {e['action']:5} {e['alarm']:22} {e['message']}", " " * 31)
+    if "standing" in al:
+        standing = [a for a in al["standing"] if a["kind"] != "silent"]
+        silent = len(al["standing"]) - len(standing)
+        if not al["raised_but_end_silence"]:
+            lines.append("at the end of the wind: no alarm" + (" but the node silent (the wind ended)" if silent
+                                                               else ""))
+        else:
+            lines.append(f"at the end of the wind: {len(standing)} alarm(s) standing"
+                         + (", and the node silent (the wind ended)" if silent else ""))
+            for a in standing:
+                lines += _wrap(f"  {a['alarm']:22} {a['message']}", " " * 25)
     acc = s["accuracy"]
     if acc.get("frames"):
         c, r = acc["compensated"], acc["raw"]
@@ -712,6 +790,33 @@ def format_summary(s: dict) -> str:
               f"trip table again: ropemon report {f.get('database')} --config {f.get('config')}"
               + (f" --site {f['site']}" if f.get("site") else "")]
     return "\n".join(lines)
+
+
+def _wrap(text: str, indent: str = "  ", width: int = 80) -> list[str]:
+    import textwrap
+
+    return textwrap.wrap(text, width, subsequent_indent=indent, break_on_hyphens=False) or [""]
+
+
+def format_pistons(p: dict) -> list[str]:
+    """The summary's piston lines: one per rope, within 80 columns."""
+    if not p.get("ropes") or not any(r["frames"] for r in p["ropes"]):
+        return ["", "pistons: the frames carry no piston positions (layout version 2)"] if p.get("ropes") else []
+    head = "pistons, mm from mid-stroke (+: pulled out)"
+    if p.get("stroke_mm"):
+        head += f"; end stops at +-{p['stroke_mm'][0] / 2:.0f}"
+        if p.get("margin_mm") is not None:
+            head += f", margins {p['margin_mm']:g} inside them"
+    lines = ["", head, f"  {'':6}{'first':>8}{'last':>8}{'least':>8}{'most':>8}   in a margin (frames)"]
+    for r in p["ropes"]:
+        if not r["frames"]:
+            lines.append(f"  rope {r['rope']}  no position")
+            continue
+        where = ", ".join(f"{what} {n}" for what, n in (("retracted", r["frames_retracted_margin"]),
+                                                          ("extended", r["frames_extended_margin"])) if n) or "never"
+        lines.append(f"  rope {r['rope']}{r['first_mm']:+8.1f}{r['last_mm']:+8.1f}{r['min_mm']:+8.1f}"
+                     f"{r['max_mm']:+8.1f}   {where}")
+    return lines
 
 
 def trip_report(db: Path, out_dir: Path, site, sim_dir: Path, payload_kg) -> str:

@@ -1329,7 +1329,8 @@ def targets_markdown(out: dict, command: str) -> str:
                 continue
             f, fl = fa["station"]["fault"], fa["legacy"]["fault"]
             tr = fa["truth"]
-            res = (f"{'in time' if f['in_time'] else 'LATE'} {f['latency_s']:+.1f} s" if f["alarmed"] else
+            res = (f"alarmed {f['latency_s']:+.1f} s (not required)" if f["alarmed"] and not tr["crossed"] else
+                   f"{'in time' if f['in_time'] else 'LATE'} {f['latency_s']:+.1f} s" if f["alarmed"] else
                    f"wrong rope {', '.join(str(x + 1) for x in f['wrong_rope'])}" if f["wrong_rope"] else
                    "not alarmed")
             if f.get("lead_winds") is not None:
