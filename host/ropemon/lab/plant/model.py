@@ -13,11 +13,16 @@ State y (n = 3 + 4N + N M), signs and units of docs/model.md:
 Equations (i over ropes):
 
     T_i   = max(0, F_load,i + k_i (r + y_i - x_i - delta_i) + c_i (rd + y'_i - v_i))
-    m_i v_i' = T_i - p_i A_i - F_i(v_i, z_i, p_i)
-    p_i'  = beta / (V0_i - A_i x_i) * (A_i v_i - q_i)
-    I_i q_i' = p_i - pj - dp_i(q_i)
-    pj'   = beta / Vj * (sum q_i + Q_pump)
+    m_i v_i' = T_i - p_i A_i - s_i(t) F_i(v_i, z_i, p_i) + E_i(x_i, v_i)
+    p_i'  = beta / (V0_i - A_i x_i) * (A_i v_i - q_i - L_i(p_i, t))
+    I_i q_i' = o_i(t) (p_i - pj - dp_i(q_i)) - (1 - o_i(t)) I_i q_i / TAU_VALVE_S
+    pj'   = beta / Vj * (sum q_i + Q_pump - L_j(pj, t))
     M r'' = M_weight g - sum T_i - M a_wheel          (hoist rig only; a bench rig holds r = 0)
+
+with the equalizer's faults (`Faults`, docs/simulator.md "Faults"): E_i the end stops' one-sided
+contact force at x_i = +-stroke_i/2 (`EndStops`), s_i(t) a seized seal's force multiplier (1
+otherwise), L the leak flows out of a cavity or the connecting assembly, o_i(t) the open fraction of
+rope i's stop valve (1 open, 0 closed: its pipe flow relaxes to 0 within TAU_VALVE_S).
 
 The piston mass m_i (piston and rod) carries inertia only; its weight is part of the
 cage, so at rest T_i = p_i A_i + F_i exactly (docs/model.md). The inputs (rope
@@ -26,7 +31,7 @@ temperature) are precomputed on the solver's time grid (`Inputs`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -62,9 +67,115 @@ class Inputs:
         return Inputs(**{k: v[idx] for k, v in self.__dict__.items()})
 
 
+END_STOP_STIFFNESS_N_M = 2.0e8    # steel on steel through the piston, rod and end cap, lumped
+END_STOP_DAMPING_N_S_M = 2.0e5    # with a 40 kg piston: damping ratio ~1.1 (no bounce off the stop)
+TAU_VALVE_S = 1.0e-3              # a closed valve's pipe flow relaxes to 0 with this time constant
+VALVE_CLOSING_S = 0.01            # a valve closing mid-run goes from open to closed over this time
+LEAK_KNEE_PA = 0.2e6              # a leak's flow falls linearly to 0 below this gauge pressure
+
+
+@dataclass(frozen=True)
+class EndStops:
+    """The cylinders' end stops at x = +-half_stroke_m (x = 0 mid-stroke): a one-sided penalty
+    contact, force max(0, k d + c d') against the penetration d, only while d > 0."""
+
+    half_stroke_m: tuple[float, ...]
+    stiffness_N_m: float = END_STOP_STIFFNESS_N_M
+    damping_N_s_m: float = END_STOP_DAMPING_N_S_M
+
+    def force(self, x, v):
+        """(E, dE/dx, dE/dv) on the piston along x, for x, v of shape (..., N)."""
+        hs = np.asarray(self.half_stroke_m)
+        k, c = self.stiffness_N_m, self.damping_N_s_m
+        up = k * (x - hs) + c * v          # pushing back from the extended end
+        lo = k * (-hs - x) - c * v         # ... from the retracted end
+        on_up = (x > hs) & (up > 0.0)
+        on_lo = (x < -hs) & (lo > 0.0)
+        E = np.where(on_up, -up, np.where(on_lo, lo, 0.0))
+        on = on_up | on_lo
+        return E, np.where(on, -k, 0.0), np.where(on, -c, 0.0)
+
+
+@dataclass(frozen=True)
+class Faults:
+    """The equalizer's faults as the plant sees them (ropes 0-based; scenario.py builds them from
+    [[faults]]). valve_at[i]: time rope i's stop valve is closed (None: open; 0: closed from the
+    start); leaks: (where, rate m^3/s, from t) with where a rope or -1 the connecting assembly;
+    seize[i]: (from t, force multiplier on the law's output) or None."""
+
+    n: int
+    valve_at: tuple = ()
+    valve_side: tuple = ()
+    leaks: tuple = ()
+    seize: tuple = ()
+    any: bool = field(init=False, default=False)
+
+    def __post_init__(self):
+        if not self.valve_at:
+            object.__setattr__(self, "valve_at", (None,) * self.n)
+        if not self.valve_side:
+            object.__setattr__(self, "valve_side", (None,) * self.n)
+        if not self.seize:
+            object.__setattr__(self, "seize", (None,) * self.n)
+        object.__setattr__(self, "any", bool(self.leaks) or any(a is not None for a in self.valve_at)
+                           or any(a is not None for a in self.seize))
+
+    def closed(self, t):
+        """Closed fraction 1 - o_i of each rope's valve at times t: shape t.shape + (N,)."""
+        t = np.asarray(t, dtype=float)[..., None]
+        out = np.zeros(t.shape[:-1] + (self.n,))
+        for i, at in enumerate(self.valve_at):
+            if at is not None:
+                out[..., i] = (t[..., 0] >= 0.0) * 1.0 if at <= 0.0 else np.clip((t[..., 0] - at) / VALVE_CLOSING_S, 0.0, 1.0)
+        return out
+
+    def events(self) -> list[float]:
+        """Times the faults' inputs change: onsets, and the end of a valve's closing (step points)."""
+        ev = [at for at in self.valve_at if at is not None and at > 0.0]
+        ev += [at + VALVE_CLOSING_S for at in ev]
+        ev += [at for _, _, at in self.leaks if at > 0.0] + [s[0] for s in self.seize if s is not None and s[0] > 0.0]
+        return sorted(set(ev))
+
+    def leak_rates(self, t):
+        """Leak rates (m^3/s, before the pressure knee) at times t > the onset: (ropes t.shape + (N,),
+        assembly t.shape). From t > at_s, so that over the solver's steps (the onset a step point, the
+        leak applied over the steps after it) the leaked volume is rate x (t - at_s)."""
+        t = np.asarray(t, dtype=float)
+        r = np.zeros(t.shape + (self.n,))
+        j = np.zeros(t.shape)
+        for where, rate, at in self.leaks:
+            on = (t > at) * rate
+            if where < 0:
+                j = j + on
+            else:
+                r[..., where] += on
+        return r, j
+
+    def seal_mult(self, t, base):
+        """Seal force multiplier on the law's output at times t (shape t.shape + (N,)): a seized
+        rope's factor over its own force_scale (base) for t > at_s (at_s = 0: from the start), 1
+        elsewhere."""
+        t = np.asarray(t, dtype=float)[..., None]
+        out = np.ones(t.shape[:-1] + (self.n,))
+        for i, s in enumerate(self.seize):
+            if s is not None:
+                at, factor = s
+                on = t[..., 0] >= 0.0 if at <= 0.0 else t[..., 0] > at
+                out[..., i] = np.where(on, factor / base[i], 1.0)
+        return out
+
+
+def leak_flow(rate, p):
+    """A leak's flow at gauge pressure p: `rate` above LEAK_KNEE_PA, falling linearly to 0 at p = 0
+    (a leak cannot draw a vacuum); and its derivative in p."""
+    inside = (p > 0.0) & (p < LEAK_KNEE_PA)
+    return rate * np.clip(p / LEAK_KNEE_PA, 0.0, 1.0), np.where(inside, rate / LEAK_KNEE_PA, 0.0)
+
+
 class Plant:
     def __init__(self, *, area_m2, v0_m3, piston_mass_kg, beta_Pa, junction_volume_m3,
-                 to_junction: PathSet, to_tap: PathSet, friction, offsets_m, hoist: bool):
+                 to_junction: PathSet, to_tap: PathSet, friction, offsets_m, hoist: bool,
+                 end_stops: EndStops | None = None, faults: Faults | None = None):
         self.n = n = len(area_m2)
         self.A = np.asarray(area_m2, dtype=float)
         self.V0 = np.asarray(v0_m3, dtype=float)
@@ -76,6 +187,10 @@ class Plant:
         self.friction = friction
         self.delta = np.asarray(offsets_m, dtype=float)
         self.hoist = bool(hoist)
+        self.end_stops = end_stops
+        self.faults = faults if faults is not None else Faults(n)
+        sc = getattr(friction, "force_scale", None)
+        self.seal_base = np.ones(n) if sc is None else np.asarray(sc, dtype=float)
         self.nz = nz = int(getattr(friction, "n_z", 1))
         self.size = 3 + 4 * n + n * nz
         self.ix = slice(2, 2 + n)
@@ -91,9 +206,9 @@ class Plant:
         zr = np.repeat(np.arange(n), nz)   # rope of each z
         VZ, PZ = V[zr], P[zr]
         pairs = [(X, V), (V, R), (V, RD), (V, X), (V, V), (VZ, Z), (V, P), (Z, VZ), (Z, Z), (Z, PZ),
-                 (P, X), (P, V), (P, Q), (Q, P), (Q, PJ), (Q, Q), (PJ, Q), (RD, X), (RD, V)]
-        rows = [a for a, _ in pairs] + [np.array([0, 1, 1])]
-        cols = [b for _, b in pairs] + [np.array([1, 0, 1])]
+                 (P, X), (P, V), (P, Q), (Q, P), (Q, PJ), (Q, Q), (PJ, Q), (RD, X), (RD, V), (P, P)]
+        rows = [a for a, _ in pairs] + [np.array([0, 1, 1, self.ipj])]
+        cols = [b for _, b in pairs] + [np.array([1, 0, 1, self.ipj])]
         self.jrows = np.concatenate(rows)
         self.jcols = np.concatenate(cols)
 
@@ -117,19 +232,38 @@ class Plant:
         h = e > 0.0
         T = np.where(h, e, 0.0)
         fr = self.friction.evaluate(v, z, p)
+        fa = self.faults
+        t = u.t[k]
+        if fa.any:
+            mult = fa.seal_mult(t, self.seal_base)
+            fr.F, fr.F_v, fr.F_p = fr.F * mult, fr.F_v * mult, fr.F_p * mult
+            fr.F_z = fr.F_z * (mult if self.nz == 1 else mult[:, None])
+            closed = fa.closed(t)
+            lr, lj = fa.leak_rates(t)
+            QL, dQL = leak_flow(lr, p)
+            QLj, dQLj = leak_flow(lj, pj)
+        else:
+            closed = np.zeros(n)
+            QL = dQL = np.zeros(n)
+            QLj = dQLj = 0.0
+        if self.end_stops is not None:
+            E, E_x, E_v = self.end_stops.force(x, v)
+        else:
+            E = E_x = E_v = np.zeros(n)
+        op = 1.0 - closed
         A, m, beta = self.A, self.m, self.beta
         vol = self.V0 - A * x
         rho, mu = u.rho[k], u.mu[k]
         dp, ddp = self.to_junction.dp(q, rho, mu)
         inert = self.to_junction.inertance_per_rho * rho
         f = np.empty(self.size)
-        net = A * v - q
+        net = A * v - q - QL
         f[self.ix] = v
-        f[self.iv] = (T - p * A - fr.F) / m
+        f[self.iv] = (T - p * A - fr.F + E) / m
         f[self.iz] = fr.zdot.ravel()
         f[self.ip] = beta / vol * net
-        f[self.iq] = (p - pj - dp) / inert
-        f[self.ipj] = beta / self.Vj * (q.sum() + u.q_pump[k])
+        f[self.iq] = op * (p - pj - dp) / inert - closed * q / TAU_VALVE_S
+        f[self.ipj] = beta / self.Vj * (q.sum() + u.q_pump[k] - QLj)
         if self.hoist:
             M = u.m_inertia[k]
             f[0] = rd
@@ -149,11 +283,11 @@ class Plant:
             cage = [0.0 * ones, 0.0 * ones, np.zeros(3)]
         F_z_m = -fr.F_z / m if self.nz == 1 else (-fr.F_z / m[:, None]).ravel()
         vals = np.concatenate([
-            ones, hk / m, hc / m, -hk / m, (-hc - fr.F_v) / m, F_z_m, (-A - fr.F_p) / m,
+            ones, hk / m, hc / m, (-hk + E_x) / m, (-hc - fr.F_v + E_v) / m, F_z_m, (-A - fr.F_p) / m,
             fr.zd_v.ravel(), fr.zd_z.ravel(), fr.zd_p.ravel(),
             bv * net * A / vol, bv * A, -bv,
-            1.0 / inert, -1.0 / inert, -ddp / inert,
-            (beta / self.Vj) * ones] + cage)
+            op / inert, -op / inert, -op * ddp / inert - closed / TAU_VALVE_S,
+            (beta / self.Vj) * ones] + cage[:2] + [-bv * dQL, np.append(cage[2], -beta / self.Vj * dQLj)])
         J = np.zeros((self.size, self.size))
         J[self.jrows, self.jcols] = vals
         return f, J
@@ -200,11 +334,29 @@ class Plant:
         T = np.maximum(e, 0.0)
         fr = self.friction.evaluate(v, z, p)
         dp_tap, _ = self.to_tap.dp(q, u.rho, u.mu)
+        pj = Y[:, self.ipj]
+        fa = self.faults
+        mult = fa.seal_mult(u.t, self.seal_base)
+        closed = fa.closed(u.t)
+        lr, lj = fa.leak_rates(u.t)
+        leak = leak_flow(lr, p)[0].sum(axis=1) + leak_flow(lj, pj)[0]
+        p_tap = p - dp_tap
+        side = np.array([s == "cylinder" for s in fa.valve_side])
+        if side.any():   # a valve between the cylinder and its tap: the tap reads the manifold's side
+            p_tap = np.where(side, (1.0 - closed) * p_tap + closed * pj[:, None], p_tap)
+        E = self.end_stops.force(x, v)[0] if self.end_stops is not None else np.zeros_like(x)
         out = {
-            "tension_N": T, "friction_N": fr.F, "z_m": z if self.nz == 1 else self.friction.deflection(z),
-            "p_cav_Pa": p, "p_tap_Pa": p - dp_tap, "p_junction_Pa": Y[:, self.ipj],
+            "tension_N": T, "friction_N": fr.F * mult, "z_m": z if self.nz == 1 else self.friction.deflection(z),
+            "p_cav_Pa": p, "p_tap_Pa": p_tap, "p_junction_Pa": pj,
             "piston_x_m": x, "piston_v_m_s": v, "flow_piston_m3_s": self.A * v, "flow_pipe_m3_s": q,
+            "end_stop_N": E, "valve_open": 1.0 - closed, "seal_scale": self.seal_base * mult,
+            "leak_m3_s": leak,
+            # the leak flow over the solver's steps, each step's flow at its end (the implicit steps'
+            # own: exact while the flow is constant; first order in the pressure knee)
+            "leaked_m3": np.concatenate([[0.0], np.cumsum(leak[1:] * np.diff(u.t))]),
         }
+        if self.hoist:
+            out["rope_offset_m"] = self.delta - u.y_load
         if self.nz > 1:
             out["z_elements_m"] = z
         if self.hoist:

@@ -38,7 +38,27 @@ TRUTH_ARRAYS = {
     "payload_kg": ("kg", "payload in the cage"),
     "oil_temp_C": ("C", "oil temperature"),
     "pump_m3_s": ("m^3/s", "bench rig: pump flow into the connecting line"),
+    "end_stop_N": ("N", "end-stop contact force on the piston along x (< 0 at the extended end, > 0 at the "
+                        "retracted end, 0 off the stops)"),
+    "valve_open": ("1", "rope's stop valve: 1 open, 0 closed (between only while it closes)"),
+    "seal_scale": ("1", "seal force scale relative to the seal type (force_scale; a seized seal's factor)"),
+    "leak_m3_s": ("m^3/s", "oil leak flow out of the device, all leaks"),
+    "leaked_m3": ("m^3", "oil leaked since the start, cumulative"),
+    "rope_offset_m": ("m", "effective rope length excess delta_i (offsets, groove creep, creep per wind; hoist rig)"),
 }
+
+
+def fault_events(res: Result) -> dict[str, Any]:
+    """Physical events read off the truth: each rope's first end-stop contact (s, None: never)."""
+    E = res.truth.get("end_stop_N")
+    out: dict[str, Any] = {"end_stop_first_contact_s": None}
+    if E is not None:
+        first = []
+        for i in range(E.shape[1]):
+            hit = np.nonzero(E[:, i] != 0.0)[0]
+            first.append(float(res.t[hit[0]]) if len(hit) else None)
+        out["end_stop_first_contact_s"] = first
+    return out
 
 
 def write_rsens(path: Path, records: np.ndarray, sample_hz: int) -> None:
@@ -104,6 +124,11 @@ def write_outputs(res: Result, out_dir: Path | str, summary: dict[str, Any]) -> 
         "arrays": {k: {"unit": TRUTH_ARRAYS.get(k, ("", ""))[0], "meaning": TRUTH_ARRAYS.get(k, ("", ""))[1],
                        "shape": list(v.shape)} for k, v in arrays.items()},
         "scenario_doc": sc.doc, "summary": summary,
+        "faults": sc.faults,
+        "end_stops": None if sc.plant.end_stops is None else {
+            "half_stroke_m": list(sc.plant.end_stops.half_stroke_m),
+            "stiffness_N_m": sc.plant.end_stops.stiffness_N_m, "damping_N_s_m": sc.plant.end_stops.damping_N_s_m},
+        "fault_events": fault_events(res),
     }
     if sc.site is not None and sc.sensors is not None:
         from ropemon.commission.nodejson import make_node_json, write_node_json

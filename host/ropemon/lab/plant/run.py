@@ -25,7 +25,8 @@ PRESSURE_TOL_PA = 1.0e5     # no cavity pressure below -this (gauge: below vacuu
 def check_truth(friction, truth: dict, t, tol: float = FRICTION_TOL, p_tol_Pa: float = PRESSURE_TOL_PA) -> None:
     """Raise TruthError (naming the rope, the time and the ratio) where a truth is physically
     impossible: a rope's seal friction |F| beyond tol x its force_scale x (Fs(p) + sigma2(p) |v|)
-    (p the cavity pressure clamped at 0; laws with an Fs line, i.e. every law here: LuGre's and
+    (p the cavity pressure clamped at 0; the scale is truth `seal_scale` where given, so a seized
+    seal's factor counts; laws with an Fs line, i.e. every law here: LuGre's and
     elasto-plastic's sigma0 z stays within s(v, p) <= Fs, Maxwell-slip's elements within alpha_j s,
     Coulomb-Stribeck's g tanh as well), or a cavity pressure below -p_tol_Pa. A seal law that ran
     away in the integrator (population-148's elasto-plastic seal before the settled Newton step:
@@ -45,7 +46,10 @@ def check_truth(friction, truth: dict, t, tol: float = FRICTION_TOL, p_tol_Pa: f
     F = np.asarray(truth["friction_N"], dtype=float)
     v = np.asarray(truth["piston_v_m_s"], dtype=float)
     pm = np.maximum(p, 0.0) * 1e-6
-    scale = 1.0 if friction.force_scale is None else np.asarray(friction.force_scale, dtype=float)
+    if "seal_scale" in truth:   # the seal's scale at each sample (a seized seal's factor from its onset)
+        scale = np.asarray(truth["seal_scale"], dtype=float)
+    else:
+        scale = 1.0 if friction.force_scale is None else np.asarray(friction.force_scale, dtype=float)
     bound = scale * (fs_line.at(pm) + s2_line.at(pm) * np.abs(v))
     if not np.all(np.isfinite(F)):
         raise TruthError("the seal friction is not finite")

@@ -19,7 +19,8 @@ from ropemon.commission import tomlfields
 from ropemon.lab.plant import friction as friction_mod
 from ropemon.lab.plant.hydraulics import Local, Path as PipePath, PathSet, Segment
 from ropemon.lab.plant.stepper import METHODS
-from ropemon.lab.plant.model import Inputs, Plant
+from ropemon.lab.plant.model import (END_STOP_DAMPING_N_S_M, END_STOP_STIFFNESS_N_M, EndStops, Faults, Inputs,
+                                     Plant)
 from ropemon.lab.plant.motion import Timeline, piecewise_linear
 from ropemon.commission.oil import Oil
 from ropemon.lab.plant.ropes import HeadRopes, TailRopes
@@ -138,17 +139,27 @@ class Scenario:
     make_inputs: Any = None      # hoist: t -> Inputs for any times
     grid_points: int = 0
     method: str = "bdf2"          # stepper.integrate_fast method: "bdf2" (default) or "ros2"
+    faults: list = field(default_factory=list)   # [[faults]] as truth.json lists them (`fault_meta`)
 
     @property
     def duration_s(self) -> float:
         return (self.grid_points - 1) * self.step_s if self.inputs is None else float(self.inputs.t[-1])
 
     def plan_steps(self, u: Inputs) -> np.ndarray:
-        """Step plan over the grid window u (indices relative to it)."""
+        """Step plan over the grid window u (indices relative to it); a fault's onset (and a valve's
+        end of closing) is always a step point."""
         if self.rig != "hoist":
             return np.arange(len(u.t))
-        return plan_bounce_steps(u, self.step_s, self.bounce_rad_per_step,
-                                 max(int(round(self.max_step_s / self.step_s)), 1))
+        steps = plan_bounce_steps(u, self.step_s, self.bounce_rad_per_step,
+                                  max(int(round(self.max_step_s / self.step_s)), 1))
+        ev = self.plant.faults.events()
+        if ev:
+            k0 = int(round(u.t[0] / self.step_s))
+            idx = np.array([int(round(e / self.step_s)) - k0 for e in ev])
+            idx = idx[(idx > 0) & (idx < len(u.t))]
+            if len(idx):
+                steps = np.union1d(steps, idx)
+        return steps
 
 
 QUIET_SETTLE_S = 4.0   # after this long with the wheel stopped and the payload constant, steps may be max_step
@@ -187,7 +198,7 @@ def build(doc: dict, path: Path, seed: int | None = None, eager: bool = True) ->
     """The scenario, with its inputs on the whole grid unless eager=False (hoist rigs only: then
     `make_inputs(t)` gives any window and `plan_steps` its steps)."""
     known(doc, "", {"name", "description", "rig", "site", "step_s", "max_step_s", "bounce_rad_per_step", "seed", "method",
-                    "plant", "trip", "duty", "bench", "sensors"})
+                    "plant", "trip", "duty", "bench", "sensors", "faults"})
     rig = string(doc, "rig", "", "hoist", choices=("hoist", "bench"))
     site = None
     if "site" in doc:
@@ -265,7 +276,120 @@ def _segments(v: Any, where: str) -> tuple[Segment, ...]:
 
 PLANT_COMMON = {"beta_Pa", "piston_mass_kg", "dead_volume_m3", "junction_volume_m3", "assembly_pipe",
                 "assembly_locals", "tap_extra_locals", "oil_iso_vg", "oil_cst_100C", "oil_density_15C_kg_m3",
-                "oil_temp_C", "friction"}
+                "oil_temp_C", "friction", "end_stops"}
+
+
+def _end_stops(pt: dict, stroke: np.ndarray) -> EndStops:
+    """[plant.end_stops]: contact at +-stroke/2 from mid-stroke (x = 0), always present."""
+    et = table(pt, "end_stops", "plant", {})
+    known(et, "plant.end_stops", {"stiffness_N_m", "damping_N_s_m"})
+    return EndStops(tuple(float(a) / 2 for a in stroke),
+                    number(et, "stiffness_N_m", "plant.end_stops", END_STOP_STIFFNESS_N_M, ge=1e6, le=1e11),
+                    number(et, "damping_N_s_m", "plant.end_stops", END_STOP_DAMPING_N_S_M, ge=0, le=1e8))
+
+
+FAULT_KINDS = ("valve_closed", "leak", "seized_seal", "creep")
+VALVE_SIDES = ("manifold", "cylinder")
+MAX_CREEP_MM_PER_WIND = 50.0
+MAX_LEAK_L_MIN = 100.0
+MAX_SEIZE_FACTOR = 1000.0
+
+
+@dataclass
+class FaultSpec:
+    """[[faults]] as read: the plant's `Faults`, the creep per wind (m per rope) and the metadata."""
+
+    faults: Faults
+    creep_m_per_wind: np.ndarray
+    meta: list
+
+
+def _faults(doc: dict, n: int, rig: str, duration_s: float, base_scale) -> FaultSpec:
+    """[[faults]] tables (docs/simulator.md "Faults"); ropes from 1 in the file, 0-based inside."""
+    fl = tomlfields.array(doc, "faults", "", ScenarioError, [], what="[[faults]] tables")
+    valve_at, valve_side, seize = [None] * n, [None] * n, [None] * n
+    leaks, meta = [], []
+    creep = np.zeros(n)
+    seen: dict[tuple[str, int], int] = {}
+    for i, ft in enumerate(fl):
+        w = f"faults[{i}]"
+        if not isinstance(ft, dict):
+            raise ScenarioError(f"{w}: must be a table")
+        kind = string(ft, "kind", w, choices=FAULT_KINDS)
+
+        def onset() -> float:
+            at = number(ft, "at_s", w, 0.0, ge=0)
+            if at > duration_s:
+                raise ScenarioError(f"{w}.at_s: {at:g} s is after the scenario's end ({duration_s:g} s)")
+            return at
+
+        def once(rope: int) -> None:
+            if (kind, rope) in seen:
+                raise ScenarioError(f"{w}.rope: rope {rope + 1} has a {kind} fault already (faults[{seen[kind, rope]}])")
+            seen[kind, rope] = i
+
+        if kind == "valve_closed":
+            known(ft, w, {"kind", "rope", "at_s", "side"})
+            rope = integer(ft, "rope", w, lo=1, hi=n) - 1
+            once(rope)
+            at, side = onset(), string(ft, "side", w, "manifold", choices=VALVE_SIDES)
+            valve_at[rope], valve_side[rope] = at, side
+            meta.append({"kind": kind, "rope": rope + 1, "rope_index": rope, "at_s": at, "side": side,
+                         "size": None, "size_unit": None})
+        elif kind == "leak":
+            known(ft, w, {"kind", "rope", "rate_L_min", "at_s"})
+            rope = integer(ft, "rope", w, 0, lo=0, hi=n) - 1      # -1: the connecting assembly
+            rate = number(ft, "rate_L_min", w, gt=0, le=MAX_LEAK_L_MIN)
+            at = onset()
+            leaks.append((rope, rate / 60000.0, at))
+            meta.append({"kind": kind, "rope": rope + 1, "rope_index": None if rope < 0 else rope, "at_s": at,
+                         "where": "manifold" if rope < 0 else "cylinder", "rate_L_min": rate,
+                         "size": rate, "size_unit": "L/min"})
+        elif kind == "seized_seal":
+            known(ft, w, {"kind", "rope", "factor", "at_s"})
+            rope = integer(ft, "rope", w, lo=1, hi=n) - 1
+            once(rope)
+            factor = number(ft, "factor", w, ge=1, le=MAX_SEIZE_FACTOR)
+            at = onset()
+            seize[rope] = (at, factor)
+            meta.append({"kind": kind, "rope": rope + 1, "rope_index": rope, "at_s": at, "factor": factor,
+                         "size": factor, "size_unit": "x the seal type's force"})
+        else:
+            known(ft, w, {"kind", "mm_per_wind"})
+            if rig != "hoist":
+                raise ScenarioError(f"{w}.kind: creep needs a hoist rig (it acts per wind)")
+            once(0)
+            mm = per_rope(ft, "mm_per_wind", w, n)
+            if np.abs(mm).max() > MAX_CREEP_MM_PER_WIND:
+                raise ScenarioError(f"{w}.mm_per_wind: at most {MAX_CREEP_MM_PER_WIND:g} mm per wind on any rope, "
+                                    f"got {np.abs(mm).max():g}")
+            creep = mm / 1000.0
+            for r, v in enumerate(mm):
+                if v != 0.0:
+                    meta.append({"kind": kind, "rope": r + 1, "rope_index": r, "at_s": 0.0, "mm_per_wind": float(v),
+                                 "size": float(v), "size_unit": "mm/wind"})
+    return FaultSpec(Faults(n, tuple(valve_at), tuple(valve_side), tuple(leaks), tuple(seize)), creep, meta)
+
+
+def wind_count(phases: list, timeline, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Winds done by times t (completed wind phases plus the fraction of the current one's distance)
+    and its rate (1/s)."""
+    winds = [p for p in phases if p.kind == "wind" and p.t1 > p.t0]
+    t = np.asarray(t, dtype=float)
+    W, Wd = np.zeros(t.shape), np.zeros(t.shape)
+    if not winds:
+        return W, Wd
+    t0 = np.array([p.t0 for p in winds])
+    t1 = np.array([p.t1 for p in winds])
+    s0 = timeline.evaluate(t0)[0]
+    dist = np.abs(timeline.evaluate(t1)[0] - s0)
+    s, u, _ = timeline.evaluate(t)
+    j = np.searchsorted(t0, t, side="right") - 1       # the last wind started by t (-1: none)
+    jj = np.maximum(j, 0)
+    inside = (j >= 0) & (t < t1[jj]) & (dist[jj] > 0)
+    done = np.where(j >= 0, j + np.where(inside, 0, 1), 0).astype(float)
+    frac = np.where(inside, np.abs(s - s0[jj]) / np.where(dist[jj] > 0, dist[jj], 1.0), 0.0)
+    return done + frac, np.where(inside, np.abs(u) / np.where(dist[jj] > 0, dist[jj], 1.0), 0.0)
 
 
 def _paths(pt: dict, n: int, tap_paths: list[PipePath]) -> tuple[PathSet, PathSet, list]:
@@ -343,12 +467,15 @@ def _build_hoist(doc: dict, path: Path, site, eager: bool = True) -> Scenario:
     from_site = [PipePath.from_site_pipe(p) for p in site.pipes]
     to_j, to_tap, pipe_vol = _paths(pt, n, from_site)
     fr = _friction(pt, n)
+    fs = _faults(doc, n, "hoist", T_end, fr.force_scale)
     plant = Plant(area_m2=area, v0_m3=area * stroke / 2 + dead + np.array(pipe_vol) / 2,
                   piston_mass_kg=per_rope(pt, "piston_mass_kg", "plant", n, 30.0),
                   beta_Pa=number(pt, "beta_Pa", "plant", 1.0e9, gt=1e7, lt=3e9),
                   junction_volume_m3=number(pt, "junction_volume_m3", "plant", 1.0e-3, gt=0),
-                  to_junction=to_j, to_tap=to_tap, friction=fr, offsets_m=head.offsets_m, hoist=True)
+                  to_junction=to_j, to_tap=to_tap, friction=fr, offsets_m=head.offsets_m, hoist=True,
+                  end_stops=_end_stops(pt, stroke), faults=fs.faults)
     m_cage = site.hoist.cage_mass_kg
+    creep_w = fs.creep_m_per_wind
 
     s_w0 = float(timeline.evaluate(np.zeros(1))[0][0])
 
@@ -365,6 +492,10 @@ def _build_hoist(doc: dict, path: Path, site, eager: bool = True) -> Scenario:
         # a rope paying out more than the wheel's travel is longer (less tension) as the cage goes down
         y_load = -(s_w - s_w0)[:, None] * creep
         ydot_load = -u_w[:, None] * creep
+        if creep_w.any():   # creep per wind: each rope's length grows by mm_per_wind over each wind
+            W, Wd = wind_count(phases, timeline, t)
+            y_load = y_load - W[:, None] * creep_w
+            ydot_load = ydot_load - Wd[:, None] * creep_w
         return Inputs(t=t, k_rope=k_rope, c_rope=c_rope, f_load=zeros, y_load=y_load, ydot_load=ydot_load, a_wheel=a_w,
                       s_wheel=s_w, u_wheel=u_w, m_weight=m_weight, m_inertia=m_inertia, q_pump=np.zeros(len(t)),
                       rho=oil.rho_kg_m3(temp), mu=oil.mu_Pa_s(temp), oil_temp_C=temp, payload_kg=payload)
@@ -373,7 +504,8 @@ def _build_hoist(doc: dict, path: Path, site, eager: bool = True) -> Scenario:
     hidden = {"plant": pt, "oil": oil_hidden, "friction_law": fr.name}
     return Scenario(name="", path=path, doc=doc, rig="hoist", plant=plant, inputs=u, step_s=h, sample_hz=sample_hz,
                     seed=0, phases=phases, sensors=None, site=site, hidden=hidden, cage_mass_kg=m_cage, tail=tail,
-                    rated_rope_tension_N=site.hoist.rated_rope_tension_N, make_inputs=make_inputs, grid_points=K)
+                    rated_rope_tension_N=site.hoist.rated_rope_tension_N, make_inputs=make_inputs, grid_points=K,
+                    faults=fs.meta)
 
 
 def _trip(doc: dict, site):
@@ -519,11 +651,13 @@ def _build_bench(doc: dict, path: Path, site) -> Scenario:
     dead = per_rope(pt, "dead_volume_m3", "plant", n, 0.2e-3)
     to_j, to_tap, pipe_vol = _paths(pt, n, tap_paths)
     fr = _friction(pt, n)
+    fs = _faults(doc, n, "bench", duration, fr.force_scale)
     plant = Plant(area_m2=area, v0_m3=area * stroke / 2 + dead + np.array(pipe_vol) / 2,
                   piston_mass_kg=per_rope(pt, "piston_mass_kg", "plant", n, 20.0),
                   beta_Pa=number(pt, "beta_Pa", "plant", 1.0e9, gt=1e7, lt=3e9),
                   junction_volume_m3=number(pt, "junction_volume_m3", "plant", 0.5e-3, gt=0),
-                  to_junction=to_j, to_tap=to_tap, friction=fr, offsets_m=np.zeros(n), hoist=False)
+                  to_junction=to_j, to_tap=to_tap, friction=fr, offsets_m=np.zeros(n), hoist=False,
+                  end_stops=_end_stops(pt, stroke), faults=fs.faults)
     zeros = np.zeros((K, n))
     zk = np.zeros(K)
     u = Inputs(t=t, k_rope=np.tile(k_load, (K, 1)), c_rope=np.tile(c_load, (K, 1)), f_load=f_load, y_load=zeros, ydot_load=zeros,
@@ -532,7 +666,8 @@ def _build_bench(doc: dict, path: Path, site) -> Scenario:
     return Scenario(name="", path=path, doc=doc, rig="bench", plant=plant, inputs=u, step_s=h, sample_hz=sample_hz,
                     seed=0, phases=[Phase("bench", "", 0.0, duration)], sensors=None, site=site,
                     hidden={"plant": pt, "oil": oil_hidden, "friction_law": fr.name},
-                    rated_rope_tension_N=site.hoist.rated_rope_tension_N if site is not None else float(f_load.max()))
+                    rated_rope_tension_N=site.hoist.rated_rope_tension_N if site is not None else float(f_load.max()),
+                    faults=fs.meta)
 
 
 # ---------------------------------------------------------------- sensors

@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from ropemon.lab.plant.friction import CoulombStribeck, ElastoPlastic, LuGre, MaxwellSlip
-from ropemon.lab.plant.model import G
+from ropemon.lab.plant.model import G, LEAK_KNEE_PA, TAU_VALVE_S
 from ropemon.lab.plant.solver import GAMMA
 
 
@@ -75,7 +75,43 @@ class Stepper:
                      for i in range(n)]
         self.quad = [float(a) for a in ps.quad_per_rho]
         self.inert_per_rho = [float(a) for a in ps.inertance_per_rho]
+        # end stops: half strokes, contact stiffness and damping (inf: none)
+        es = plant.end_stops
+        self.half = [float(a) for a in es.half_stroke_m] if es is not None else [math.inf] * n
+        self.kes = float(es.stiffness_N_m) if es is not None else 0.0
+        self.ces = float(es.damping_N_s_m) if es is not None else 0.0
+        # faults (time-dependent): valve open fractions, leak rates, seal scales per step
+        self.faults = plant.faults if plant.faults.any else None
+        self.base = [1.0] * n if self.scale is None else list(self.scale)
+        self.healthy = ([1.0] * n, [0.0] * n, 0.0, self.base)
+        self._ft, self._fs = None, None
         self.set_inputs(u)
+
+    def contacts(self, y) -> tuple:
+        """Each rope's end-stop contact at state y: 1 at the extended end, -1 the retracted, 0 none."""
+        n, kes, ces = self.n, self.kes, self.ces
+        out = []
+        for x, v, half in zip(y[2:2 + n], y[2 + n:2 + 2 * n], self.half):
+            if x > half and kes * (x - half) + ces * v > 0.0:
+                out.append(1)
+            elif x < -half and kes * (-half - x) - ces * v > 0.0:
+                out.append(-1)
+            else:
+                out.append(0)
+        return tuple(out)
+
+    def fault_state(self, t: float):
+        """(open fractions, cavity leak rates m^3/s, assembly leak rate, seal scales) at time t."""
+        fa = self.faults
+        if fa is None:
+            return self.healthy
+        if t == self._ft:
+            return self._fs
+        op = [1.0 - float(c) for c in fa.closed(t)]
+        lr, lj = fa.leak_rates(t)
+        sc = [b * float(mm) for b, mm in zip(self.base, fa.seal_mult(t, self.plant.seal_base))]
+        self._ft, self._fs = t, (op, [float(a) for a in lr], float(lj), sc)
+        return self._fs
 
     def set_inputs(self, u) -> None:
         """Inputs as Python lists (indexing numpy rows per step is slow); k indexes u's rows."""
@@ -90,6 +126,7 @@ class Stepper:
         self.qp = u.q_pump.tolist()
         self.rho = u.rho.tolist()
         self.mu = u.mu.tolist()
+        self.t = u.t.tolist()
 
     def settle(self, y, zh, c) -> None:
         """Replace the friction rows of an implicit step's result y (in place) by the exact roots
@@ -110,7 +147,9 @@ class Stepper:
         nu = mu / rho
         fs0, fs1, fc0, fc1, vs0, vs1, s20, s21 = self.fl
         s0, s1, vth, kind, terms = self.s0, self.s1, self.vth, self.kind, self.terms
-        scaled = self.scale is not None
+        ops, lrs, lj, scs = self.fault_state(self.t[k]) if self.faults is not None else self.healthy
+        scaled = self.scale is not None or self.faults is not None
+        kes, ces = self.kes, self.ces
         beta = self.beta
         nz = self.nz
         o = 2 + 2 * n + n * nz    # first pressure
@@ -121,9 +160,9 @@ class Stepper:
         sumq = 0.0
         J = [] if jac else None
         shk = shc = 0.0
-        for (A, m, delta, V0, q_turb, lam_sum, lin_loc, quad, inert_pr, seg, sc), x, v, z, p, q, kri, cri, fli, yli, \
-                ydli in zip(self.rope, y[2:2 + n], y[2 + n:2 + 2 * n], zs, y[o:o + n], y[o + n:o + 2 * n],
-                            kr, cr, fl, yl, ydl):
+        for (A, m, delta, V0, q_turb, lam_sum, lin_loc, quad, inert_pr, seg, _), x, v, z, p, q, kri, cri, fli, yli, \
+                ydli, half, op, lr, sc in zip(self.rope, y[2:2 + n], y[2 + n:2 + 2 * n], zs, y[o:o + n],
+                                              y[o + n:o + 2 * n], kr, cr, fl, yl, ydl, self.half, ops, lrs, scs):
             e = fli + kri * (r + yli - x - delta) + cri * (rd + ydli - v)
             if e > 0.0:
                 T, hk, hc = e, kri, cri
@@ -181,15 +220,39 @@ class Stepper:
             inert = inert_pr * rho
             vol = V0 - A * x
             bv = beta / vol
-            net = A * v - q
+            # end stops: one-sided penalty contact while penetrating
+            E = ek = ec = 0.0
+            if x > half:
+                fe = kes * (x - half) + ces * v
+                if fe > 0.0:
+                    E, ek, ec = -fe, kes, ces
+            elif x < -half:
+                fe = kes * (-half - x) - ces * v
+                if fe > 0.0:
+                    E, ek, ec = fe, kes, ces
+            # a leak out of the cavity
+            if lr:
+                if p >= LEAK_KNEE_PA:
+                    QL, dQL = lr, 0.0
+                elif p > 0.0:
+                    QL, dQL = lr * p / LEAK_KNEE_PA, lr / LEAK_KNEE_PA
+                else:
+                    QL = dQL = 0.0
+                net = A * v - q - QL
+            else:
+                dQL = 0.0
+                net = A * v - q
             fx.append(v)
-            fv.append((T - p * A - F) / m)
+            fv.append((T - p * A - F + E) / m)
             if nz == 1:
                 fz.append(zdot)
             else:
                 fz.extend(zdot)
             fp.append(bv * net)
-            fq.append((p - pj - dp) / inert)
+            if op == 1.0:
+                fq.append((p - pj - dp) / inert)
+            else:
+                fq.append(op * (p - pj - dp) / inert - (1.0 - op) * q / TAU_VALVE_S)
             sumq += q
             if jac:
                 if kind == 2:
@@ -221,27 +284,38 @@ class Stepper:
                         F_z *= sc
                 shk += hk
                 shc += hc
-                J.append((hk / m, hc / m, -hk / m, (-hc - F_v) / m, -F_z / m if nz == 1 else tuple(-a for a in F_z),
-                          (-A - F_p) / m,
+                if op == 1.0:
+                    jqp, jqpj, jqq = 1.0 / inert, -1.0 / inert, -ddp / inert
+                else:
+                    jqp, jqpj, jqq = op / inert, -op / inert, -op * ddp / inert - (1.0 - op) / TAU_VALVE_S
+                J.append((hk / m, hc / m, (-hk - ek) / m, (-hc - F_v - ec) / m,
+                          -F_z / m if nz == 1 else tuple(-a for a in F_z), (-A - F_p) / m,
                           zd_v, zd_z, zd_p, bv * net * A / vol, bv * A, -bv,
-                          1.0 / inert, -1.0 / inert, -ddp / inert, hk, hc))
+                          jqp, jqpj, jqq, hk, hc, -bv * dQL))
         if self.hoist:
             M = self.mi[k]
             f0, f1 = rd, (self.mw[k] * G - sumT) / M - self.aw[k]
         else:
             M = 1.0
             f0 = f1 = 0.0
+        jjj = 0.0
+        if lj:   # a leak out of the connecting assembly
+            if pj >= LEAK_KNEE_PA:
+                sumq -= lj
+            elif pj > 0.0:
+                sumq -= lj * pj / LEAK_KNEE_PA
+                jjj = -self.bVj * lj / LEAK_KNEE_PA
         f = [f0, f1] + fx + fv + fz + fp + fq + [self.bVj * (sumq + self.qp[k])]
         if not jac:
             return f
         cage = (1.0 / M, -shk / M, -shc / M) if self.hoist else None
-        return f, (J, cage)
+        return f, (J, cage, jjj)
 
     # ------------------------------------------------------------------ linear solve
 
     def factor(self, jac, c):
         """Coefficients of the block elimination of W = I - c J (c = gamma h)."""
-        rows, cage = jac
+        rows, cage, jjj = jac
         cc = c * c
         per1, per2 = [], []
         # sums for the 3x3 system
@@ -250,13 +324,13 @@ class Stepper:
         hoist = cage is not None
         if hoist:
             invM, jrdr, jrdrd = cage
-        for (jvr, jvrd, jvx, jvv, jvz, jvp, jzv, jzz, jzp, jpx, jpv, jpq, jqp, jqpj, jqq, hk, hc) in rows:
+        for (jvr, jvrd, jvx, jvv, jvz, jvp, jzv, jzz, jzp, jpx, jpv, jpq, jqp, jqpj, jqq, hk, hc, jpp) in rows:
             dz = 1.0 / (1.0 - c * jzz)
             dq = 1.0 / (1.0 - c * jqq)
             a11 = 1.0 - c * jvv - cc * jvx - cc * jvz * jzv * dz
             a12 = -c * jvp - cc * jvz * jzp * dz
             a21 = -c * jpv - cc * jpx
-            a22 = 1.0 - cc * jpq * jqp * dq
+            a22 = 1.0 - c * jpp - cc * jpq * jqp * dq
             det = a11 * a22 - a12 * a21
             i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
             e1r, e1rd, e2pj = c * jvr, c * jvrd, cc * jpq * dq * jqpj
@@ -278,9 +352,9 @@ class Stepper:
         if hoist:
             a = ((1.0, -c, 0.0),
                  (-c * jrdr - c * m10, 1.0 - c * jrdrd - c * m11, -c * m12),
-                 (-cb * m20, -cb * m21, 1.0 - cb * m22))
+                 (-cb * m20, -cb * m21, 1.0 - cb * m22 - c * jjj))
         else:
-            a = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-cb * m20, -cb * m21, 1.0 - cb * m22))
+            a = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-cb * m20, -cb * m21, 1.0 - cb * m22 - c * jjj))
         return per1, per2, _inv3(a), c, cb
 
     def solve(self, fac, b):
@@ -326,7 +400,7 @@ class Stepper:
 
     def _factor_multi(self, jac, c):
         """`factor` for M > 1 friction states per rope: each z_j row eliminates on its own."""
-        rows, cage = jac
+        rows, cage, jjj = jac
         cc = c * c
         per1, per2 = [], []
         m10 = m11 = m12 = 0.0
@@ -334,7 +408,7 @@ class Stepper:
         hoist = cage is not None
         if hoist:
             invM, jrdr, jrdrd = cage
-        for (jvr, jvrd, jvx, jvv, jvz, jvp, jzv, jzz, jzp, jpx, jpv, jpq, jqp, jqpj, jqq, hk, hc) in rows:
+        for (jvr, jvrd, jvx, jvv, jvz, jvp, jzv, jzz, jzp, jpx, jpv, jpq, jqp, jqpj, jqq, hk, hc, jpp) in rows:
             dz = [1.0 / (1.0 - c * a) for a in jzz]
             svv = svp = 0.0
             for a, b, d, e in zip(jvz, jzv, jzp, dz):
@@ -344,7 +418,7 @@ class Stepper:
             a11 = 1.0 - c * jvv - cc * jvx - cc * svv
             a12 = -c * jvp - cc * svp
             a21 = -c * jpv - cc * jpx
-            a22 = 1.0 - cc * jpq * jqp * dq
+            a22 = 1.0 - c * jpp - cc * jpq * jqp * dq
             det = a11 * a22 - a12 * a21
             i11, i12, i21, i22 = a22 / det, -a12 / det, -a21 / det, a11 / det
             e1r, e1rd, e2pj = c * jvr, c * jvrd, cc * jpq * dq * jqpj
@@ -368,9 +442,9 @@ class Stepper:
         if hoist:
             a = ((1.0, -c, 0.0),
                  (-c * jrdr - c * m10, 1.0 - c * jrdrd - c * m11, -c * m12),
-                 (-cb * m20, -cb * m21, 1.0 - cb * m22))
+                 (-cb * m20, -cb * m21, 1.0 - cb * m22 - c * jjj))
         else:
-            a = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-cb * m20, -cb * m21, 1.0 - cb * m22))
+            a = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-cb * m20, -cb * m21, 1.0 - cb * m22 - c * jjj))
         return per1, per2, _inv3(a), c, cb
 
     def _solve_multi(self, fac, b):
@@ -439,6 +513,7 @@ def settle_rows(solve_states, n: int, nz: int, y: list, zh, c: float) -> None:
 
 
 NEWTON_MAX = 12         # settled laws: Newton iterations per implicit step at most
+CONTACT_NEWTON_MAX = 4  # other laws: Newton iterations of a step across which an end-stop contact changes
 NEWTON_V_TOL = 1e-7     # m/s: ... until no piston velocity moves by more than this (+ 1e-6 relative)
 
 
@@ -524,6 +599,7 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
     settle = st.settle if st.solve_states is not None else None
     zrows = slice(2 + 2 * st.n, 2 + 2 * st.n + st.n * st.nz)
     vrows = slice(2 + st.n, 2 + 2 * st.n)
+    stops = plant.end_stops is not None
     fac = None
     last_h = 0.0
     age = 0
@@ -555,7 +631,19 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
                     if settle is None:
                         d = solve(factor(jac, c), [c * f - (p - a2 * a + b2 * b)
                                                    for f, p, a, b in zip(fp, yp, y, y_prev)])
-                        y_prev, y = y, [p + e for p, e in zip(yp, d)]
+                        yn = [p + e for p, e in zip(yp, d)]
+                        if stops and (st.contacts(yn) != st.contacts(yp)):
+                            # the step was linearised on the other side of a contact switch: Newton
+                            # iterations from its result until the contacts hold (docs/simulator.md)
+                            hist = [a2 * a - b2 * b for a, b in zip(y, y_prev)]
+                            for _ in range(CONTACT_NEWTON_MAX):
+                                was = st.contacts(yn)
+                                f1, jac1 = rhs(k1, yn, True)
+                                d = solve(factor(jac1, c), [c * f - (a - b) for f, a, b in zip(f1, yn, hist)])
+                                yn = [a + e for a, e in zip(yn, d)]
+                                if st.contacts(yn) == was:
+                                    break
+                        y_prev, y = y, yn
                     else:
                         hist = [a2 * a - b2 * b for a, b in zip(y, y_prev)]
                         y_prev, y = y, _newton_settled(rhs, factor, solve, settle, k1, c, yp, fp, jac, hist,
