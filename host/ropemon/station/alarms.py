@@ -55,7 +55,8 @@ from ropemon.station.uncertainty import (BandParams, DeviationBand, RopeInterval
 #: Alarm flood: more than this many raises within FLOOD_S (ISA-18.2's 10 per 10 minutes).
 FLOOD_RAISES, FLOOD_S = 10, 600.0
 #: Priority of each kind (1 highest); kinds not listed are 1.
-PRIORITY = {"battery_low": 2, "pressure_noise": 2, "sensor_stuck": 2, "alarm_flood": 2, "oil_loss": 2,
+PRIORITY = {"stroke_limit": 1, "not_equalizing": 1,
+            "battery_low": 2, "pressure_noise": 2, "sensor_stuck": 2, "alarm_flood": 2, "oil_loss": 2,
             "deviation_possible": 3, "rope_adjust": 3}
 #: Kinds whose worst value is the lowest (the others: the largest in magnitude).
 WORST_LOW = frozenset({"slack", "battery_low", "not_equalizing", "rope_adjust"})

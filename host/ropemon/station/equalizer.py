@@ -59,20 +59,24 @@ class EqualizerSettings:
     # further from the end than the margin (and the node's mask is clear) for stroke_clear_s
     stroke_hysteresis_m: float = 0.002
     stroke_clear_s: float = 2.0
-    # not_equalizing: over a load change the others' pistons moved at least max(move_min_m,
-    # move_sigmas x the rms noise of a difference of two frame means) while this rope's moved at
-    # most lag_ratio of theirs (seized_ratio: not at all); clears when it moved follow_ratio of theirs
+    # not_equalizing: over a load change this rope's piston moved less than the others' (their
+    # median) by more than the tolerance (`motion_tolerance_m`: two steps of the frame's position
+    # resolution plus move_sigmas x the rms noise of a difference of two frame means), and at most
+    # lag_ratio of their motion (any share when its pressure departs from theirs); seized_ratio: not
+    # at all. Clears when it moved with them (within 3/4 of the tolerance, follow_ratio of theirs)
     displacement_noise_m: float = 2e-5           # rms per sample (physical.displacement_noise_m)
     samples_per_frame: int = 20                  # sample_hz / frame_hz
-    move_sigmas: float = 12.0
+    position_step_m: float = 1e-4                # the frame's resolution (pos_01mm: 0.1 mm)
+    move_sigmas: float = 10.0
     move_min_m: float = 5e-5
     lag_ratio: float = 0.5
+    lag_growth: float = 2.0                      # the lag held while the others' motion grew this much
     seized_ratio: float = 0.1
     follow_ratio: float = 0.8
     departure_kpa: float = 30.0                  # pressure departing from the others' by more than
     departure_frac: float = 0.2                  # max(this kPa, this share of their change)
     reanchor_m: float = 1e-3                     # the others moved this far: a new reference
-    anchor_max_s: float = 60.0                   # or this long with no load change
+    anchor_max_s: float = 300.0                  # or after this long (a lagging rope judged afresh)
     equalize_raise_s: float = 1.0
     equalize_clear_s: float = 2.0
     equalize_min_frames: int = 5
@@ -104,6 +108,8 @@ class EqualizerSettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"equalizer.{name}: must be a finite number >= 0, got {v!r}")
+        if not 1.0 <= self.lag_growth <= 10.0:
+            raise ValueError(f"equalizer.lag_growth: must be 1..10, got {self.lag_growth!r}")
         if not 0 < self.seized_ratio < self.lag_ratio < self.follow_ratio <= 1:
             raise ValueError("equalizer: needs 0 < seized_ratio < lag_ratio < follow_ratio <= 1, got "
                              f"{self.seized_ratio}, {self.lag_ratio}, {self.follow_ratio}")
@@ -124,10 +130,16 @@ class EqualizerSettings:
         return values[i] if i < len(values) else values[-1]
 
     @property
-    def move_threshold_m(self) -> float:
-        """The others' motion that makes a load change: above the noise of two frame means."""
-        sigma = self.displacement_noise_m / math.sqrt(self.samples_per_frame) * math.sqrt(2.0)
-        return max(self.move_min_m, self.move_sigmas * sigma)
+    def motion_sigma_m(self) -> float:
+        """The rms noise of a difference of two frame means of a position."""
+        return self.displacement_noise_m / math.sqrt(self.samples_per_frame) * math.sqrt(2.0)
+
+    @property
+    def motion_tolerance_m(self) -> float:
+        """The largest disagreement between a healthy rope's reported motion and the others': each
+        frame's position is rounded to position_step_m (a difference of two: up to one step off, the
+        others' median as much), plus move_sigmas times the noise of a difference of two frame means."""
+        return max(self.move_min_m, 2.0 * self.position_step_m + self.move_sigmas * self.motion_sigma_m)
 
 
 def positions(frame: Frame) -> list[float | None]:
@@ -191,7 +203,10 @@ class Participation(NamedTuple):
     """One rope's share of the oil's motion since the tracker's reference (a quiet frame before
     the load change). `lags`: the others moved beyond the threshold and this rope at most
     `lag_ratio` of it; `follows`: at least `follow_ratio` of it; neither: no evidence (no load
-    change yet). `cause` names what the pressure and the position tell apart."""
+    change yet). `cause` names what the pressure and the position tell apart. The lag must pass
+    `EqualizerSettings.motion_tolerance_m` and hold while the others' motion grows `lag_growth`
+    fold: with the frame's 0.1 mm positions and k = 0.3 um/kPa a seized seal shows once the others
+    moved about 0.5 mm (a load change of about 1.8 MPa)."""
 
     lags: bool
     follows: bool
@@ -220,6 +235,9 @@ class EqualizingTracker:
         self._ref_x: list[float | None] = []
         self._ref_p: list[float | None] = []
         self._ref_s: float | None = None
+        self._lo: list[float] = []             # each rope's own motion since the reference: its range
+        self._hi: list[float] = []
+        self._first: list[float | None] = []    # the others' motion when this rope's lag began
         self._last_ms: int | None = None
         self._boot: int | None = None
         self.last: list[Participation | None] = []
@@ -251,7 +269,12 @@ class EqualizingTracker:
             return self.last
         dx = [xs[i] - self._ref_x[i] if usable[i] else None for i in range(n)]
         dp = [ps[i] - self._ref_p[i] if usable[i] else None for i in range(n)]
-        thr = s.move_threshold_m
+        thr = s.motion_tolerance_m
+        still = s.position_step_m + 3.0 * s.motion_sigma_m      # "did not move", at the frame's resolution
+        for i in range(n):
+            if usable[i]:
+                self._lo[i] = min(self._lo[i], dx[i])
+                self._hi[i] = max(self._hi[i], dx[i])
         out: list[Participation | None] = []
         moved_all = 0.0
         any_lag = False
@@ -269,19 +292,34 @@ class EqualizingTracker:
                 continue
             ratio = own / ox
             share = abs(own) / abs(ox)
-            lags = share <= s.lag_ratio
-            follows = share >= s.follow_ratio
+            gap = abs(ox) - abs(own)
+            departs = abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
+            # a piston that moved against the others, or went and came back since the reference,
+            # slid: a balancing stroke, the equalizer working. One that does not take part stays, or
+            # moves one way only with its own oil's compression.
+            slid = (own * math.copysign(1.0, ox) < -still
+                    or self._hi[i] - self._lo[i] > abs(own) + still)
+            lags = gap >= thr and (share <= s.lag_ratio or departs) and not slid
+            follows = gap < 0.75 * thr and share >= s.follow_ratio
             if i < len(skip) and skip[i]:
                 lags = False
+            # the lag must hold while the others' motion grows lag_growth-fold: a balancing stroke
+            # against the oil's motion leaves a fixed lag, which the growing motion outgrows (a
+            # stroke does not part the pressures: a pressure departing needs no such wait)
+            if not lags:
+                self._first[i] = None
+            else:
+                any_lag = True
+                if self._first[i] is None:
+                    self._first[i] = abs(ox)
+            lags = lags and (departs or abs(ox) >= s.lag_growth * self._first[i] - 1e-12)
             cause = ""
             if lags:
-                any_lag = True
-                departs = abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
                 if departs:
                     cause = (f"its pressure departs {dep:+.0f} kPa from the others' ({op:+.0f} kPa) while its "
                              f"piston moved {own * 1e3:+.2f} mm against their {ox * 1e3:+.2f} mm: a stop valve "
                              "closed between its pressure tap and the manifold (its cylinder cut off)")
-                elif share <= s.seized_ratio:
+                elif abs(own) <= max(s.seized_ratio * abs(ox), still):
                     cause = (f"its piston did not move ({own * 1e3:+.2f} mm) while the others moved "
                              f"{ox * 1e3:+.2f} mm and its pressure followed theirs: a seized seal (or its "
                              "cylinder's oil shut in at the cylinder)")
@@ -299,14 +337,17 @@ class EqualizingTracker:
         self._ref_x = [x if u else None for x, u in zip(xs, usable)]
         self._ref_p = [p if u else None for p, u in zip(ps, usable)]
         self._ref_s = now_s
+        self._lo = [0.0] * len(xs)
+        self._hi = [0.0] * len(xs)
+        self._first = [None] * len(xs)
 
 
 # ------------------------------------------------------------------ oil loss
 
 
 class OilState(NamedTuple):
-    """The oil balance: `lost_m3` within the window (`window_s` long, up to now), its rate, the
-    band it is judged against (the setting plus the thermal allowance), the temperature used."""
+    """The oil balance: `lost_m3` within the window (`window_s` long, up to now), the rate over
+    the window's last quarter, the band it is judged against (the setting plus the thermal allowance), the temperature used."""
 
     lost_m3: float
     rate_m3_s: float
@@ -388,12 +429,19 @@ class OilTracker:
         t_old, b_old, temp_old = ring[0]
         span = now_s - t_old
         lost = bal - b_old
+        # the rate: over the last quarter of the window (a leak that began within it shows its own rate)
+        t_r, b_r = t_old, b_old
+        for t_e, b_e, _ in ring:
+            if now_s - t_e < s.oil_window_s / 4:
+                break
+            t_r, b_r = t_e, b_e
+        rate = (bal - b_r) / (now_s - t_r) if now_s > t_r else 0.0
         # the band: the setting, plus the expansion an error of 1 K in the station's idea of the
         # oil's temperature change would make where it knows the temperature (the volume is a guess)
         band = s.oil_band_m3
         if temp is not None and temp_old is not None:
             band += s.oil_expansion_per_k * vol * 0.25 * abs(temp - temp_old)
-        self.last = OilState(lost, lost / span if span > 0 else 0.0, span, band, bal - self._b0)
+        self.last = OilState(lost, rate, span, band, bal - self._b0)
         return self.last
 
 
