@@ -92,23 +92,20 @@ def stroke_warnings(site: Site) -> list[str]:
 
 
 def deviation_cover(physical: dict[str, Any], empty_rope_n: float, rated_rope_n: float) -> dict[str, float] | None:
-    """How far the station's band reaches when no rope's seal has been seen sliding, with the ropes
-    equal at the empty cage's and at the rated rope tension (`ropemon.station.uncertainty`); None without
+    """The imbalance the seals can hide (`ropemon.station.uncertainty.hidden_reach`, the figure the
+    station shows as the hoist's standing status), with the ropes equal at the empty cage's and at
+    the rated rope tension, and the seal's friction bound S of the first rope there; None without
     friction lines."""
-    from ropemon.station.uncertainty import BandParams, RopeInterval, deviation_bounds
+    from ropemon.station.uncertainty import BandParams, hidden_reach
 
     band = BandParams.from_physical(physical)
     if band is None:
         return None
     out: dict[str, float] = {"limit": float(physical.get("imbalance_frac", 0.1))}
     for name, t in (("empty", empty_rope_n), ("rated", rated_rope_n)):
-        ivs = []
-        for area in band.areas_m2:
-            s, _fc, _floor = band.limits(t / area / 1000.0)
-            ivs.append(RopeInterval(t, max(0.0, t - s), t + s, t, s, False))
         out[f"{name}_rope_N"] = t
-        out[f"{name}_s_N"] = ivs[0].s
-        out[f"{name}_reach"] = max(b.reach for b in deviation_bounds(ivs) if b is not None)
+        out[f"{name}_s_N"] = band.limits(t / band.areas_m2[0] / 1000.0)[0]
+        out[f"{name}_reach"] = hidden_reach(band, t)
     return out
 
 

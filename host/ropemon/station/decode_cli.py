@@ -1,7 +1,8 @@
 """`ropemon decode FILE|-`: frames of a capture (raw receiver bytes) as JSON lines.
 
 One JSON object per good frame on stdout (Frame.to_dict: node, seq and every
-payload field); the decoder counts on stderr. Exit 0 when frames were decoded; 1 when
+payload field, with each rope's pos_01mm and the stroke_mask; frames of layout versions
+2 and 3 alike, docs/data-formats.md); the decoder counts on stderr. Exit 0 when frames were decoded; 1 when
 the input was read but no frame was decoded (every frame failed its MAC: the key is
 probably wrong; or no frame at all), the reason on stderr; 2 when the input cannot be
 read (not a regular file, larger than files.MAX_CAPTURE) or a key or node.json is invalid.
