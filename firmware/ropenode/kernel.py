@@ -102,9 +102,9 @@ _PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n heal
 _RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
 _RTH = const(_RPLAYS + ROPES_MAX)  # activity below which a rope is quiet, um/65536 (0: no rest hold)
 _PCAL = const(_RTH + ROPES_MAX)  # 10 ints per rope (config.py order)
-_DCAL = const(_PCAL + 10 * ROPES_MAX)    # 10 ints per rope: the channel's 6 (config.py order), then
-# travel_lo, stroke_lo, stroke_hi, travel_hi (um/256)
-_GEXP = const(_DCAL + 10 * ROPES_MAX)    # exp(-u^2), Q14
+_DCAL = const(_PCAL + 10 * ROPES_MAX)    # 8 ints per rope: the channel's 6 (config.py order; its count
+# limits narrowed to the cylinder's travel by `pack`), then stroke_lo, stroke_hi (um/256)
+_GEXP = const(_DCAL + 8 * ROPES_MAX)     # exp(-u^2), Q14
 _TEMPS = const(_GEXP + GEXP_POINTS)      # loss table temperatures, centi-degC
 _VBP = const(_TEMPS + TEMPS_MAX)         # loss velocity points, then forces, then marks
 
@@ -229,13 +229,34 @@ def pack(c):
                      (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
             p[off + j] = src[j]
-    lims = (c.travel_lo_q8um, c.stroke_lo_q8um, c.stroke_hi_q8um, c.travel_hi_q8um)
+    # the displacement channels: a position beyond the cylinder's travel is a fault like a
+    # count beyond the loop's limits, and positions rise with the counts, so the travel
+    # limits become count limits here (the counts whose position is within the travel)
     for i in range(n):
+        b = _DCAL + 8 * i
+        ch = c.displacement[6 * i:6 * i + 6]
         for j in range(6):
-            p[_DCAL + 10 * i + j] = c.displacement[6 * i + j]
-        for j in range(4):
-            p[_DCAL + 10 * i + 6 + j] = lims[j][i]
+            p[b + j] = ch[j]
+        p[b + 1] = _above(ch, c.travel_lo_q8um[i] - 1)
+        p[b + 2] = _above(ch, c.travel_hi_q8um[i]) - 1
+        p[b + 6] = c.stroke_lo_q8um[i]
+        p[b + 7] = c.stroke_hi_q8um[i]
     return p
+
+
+def _above(ch, x):
+    """The least count within the fault limits of displacement channel `ch` (its 6 config
+    ints) whose position is above x (um/256), or one past them when none is: positions
+    rise with the counts (q8um_mul >= 0)."""
+    lo = ch[1]
+    hi = ch[2] + 1
+    while lo < hi:
+        m = (lo + hi) >> 1
+        if ch[3] + (((m - ch[0]) * ch[4]) >> ch[5]) > x:
+            hi = m
+        else:
+            lo = m + 1
+    return lo
 
 
 def state(c):
@@ -284,26 +305,24 @@ def step(S, P, rec, n):
                 S[P_KPA16 + i] = (P[b + 3] << 4) + ((d * P[b + 4]) >> (P[b + 5] - 4))  # kpa_shift >= 4
                 S[RAW_N + i] = P[b + 6] + ((d * P[b + 7]) >> P[b + 8])
                 seen |= 1 << i
-        # the position: beyond the cylinder's travel it is a displacement fault (as outside
-        # its counts' limits: held, never a stroke bit); healthy, it enters the window's
-        # stroke mask and its mean (um, rounded: |x| < 2**17 um, so a window's sum < 2**28)
+        # the position: outside the count limits (the loop's, narrowed to the cylinder's
+        # travel) a displacement fault, its value held, never a stroke bit; healthy, it
+        # enters the window's stroke mask and its mean (um, rounded: |x| < 2**17 um, so a
+        # window's sum < 2**28)
         c = rec[n + i]
-        b = _DCAL + 10 * i
+        b = _DCAL + 8 * i
         if c < P[b + 1] or c > P[b + 2]:
             mask |= 16 << i
         else:
             d = P[b + 3] + (((c - P[b]) * P[b + 4]) >> P[b + 5])
-            if d < P[b + 6] or d > P[b + 9]:
-                mask |= 16 << i
-            else:
-                S[X_Q8UM + i] = d
-                seen |= 16 << i
-                if d <= P[b + 7]:
-                    S[_WSTROKE] |= 1 << i
-                elif d >= P[b + 8]:
-                    S[_WSTROKE] |= 16 << i
-                S[_XSUM + i] += (d + 128) >> 8
-                S[_XCNT + i] += 1
+            S[X_Q8UM + i] = d
+            seen |= 16 << i
+            if d <= P[b + 6]:
+                S[_WSTROKE] |= 1 << i
+            elif d >= P[b + 7]:
+                S[_WSTROKE] |= 16 << i
+            S[_XSUM + i] += (d + 128) >> 8
+            S[_XCNT + i] += 1
     S[SEEN] = seen
     S[FAULTS] = mask
     allb = (1 << n) - 1

@@ -78,7 +78,7 @@ _RPLAYS = const(_PLAYS + ROPES_MAX)
 _RTH = const(_RPLAYS + ROPES_MAX)
 _PCAL = const(_RTH + ROPES_MAX)
 _DCAL = const(_PCAL + 10 * ROPES_MAX)
-_GEXP = const(_DCAL + 10 * ROPES_MAX)
+_GEXP = const(_DCAL + 8 * ROPES_MAX)
 _TEMPS = const(_GEXP + GEXP_POINTS)
 _VBP = const(_TEMPS + TEMPS_MAX)
 SEEN = const(0)
@@ -187,13 +187,30 @@ def pack(c):
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
         for j in range(len(src)):
             p[off + j] = src[j]
-    lims = (c.travel_lo_q8um, c.stroke_lo_q8um, c.stroke_hi_q8um, c.travel_hi_q8um)
     for i in range(n):
+        b = _DCAL + 8 * i
+        ch = c.displacement[6 * i:6 * i + 6]
         for j in range(6):
-            p[_DCAL + 10 * i + j] = c.displacement[6 * i + j]
-        for j in range(4):
-            p[_DCAL + 10 * i + 6 + j] = lims[j][i]
+            p[b + j] = ch[j]
+        p[b + 1] = _above(ch, c.travel_lo_q8um[i] - 1)
+        p[b + 2] = _above(ch, c.travel_hi_q8um[i]) - 1
+        p[b + 6] = c.stroke_lo_q8um[i]
+        p[b + 7] = c.stroke_hi_q8um[i]
     return p
+
+def _above(ch, x):
+    """The least count within the fault limits of displacement channel `ch` (its 6 config
+    ints) whose position is above x (um/256), or one past them when none is: positions
+    rise with the counts (q8um_mul >= 0)."""
+    lo = ch[1]
+    hi = ch[2] + 1
+    while lo < hi:
+        m = lo + hi >> 1
+        if ch[3] + ((m - ch[0]) * ch[4] >> ch[5]) > x:
+            hi = m
+        else:
+            lo = m + 1
+    return lo
 
 def state(c):
     """A fresh state array S for config c (window min/max open, no counter word yet)."""
@@ -240,22 +257,19 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
                 S[RAW_N + i] = (P[b + 6] ^ s31) - s31 + (d * ((P[b + 7] ^ s31) - s31) >> (P[b + 8] ^ s31) - s31)
                 seen |= 1 << i
         c = rec[n + i]
-        b = _DCAL + 10 * i
+        b = _DCAL + 8 * i
         if c < (P[b + 1] ^ s31) - s31 or c > (P[b + 2] ^ s31) - s31:
             mask |= 16 << i
         else:
             d = (P[b + 3] ^ s31) - s31 + ((c - ((P[b] ^ s31) - s31)) * ((P[b + 4] ^ s31) - s31) >> (P[b + 5] ^ s31) - s31)
-            if d < (P[b + 6] ^ s31) - s31 or d > (P[b + 9] ^ s31) - s31:
-                mask |= 16 << i
-            else:
-                S[X_Q8UM + i] = d
-                seen |= 16 << i
-                if d <= (P[b + 7] ^ s31) - s31:
-                    S[_WSTROKE] |= 1 << i
-                elif d >= (P[b + 8] ^ s31) - s31:
-                    S[_WSTROKE] |= 16 << i
-                S[_XSUM + i] += d + 128 >> 8
-                S[_XCNT + i] += 1
+            S[X_Q8UM + i] = d
+            seen |= 16 << i
+            if d <= (P[b + 6] ^ s31) - s31:
+                S[_WSTROKE] |= 1 << i
+            elif d >= (P[b + 7] ^ s31) - s31:
+                S[_WSTROKE] |= 16 << i
+            S[_XSUM + i] += d + 128 >> 8
+            S[_XCNT + i] += 1
     S[SEEN] = seen
     S[FAULTS] = mask
     allb = (1 << n) - 1

@@ -26,9 +26,9 @@ def test_cli_json_reports_every_figure():
     assert len(f["us_per_sample_runs"]) == f["repeats"]
     assert f["us_per_sample"] == sorted(f["us_per_sample_runs"])[f["repeats"] // 2]
     assert f["float_ratio"] == f["float_baseline_us_per_sample"] / f["us_per_sample"]
-    assert 0 < f["frame_wire_bytes"] <= f["max_wire_len"] == 67
+    assert 0 < f["frame_wire_bytes"] <= f["max_wire_len"] == 76
     assert f["crc32_allocates"] == 0 and f["crc32_transient_bytes"] == 0
-    assert 0 < f["crc32_us_per_frame"] and 0 < f["crc16_us_same_bytes"] and f["crc32_bytes"] == 60
+    assert 0 < f["crc32_us_per_frame"] and 0 < f["crc16_us_same_bytes"] and f["crc32_bytes"] == 69
     for key in ("us_per_sample", "allocs_per_sample", "alloc_bytes_per_sample", "transient_alloc_bytes_per_sample"):
         assert isinstance(f["compliance"][key], (int, float)) and f["compliance"][key] >= 0, key
     text = firmware.describe(f)

@@ -337,6 +337,42 @@ def test_a_reading_beyond_the_travel_is_a_displacement_fault_never_a_stroke():
     assert h[3] == 0 and tail[4] == 16 << 2 and ropes[2][4] == 470
 
 
+def test_the_travel_check_is_the_counts_whose_position_is_within_the_travel():
+    """The node folds the travel limits into its channels' count limits at boot: a count is
+    a displacement fault exactly when it is outside the loop's limits or its position (um/256)
+    outside the travel; checked at every count where that changes, either side, and at every
+    257th."""
+    cfg = parse(node_doc())
+    d = cfg.displacement
+    x0 = d[3] + (((30000 - d[0]) * d[4]) >> d[5])
+    narrow = {"travel_lo_q8um": x0 + 1, "stroke_lo_q8um": x0 + 2, "stroke_hi_q8um": x0 + 3,
+              "travel_hi_q8um": x0 + 4}  # between two counts' positions: no count is within it
+    counts = []
+    for cfg in (cfg, _stroke_cfg(), _stroke_cfg(travel_lo_q8um=x0, stroke_lo_q8um=x0 + 1, stroke_hi_q8um=x0 + 19999,
+                                                travel_hi_q8um=x0 + 20000), _stroke_cfg(**narrow)):
+        node = Node(cfg)
+        rec = _rec()
+        ch = cfg.displacement[0:6]  # every rope's channel is the same here
+        lo, hi = cfg.travel_lo_q8um[0], cfg.travel_hi_q8um[0]
+        assert list(cfg.displacement) == list(ch) * N and list(cfg.travel_hi_q8um) == [hi] * N
+
+        def within(c):
+            return ch[1] <= c <= ch[2] and lo <= ch[3] + (((c - ch[0]) * ch[4]) >> ch[5]) <= hi
+        edges = [c for c in range(1, 65536) if within(c) != within(c - 1)]
+        todo = set(range(0, 65536, 257))
+        for e in edges:
+            todo.update(range(max(e - 2, 0), min(e + 2, 65536)))
+        for c in sorted(todo):
+            for i in range(N):
+                rec[N + i] = c
+            node.sample(rec)
+            assert node.S[K.FAULTS] == (0 if within(c) else 0xF0), (c, node.S[K.FAULTS])
+        counts.append(sum(1 for c in range(65536) if within(c)))
+    assert counts[0] > counts[1] > counts[2] > 0 == counts[3], counts
+    # 384 counts per mm: 90 mm of travel and 20000 um/256 (30 counts of 666.7), each +-1
+    assert abs(counts[1] - 34560) <= 1 and abs(counts[2] - 30) <= 1, counts
+
+
 def test_the_position_zero_shifts_only_the_positions():
     """The compensation works on position differences: moving the displacement calibration's
     zero by 50 mm (and the limits with it) leaves every tension bit for bit, and moves the

@@ -21,7 +21,7 @@ compliance added (`compliance`: the observer of a commissioned site, with its
 median pressure, stroke tracking and rest hold), for its time and allocation
 per sample and its boot heap. Per frame: `frame_into`'s time and the heap it
 keeps, and of it the frame's CRC-32 (`ropenode.crc32`) over a 4-rope frame's
-60 bytes, beside a CRC-16 (`ropenode.crc16`, the CRC frames had before) of the
+69 bytes, beside a CRC-16 (`ropenode.crc16`, the CRC frames had before) of the
 same bytes, with the CRC-32's allocations (heap_lock, micropython.mem_total).
 """
 from __future__ import annotations
@@ -394,7 +394,7 @@ def crc_allocates(raw, n):
     return bad
 
 
-# The frame's CRC-32 over what it covers in a 4-rope frame (header, ropes, tail, MAC: 60 B),
+# The frame's CRC-32 over what it covers in a 4-rope frame (header, ropes, tail, MAC: 69 B),
 # against the CRC-16 it replaced (ropenode.crc16, still the config's CRC) over the same bytes.
 from ropenode.crc32 import crc32_into
 from ropenode.crc16 import crc16
