@@ -600,6 +600,8 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
     zrows = slice(2 + 2 * st.n, 2 + 2 * st.n + st.n * st.nz)
     vrows = slice(2 + st.n, 2 + 2 * st.n)
     stops = plant.end_stops is not None
+    hmin = min(st.half)                     # no piston beyond this: no contact to check
+    x0, x1 = 2, 2 + st.n
     fac = None
     last_h = 0.0
     age = 0
@@ -632,7 +634,8 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
                         d = solve(factor(jac, c), [c * f - (p - a2 * a + b2 * b)
                                                    for f, p, a, b in zip(fp, yp, y, y_prev)])
                         yn = [p + e for p, e in zip(yp, d)]
-                        if stops and (st.contacts(yn) != st.contacts(yp)):
+                        if stops and (max(map(abs, yn[x0:x1])) > hmin or max(map(abs, yp[x0:x1])) > hmin) \
+                                and st.contacts(yn) != st.contacts(yp):
                             # the step was linearised on the other side of a contact switch: Newton
                             # iterations from its result until the contacts hold (docs/simulator.md)
                             hist = [a2 * a - b2 * b for a, b in zip(y, y_prev)]
