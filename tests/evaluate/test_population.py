@@ -210,3 +210,32 @@ def test_the_ideal_bound_keeps_the_seals_range_until_the_pistons_slide_and_then_
     # a seal holding no force after it slid is outside [L, S]: the bound would not be fail-safe
     truth["friction_N"][20:, :] = 0.0
     assert P.ideal_bound_figures(truth, physical, margin=0.10)["coverage_min"] == 0.5
+
+
+def test_a_drawn_stroke_fault_end_to_end_alarmed_on_its_rope_in_time(tmp_path):
+    """Tuning seed 12: its drawn fault puts rope 1's piston 3.1 mm into its extended margin at its
+    closest (by offsets); the faulted wind is simulated, the node run on it as commissioned, and
+    the station's events scored: the truth has the piston in its margin, the station raises its
+    stroke limit on rope 1 within 1 s; today's station raises none. The healthy wind is scored too."""
+    from ropemon.lab.evaluate import BED_QUICK
+
+    f = P.draw_fault(12)
+    assert f.kind == "stroke_offset" and f.rope == 1 and f.params["end"] == "extended"
+    r = P.run_wind(12, tmp_path, firmware=True, bed=BED_QUICK, faults=True)
+    assert "error" not in r, r.get("error")
+    t = r["targets"]
+    assert t["legacy_distinct"] and t["healthy"]["hidden_known"]
+    for which in P.CONFIGS:
+        h = t["healthy"][which]["healthy"]
+        assert isinstance(h["raised"], int) and isinstance(h["standing"], list)
+    fa = t["fault"]
+    assert "error" not in fa, fa.get("error")
+    assert fa["truth"]["crossed"] and fa["truth"]["rope"] == 0, fa["truth"]
+    st = fa["station"]["fault"]
+    assert st["alarmed"] and st["in_time"] and st["latency_s"] <= P.STROKE_DEADLINE_S, st
+    assert "stroke_limit" not in fa["legacy"]["fault"]["raised"]
+    assert (tmp_path / P.draw(12).name / "fault" / "frames.bin").exists()
+    s = P.targets_summary([r])
+    assert s["station"]["classes"]["stroke_offset"]["in_time"] == 1
+    md = P.targets_markdown({"targets": s, "seeds": "tuning", "wall_s": 1.0, "winds": [r]}, "ropemon evaluate x")
+    assert md.startswith("Made by `ropemon evaluate x`") and "| stroke offset | 1 | 1 | 1 (1) |" in md

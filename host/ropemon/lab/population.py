@@ -723,19 +723,21 @@ def run_fault(h: Hoist, f: FaultDraw, wind_dir, physical: dict, settings: dict, 
 
 
 def engine_factories(physical: dict) -> dict:
-    """The host alarm configurations scored on every wind: `baseline` is the deviation alarm
+    """The deviation alarms scored on every wind (population.md): `baseline` is the deviation alarm
     alone (the station before the uncertainty band; `run_wind` feeds it the baseline node's
-    frames), `node` the station as it is (the certain alarm and DEVIATION POSSIBLE from the band)."""
+    frames), `node` the certain alarm and DEVIATION POSSIBLE from the band, as the station raised it
+    before it watched the equalizer (`legacy_deviation_possible`; the station as shipped is scored
+    by `score_alarms`, faults.md)."""
     from ropemon.station.alarms import AlarmEngine, AlarmSettings
     from ropemon.station.uncertainty import BandParams
 
     band = BandParams.from_physical(physical)
 
     def baseline():
-        return AlarmEngine(AlarmSettings(stuck_s=None))
+        return AlarmEngine(AlarmSettings(stuck_s=None, equalizer=None))
 
     def node():
-        return AlarmEngine(AlarmSettings(stuck_s=None, band=band))
+        return AlarmEngine(AlarmSettings(stuck_s=None, band=band, legacy_deviation_possible=True, equalizer=None))
 
     return {"baseline": baseline, "node": node}
 
