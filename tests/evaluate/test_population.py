@@ -235,6 +235,10 @@ def test_a_drawn_stroke_fault_end_to_end_alarmed_on_its_rope_in_time(tmp_path):
     assert st["alarmed"] and st["in_time"] and st["latency_s"] <= P.STROKE_DEADLINE_S, st
     assert "stroke_limit" not in fa["legacy"]["fault"]["raised"]
     assert (tmp_path / P.draw(12).name / "fault" / "frames.bin").exists()
+    # scored again from the stored frames and truth (`--rescore`): the same figures
+    again = P.rescore_targets(12, tmp_path)
+    assert again["targets"]["fault"]["station"] == fa["station"]
+    assert again["targets"]["healthy"]["legacy"] == t["healthy"]["legacy"]
     s = P.targets_summary([r])
     assert s["station"]["classes"]["stroke_offset"]["in_time"] == 1
     md = P.targets_markdown({"targets": s, "seeds": "tuning", "wall_s": 1.0, "winds": [r]}, "ropemon evaluate x")

@@ -984,6 +984,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--faults", action="store_true",
                    help="with --population: also run each hoist with one drawn fault and score the station's "
                         "alarms against the Targets (faults.md, faults.json)")
+    p.add_argument("--rescore", action="store_true",
+                   help="with --population --faults --out OUT: score the station's alarms as they are now on the "
+                        "winds a run left in OUT/population (no simulation); writes faults.md and faults.json only")
     p.add_argument("--duty-cycles", type=int, default=0, metavar="K",
                    help=f"with --faults: the first K hoists also through a {population.DUTY_TRIPS}-wind duty cycle "
                         "with one rope creeping (the adjustment advisory); default 0")
@@ -1045,6 +1048,8 @@ def run_population(args: argparse.Namespace) -> int:
         return 2
     log = (lambda s: print(s, file=sys.stderr, flush=True))
     t0 = time.monotonic()
+    if args.rescore:
+        return rescore_population(args, seeds, log, t0)
     with tempfile.TemporaryDirectory(prefix="ropemon-population-") as tmp:
         work = args.out / "population" if args.out else Path(tmp)
         winds = population.run(seeds, work, args.jobs, not args.no_firmware,
@@ -1065,6 +1070,11 @@ def run_population(args: argparse.Namespace) -> int:
         if args.faults:
             fault_cmd = command + " --faults" + (f" --duty-cycles {args.duty_cycles}" if args.duty_cycles else "")
             (args.out / "faults.md").write_text(population.targets_markdown(out, fault_cmd))
+            (args.out / "faults.json").write_text(json.dumps({k: out[k] for k in ("targets", "seeds", "wall_s")}
+                                                             | {"winds": [{"seed": w["seed"],
+                                                                           "targets": w.get("targets")}
+                                                                          for w in winds]},
+                                                             indent=1, allow_nan=False) + "\n")
     if args.json:
         json.dump(out, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
@@ -1073,6 +1083,35 @@ def run_population(args: argparse.Namespace) -> int:
         if args.faults:
             print(population.targets_markdown(out, "ropemon evaluate " + " ".join(sys.argv[2:])))
     return 1 if out["population"]["errors"] else 0
+
+
+def rescore_population(args: argparse.Namespace, seeds, log, t0: float) -> int:
+    """`--rescore`: the Targets of the winds already run in OUT/population, scored again."""
+    if not (args.faults and args.out):
+        print("ropemon evaluate: --rescore needs --faults and the --out of the run to score again", file=sys.stderr)
+        return 2
+    work = args.out / "population"
+    if not work.is_dir():
+        print(f"ropemon evaluate: --rescore: {work}: no population run there", file=sys.stderr)
+        return 2
+    winds = []
+    for s in seeds:
+        winds.append(population.rescore_targets(s, work))
+        log(f"{population.PREFIX}{s}: " + ("ERROR " + winds[-1]["error"] if "error" in winds[-1] else "scored")
+            + f" ({winds[-1]['wall_s']} s)")
+    out = jsonable({"targets": population.targets_summary(winds), "seeds": args.seeds,
+                    "wall_s": round(time.monotonic() - t0, 1), "winds": winds})
+    command = (f"ropemon evaluate --population {args.population} --seeds {args.seeds} --faults --rescore "
+               f"--out {args.out}")
+    (args.out / "faults.json").write_text(json.dumps(out, indent=1, allow_nan=False) + "\n")
+    md = population.targets_markdown(out, command)
+    (args.out / "faults.md").write_text(md)
+    if args.json:
+        json.dump(out, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(md)
+    return 1 if any("error" in w for w in winds) else 0
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1341,3 +1341,35 @@ def targets_markdown(out: dict, command: str) -> str:
                          f"| {res} | {kinds(fl['raised'])} |")
     return "\n".join(lines) + "\n"
 
+
+
+def rescore_targets(seed: int, work) -> dict:
+    """The Targets' figures of a hoist already run (`run_wind` with faults, its directory in `work`)
+    re-scored from its stored frames and truth with the station's alarms as they are now, without
+    simulating again: the healthy wind, and the faulted wind and duty cycle where they were run."""
+    import time
+    from pathlib import Path
+
+    t0 = time.monotonic()
+    h = draw(seed)
+    wind_dir = Path(work) / h.name
+    out: dict = {"seed": seed, "law": h.law, "hoist": h.describe()}
+    try:
+        run = RunDir(wind_dir)
+        physical = run.physical
+        settings = station_settings(physical)
+        out["targets"] = {"legacy_distinct": settings["legacy_distinct"],
+                          "healthy": score_alarms(run.frames(), run.truth, run.meta, run.sample_hz, physical,
+                                                  settings)}
+        for key, sub, drawer in (("fault", "fault", draw_fault), ("duty", "duty", draw_duty_fault)):
+            if not (wind_dir / sub / "frames.bin").exists():
+                continue
+            f = drawer(seed, h)
+            fr = RunDir(wind_dir / sub)
+            out["targets"][key] = {"class": f.kind, "rope": f.rope, "params": f.params,
+                                   "faults": [dict(t) for t in f.faults], "describe": f.describe(),
+                                   **score_alarms(fr.frames(), fr.truth, fr.meta, fr.sample_hz, physical, settings, f)}
+    except (OSError, ValueError, KeyError) as e:
+        out["error"] = f"{type(e).__name__}: {e}"
+    out["wall_s"] = round(time.monotonic() - t0, 1)
+    return out
