@@ -84,7 +84,7 @@ class EqualizerSettings:
     oil_band_m3: float = 3e-5                    # 30 mL
     oil_window_s: float = 120.0
     oil_expansion_per_k: float = OIL_EXPANSION_PER_K
-    oil_volume_m3: float | None = None           # None: twice the cylinders' swept volume
+    oil_volume_m3: float | None = None           # the trapped oil; None: unknown, no thermal correction
     oil_raise_s: float = 2.0
     oil_clear_s: float = 30.0
     oil_min_frames: int = 10
@@ -227,7 +227,9 @@ class EqualizingTracker:
     after a node reset or a gap in the frames. Healthy pistons move alike: each by its
     compression `k dp` and the oil that flows between them (a balancing stroke moves one piston
     far and the others back by its volume: a rope moving more than the others is equalizing).
-    So a rope is judged against the median of the others' motion, never the rope alone.
+    So a rope is judged against the others' motion, never the rope alone: it lags when it moved
+    less than the least moved of them (all one way) by the tolerance; it follows when it moved
+    with their median.
     """
 
     def __init__(self, s: EqualizerSettings) -> None:
@@ -282,13 +284,24 @@ class EqualizingTracker:
             if not usable[i]:
                 out.append(None)
                 continue
-            ox = _median([dx[j] for j in range(n) if j != i and usable[j]])
+            others = [dx[j] for j in range(n) if j != i and usable[j]]
+            med = _median(others)
+            # against the least moved of the others: a seal at rest holds its piston a while, and
+            # where some pistons hold while others slide, a held one is not the odd one out
+            ox = min(others, key=abs)
+            if ox * med <= 0:
+                ox = 0.0                   # the others moved different ways: a stroke, no evidence
             op = _median([dp[j] for j in range(n) if j != i and usable[j]])
             own = dx[i]
             dep = dp[i] - op
-            moved_all = max(moved_all, abs(ox))
+            moved_all = max(moved_all, abs(med))
+            if abs(med) < thr:
+                out.append(Participation(False, False, None, own, med, dep, op, ""))
+                continue
+            follows = abs(med) - abs(own) < 0.75 * thr and abs(own) / abs(med) >= s.follow_ratio
             if abs(ox) < thr:
-                out.append(Participation(False, False, None, own, ox, dep, op, ""))
+                out.append(Participation(False, follows, own / med, own, med, dep, op, ""))
+                self._first[i] = None
                 continue
             ratio = own / ox
             share = abs(own) / abs(ox)
@@ -300,14 +313,14 @@ class EqualizingTracker:
             slid = (own * math.copysign(1.0, ox) < -still
                     or self._hi[i] - self._lo[i] > abs(own) + still)
             lags = gap >= thr and (share <= s.lag_ratio or departs) and not slid
-            follows = gap < 0.75 * thr and share >= s.follow_ratio
             if i < len(skip) and skip[i]:
                 lags = False
             # the lag must hold while the others' motion grows lag_growth-fold: a balancing stroke
             # against the oil's motion leaves a fixed lag, which the growing motion outgrows (a
             # stroke does not part the pressures: a pressure departing needs no such wait)
             if not lags:
-                self._first[i] = None
+                if gap < 0.5 * thr or slid:
+                    self._first[i] = None      # clearly not lagging (a flicker at the edge keeps it)
             else:
                 any_lag = True
                 if self._first[i] is None:
@@ -317,17 +330,17 @@ class EqualizingTracker:
             if lags:
                 if departs:
                     cause = (f"its pressure departs {dep:+.0f} kPa from the others' ({op:+.0f} kPa) while its "
-                             f"piston moved {own * 1e3:+.2f} mm against their {ox * 1e3:+.2f} mm: a stop valve "
+                             f"piston moved {own * 1e3:+.2f} mm against their {ox * 1e3:+.2f} mm or more: a stop valve "
                              "closed between its pressure tap and the manifold (its cylinder cut off)")
                 elif abs(own) <= max(s.seized_ratio * abs(ox), still):
                     cause = (f"its piston did not move ({own * 1e3:+.2f} mm) while the others moved "
-                             f"{ox * 1e3:+.2f} mm and its pressure followed theirs: a seized seal (or its "
+                             f"{ox * 1e3:+.2f} mm or more and its pressure followed theirs: a seized seal (or its "
                              "cylinder's oil shut in at the cylinder)")
                 else:
-                    cause = (f"its piston moved {own * 1e3:+.2f} mm, {share:.0%} of the others' {ox * 1e3:+.2f} mm, "
+                    cause = (f"its piston moved {own * 1e3:+.2f} mm, {share:.0%} of the others' {ox * 1e3:+.2f} mm or more, "
                              "while its pressure followed theirs: its oil does not reach the manifold (a stop "
                              "valve closed on the cylinder's side of the tap, or a blocked hose)")
-            out.append(Participation(lags, follows, ratio, own, ox, dep, op, cause))
+            out.append(Participation(lags, follows and not lags, ratio, own, ox, dep, op, cause))
         self.last = out
         if (moved_all >= s.reanchor_m and not any_lag) or now_s - self._ref_s >= s.anchor_max_s:
             self._anchor(xs, ps, usable, now_s)
@@ -361,10 +374,11 @@ class OilTracker:
 
     `balance = sum A_i (x_i - k_i p_i) + alpha V_oil (T - T_0)`: with no oil lost it stays
     constant through load changes (the compression is `k p`) and temperature changes (with the
-    frame's oil temperature); oil lost pulls the pistons out and raises it. Judged over a
-    sliding window (a fixed ring of entries) against a band, so the slow drift the station
-    cannot explain (the oil's temperature without a temperature input, k's error) never adds
-    up over days. Needs the cylinder areas and the compliance (without `k` a wind's pressure
+    frame's oil temperature and the oil volume `oil_volume_m3` known; without them the term is
+    left out); oil lost pulls the pistons out and raises it. Judged over a sliding window (a
+    fixed ring of entries) against a band, so the slow drift the station cannot explain (a
+    temperature change: 0.1 K within the window expands 12 L of oil by under 1 mL; k's error)
+    never adds up over days. Needs the cylinder areas and the compliance (without `k` a wind's pressure
     change alone moves the pistons by about a millimetre: tens of mL), and every rope's position
     and pressure; a frame without them restarts the window."""
 
@@ -382,15 +396,6 @@ class OilTracker:
     def reset(self) -> None:
         self._ring.clear()
         self._t0 = self._b0 = None
-
-    def oil_volume_m3(self, n: int) -> float:
-        s = self.s
-        if s.oil_volume_m3 is not None:
-            return s.oil_volume_m3
-        if s.areas_m2 and s.stroke_m:
-            return 2.0 * sum((s.per_rope(s.areas_m2, i) or 0.0) * (s.per_rope(s.stroke_m, i) or 0.0)
-                             for i in range(n))
-        return 0.0
 
     def update(self, frame: Frame, now_s: float) -> OilState | None:
         s = self.s
@@ -415,7 +420,9 @@ class OilTracker:
             k = s.per_rope(s.compliance_m_per_pa, i) or 0.0
             bal += a * (xs[i] - k * r.raw_kpa * 1000.0)
         temp = None if frame.oil_temp_cc == L.OIL_TEMP_ABSENT else frame.oil_temp_cc / 100.0
-        vol = self.oil_volume_m3(n)
+        vol = s.oil_volume_m3
+        if vol is None:
+            temp = None          # the expansion unknown: a slow temperature change within the window is negligible
         if temp is not None:
             if self._t0 is None:
                 self._t0 = temp
@@ -436,10 +443,10 @@ class OilTracker:
                 break
             t_r, b_r = t_e, b_e
         rate = (bal - b_r) / (now_s - t_r) if now_s > t_r else 0.0
-        # the band: the setting, plus the expansion an error of 1 K in the station's idea of the
-        # oil's temperature change would make where it knows the temperature (the volume is a guess)
+        # the band: the setting, plus a quarter of the expansion the temperature's change within the
+        # window makes (the oil volume's uncertainty)
         band = s.oil_band_m3
-        if temp is not None and temp_old is not None:
+        if vol is not None and temp is not None and temp_old is not None:
             band += s.oil_expansion_per_k * vol * 0.25 * abs(temp - temp_old)
         self.last = OilState(lost, rate, span, band, bal - self._b0)
         return self.last
