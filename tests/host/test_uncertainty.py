@@ -228,3 +228,29 @@ def test_by_default_no_rope_is_anchored_and_the_band_is_the_seals_physical_range
         s = 1.25 * r.pa / AREA / 1000 / 1000 * 1000 + 200   # (1 + 0.25) Fs(p) + 2 r, Fs = 1000 N/MPa
         assert not r.vouched
         assert r.lo == pytest.approx(r.pa - s, abs=1e-6) and r.hi == pytest.approx(r.pa + s, abs=1e-6)
+
+
+def test_hidden_reach_is_the_whole_bands_reach_with_the_ropes_equal():
+    """The imbalance the seals can hide: every rope at T, its true tension anywhere in [T - S, T + S];
+    rope i at its top and the others at their bottom gives n (T + S) / (n T + S - (n - 1) S) - 1."""
+    from ropemon.station.uncertainty import hidden_reach
+
+    band = BandParams.from_physical(PHYS)          # margin 0.25, residual 100 N: S = 1.25 Fs(p) + 200 N
+    t = 50_000.0                                   # N: 5000 kPa on 0.01 m^2
+    s = 1.25 * 1000.0 * 5.0 + 200.0
+    n = 4
+    expect = max(n * (t + s) / ((t + s) + (n - 1) * (t - s)) - 1, 1 - n * (t - s) / ((t - s) + (n - 1) * (t + s)))
+    assert hidden_reach(band, t) == pytest.approx(expect)
+    assert hidden_reach(band, 0.0) == 0.0
+    with pytest.raises(ValueError, match="rope_n"):
+        hidden_reach(band, math.nan)
+
+
+def test_hidden_reach_is_what_commissioning_prints():
+    from ropemon.commission.config_cli import deviation_cover
+    from ropemon.station.uncertainty import hidden_reach
+
+    cover = deviation_cover({**PHYS, "imbalance_frac": 0.1}, 20_000.0, 60_000.0)
+    band = BandParams.from_physical(PHYS)
+    assert hidden_reach(band, 20_000.0) == pytest.approx(cover["empty_reach"])
+    assert hidden_reach(band, 60_000.0) == pytest.approx(cover["rated_reach"])
