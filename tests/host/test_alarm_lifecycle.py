@@ -89,3 +89,38 @@ def test_more_than_ten_raises_in_ten_minutes_is_an_alarm_flood():
         t += 30.0
         eng.tick(t)
     assert "alarm_flood" in [a.kind for a in eng.active()]
+
+
+def test_an_equalizer_alarm_goes_through_the_lifecycle():
+    """STROKE LIMIT (ropemon.station.equalizer): raised, returned to normal unacknowledged with its
+    worst position, acknowledged by whom; taken out of service it is still evaluated and logged,
+    not annunciated, and counts for no flood."""
+    from ropemon.station.equalizer import EqualizerSettings
+    from ropemon.station.protocol import Frame, Rope
+
+    def pframe(x2_m, seq):
+        recs = tuple(Rope(5000, 5000, 5000, 6000, round(x * 1e4)) for x in (0.0, x2_m, 0.0, 0.0))
+        return Frame(3, 0, 1, 0, seq, seq * 100, 0, recs, 0, 0, 7400, L.OIL_TEMP_ABSENT, stroke_mask=0)
+
+    eq = EqualizerSettings(stroke_m=(0.2,) * 4, margin_m=0.01)
+    eng = AlarmEngine(AlarmSettings(equalizer=eq, stuck_s=None))
+    aid = "stroke_limit:n1:r1"
+    seq = 0
+    for x in (0.091, 0.094, 0.092) + (0.080,) * 25:
+        eng.update(pframe(x, seq), seq * DT)
+        seq += 1
+    assert state(eng, aid) == "rtn_unacknowledged"
+    (a,) = eng.active()
+    assert a.worst == 94.0 and a.priority == 1 and not a.warning
+    eng.ack(aid, seq * DT, "carol")
+    assert state(eng, aid) == "normal"
+    eng.remove_from_service(aid, seq * DT, "cylinder refilled, transmitter re-zeroed", "dave")
+    ev = []
+    for x in (0.095,) * 3:
+        ev += eng.update(pframe(x, seq), seq * DT)
+        seq += 1
+    assert [(e.action, e.annunciated) for e in ev] == [("raise", False)]
+    assert eng.active() == [] and state(eng, aid) == "out_of_service"
+    assert list(eng._raises) == [0.0]           # the flood count: the annunciated raise only
+    eng.return_to_service(aid, seq * DT, "dave")
+    assert state(eng, aid) == "unacknowledged"
