@@ -13,7 +13,7 @@ from streams_cpython import random_stream, run_node, slide_stream, wind_records
 from ropemon.station import protocol
 from ropemon.commission import reference
 from ropemon.firmware import node_module
-from ropemon.commission.nodejson import COMPLIANCE_DEFAULTS, example_physical, make_node_json
+from ropemon.commission.nodejson import COMPLIANCE_DEFAULTS, example_physical, make_node_json, namur_limits
 
 config = node_module("config")
 Node = node_module("node").Node
@@ -95,6 +95,58 @@ def test_frames_match_reference_decimation_and_authenticate():
     # faults were in the stream and showed in the masks
     masks = [protocol.decode_raw(protocol.decode_wire(w[:-1])).fault_mask for w in frames]
     assert sum(1 for m in masks if m) > len(frames) // 4
+
+
+def test_frame_positions_and_stroke_bits_match_a_float_calculation():
+    """Each frame's pos_01mm, stroke_mask and displacement fault bits, decoded by the host,
+    against the same in float64 from the physical section: the channel's linear calibration
+    (from mid-stroke), its NAMUR limits, the end stops at +-stroke/2, the margin and the travel
+    tolerance. Positions within 0.1 mm (rounding); bits equal, except for a rope whose window
+    had a reading within 1 um of a limit (the node's calibration is rounded)."""
+    doc = _doc(stroke_m=[0.08] * 4)  # end stops at +-40 mm: the stream's +-50 mm goes beyond the travel
+    ph = doc["physical"]
+    n = ph["ropes"]
+    recs = np.concatenate([random_stream(ph, 30, seed, faults=True) for seed in (21, 22, 23)])
+    _, _, frames = run_node(Node(config.parse(doc)), recs, per_sample=False)
+    win = ph["sample_hz"] // ph["frame_hz"]
+    m, tol = ph["stroke_margin_m"], ph["travel_tolerance_m"]
+    err = []
+    seen = {"low": 0, "high": 0, "travel": 0, "near": 0}
+    assert len(frames) == len(recs) // win
+    for j, wire in enumerate(frames):
+        f = protocol.decode_raw(protocol.decode_wire(wire[:-1]))
+        assert f.version == 3 and bool(f.status & L.ST_STROKE_LIMIT) == (f.stroke_mask != 0)
+        for i in range(n):
+            dc = ph["displacement_channels"][i]
+            clo, chi = dc["counts_lo"], dc["counts_hi"]
+            ylo, yhi = dc["range_m"]
+            flo, fhi = namur_limits(clo, chi)
+            c = recs[j * win:(j + 1) * win, n + i].astype(float)
+            x = ylo + (c - clo) * (yhi - ylo) / (chi - clo)
+            half = ph["stroke_m"][i] / 2
+            lims = np.array([-half - tol, -half + m, half - m, half + tol])
+            inside = (c >= flo) & (c <= fhi)
+            ok = inside & (x >= lims[0]) & (x <= lims[3])
+            if (np.abs(x[inside][:, None] - lims) < 1e-6).any():
+                seen["near"] += 1
+                continue
+            assert bool(f.fault_mask & (16 << i)) == (not ok.all()), (j, i)
+            seen["travel"] += int((inside & ~ok).any())
+            low = bool((x[ok] <= lims[1]).any())
+            high = bool((x[ok] >= lims[2]).any())
+            assert (bool(f.stroke_mask & (1 << i)), bool(f.stroke_mask & (16 << i))) == (low, high), (j, i)
+            seen["low"] += low
+            seen["high"] += high
+            pos = f.ropes[i].pos_01mm
+            if ok.any():
+                err.append(pos - x[ok].mean() * 1e4)
+                assert f.ropes[i].position_m == pos * 1e-4
+            else:
+                assert pos == L.POS_ABSENT and f.ropes[i].position_m is None
+    assert max(abs(e) for e in err) <= 0.55, max(abs(e) for e in err)
+    # the stream took pistons into both margins and beyond the travel
+    assert seen["low"] > 5 and seen["high"] > 5 and seen["travel"] > 5, seen
+    assert seen["near"] < len(frames) * n // 20, seen
 
 
 def test_peaks_survive_decimation():

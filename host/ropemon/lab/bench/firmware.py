@@ -499,6 +499,48 @@ def measure(quick: bool = False, firmware_dir: Path | None = None) -> dict:
     return figures
 
 
+# The instruction count: the bench's boot and stream, then PASSES passes of Node.sample over them.
+_COUNT_TAIL = """
+recs = stream(1000)
+for _ in range(PASSES):
+    for r in recs:
+        node.sample(r)
+print("counted", node.S[0])
+"""
+
+
+def instructions_per_sample(firmware_dir: Path | None = None, compliance: bool = False) -> float:
+    """x86-64 instructions per `Node.sample` under valgrind's callgrind (the unix port, the node
+    from x64 .mpy, the bench's boot and trip-like stream; with `compliance`, the bench's second
+    config): the difference between 6 and 1 passes over 1000 records, over 5000. Unlike the
+    times it does not move with the machine's load."""
+    fw = Path(firmware_dir) if firmware_dir else FIRMWARE
+    from ropemon.commission.nodejson import node_part
+
+    head = SCRIPT[:SCRIPT.index("class FloatNode")]
+    with tempfile.TemporaryDirectory(prefix="ropemon-bench-") as tmp:
+        t = Path(tmp)
+        compile_tree(fw, t / "x64", "x64")
+        config = _with_compliance(fw / "node.json", t) if compliance else fw / "node.json"
+        on_node = t / "on-node.json"
+        on_node.write_text(json.dumps(node_part(json.loads(config.read_text())), separators=(",", ":")))
+        ir = {}
+        for passes in (1, 6):
+            script = t / f"count{passes}.py"
+            script.write_text((head + _COUNT_TAIL).replace("NODE_JSON", json.dumps(str(on_node)))
+                              .replace("PHYS_JSON", json.dumps(str(config))).replace("PASSES", str(passes)))
+            out = t / f"callgrind{passes}.out"
+            r = subprocess.run([_tool("valgrind"), "--tool=callgrind", f"--callgrind-out-file={out}",
+                                _tool("micropython"), "-X", "heapsize=4M", str(script)], cwd=tmp,
+                               env=dict(os.environ, MICROPYPATH=str(t / "x64")), capture_output=True, text=True,
+                               timeout=1800)
+            found = [ln for ln in r.stderr.splitlines() if "Collected :" in ln]
+            if r.returncode != 0 or "counted" not in r.stdout or not found:
+                raise RuntimeError("callgrind run failed:\n" + r.stdout + r.stderr[-2000:])
+            ir[passes] = int(found[-1].split(":")[-1])
+    return (ir[6] - ir[1]) / 5000
+
+
 def describe(f: dict) -> str:
     """A table of the figures against the issue's targets."""
     def row(name, value, target, ok):
@@ -553,3 +595,12 @@ def describe(f: dict) -> str:
     for arch, n in f["mpy_bytes"].items():
         lines.append(row(f".mpy total, {arch}", n, "", True))
     return "\n".join(lines)
+
+
+if __name__ == "__main__":  # python -m ropemon.lab.bench.firmware --instructions [FIRMWARE_DIR]
+    if sys.argv[1:2] != ["--instructions"]:
+        sys.exit("usage: python -m ropemon.lab.bench.firmware --instructions [FIRMWARE_DIR]")
+    where = Path(sys.argv[2]) if len(sys.argv) > 2 else None
+    for comp in (False, True):
+        print(f"instructions per sample{', with a compliance' if comp else ''}: "
+              f"{instructions_per_sample(where, comp):.0f}")
