@@ -62,6 +62,8 @@ PRIORITY = {"stroke_limit": 1, "not_equalizing": 1,
 WORST_LOW = frozenset({"slack", "battery_low", "not_equalizing", "rope_adjust"})
 #: Kinds judged on a rope's piston position: not judged while its displacement channel fails.
 POSITION_KINDS = ("stroke_limit", "not_equalizing")
+#: Kinds judged on a rope's tension: not judged while the rope has none (its sensor failed).
+TENSION_KINDS = ("deviation", "deviation_possible", "slack")
 SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
 # A condition "held for 0.5 s" over frames 0.1 s apart holds at the sixth frame, whatever the
 # float rounding of the two times (38 * 0.1 and 43 * 0.1 are 0.49999999999999 apart).
@@ -377,6 +379,8 @@ class AlarmEngine:
         self._forecast: dict[int, list[AdjustForecast | None]] = {}
         self._layout: dict[int, int] = {}            # node -> layout version of its last frame
         self._mean_rope_n: dict[int, float | None] = {}
+        self._per_rope: dict[int, list[_Alarm]] = {}   # node -> its per-rope alarms that can be suppressed
+        self._eq_timing: tuple | None = None
         self.events: deque[AlarmEvent] = deque(maxlen=10000)  # recent history; the store keeps all
 
     # -- inputs ---------------------------------------------------------------
@@ -398,9 +402,9 @@ class AlarmEngine:
         # (their alarms hold their state; sensor_fault reports them) and not averaged in.
         present = [(i, r.mean_dan) for i, r in enumerate(ropes) if r.mean_dan != L.TENSION_ABSENT]
         judged = {i for i, _ in present}
-        for i in range(len(ropes)):
-            for kind in ("deviation", "deviation_possible", "slack"):
-                self._suppress(node, i, kind, i not in judged)
+        for a in self._per_rope.get(node, ()):
+            if a.kind in TENSION_KINDS and a.rope < len(ropes):
+                self._suppress(a, a.rope not in judged)
         if ropes:
             self._mean_rope_n[node] = (sum(t for _, t in present) / len(present) * DAN_TO_N) if present else None
         if s.band is not None and s.deviation_frac is not None and ropes:
@@ -668,15 +672,14 @@ class AlarmEngine:
 
     # -- internals ------------------------------------------------------------
 
-    def _suppress(self, node: int, rope: int, kind: str, suppressed: bool) -> None:
-        """A rope's alarm of `kind` suppressed by design while its sensor is not judged."""
-        a = self._alarms.get(f"{kind}:n{node}:r{rope}")
-        if a is not None:
-            was, a.suppressed = a.suppressed, suppressed
-            if a.suppressed:
-                a.latched = False
-            elif was:
-                a.latched = a.present   # annunciated again: a present alarm needs an ack
+    @staticmethod
+    def _suppress(a: _Alarm, suppressed: bool) -> None:
+        """A rope's alarm suppressed by design while its sensor is not judged."""
+        was, a.suppressed = a.suppressed, suppressed
+        if a.suppressed:
+            a.latched = False
+        elif was:
+            a.latched = a.present   # annunciated again: a present alarm needs an ack
 
     def _check_equalizer(self, ev, frame: Frame, now_s: float, q: EqualizerSettings) -> None:
         """stroke_limit, not_equalizing, oil_loss and rope_adjust from the frame's piston positions
@@ -687,11 +690,16 @@ class AlarmEngine:
         if not has_positions(frame):
             return
         xs = positions(frame)
-        for i in range(len(frame.ropes)):
-            for kind in POSITION_KINDS:
-                self._suppress(node, i, kind, xs[i] is None)
-        strokes = stroke_check(frame, q)
-        timing = Timing(raise_after_s=0.0, clear_after_s=q.stroke_clear_s, min_frames=1)
+        for a in self._per_rope.get(node, ()):
+            if a.kind in POSITION_KINDS and a.rope < len(xs):
+                self._suppress(a, xs[a.rope] is None)
+        timings = self._eq_timing
+        if timings is None or timings[0] is not q:
+            timings = self._eq_timing = (q, Timing(0.0, q.stroke_clear_s, 1),
+                                         Timing(q.equalize_raise_s, q.equalize_clear_s, q.equalize_min_frames),
+                                         Timing(q.oil_raise_s, q.oil_clear_s, q.oil_min_frames), Timing(0.0, 0.0, 1))
+        strokes = stroke_check(frame, q, xs)
+        timing = timings[1]
         for i, sr in enumerate(strokes):
             if sr is None:
                 continue
@@ -722,9 +730,8 @@ class AlarmEngine:
         if tr is None:
             tr = self._equalizing[node] = EqualizingTracker(q)
         skip = [sr is not None and sr.end is not None for sr in strokes]
-        timing = Timing(raise_after_s=q.equalize_raise_s, clear_after_s=q.equalize_clear_s,
-                        min_frames=q.equalize_min_frames)
-        for i, pt in enumerate(tr.update(frame, now_s, skip)):
+        timing = timings[2]
+        for i, pt in enumerate(tr.update(frame, now_s, skip, xs)):
             if pt is None:
                 continue
             aid = f"not_equalizing:n{node}:r{i}"
@@ -743,12 +750,12 @@ class AlarmEngine:
         oil = self._oil.get(node)
         if oil is None:
             oil = self._oil[node] = OilTracker(q)
-        st = oil.update(frame, now_s)
+        st = oil.update(frame, now_s, xs)
         if st is not None:
             aid = f"oil_loss:n{node}"
             bad = st.lost_m3 > st.band_m3
             if bad or aid in self._alarms:
-                timing = Timing(raise_after_s=q.oil_raise_s, clear_after_s=q.oil_clear_s, min_frames=q.oil_min_frames)
+                timing = timings[3]
                 self._step(ev, aid, "oil_loss", node, None, timing, now_s, bad, st.lost_m3 < st.band_m3 / 2,
                            round(st.lost_m3 * 1e3, 3), round(st.band_m3 * 1e3, 3),
                            f"oil loss: {st.lost_m3 * 1e3:.2f} L in the last {st.window_s:.0f} s "
@@ -759,9 +766,9 @@ class AlarmEngine:
         rests = self._rests.get(node)
         if rests is None:
             rests = self._rests[node] = RestTracker(q)
-        if rests.update(frame, now_s):
+        if rests.update(frame, now_s, xs):
             fc = self._forecast[node] = rests.forecast()
-            timing = Timing(raise_after_s=0.0, clear_after_s=0.0, min_frames=1)
+            timing = timings[4]
             for i, f in enumerate(fc):
                 aid = f"rope_adjust:n{node}:r{i}"
                 left = None if f is None else f.winds_left
@@ -854,6 +861,8 @@ class AlarmEngine:
             if not raise_cond:
                 return  # nothing to track until the condition first appears
             a = self._alarms[aid] = _Alarm(aid, kind, node, rope, Debounce(timing))
+            if rope is not None and node is not None and (kind in TENSION_KINDS or kind in POSITION_KINDS):
+                self._per_rope.setdefault(node, []).append(a)
         a.value, a.threshold, a.band = value, threshold, band
         change = a.debounce.step(now_s, raise_cond, clear_cond)
         if change is None:

@@ -27,6 +27,7 @@ Units: positions in m from mid-stroke, x > 0 the piston pulled out by its rope (
 """
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -122,6 +123,14 @@ class EqualizerSettings:
         for name in ("areas_m2", "stroke_m", "compliance_m_per_pa"):
             if any(not math.isfinite(v) or v < 0 for v in getattr(self, name)):
                 raise ValueError(f"equalizer.{name}: must be finite and >= 0")
+        # per rope of stroke_m: (in the low margin at or below, in the high margin at or above, clear
+        # above, clear below), m; derived once (not a field: equality and repr stay the settings')
+        bounds = ()
+        if self.margin_m is not None:
+            m, h = self.margin_m, self.stroke_hysteresis_m
+            bounds = tuple((-st / 2 + m, st / 2 - m, -st / 2 + m + h, st / 2 - m - h) if st else None
+                           for st in self.stroke_m)
+        object.__setattr__(self, "_bounds", bounds)
 
     def per_rope(self, values: tuple[float, ...], i: int) -> float | None:
         """Rope i's figure (the last one for more ropes than figures); None when unknown."""
@@ -173,23 +182,29 @@ class StrokeRope(NamedTuple):
     clear: bool
 
 
-def stroke_check(frame: Frame, s: EqualizerSettings) -> list[StrokeRope | None]:
-    """Per rope: the stroke check, None for a rope not judged (no position, displacement fault)."""
+def stroke_check(frame: Frame, s: EqualizerSettings,
+                 xs: list[float | None] | None = None) -> list[StrokeRope | None]:
+    """Per rope: the stroke check, None for a rope not judged (no position, displacement fault).
+    `xs`: the frame's `positions` when the caller has them."""
     out: list[StrokeRope | None] = []
     mask = getattr(frame, "stroke_mask", 0)
-    for i, pos in enumerate(positions(frame)):
+    bounds = s._bounds  # type: ignore[attr-defined]
+    nb = len(bounds)
+    for i, pos in enumerate(positions(frame) if xs is None else xs):
         if pos is None:
             out.append(None)
             continue
-        low = bool(mask >> (STROKE_LOW_SHIFT + i) & 1)
-        high = bool(mask >> (STROKE_HIGH_SHIFT + i) & 1)
-        stroke = s.per_rope(s.stroke_m, i)
+        if mask:
+            low = bool(mask >> (STROKE_LOW_SHIFT + i) & 1)
+            high = bool(mask >> (STROKE_HIGH_SHIFT + i) & 1)
+        else:
+            low = high = False
+        b = bounds[i] if i < nb else (bounds[-1] if nb else None)
         clear = not (low or high)
-        if stroke and s.margin_m is not None:
-            half = stroke / 2.0
-            low = low or pos <= -half + s.margin_m
-            high = high or pos >= half - s.margin_m
-            clear = clear and -half + s.margin_m + s.stroke_hysteresis_m < pos < half - s.margin_m - s.stroke_hysteresis_m
+        if b is not None:
+            low = low or pos <= b[0]
+            high = high or pos >= b[1]
+            clear = clear and b[2] < pos < b[3]
         end = ("extended" if pos >= 0 else "retracted") if (low and high) else \
               "retracted" if low else "extended" if high else None
         out.append(StrokeRope(end, pos, clear and end is None))
@@ -234,6 +249,8 @@ class EqualizingTracker:
 
     def __init__(self, s: EqualizerSettings) -> None:
         self.s = s
+        self._thr = s.motion_tolerance_m
+        self._still = s.position_step_m + 3.0 * s.motion_sigma_m    # "did not move", at the frame's resolution
         self._ref_x: list[float | None] = []
         self._ref_p: list[float | None] = []
         self._ref_s: float | None = None
@@ -247,9 +264,11 @@ class EqualizingTracker:
     def reset(self) -> None:
         self._ref_s = None
 
-    def update(self, frame: Frame, now_s: float, skip: Sequence[bool] = ()) -> list[Participation | None]:
+    def update(self, frame: Frame, now_s: float, skip: Sequence[bool] = (),
+               xs: list[float | None] | None = None) -> list[Participation | None]:
         """Take the node's next frame; per rope its participation, None where not judged (no
-        position or pressure, `skip[i]`: e.g. the piston in its stroke margin)."""
+        position or pressure, `skip[i]`: e.g. the piston in its stroke margin). `xs`: the frame's
+        `positions` when the caller has them."""
         s = self.s
         n = len(frame.ropes)
         boot = frame.seq >> SEQ_BOOT_SHIFT
@@ -258,7 +277,8 @@ class EqualizingTracker:
             if boot != self._boot or gap_s > 2.0:
                 self.reset()
         self._last_ms, self._boot = frame.time_ms, boot
-        xs = positions(frame)
+        if xs is None:
+            xs = positions(frame)
         ps = [None if r.raw_kpa == L.RAW_KPA_ABSENT else float(r.raw_kpa) for r in frame.ropes]
         usable = [xs[i] is not None and ps[i] is not None for i in range(n)]
         if (self._ref_s is None or len(self._ref_x) != n
@@ -271,12 +291,31 @@ class EqualizingTracker:
             return self.last
         dx = [xs[i] - self._ref_x[i] if usable[i] else None for i in range(n)]
         dp = [ps[i] - self._ref_p[i] if usable[i] else None for i in range(n)]
-        thr = s.motion_tolerance_m
-        still = s.position_step_m + 3.0 * s.motion_sigma_m      # "did not move", at the frame's resolution
+        thr, still = self._thr, self._still
+        moved = 0.0
         for i in range(n):
             if usable[i]:
-                self._lo[i] = min(self._lo[i], dx[i])
-                self._hi[i] = max(self._hi[i], dx[i])
+                d = dx[i]
+                if d < self._lo[i]:
+                    self._lo[i] = d
+                elif d > self._hi[i]:
+                    self._hi[i] = d
+                if abs(d) > moved:
+                    moved = abs(d)
+        if moved < thr:                # no piston moved beyond the tolerance: no evidence, the usual case
+            self.last = [Participation(False, False, None, dx[i], 0.0, 0.0, 0.0, "") if usable[i] else None
+                         for i in range(n)]
+            for i in range(n):
+                if self._first[i] is not None:
+                    self._first[i] = None
+            if now_s - self._ref_s >= s.anchor_max_s:
+                self._anchor(xs, ps, usable, now_s)
+            return self.last
+        idx = [i for i in range(n) if usable[i]]
+        sx = sorted(dx[i] for i in idx)
+        sp = sorted(dp[i] for i in idx)
+        by_abs = sorted(idx, key=lambda i: abs(dx[i]))
+        least, second = by_abs[0], by_abs[1]
         out: list[Participation | None] = []
         moved_all = 0.0
         any_lag = False
@@ -284,22 +323,24 @@ class EqualizingTracker:
             if not usable[i]:
                 out.append(None)
                 continue
-            others = [dx[j] for j in range(n) if j != i and usable[j]]
-            med = _median(others)
-            # against the least moved of the others: a seal at rest holds its piston a while, and
-            # where some pistons hold while others slide, a held one is not the odd one out
-            ox = min(others, key=abs)
-            if ox * med <= 0:
-                ox = 0.0                   # the others moved different ways: a stroke, no evidence
-            op = _median([dp[j] for j in range(n) if j != i and usable[j]])
             own = dx[i]
+            med = _median_without(sx, own)
+            op = _median_without(sp, dp[i])
             dep = dp[i] - op
-            moved_all = max(moved_all, abs(med))
+            if abs(med) > moved_all:
+                moved_all = abs(med)
             if abs(med) < thr:
                 out.append(Participation(False, False, None, own, med, dep, op, ""))
+                self._first[i] = None
                 continue
             follows = abs(med) - abs(own) < 0.75 * thr and abs(own) / abs(med) >= s.follow_ratio
-            if abs(ox) < thr:
+            # against the least moved of the others: a seal at rest holds its piston a while, and
+            # where some pistons hold while others slide, a held one is not the odd one out. So only
+            # the least moved rope of all can lag (any other has one moved less than itself).
+            ox = dx[second] if i == least else dx[least]
+            if ox * med <= 0:
+                ox = 0.0                   # the others moved different ways: a stroke, no evidence
+            if i != least or abs(ox) < thr:
                 out.append(Participation(False, follows, own / med, own, med, dep, op, ""))
                 self._first[i] = None
                 continue
@@ -389,6 +430,7 @@ class OilTracker:
         self._ring: deque[tuple[float, float, float | None]] = deque(maxlen=self.SLOTS + 1)
         self._last_ms: int | None = None
         self._boot: int | None = None
+        self._ak: list[tuple[float, float]] = []   # per rope: area, k per kPa
         self._t0: float | None = None     # oil temperature at the start, C
         self._b0: float | None = None
         self.last: OilState | None = None
@@ -397,7 +439,8 @@ class OilTracker:
         self._ring.clear()
         self._t0 = self._b0 = None
 
-    def update(self, frame: Frame, now_s: float) -> OilState | None:
+    def update(self, frame: Frame, now_s: float, xs: list[float | None] | None = None) -> OilState | None:
+        """Take the node's next frame (`xs`: its `positions` when the caller has them)."""
         s = self.s
         n = len(frame.ropes)
         boot = frame.seq >> SEQ_BOOT_SHIFT
@@ -409,16 +452,18 @@ class OilTracker:
         if not s.areas_m2 or not any(s.compliance_m_per_pa) or n == 0:
             self.last = None
             return None
-        xs = positions(frame)
+        if xs is None:
+            xs = positions(frame)
+        if len(self._ak) != n:
+            self._ak = [(s.per_rope(s.areas_m2, i) or 0.0, (s.per_rope(s.compliance_m_per_pa, i) or 0.0) * 1000.0)
+                        for i in range(n)]
         bal = 0.0
-        for i, r in enumerate(frame.ropes):
-            if xs[i] is None or r.raw_kpa == L.RAW_KPA_ABSENT:
+        for (a, k_kpa), x, r in zip(self._ak, xs, frame.ropes):
+            if x is None or r.raw_kpa == L.RAW_KPA_ABSENT:
                 self.reset()
                 self.last = None
                 return None
-            a = s.per_rope(s.areas_m2, i) or 0.0
-            k = s.per_rope(s.compliance_m_per_pa, i) or 0.0
-            bal += a * (xs[i] - k * r.raw_kpa * 1000.0)
+            bal += a * (x - k_kpa * r.raw_kpa)
         temp = None if frame.oil_temp_cc == L.OIL_TEMP_ABSENT else frame.oil_temp_cc / 100.0
         vol = s.oil_volume_m3
         if vol is None:
@@ -523,7 +568,7 @@ class RestTracker:
         self._psum: list[float] = []
         self._p0: list[float | None] = []
 
-    def update(self, frame: Frame, now_s: float) -> bool:
+    def update(self, frame: Frame, now_s: float, xs: list[float | None] | None = None) -> bool:
         """Take a frame; True when a rest just ended (a new entry in `rests`)."""
         s = self.s
         n = len(frame.ropes)
@@ -534,7 +579,7 @@ class RestTracker:
                 self._sum, self._cnt, self._bad = [0.0] * n, [0] * n, [False] * n
                 self._psum = [0.0] * n
             if now_s - self._since >= s.rest_skip_s and len(self._sum) == n:
-                for i, x in enumerate(positions(frame)):
+                for i, x in enumerate(positions(frame) if xs is None else xs):
                     kpa = frame.ropes[i].raw_kpa
                     if x is None or kpa == L.RAW_KPA_ABSENT:
                         self._bad[i] = True
@@ -568,7 +613,12 @@ class RestTracker:
         return adjust_forecast(list(self.rests), s.stroke_m, s.margin_m, s.adjust_min_rests, s.adjust_trend_min_m)
 
 
-def _median(xs: list[float]) -> float:
-    v = sorted(xs)
-    m = len(v) // 2
-    return v[m] if len(v) % 2 else (v[m - 1] + v[m]) / 2.0
+def _median_without(v: list[float], x: float) -> float:
+    """The median of sorted `v` with one `x` (an element of it) left out."""
+    k = bisect.bisect_left(v, x)
+    m = len(v) - 1
+
+    def at(j: int) -> float:
+        return v[j] if j < k else v[j + 1]
+    return at(m // 2) if m % 2 else (at(m // 2 - 1) + at(m // 2)) / 2.0
+
