@@ -37,7 +37,8 @@ unacknowledged" and stays listed until acknowledged. An operator may shelve an a
 (with a reason, until an expiry) or an engineer take it out of service (with a reason,
 until returned): it is then not annunciated (listed apart, no acknowledgement needed) but
 still evaluated and logged. A rope's deviation and slack alarms are suppressed by design
-while that rope's sensor has failed (SENSOR FAULT names it). Each alarm keeps its worst
+while that rope's sensor has failed, its stroke_limit and not_equalizing while its
+displacement channel has (SENSOR FAULT names it). Each alarm keeps its worst
 value since it was raised, its raise, clear and acknowledgement times and who acknowledged.
 More than FLOOD_RAISES raises within FLOOD_S is an alarm flood (ALARM FLOOD).
 """
