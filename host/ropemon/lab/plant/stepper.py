@@ -83,8 +83,11 @@ class Stepper:
         # faults (time-dependent): valve open fractions, leak rates, seal scales per step
         self.faults = plant.faults if plant.faults.any else None
         self.base = [1.0] * n if self.scale is None else list(self.scale)
-        self.healthy = ([1.0] * n, [0.0] * n, 0.0, self.base)
-        self._ft, self._fs = None, None
+        # per rope, its constants and then (seal scale, half stroke, valve open fraction, leak rate):
+        # the last two change with the faults (`fault_state`)
+        self.rope = [r[:-1] + (self.base[i], self.half[i], 1.0, 0.0) for i, r in enumerate(self.rope)]
+        self._ft, self._fs, self._fkey = None, None, None
+        self.touched = False
         self.set_inputs(u)
 
     def contacts(self, y) -> tuple:
@@ -101,16 +104,19 @@ class Stepper:
         return tuple(out)
 
     def fault_state(self, t: float):
-        """(open fractions, cavity leak rates m^3/s, assembly leak rate, seal scales) at time t."""
+        """(the rope tuples with their seal scales, valve open fractions and leak rates at time t,
+        the assembly's leak rate m^3/s)."""
         fa = self.faults
-        if fa is None:
-            return self.healthy
         if t == self._ft:
             return self._fs
         op = [1.0 - float(c) for c in fa.closed(t)]
         lr, lj = fa.leak_rates(t)
         sc = [b * float(mm) for b, mm in zip(self.base, fa.seal_mult(t, self.plant.seal_base))]
-        self._ft, self._fs = t, (op, [float(a) for a in lr], float(lj), sc)
+        key = (tuple(op), tuple(float(a) for a in lr), float(lj), tuple(sc))
+        if key != self._fkey:
+            self._fkey = key
+            self._frope = [r[:-4] + (a, r[-3], b, c) for r, a, b, c in zip(self.rope, sc, op, key[1])]
+        self._ft, self._fs = t, (self._frope, key[2])
         return self._fs
 
     def set_inputs(self, u) -> None:
@@ -147,7 +153,7 @@ class Stepper:
         nu = mu / rho
         fs0, fs1, fc0, fc1, vs0, vs1, s20, s21 = self.fl
         s0, s1, vth, kind, terms = self.s0, self.s1, self.vth, self.kind, self.terms
-        ops, lrs, lj, scs = self.fault_state(self.t[k]) if self.faults is not None else self.healthy
+        ropes, lj = self.fault_state(self.t[k]) if self.faults is not None else (self.rope, 0.0)
         scaled = self.scale is not None or self.faults is not None
         kes, ces = self.kes, self.ces
         beta = self.beta
@@ -156,13 +162,14 @@ class Stepper:
         pj = y[o + 2 * n]
         zs = y[2 + 2 * n:o] if nz == 1 else [y[2 + 2 * n + i * nz:2 + 2 * n + (i + 1) * nz] for i in range(n)]
         fx, fv, fz, fp, fq = [], [], [], [], []
+        touched = False
         sumT = 0.0
         sumq = 0.0
         J = [] if jac else None
         shk = shc = 0.0
-        for (A, m, delta, V0, q_turb, lam_sum, lin_loc, quad, inert_pr, seg, _), x, v, z, p, q, kri, cri, fli, yli, \
-                ydli, half, op, lr, sc in zip(self.rope, y[2:2 + n], y[2 + n:2 + 2 * n], zs, y[o:o + n],
-                                              y[o + n:o + 2 * n], kr, cr, fl, yl, ydl, self.half, ops, lrs, scs):
+        for (A, m, delta, V0, q_turb, lam_sum, lin_loc, quad, inert_pr, seg, sc, half, op, lr), x, v, z, p, q, kri, \
+                cri, fli, yli, ydli in zip(ropes, y[2:2 + n], y[2 + n:2 + 2 * n], zs, y[o:o + n], y[o + n:o + 2 * n],
+                                           kr, cr, fl, yl, ydl):
             e = fli + kri * (r + yli - x - delta) + cri * (rd + ydli - v)
             if e > 0.0:
                 T, hk, hc = e, kri, cri
@@ -222,14 +229,16 @@ class Stepper:
             bv = beta / vol
             # end stops: one-sided penalty contact while penetrating
             E = ek = ec = 0.0
-            if x > half:
-                fe = kes * (x - half) + ces * v
-                if fe > 0.0:
-                    E, ek, ec = -fe, kes, ces
-            elif x < -half:
-                fe = kes * (-half - x) - ces * v
-                if fe > 0.0:
-                    E, ek, ec = fe, kes, ces
+            if not -half <= x <= half:
+                touched = True
+                if x > half:
+                    fe = kes * (x - half) + ces * v
+                    if fe > 0.0:
+                        E, ek, ec = -fe, kes, ces
+                else:
+                    fe = kes * (-half - x) - ces * v
+                    if fe > 0.0:
+                        E, ek, ec = fe, kes, ces
             # a leak out of the cavity
             if lr:
                 if p >= LEAK_KNEE_PA:
@@ -298,6 +307,7 @@ class Stepper:
         else:
             M = 1.0
             f0 = f1 = 0.0
+        self.touched = touched     # some piston beyond its stroke at y (`integrate_fast` checks contacts)
         jjj = 0.0
         if lj:   # a leak out of the connecting assembly
             if pj >= LEAK_KNEE_PA:
@@ -634,7 +644,7 @@ def integrate_fast(plant, u, y0, grid_steps, progress=None, jac_every: int = 1, 
                         d = solve(factor(jac, c), [c * f - (p - a2 * a + b2 * b)
                                                    for f, p, a, b in zip(fp, yp, y, y_prev)])
                         yn = [p + e for p, e in zip(yp, d)]
-                        if stops and (max(map(abs, yn[x0:x1])) > hmin or max(map(abs, yp[x0:x1])) > hmin) \
+                        if stops and (st.touched or max(map(abs, yn[x0:x1])) > hmin) \
                                 and st.contacts(yn) != st.contacts(yp):
                             # the step was linearised on the other side of a contact switch: Newton
                             # iterations from its result until the contacts hold (docs/simulator.md)
