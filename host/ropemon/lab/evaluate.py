@@ -1104,7 +1104,8 @@ def rescore_population(args: argparse.Namespace, seeds, log, t0: float) -> int:
     command = (f"ropemon evaluate --population {args.population} --seeds {args.seeds} --faults --rescore "
                f"--out {args.out}")
     (args.out / "faults.json").write_text(json.dumps(out, indent=1, allow_nan=False) + "\n")
-    md = population.targets_markdown(out, command)
+    md = population.targets_markdown(out, command, f"ropemon evaluate --population {args.population} --seeds "
+                                               f"{args.seeds} --faults --out {args.out}")
     (args.out / "faults.md").write_text(md)
     if args.json:
         json.dump(out, sys.stdout, allow_nan=False)

@@ -1261,15 +1261,16 @@ def _lat(st: dict) -> str:
     return f"{st['median']:+.1f} / {st['p95']:+.1f} / {st['max']:+.1f}"
 
 
-def targets_markdown(out: dict, command: str) -> str:
-    """docs/evaluation/faults.md: the Targets, fault class by fault class, today's station beside."""
+def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
+    """docs/evaluation/faults.md: the Targets, fault class by fault class, today's station beside
+    (`ran`: the command that ran the winds, when `command` scored them again)."""
     from ropemon.lab.metrics import STANDING_SHARE
 
     t = out["targets"]
     st, lg = t["station"], t["legacy"]
     hs, hl = st["healthy"], lg["healthy"]
     n_duty = sum(c["drawn"] for c in (st["classes"].get(DUTY_CLASS, {}),) if c)
-    lines = [f"Made by `{command}`", "",
+    lines = [f"Made by `{command}`" + (f" on the winds `{ran}` ran" if ran else ""), "",
              f"{t['hoists']} scored hoists of the {out['seeds']} seeds, each run healthy and with one drawn fault"
              + (f"; {n_duty} also through a {DUTY_TRIPS}-wind duty cycle with one rope creeping" if n_duty else "")
              + f"; {out['wall_s']} s. *station*: the alarms as shipped (`physical.alarm_settings` of the "
