@@ -218,11 +218,38 @@ def test_a_blocked_hose_follows_in_pressure_but_its_piston_does_not_share_the_oi
     assert "blocked hose" in r.message and "pressure followed" in r.message and "seized" not in r.message
 
 
-def test_a_transmitter_departing_while_its_piston_follows_is_not_a_valve():
-    """Its pressure departs (a drifting transmitter), its piston moves with the others: not raised."""
+def test_a_cut_off_cylinder_whose_piston_follows_departs_in_pressure_within_the_loading():
+    """As the simulated closed valve (manifold side) does: the cut-off cylinder's own oil compresses
+    almost as the others' (its piston moves 80 % of theirs, within the tolerance), but its pressure
+    departs, 25 % more than the others' change: raised within the loading, naming the valve or a
+    misreading transmitter."""
+    def rule(i, p, x):
+        if i != 1:
+            return p, x
+        own = 2500 + (p - 2500) * 1.25
+        return own, 0.8 * K * own * 1000.0 + 0.2 * K * 2.5e6
     s = Stream().feed([2500] * 4, [K * 2.5e6] * 4, n=30)
-    hoist(s, 2500, 4500, 8.0, rule=lambda i, p, x: (2500 + 0.5 * (p - 2500), x) if i == 3 else (p, x))
+    hoist(s, 2500, 2800, 6.0, rule=rule)                              # a 0.3 MPa loading over 6 s
+    (r,) = [e for e in s.events if e.action == "raise"]
+    assert r.alarm == "not_equalizing:n1:r1" and r.time_s <= 3.0 + 6.0 + 0.1
+    assert "cut off from the manifold" in r.message and "transmitter misreads" in r.message
+
+
+def test_a_frozen_transmitter_is_not_a_cut_off_cylinder():
+    """Its pressure still while the others' move, its piston with theirs: SENSOR STUCK's, not this."""
+    s = Stream().feed([2500] * 4, [K * 2.5e6] * 4, n=30)
+    hoist(s, 2500, 4500, 8.0, rule=lambda i, p, x: (2500, x) if i == 3 else (p, x))
     assert s.events == []
+
+
+def test_nobody_is_judged_while_a_piston_is_at_its_end():
+    """A piston at its end stop takes no oil: the others' pressures and pistons part. STROKE LIMIT
+    names it; no rope is judged for equalizing meanwhile."""
+    s = Stream().feed([2500] * 4, [K * 2.5e6, K * 2.5e6, 0.095, K * 2.5e6], n=30)
+    def rule(i, p, x):
+        return (p, 0.095) if i == 2 else ((p + 100, x * 0.2) if i == 0 else (p, x))
+    hoist(s, 2500, 6500, 8.0, rule=rule)
+    assert [e.alarm for e in s.events if e.action == "raise"] == ["stroke_limit:n1:r2"]
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -75,7 +75,7 @@ class EqualizerSettings:
     seized_ratio: float = 0.1
     follow_ratio: float = 0.8
     departure_kpa: float = 30.0                  # pressure departing from the others' by more than
-    departure_frac: float = 0.2                  # max(this kPa, this share of their change)
+    departure_frac: float = 0.05                 # max(this kPa, this share of their change)
     reanchor_m: float = 1e-3                     # the others moved this far: a new reference
     anchor_max_s: float = 300.0                  # or after this long (a lagging rope judged afresh)
     equalize_raise_s: float = 1.0
@@ -292,6 +292,23 @@ class EqualizingTracker:
         dx = [xs[i] - self._ref_x[i] if usable[i] else None for i in range(n)]
         dp = [ps[i] - self._ref_p[i] if usable[i] else None for i in range(n)]
         thr, still = self._thr, self._still
+        if any(skip):
+            # a piston at its end: the equalizer's motion is not its own (the stopped cylinder takes
+            # no oil, the others part), so nobody is judged, and the reference restarts after
+            self._anchor(xs, ps, usable, now_s)
+            self.last = [Participation(False, False, None, 0.0, 0.0, 0.0, 0.0, "") if u else None for u in usable]
+            return self.last
+        # a pressure departing from the others' (a tap reading a cylinder cut off from the manifold);
+        # not a frozen transmitter (its own pressure still: SENSOR STUCK)
+        idx = [i for i in range(n) if usable[i]]
+        sp = sorted(dp[i] for i in idx)
+        departing: dict[int, tuple[float, float]] = {}
+        for i in idx:
+            op = _median_without(sp, dp[i])
+            dep = dp[i] - op
+            if (abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
+                    and abs(dp[i]) >= max(s.departure_kpa / 3.0, 0.25 * abs(op))):
+                departing[i] = (dep, op)
         moved = 0.0
         for i in range(n):
             if usable[i]:
@@ -302,7 +319,7 @@ class EqualizingTracker:
                     self._hi[i] = d
                 if abs(d) > moved:
                     moved = abs(d)
-        if moved < thr:                # no piston moved beyond the tolerance: no evidence, the usual case
+        if moved < thr and not departing:   # no piston moved beyond the tolerance: the usual case
             self.last = [Participation(False, False, None, dx[i], 0.0, 0.0, 0.0, "") if usable[i] else None
                          for i in range(n)]
             for i in range(n):
@@ -311,9 +328,7 @@ class EqualizingTracker:
             if now_s - self._ref_s >= s.anchor_max_s:
                 self._anchor(xs, ps, usable, now_s)
             return self.last
-        idx = [i for i in range(n) if usable[i]]
         sx = sorted(dx[i] for i in idx)
-        sp = sorted(dp[i] for i in idx)
         by_abs = sorted(idx, key=lambda i: abs(dx[i]))
         least, second = by_abs[0], by_abs[1]
         out: list[Participation | None] = []
@@ -329,6 +344,14 @@ class EqualizingTracker:
             dep = dp[i] - op
             if abs(med) > moved_all:
                 moved_all = abs(med)
+            if i in departing:
+                any_lag = True
+                cause = (f"its pressure departs {dep:+.0f} kPa from the others' change ({op:+.0f} kPa) while its "
+                         f"piston moved {own * 1e3:+.2f} mm against their {med * 1e3:+.2f} mm: its cylinder cut off "
+                         "from the manifold (a stop valve closed between its pressure tap and the manifold), or its "
+                         "pressure transmitter misreads")
+                out.append(Participation(True, False, own / med if med else None, own, med, dep, op, cause))
+                continue
             if abs(med) < thr:
                 out.append(Participation(False, False, None, own, med, dep, op, ""))
                 self._first[i] = None
@@ -347,18 +370,14 @@ class EqualizingTracker:
             ratio = own / ox
             share = abs(own) / abs(ox)
             gap = abs(ox) - abs(own)
-            departs = abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
             # a piston that moved against the others, or went and came back since the reference,
             # slid: a balancing stroke, the equalizer working. One that does not take part stays, or
             # moves one way only with its own oil's compression.
             slid = (own * math.copysign(1.0, ox) < -still
                     or self._hi[i] - self._lo[i] > abs(own) + still)
-            lags = gap >= thr and (share <= s.lag_ratio or departs) and not slid
-            if i < len(skip) and skip[i]:
-                lags = False
+            lags = gap >= thr and share <= s.lag_ratio and not slid
             # the lag must hold while the others' motion grows lag_growth-fold: a balancing stroke
-            # against the oil's motion leaves a fixed lag, which the growing motion outgrows (a
-            # stroke does not part the pressures: a pressure departing needs no such wait)
+            # against the oil's motion leaves a fixed lag, which the growing motion outgrows
             if not lags:
                 if gap < 0.5 * thr or slid:
                     self._first[i] = None      # clearly not lagging (a flicker at the edge keeps it)
@@ -366,14 +385,10 @@ class EqualizingTracker:
                 any_lag = True
                 if self._first[i] is None:
                     self._first[i] = abs(ox)
-            lags = lags and (departs or abs(ox) >= s.lag_growth * self._first[i] - 1e-12)
+            lags = lags and abs(ox) >= s.lag_growth * self._first[i] - 1e-12
             cause = ""
             if lags:
-                if departs:
-                    cause = (f"its pressure departs {dep:+.0f} kPa from the others' ({op:+.0f} kPa) while its "
-                             f"piston moved {own * 1e3:+.2f} mm against their {ox * 1e3:+.2f} mm or more: a stop valve "
-                             "closed between its pressure tap and the manifold (its cylinder cut off)")
-                elif abs(own) <= max(s.seized_ratio * abs(ox), still):
+                if abs(own) <= max(s.seized_ratio * abs(ox), still):
                     cause = (f"its piston did not move ({own * 1e3:+.2f} mm) while the others moved "
                              f"{ox * 1e3:+.2f} mm or more and its pressure followed theirs: a seized seal (or its "
                              "cylinder's oil shut in at the cylinder)")
