@@ -1273,7 +1273,8 @@ def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
     lines = [f"Made by `{command}`" + (f" on the winds `{ran}` ran" if ran else ""), "",
              f"{t['hoists']} scored hoists of the {out['seeds']} seeds, each run healthy and with one drawn fault"
              + (f"; {n_duty} also through a {DUTY_TRIPS}-wind duty cycle with one rope creeping" if n_duty else "")
-             + f"; {out['wall_s']} s. *station*: the alarms as shipped (`physical.alarm_settings` of the "
+             + (f"; scored again in {out['wall_s']} s" if ran else f"; {out['wall_s']} s")
+             + ". *station*: the alarms as shipped (`physical.alarm_settings` of the "
              "commissioned config); *today's station*: the same with `legacy_deviation_possible=True, "
              "equalizer=None`, the station before the equalizer's alarms. Both on the same node frames "
              "(`population.station_events`, as `ropemon replay --db`)."
