@@ -509,3 +509,20 @@ def test_settings_are_checked_and_wired_from_the_site():
     assert eq.areas_m2 == (AREA,) * 4 and eq.stroke_m == (0.2,) * 4 and eq.margin_m == 0.012
     assert positions(frame([0] * 4, [0.01, None, -0.02, 0.0], 0, fault_mask=1 << 7)) == \
         [pytest.approx(0.01), None, pytest.approx(-0.02), None]
+
+
+def test_a_cut_off_cylinders_pressure_does_not_make_the_others_look_stuck():
+    """At rest, a cut-off cylinder's pressure still rises with its rope (300 kPa over 8 s) while the
+    others' stand: the station judges SENSOR STUCK against the others' median, so the three standing
+    transmitters are not stuck; the legacy station (the others' mean) took them for stuck."""
+    def run(settings):
+        eng = AlarmEngine(settings)
+        kinds = set()
+        for k in range(100):
+            kpas = [4950, 4950 + min(300, 4 * k), 4950, 4950]
+            for e in eng.update(frame(kpas, [0.01] * 4, k), k * DT):
+                kinds.add((e.kind, e.rope))
+        return kinds
+    assert not any(k == "sensor_stuck" for k, _ in run(AlarmSettings(equalizer=EQ)))
+    assert {("sensor_stuck", 0), ("sensor_stuck", 2), ("sensor_stuck", 3)} <= \
+        run(AlarmSettings(legacy_deviation_possible=True, equalizer=None))

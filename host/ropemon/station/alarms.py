@@ -48,7 +48,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from ropemon.station.equalizer import (AdjustForecast, EqualizerSettings, EqualizingTracker, OilTracker,
-                                       RestTracker, has_positions, positions, stroke_check)
+                                       RestTracker, _median_without, has_positions, positions, stroke_check)
 from ropemon.station.protocol import DAN_TO_N, L, Frame
 from ropemon.station.uncertainty import (BandParams, DeviationBand, RopeInterval, SealBandTracker, deviation_bounds,
                                          hidden_reach)
@@ -321,9 +321,13 @@ class _StuckTracker:
     ropes changes that mean jumps, so every anchor restarts.
     """
 
-    __slots__ = ("present", "anchor_kpa", "anchor_s", "lo_kpa", "hi_kpa")
+    __slots__ = ("present", "anchor_kpa", "anchor_s", "lo_kpa", "hi_kpa", "median")
 
-    def __init__(self) -> None:
+    def __init__(self, median: bool = False) -> None:
+        # median: the others' median instead of their mean (the station with the equalizer's alarms:
+        # a cylinder cut off from the manifold parts its pressure from the rest, which then must not
+        # look stuck against it); the same for up to three ropes
+        self.median = median
         self.present: tuple[bool, ...] = ()
         self.anchor_kpa: list[int] = []
         self.anchor_s: list[float] = []
@@ -337,6 +341,14 @@ class _StuckTracker:
             if p:
                 total += kpa
         count = sum(present)
+        if self.median and count > 3:
+            srt = sorted(k for p, k in zip(present, raw_kpa) if p)
+
+            def others_of(kpa: int) -> float:
+                return _median_without(srt, kpa)
+        else:
+            def others_of(kpa: int) -> float:
+                return (total - kpa) / (count - 1)
         if present != self.present:
             n = len(raw_kpa)
             self.present = present
@@ -346,14 +358,14 @@ class _StuckTracker:
             self.hi_kpa = [0.0] * n
             for i in range(n):
                 if present[i] and count > 1:
-                    self.lo_kpa[i] = self.hi_kpa[i] = (total - raw_kpa[i]) / (count - 1)
+                    self.lo_kpa[i] = self.hi_kpa[i] = others_of(raw_kpa[i])
             return
         if count < 2:
             return
         for i, kpa in enumerate(raw_kpa):
             if not present[i]:
                 continue
-            others = (total - kpa) / (count - 1)
+            others = others_of(kpa)
             if abs(kpa - self.anchor_kpa[i]) > deadband_kpa:
                 self.anchor_kpa[i], self.anchor_s[i] = kpa, now_s
                 self.lo_kpa[i] = self.hi_kpa[i] = others
@@ -792,7 +804,7 @@ class AlarmEngine:
         s = self.settings
         tr = self._stuck.get(node)
         if tr is None:
-            tr = self._stuck[node] = _StuckTracker()
+            tr = self._stuck[node] = _StuckTracker(median=s.equalizer is not None)
         raw = [r.raw_kpa for r in ropes]
         present = tuple(k != L.RAW_KPA_ABSENT for k in raw)
         tr.update(raw, present, now_s, s.stuck_deadband_kpa)
