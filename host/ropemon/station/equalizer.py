@@ -97,6 +97,7 @@ class EqualizerSettings:
     adjust_winds: float = 10.0
     adjust_clear_winds: float = 15.0
     adjust_keep: int = 20                        # rests kept for the trend
+    wind_min_m: float = 5.0                      # a rest this close to the one before is the same landing
     adjust_min_rests: int = 4
     adjust_trend_min_m: float = 5e-5             # per wind: slower is no trend
 
@@ -105,7 +106,7 @@ class EqualizerSettings:
                      "move_min_m", "departure_kpa", "departure_frac", "reanchor_m", "anchor_max_s",
                      "equalize_raise_s", "equalize_clear_s", "oil_band_m3", "oil_window_s",
                      "oil_expansion_per_k", "oil_raise_s", "oil_clear_s", "rest_s", "rest_skip_s",
-                     "adjust_winds", "adjust_clear_winds", "adjust_trend_min_m"):
+                     "adjust_winds", "adjust_clear_winds", "adjust_trend_min_m", "wind_min_m"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"equalizer.{name}: must be a finite number >= 0, got {v!r}")
@@ -568,8 +569,8 @@ def adjust_forecast(rests: Sequence[Sequence[float | None]], stroke_m: float | S
 
 class RestTracker:
     """Per node: each piston's mean position over every rest (|speed| <= rest_speed_mm_s for at
-    least rest_s, the first rest_skip_s of bounce left out), one per wind, the last adjust_keep
-    kept. With a compliance the positions are taken at the first rest's pressure (`x - k (p - p_0)`),
+    least rest_s, the first rest_skip_s of bounce left out), one per wind (a later rest within
+    wind_min_m of the one before, at the same landing, replaces it), the last adjust_keep kept. With a compliance the positions are taken at the first rest's pressure (`x - k (p - p_0)`),
     so a loaded and an empty landing compare. A rope without a position in any frame of the rest
     has None for it."""
 
@@ -582,6 +583,8 @@ class RestTracker:
         self._bad: list[bool] = []
         self._psum: list[float] = []
         self._p0: list[float | None] = []
+        self._depth_mm: int | None = None       # where the last rest was recorded
+        self._here_mm = 0                       # the cage's depth in the rest now
 
     def update(self, frame: Frame, now_s: float, xs: list[float | None] | None = None) -> bool:
         """Take a frame; True when a rest just ended (a new entry in `rests`)."""
@@ -589,6 +592,7 @@ class RestTracker:
         n = len(frame.ropes)
         still = abs(frame.speed_mm_s) <= s.rest_speed_mm_s
         if still:
+            self._here_mm = frame.depth_mm
             if self._since is None:
                 self._since = now_s
                 self._sum, self._cnt, self._bad = [0.0] * n, [0] * n, [False] * n
@@ -617,7 +621,14 @@ class RestTracker:
                 if self._p0[i] is None:
                     self._p0[i] = p
                 rest.append(x - k * (p - self._p0[i]))
-            self.rests.append(rest)
+            # one rest per wind: another rest at the same landing (a loading between, the cage
+            # creeping) replaces the one before, so the trend is per wind
+            if (self.rests and self._depth_mm is not None
+                    and abs(self._here_mm - self._depth_mm) < s.wind_min_m * 1000.0):
+                self.rests[-1] = rest
+            else:
+                self.rests.append(rest)
+            self._depth_mm = self._here_mm
         self._since = None
         return ended
 
