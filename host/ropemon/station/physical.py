@@ -748,6 +748,9 @@ class SiteFigures:
     band: BandParams | None = None           # the seal's friction lines: each rope's band (ropemon.station.uncertainty)
     stroke_m: list[float] = field(default_factory=list)  # per rope, end stops at +-stroke/2; empty: unknown
     stroke_margin_m: float | None = None     # the stroke-limit band within this of an end; None: no stroke
+    hydraulic_compliance_m_per_pa: list[float] = field(default_factory=list)  # k per rope; empty: none fitted
+    displacement_noise_m: float | None = None  # rms per sample of the displacement channels
+    samples_per_frame: int | None = None     # sample_hz / frame_hz
 
     @classmethod
     def from_physical(cls, p: Physical) -> "SiteFigures":
@@ -764,6 +767,9 @@ class SiteFigures:
             band=p.band(),
             stroke_m=list(p.stroke_m or ()),
             stroke_margin_m=p.stroke_margin,
+            hydraulic_compliance_m_per_pa=list(p.compliance) if p.has_compliance else [],
+            displacement_noise_m=p.setting("displacement_noise_m"),
+            samples_per_frame=p.sample_hz // p.frame_hz,
         )
 
     @classmethod
@@ -789,17 +795,14 @@ def equalizer_settings(site: SiteFigures) -> EqualizerSettings:
     areas, the stroke and its margin, and where the figures carry them the hydraulic compliance,
     the displacement channel's noise and the samples per frame; the thresholds' defaults."""
     kw: dict[str, Any] = {"areas_m2": tuple(site.cylinder_area_m2),
-                          "stroke_m": tuple(getattr(site, "stroke_m", None) or ()),
-                          "margin_m": getattr(site, "stroke_margin_m", None)}
-    k = getattr(site, "hydraulic_compliance_m_per_pa", None)
-    if k:
-        kw["compliance_m_per_pa"] = tuple(k)
-    noise = getattr(site, "displacement_noise_m", None)
-    if noise:
-        kw["displacement_noise_m"] = noise
-    per_frame = getattr(site, "samples_per_frame", None)
-    if per_frame:
-        kw["samples_per_frame"] = int(per_frame)
+                          "stroke_m": tuple(site.stroke_m),
+                          "margin_m": site.stroke_margin_m}
+    if site.hydraulic_compliance_m_per_pa:
+        kw["compliance_m_per_pa"] = tuple(site.hydraulic_compliance_m_per_pa)
+    if site.displacement_noise_m:
+        kw["displacement_noise_m"] = site.displacement_noise_m
+    if site.samples_per_frame:
+        kw["samples_per_frame"] = int(site.samples_per_frame)
     return EqualizerSettings(**kw)
 
 
