@@ -4,6 +4,7 @@ blocked hose), oil_loss, rope_adjust and adjust_forecast; none on healthy stream
 the lifecycle on a new kind; version-2 frames; the legacy baseline."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 
@@ -18,6 +19,7 @@ DT = 0.1                 # frames at 10 Hz
 AREA = 7.85e-3           # m^2: the paper site's 100 mm bore
 K = 3e-10                # m/Pa: 0.3 um/kPa
 EQ = EqualizerSettings(areas_m2=(AREA,) * 4, stroke_m=(0.2,) * 4, margin_m=0.01, compliance_m_per_pa=(K,) * 4)
+EQ_LAG = dataclasses.replace(EQ, position_lag=True)   # a lagging piston alone raises (off by default)
 NEW_KINDS = ("stroke_limit", "not_equalizing", "oil_loss", "rope_adjust")
 
 
@@ -125,6 +127,35 @@ def test_the_retracted_end_and_the_nodes_mask_alone():
     assert [e.action for e in s.events] == ["raise", "clear"]
 
 
+def test_by_default_a_piston_that_stays_while_its_pressure_follows_raises_nothing():
+    """A healthy seal at rest holds its piston through a load change as a seized one does (the
+    simulated healthy winds: a piston still within 0.1 mm while the others move 3 mm): without
+    `position_lag` only a departing pressure raises NOT EQUALIZING; the tracker still sees the lag."""
+    s = Stream()
+    s.feed([2500] * 4, [K * 2.5e6] * 4, n=30)
+    hoist(s, 2500, 6500, 8.0, rule=seized(1, K * 2.5e6))
+    assert s.events == []
+    tr = EqualizingTracker(EQ)
+    tr.update(frame([2500] * 4, [0.0] * 4, 0), 0.0)
+    for k in range(1, 4):
+        out = tr.update(frame([2500 + 1000 * k] * 4, [3e-4 * k, 3e-4 * k, 0.0, 3e-4 * k], k), 0.1 * k)
+    assert not out[2].lags and out[0].follows and out[2].ratio == pytest.approx(0.0)
+
+
+def test_a_balancing_stroke_whose_flow_parts_the_pressures_is_not_a_cut_off_cylinder():
+    """As on a simulated healthy wind: pistons sliding against each other (+0.8 mm one, -0.6 mm the
+    others) while the taps' pressures part by 40-60 kPa with the flow. A cut-off cylinder's piston
+    moves only by its own oil's compression (k x 50 kPa: 15 um): these slid, nothing raises."""
+    s = Stream().feed([2500] * 4, [K * 2.5e6] * 4, n=30)
+    for k in range(41):
+        f = k / 40
+        kpas = [2500 - 57 * f, 2500 + 46 * f, 2500 + 10 * f, 2500 + 20 * f]
+        xs = [K * 2.5e6 + 0.8e-3 * f] + [K * 2.5e6 - 0.6e-3 * f] * 3
+        s.feed(kpas, xs)
+    s.feed([2443, 2546, 2510, 2520], [K * 2.5e6 + 0.8e-3] + [K * 2.5e6 - 0.6e-3] * 3, n=30)
+    assert s.events == []
+
+
 def test_a_failed_transmitter_never_raises_a_stroke_limit():
     """A displacement fault (fault_mask bit 4+i) or no position: the rope is not judged, SENSOR FAULT
     names it; a raised stroke alarm is suppressed by design meanwhile."""
@@ -177,8 +208,8 @@ def seized(rope_i, x_held):
 def test_a_seized_seal_raises_within_the_load_change_and_names_it():
     """The others' pistons move 0.3 um/kPa with the pressure (1.2 mm over a 4 MPa loading): the
     seized piston's lag shows past the tolerance (0.26 mm) and is confirmed once their motion has
-    doubled (0.53 mm, 1.8 MPa), within the loading."""
-    s = Stream()
+    doubled (0.53 mm, 1.8 MPa), within the loading (with `position_lag`)."""
+    s = Stream(engine(EQ_LAG))
     s.feed([2500] * 4, [K * 2.5e6] * 4, n=30)
     hoist(s, 2500, 6500, 8.0, rule=seized(1, K * 2.5e6))             # a 4 MPa loading over 8 s
     (r,) = [e for e in s.events if e.action == "raise"]
@@ -190,6 +221,35 @@ def test_a_seized_seal_raises_within_the_load_change_and_names_it():
     s.feed([6500] * 4, [K * 6.5e6] * 4, n=3010)                      # a rest longer than anchor_max_s
     hoist(s, 6500, 2500, 8.0)
     assert [e.action for e in s.events] == ["raise", "clear"]
+
+
+def test_by_default_a_piston_that_stays_while_its_pressure_follows_raises_nothing():
+    """A healthy seal at rest holds its piston through a load change as a seized one does (the
+    simulated healthy winds: a piston still within 0.1 mm while the others move 3 mm): without
+    `position_lag` only a departing pressure raises NOT EQUALIZING; the tracker still sees the lag."""
+    s = Stream()
+    s.feed([2500] * 4, [K * 2.5e6] * 4, n=30)
+    hoist(s, 2500, 6500, 8.0, rule=seized(1, K * 2.5e6))
+    assert s.events == []
+    tr = EqualizingTracker(EQ)
+    tr.update(frame([2500] * 4, [0.0] * 4, 0), 0.0)
+    for k in range(1, 4):
+        out = tr.update(frame([2500 + 1000 * k] * 4, [3e-4 * k, 3e-4 * k, 0.0, 3e-4 * k], k), 0.1 * k)
+    assert not out[2].lags and out[0].follows and out[2].ratio == pytest.approx(0.0)
+
+
+def test_a_balancing_stroke_whose_flow_parts_the_pressures_is_not_a_cut_off_cylinder():
+    """As on a simulated healthy wind: pistons sliding against each other (+0.8 mm one, -0.6 mm the
+    others) while the taps' pressures part by 40-60 kPa with the flow. A cut-off cylinder's piston
+    moves only by its own oil's compression (k x 50 kPa: 15 um): these slid, nothing raises."""
+    s = Stream().feed([2500] * 4, [K * 2.5e6] * 4, n=30)
+    for k in range(41):
+        f = k / 40
+        kpas = [2500 - 57 * f, 2500 + 46 * f, 2500 + 10 * f, 2500 + 20 * f]
+        xs = [K * 2.5e6 + 0.8e-3 * f] + [K * 2.5e6 - 0.6e-3 * f] * 3
+        s.feed(kpas, xs)
+    s.feed([2443, 2546, 2510, 2520], [K * 2.5e6 + 0.8e-3] + [K * 2.5e6 - 0.6e-3] * 3, n=30)
+    assert s.events == []
 
 
 def test_a_closed_valve_towards_the_manifold_departs_in_pressure():
@@ -211,7 +271,7 @@ def test_a_closed_valve_towards_the_manifold_departs_in_pressure():
 def test_a_blocked_hose_follows_in_pressure_but_its_piston_does_not_share_the_oil():
     def rule(i, p, x):
         return (p, K * 2.5e6 + 0.3 * K * (p - 2500) * 1000.0) if i == 0 else (p, x)
-    s = Stream().feed([2500] * 4, [K * 2.5e6] * 4, n=30)
+    s = Stream(engine(EQ_LAG)).feed([2500] * 4, [K * 2.5e6] * 4, n=30)
     hoist(s, 2500, 6500, 10.0, rule=rule)
     (r,) = [e for e in s.events if e.action == "raise"]
     assert r.alarm == "not_equalizing:n1:r0"
@@ -322,7 +382,7 @@ def test_pistons_held_by_their_seals_while_others_slide_are_not_lagging(held):
 
 
 def test_the_tracker_judges_against_the_others_and_skips_a_rope_at_its_end():
-    tr = EqualizingTracker(EQ)
+    tr = EqualizingTracker(EQ_LAG)
     tr.update(frame([2500] * 4, [0.0] * 4, 0), 0.0)
     out = tr.update(frame([3500] * 4, [3e-4, 3e-4, 0.0, 3e-4], 1), 0.1)
     assert not out[2].lags and out[0].follows          # lagging, not yet while the others' motion doubled

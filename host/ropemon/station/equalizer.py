@@ -78,6 +78,11 @@ class EqualizerSettings:
     departure_frac: float = 0.05                 # max(this kPa, this share of their change)
     reanchor_m: float = 1e-3                     # the others moved this far: a new reference
     anchor_max_s: float = 300.0                  # or after this long (a lagging rope judged afresh)
+    # a piston lagging while its pressure follows the others' (a seized seal, a valve closed on the
+    # cylinder's side of the tap, a blocked hose) raises only with position_lag: a healthy seal at
+    # rest holds its piston the same way through a load change (its static friction takes the
+    # force), so off by default; a departing pressure raises either way
+    position_lag: bool = False
     equalize_raise_s: float = 1.0
     equalize_clear_s: float = 2.0
     equalize_min_frames: int = 5
@@ -252,6 +257,7 @@ class EqualizingTracker:
         self.s = s
         self._thr = s.motion_tolerance_m
         self._still = s.position_step_m + 3.0 * s.motion_sigma_m    # "did not move", at the frame's resolution
+        self._k_kpa: list[float] = []          # per rope: k in m per kPa
         self._ref_x: list[float | None] = []
         self._ref_p: list[float | None] = []
         self._ref_s: float | None = None
@@ -282,6 +288,8 @@ class EqualizingTracker:
             xs = positions(frame)
         ps = [None if r.raw_kpa == L.RAW_KPA_ABSENT else float(r.raw_kpa) for r in frame.ropes]
         usable = [xs[i] is not None and ps[i] is not None for i in range(n)]
+        if len(self._k_kpa) != n:
+            self._k_kpa = [(s.per_rope(s.compliance_m_per_pa, i) or 0.0) * 1000.0 for i in range(n)]
         if (self._ref_s is None or len(self._ref_x) != n
                 or usable != [x is not None and p is not None for x, p in zip(self._ref_x, self._ref_p)]):
             self._anchor(xs, ps, usable, now_s)
@@ -299,17 +307,6 @@ class EqualizingTracker:
             self._anchor(xs, ps, usable, now_s)
             self.last = [Participation(False, False, None, 0.0, 0.0, 0.0, 0.0, "") if u else None for u in usable]
             return self.last
-        # a pressure departing from the others' (a tap reading a cylinder cut off from the manifold);
-        # not a frozen transmitter (its own pressure still: SENSOR STUCK)
-        idx = [i for i in range(n) if usable[i]]
-        sp = sorted(dp[i] for i in idx)
-        departing: dict[int, tuple[float, float]] = {}
-        for i in idx:
-            op = _median_without(sp, dp[i])
-            dep = dp[i] - op
-            if (abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
-                    and abs(dp[i]) >= max(s.departure_kpa / 3.0, 0.25 * abs(op))):
-                departing[i] = (dep, op)
         moved = 0.0
         for i in range(n):
             if usable[i]:
@@ -320,6 +317,22 @@ class EqualizingTracker:
                     self._hi[i] = d
                 if abs(d) > moved:
                     moved = abs(d)
+        # a pressure departing from the others' (a tap reading a cylinder cut off from the manifold);
+        # not a frozen transmitter (its own pressure still: SENSOR STUCK). A cut-off cylinder's piston
+        # moves only by its own oil's compression (k times its own pressure change): one that moved
+        # more, or went and came back, shares the manifold's oil (a balancing stroke, whose flow
+        # parts the taps' pressures by tens of kPa), and is not cut off
+        idx = [i for i in range(n) if usable[i]]
+        sp = sorted(dp[i] for i in idx)
+        departing: dict[int, tuple[float, float]] = {}
+        for i in idx:
+            op = _median_without(sp, dp[i])
+            dep = dp[i] - op
+            if (abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
+                    and abs(dp[i]) >= max(s.departure_kpa / 3.0, 0.25 * abs(op))):
+                squeeze = self._k_kpa[i] * abs(dp[i]) + thr
+                if abs(dx[i]) <= squeeze and self._hi[i] - self._lo[i] <= squeeze:
+                    departing[i] = (dep, op)
         if moved < thr and not departing:   # no piston moved beyond the tolerance: the usual case
             self.last = [Participation(False, False, None, dx[i], 0.0, 0.0, 0.0, "") if usable[i] else None
                          for i in range(n)]
@@ -383,10 +396,10 @@ class EqualizingTracker:
                 if gap < 0.5 * thr or slid:
                     self._first[i] = None      # clearly not lagging (a flicker at the edge keeps it)
             else:
-                any_lag = True
+                any_lag = any_lag or s.position_lag   # held: the reference kept while it is judged
                 if self._first[i] is None:
                     self._first[i] = abs(ox)
-            lags = lags and abs(ox) >= s.lag_growth * self._first[i] - 1e-12
+            lags = lags and abs(ox) >= s.lag_growth * self._first[i] - 1e-12 and s.position_lag
             cause = ""
             if lags:
                 if abs(own) <= max(s.seized_ratio * abs(ox), still):
