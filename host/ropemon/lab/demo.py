@@ -827,7 +827,8 @@ def trip_report(db: Path, out_dir: Path, site, sim_dir: Path, payload_kg) -> str
     load = hoist_load_from_truth(sim_dir)
     with Store(db, readonly=True) as st:
         text, _ = write_report(st, out_dir, site.cylinder_area_m2, load, payload_kg,
-                               shaft_m=load.shaft_m if load else None)
+                               shaft_m=load.shaft_m if load else None,
+                               stroke_m=list(site.stroke_m) or None, margin_m=site.stroke_margin_m)
     return text
 
 
