@@ -35,13 +35,13 @@ def test_a_sound_truth_passes(name):
 def test_a_runaway_seal_friction_is_refused_naming_rope_time_and_ratio():
     law = _law("elasto-plastic")
     t, tr = _truth(law)
-    tr["friction_N"][123, 2] *= 5.0          # 4.5 x the bound on rope 2 at 0.615 s
-    with pytest.raises(TruthError, match=r"rope 2: seal friction .* at t = 0\.615 s is 4\.5 x"):
+    tr["friction_N"][123, 2] *= 5.0          # 4.5 x the bound on rope 3 (from 1) at 0.615 s
+    with pytest.raises(TruthError, match=r"rope 3: seal friction .* at t = 0\.615 s is 4\.5 x"):
         check_truth(law, tr, t)
-    # the bound is force_scale times the law's line: rope 3 (scale 1.2) may carry 1.2 x rope 2's force
+    # the bound is force_scale times the law's line: rope 4 (scale 1.2) may carry 1.2 x rope 3's force
     t, tr = _truth(law)
-    tr["friction_N"][50, 2] = tr["friction_N"][50, 3] * 1.2   # 1.3 x rope 2's bound, 0.9 x rope 3's x 1.2
-    with pytest.raises(TruthError, match="rope 2"):
+    tr["friction_N"][50, 2] = tr["friction_N"][50, 3] * 1.2   # 1.3 x rope 3's bound, 0.9 x rope 4's x 1.2
+    with pytest.raises(TruthError, match="rope 3"):
         check_truth(law, tr, t)
 
 
@@ -68,7 +68,7 @@ def test_a_negative_cavity_pressure_is_refused():
     law = _law("elasto-plastic")
     t, tr = _truth(law)
     tr["p_cav_Pa"][77, 1] = -20e6
-    with pytest.raises(TruthError, match=r"rope 1: cavity pressure -20 MPa at t = 0\.385 s"):
+    with pytest.raises(TruthError, match=r"rope 2: cavity pressure -20 MPa at t = 0\.385 s"):
         check_truth(law, tr, t)
 
 

@@ -23,7 +23,7 @@ PRESSURE_TOL_PA = 1.0e5     # no cavity pressure below -this (gauge: below vacuu
 
 
 def check_truth(friction, truth: dict, t, tol: float = FRICTION_TOL, p_tol_Pa: float = PRESSURE_TOL_PA) -> None:
-    """Raise TruthError (naming the rope, the time and the ratio) where a truth is physically
+    """Raise TruthError (naming the rope, from 1, the time and the ratio) where a truth is physically
     impossible: a rope's seal friction |F| beyond tol x its force_scale x (Fs(p) + sigma2(p) |v|)
     (p the cavity pressure clamped at 0; the scale is truth `seal_scale` where given, so a seized
     seal's factor counts; laws with an Fs line, i.e. every law here: LuGre's and
@@ -38,7 +38,7 @@ def check_truth(friction, truth: dict, t, tol: float = FRICTION_TOL, p_tol_Pa: f
         raise TruthError("the cavity pressure is not finite")
     if p.size and p.min() < -p_tol_Pa:
         k, i = np.unravel_index(np.argmin(p), p.shape)
-        raise TruthError(f"rope {i}: cavity pressure {p[k, i] / 1e6:.3g} MPa at t = {t[k]:.3f} s, below "
+        raise TruthError(f"rope {i + 1}: cavity pressure {p[k, i] / 1e6:.3g} MPa at t = {t[k]:.3f} s, below "
                          f"-{p_tol_Pa / 1e6:g} MPa (a seal law or the integrator ran away)")
     fs_line, s2_line = getattr(friction, "Fs", None), getattr(friction, "sigma2", None)
     if fs_line is None or s2_line is None:
@@ -56,7 +56,7 @@ def check_truth(friction, truth: dict, t, tol: float = FRICTION_TOL, p_tol_Pa: f
     ratio = np.abs(F) / np.maximum(bound, 1e-300)
     if ratio.size and ratio.max() > tol:
         k, i = np.unravel_index(np.argmax(ratio), ratio.shape)
-        raise TruthError(f"rope {i}: seal friction {F[k, i]:.6g} N at t = {t[k]:.3f} s is {ratio[k, i]:.3g} x "
+        raise TruthError(f"rope {i + 1}: seal friction {F[k, i]:.6g} N at t = {t[k]:.3f} s is {ratio[k, i]:.3g} x "
                          f"force_scale (Fs(p) + sigma2(p) |v|) = {bound[k, i]:.6g} N, beyond {tol:g} "
                          f"(law {friction.name}: the seal law ran away in the integrator)")
 
