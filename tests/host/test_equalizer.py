@@ -295,6 +295,21 @@ def test_a_cut_off_cylinder_whose_piston_follows_departs_in_pressure_within_the_
     assert "cut off from the manifold" in r.message and "transmitter misreads" in r.message
 
 
+def test_a_flow_transient_in_the_reference_frame_is_not_a_departure():
+    """A tap reading 50 kPa off the others for one frame (the flow of a slide, as on the simulated
+    healthy winds) when the tracker takes its reference: the reference's offsets are the median of
+    the last frames', so the unloading that follows, alike on every tap, departs nowhere."""
+    tr = EqualizingTracker(dataclasses.replace(EQ, anchor_max_s=0.45))
+    x = [K * 7.5e6] * 4
+    for k in range(5):
+        tr.update(frame([7500] * 4, x, k), 0.1 * k)
+    tr.update(frame([7500, 7450, 7500, 7500], x, 5), 0.5)      # the reference moves on here
+    for k in range(6, 20):
+        p = 7500 - 25 * (k - 5)
+        out = tr.update(frame([p] * 4, [K * p * 1000] * 4, k), 0.1 * k)
+        assert not any(o.lags for o in out), k
+
+
 def test_a_frozen_transmitter_is_not_a_cut_off_cylinder():
     """Its pressure still while the others' move, its piston with theirs: SENSOR STUCK's, not this."""
     s = Stream().feed([2500] * 4, [K * 2.5e6] * 4, n=30)

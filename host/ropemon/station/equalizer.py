@@ -253,11 +253,17 @@ class EqualizingTracker:
     with their median.
     """
 
+    OFFSET_FRAMES = 5
+
     def __init__(self, s: EqualizerSettings) -> None:
         self.s = s
         self._thr = s.motion_tolerance_m
         self._still = s.position_step_m + 3.0 * s.motion_sigma_m    # "did not move", at the frame's resolution
         self._k_kpa: list[float] = []          # per rope: k in m per kPa
+        # each rope's pressure less the others' median, over the last OFFSET_FRAMES frames: the
+        # reference's is their median, so a flow transient in the reference frame is not a departure
+        self._offs: deque[list[float | None]] = deque(maxlen=self.OFFSET_FRAMES)
+        self._ref_off: list[float | None] = []
         self._ref_x: list[float | None] = []
         self._ref_p: list[float | None] = []
         self._ref_s: float | None = None
@@ -270,6 +276,7 @@ class EqualizingTracker:
 
     def reset(self) -> None:
         self._ref_s = None
+        self._offs.clear()
 
     def update(self, frame: Frame, now_s: float, skip: Sequence[bool] = (),
                xs: list[float | None] | None = None) -> list[Participation | None]:
@@ -290,6 +297,11 @@ class EqualizingTracker:
         usable = [xs[i] is not None and ps[i] is not None for i in range(n)]
         if len(self._k_kpa) != n:
             self._k_kpa = [(s.per_rope(s.compliance_m_per_pa, i) or 0.0) * 1000.0 for i in range(n)]
+            self._offs.clear()
+        sp_now = sorted(ps[i] for i in range(n) if usable[i])
+        off = [ps[i] - _median_without(sp_now, ps[i]) if usable[i] and len(sp_now) >= 2 else None
+               for i in range(n)]
+        self._offs.append(off)
         if (self._ref_s is None or len(self._ref_x) != n
                 or usable != [x is not None and p is not None for x, p in zip(self._ref_x, self._ref_p)]):
             self._anchor(xs, ps, usable, now_s)
@@ -325,9 +337,10 @@ class EqualizingTracker:
         idx = [i for i in range(n) if usable[i]]
         sp = sorted(dp[i] for i in idx)
         departing: dict[int, tuple[float, float]] = {}
+        ref_off = self._ref_off
         for i in idx:
             op = _median_without(sp, dp[i])
-            dep = dp[i] - op
+            dep = off[i] - ref_off[i] if off[i] is not None and ref_off[i] is not None else dp[i] - op
             if (abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
                     and abs(dp[i]) >= max(s.departure_kpa / 3.0, 0.25 * abs(op))):
                 squeeze = self._k_kpa[i] * abs(dp[i]) + thr
@@ -360,6 +373,7 @@ class EqualizingTracker:
                 moved_all = abs(med)
             if i in departing:
                 any_lag = True
+                dep = departing[i][0]
                 cause = (f"its pressure departs {dep:+.0f} kPa from the others' change ({op:+.0f} kPa) while its "
                          f"piston moved {own * 1e3:+.2f} mm against their {med * 1e3:+.2f} mm: its cylinder cut off "
                          "from the manifold (a stop valve closed between its pressure tap and the manifold), or its "
@@ -420,6 +434,11 @@ class EqualizingTracker:
         self._ref_x = [x if u else None for x, u in zip(xs, usable)]
         self._ref_p = [p if u else None for p, u in zip(ps, usable)]
         self._ref_s = now_s
+        ref_off: list[float | None] = []
+        for i, u in enumerate(usable):
+            v = sorted(o[i] for o in self._offs if i < len(o) and o[i] is not None) if u else []
+            ref_off.append(v[len(v) // 2] if v else None)
+        self._ref_off = ref_off
         self._lo = [0.0] * len(xs)
         self._hi = [0.0] * len(xs)
         self._first = [None] * len(xs)
