@@ -23,8 +23,9 @@ beyond what it follows without a re-check), node_imbalance (the node's own imbal
 link_integrity (MAC failures or replays), receiver_down (a receiver's port not open),
 station_fault (a part of the station failing, e.g. the log cannot be written); and from the
 piston positions of layout version 3 (`ropemon.station.equalizer`, with `AlarmSettings.equalizer`):
-stroke_limit (a piston within the stroke margin of an end), not_equalizing (a rope whose piston
-does not share the oil's motion over a load change: closed valve, blocked hose, seized seal),
+stroke_limit (a piston within the stroke margin of an end), not_equalizing (a rope cut off from the
+manifold: its tap pressure departs from the others' over a load change; a lagging piston alone,
+a seized seal or blocked hose, only with `EqualizerSettings.position_lag`),
 oil_loss (the trapped oil's balance drifting) and rope_adjust (an advisory: the pistons' rest
 positions trend towards an end from wind to wind).
 

@@ -12,7 +12,9 @@ of that (each rope's piston position `pos_01mm`, the node's `stroke_mask`):
 - `EqualizingTracker`: a rope whose piston does not share the others' motion over a load
   change (a closed stop valve, a blocked hose, a seized seal), told apart by its pressure:
   departing from the others' (its tap reads a cylinder cut off from the manifold), or
-  following them while its piston stays (a seized seal when it does not move at all).
+  following them while its piston stays (a seized seal when it does not move at all). Only
+  the departing pressure raises by default: a healthy seal at rest holds its piston through a
+  load change as a seized one does (`EqualizerSettings.position_lag`).
 - `OilTracker`: the trapped oil volume `sum A_i x_i`, less the compression `sum A_i k_i p_i`
   and the thermal expansion, drifting: oil lost, with the rate.
 - `RestTracker` and `adjust_forecast`: each piston's position at the rests between winds,
