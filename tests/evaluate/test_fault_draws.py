@@ -113,6 +113,27 @@ def test_the_drawn_faults_are_scenarios_the_plant_reads(tmp_path):
     assert seen == set(P.FAULT_CLASSES)
 
 
+
+def test_the_duty_cycle_is_a_scenario_the_plant_reads_at_its_own_steps(tmp_path):
+    """The duty cycle's document (50 winds with one rope creeping) is accepted by the plant at
+    DUTY_STEPS, not the field trip's 5 ms: its solver steps are the duty's, its grid within the
+    plant's limit, its winds DUTY_TRIPS."""
+    import copy
+
+    from ropemon.lab import evaluate as EV
+    from ropemon.lab.plant.scenario import build
+
+    seed = P.SCORING_SEEDS[0]
+    doc, path = EV.scenario_doc(P.draw(seed).name, tmp_path / "duty")
+    doc = copy.deepcopy(doc)
+    assert doc.get("step_s", 0.005) > P.DUTY_STEPS["step_s"]
+    P.change_fault(P.draw_duty_fault(seed))(doc)
+    sc = build(doc, path, seed, eager=False)
+    assert sc.step_s == P.DUTY_STEPS["step_s"] and sc.max_step_s == P.DUTY_STEPS["max_step_s"]
+    assert sc.bounce_rad_per_step == P.DUTY_STEPS["bounce_rad_per_step"]
+    assert doc["duty"]["trips"] == P.DUTY_TRIPS and doc["faults"][0]["kind"] == "creep"
+    assert sc.duration_s > P.DUTY_TRIPS * 100.0
+
 def truth_of(n=1300, hz=10.0, ropes=4):
     """A 130 s run at 10 Hz: loading 3-9 s (payload ramps), accelerating 13-27 s, decelerating 95-109 s."""
     t = np.arange(n) / hz
