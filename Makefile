@@ -108,7 +108,7 @@ bench: $(STAMP) $(BROWSER_STAMP) $(BROKER_STAMP)
 # go to docs/evaluation/ (generated: each file's first line names the command that made it).
 evaluate: $(STAMP)
 	$(BIN)/ropemon evaluate --out out/evaluate
-	$(BIN)/ropemon evaluate --population 100 --seeds scoring --faults --out out/evaluate
+	$(BIN)/ropemon evaluate --population 100 --seeds scoring --faults --duty-cycles 2 --out out/evaluate
 	mkdir -p docs/evaluation
 	cp out/evaluate/accuracy.md docs/evaluation/scenarios.md
 	cp out/evaluate/population.md docs/evaluation/population.md
