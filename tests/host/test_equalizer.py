@@ -127,35 +127,6 @@ def test_the_retracted_end_and_the_nodes_mask_alone():
     assert [e.action for e in s.events] == ["raise", "clear"]
 
 
-def test_by_default_a_piston_that_stays_while_its_pressure_follows_raises_nothing():
-    """A healthy seal at rest holds its piston through a load change as a seized one does (the
-    simulated healthy winds: a piston still within 0.1 mm while the others move 3 mm): without
-    `position_lag` only a departing pressure raises NOT EQUALIZING; the tracker still sees the lag."""
-    s = Stream()
-    s.feed([2500] * 4, [K * 2.5e6] * 4, n=30)
-    hoist(s, 2500, 6500, 8.0, rule=seized(1, K * 2.5e6))
-    assert s.events == []
-    tr = EqualizingTracker(EQ)
-    tr.update(frame([2500] * 4, [0.0] * 4, 0), 0.0)
-    for k in range(1, 4):
-        out = tr.update(frame([2500 + 1000 * k] * 4, [3e-4 * k, 3e-4 * k, 0.0, 3e-4 * k], k), 0.1 * k)
-    assert not out[2].lags and out[0].follows and out[2].ratio == pytest.approx(0.0)
-
-
-def test_a_balancing_stroke_whose_flow_parts_the_pressures_is_not_a_cut_off_cylinder():
-    """As on a simulated healthy wind: pistons sliding against each other (+0.8 mm one, -0.6 mm the
-    others) while the taps' pressures part by 40-60 kPa with the flow. A cut-off cylinder's piston
-    moves only by its own oil's compression (k x 50 kPa: 15 um): these slid, nothing raises."""
-    s = Stream().feed([2500] * 4, [K * 2.5e6] * 4, n=30)
-    for k in range(41):
-        f = k / 40
-        kpas = [2500 - 57 * f, 2500 + 46 * f, 2500 + 10 * f, 2500 + 20 * f]
-        xs = [K * 2.5e6 + 0.8e-3 * f] + [K * 2.5e6 - 0.6e-3 * f] * 3
-        s.feed(kpas, xs)
-    s.feed([2443, 2546, 2510, 2520], [K * 2.5e6 + 0.8e-3] + [K * 2.5e6 - 0.6e-3] * 3, n=30)
-    assert s.events == []
-
-
 def test_a_failed_transmitter_never_raises_a_stroke_limit():
     """A displacement fault (fault_mask bit 4+i) or no position: the rope is not judged, SENSOR FAULT
     names it; a raised stroke alarm is suppressed by design meanwhile."""

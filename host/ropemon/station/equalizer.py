@@ -159,6 +159,25 @@ class EqualizerSettings:
         return max(self.move_min_m, 2.0 * self.position_step_m + self.move_sigmas * self.motion_sigma_m)
 
 
+class Continuity:
+    """Whether a node's frames follow on: a new boot (seq's boot counter) or a gap of more than
+    GAP_S in node time (modulo 2**32) breaks a tracker's reference."""
+
+    GAP_S = 2.0
+    __slots__ = ("last_ms", "boot")
+
+    def __init__(self) -> None:
+        self.last_ms: int | None = None
+        self.boot: int | None = None
+
+    def broken(self, frame: Frame) -> bool:
+        boot = frame.seq >> SEQ_BOOT_SHIFT
+        out = self.last_ms is not None and (
+            boot != self.boot or ((frame.time_ms - self.last_ms) % (1 << 32)) / 1000.0 > self.GAP_S)
+        self.last_ms, self.boot = frame.time_ms, boot
+        return out
+
+
 def positions(frame: Frame) -> list[float | None]:
     """Each rope's piston position (m) a judge may use: None where the frame has none (version 2,
     no healthy sample) or the rope's displacement channel faulted in the window."""
@@ -272,8 +291,7 @@ class EqualizingTracker:
         self._lo: list[float] = []             # each rope's own motion since the reference: its range
         self._hi: list[float] = []
         self._first: list[float | None] = []    # the others' motion when this rope's lag began
-        self._last_ms: int | None = None
-        self._boot: int | None = None
+        self._continuity = Continuity()
         self.last: list[Participation | None] = []
 
     def reset(self) -> None:
@@ -287,12 +305,8 @@ class EqualizingTracker:
         `positions` when the caller has them."""
         s = self.s
         n = len(frame.ropes)
-        boot = frame.seq >> SEQ_BOOT_SHIFT
-        if self._last_ms is not None:
-            gap_s = ((frame.time_ms - self._last_ms) % (1 << 32)) / 1000.0
-            if boot != self._boot or gap_s > 2.0:
-                self.reset()
-        self._last_ms, self._boot = frame.time_ms, boot
+        if self._continuity.broken(frame):
+            self.reset()
         if xs is None:
             xs = positions(frame)
         ps = [None if r.raw_kpa == L.RAW_KPA_ABSENT else float(r.raw_kpa) for r in frame.ropes]
@@ -478,8 +492,7 @@ class OilTracker:
     def __init__(self, s: EqualizerSettings, n_ropes: int | None = None) -> None:
         self.s = s
         self._ring: deque[tuple[float, float, float | None]] = deque(maxlen=self.SLOTS + 1)
-        self._last_ms: int | None = None
-        self._boot: int | None = None
+        self._continuity = Continuity()
         self._ak: list[tuple[float, float]] = []   # per rope: area, k per kPa
         self._t0: float | None = None     # oil temperature at the start, C
         self._b0: float | None = None
@@ -493,12 +506,8 @@ class OilTracker:
         """Take the node's next frame (`xs`: its `positions` when the caller has them)."""
         s = self.s
         n = len(frame.ropes)
-        boot = frame.seq >> SEQ_BOOT_SHIFT
-        if self._last_ms is not None:
-            gap_s = ((frame.time_ms - self._last_ms) % (1 << 32)) / 1000.0
-            if boot != self._boot or gap_s > 2.0:
-                self.reset()
-        self._last_ms, self._boot = frame.time_ms, boot
+        if self._continuity.broken(frame):
+            self.reset()
         if not s.areas_m2 or not any(s.compliance_m_per_pa) or n == 0:
             self.last = None
             return None
