@@ -191,7 +191,7 @@ def test_band_beside_the_deviation_the_hoist_status_and_legacy_deviation_possibl
     """With the seal's friction lines each rope shows its deviation's band, and the hoist's
     standing status says what imbalance the seals can hide. A rope whose estimate flipped while
     its pressure barely moved reads +6 % but may reach 10 %: no alarm (the seals' reach is the
-    hoist's figure, shown as status); only today's station (`legacy_deviation_possible`, the
+    hoist's figure, shown as status); only the legacy station (`legacy_deviation_possible`, the
     evaluation's baseline) raises DEVIATION POSSIBLE for it, in the warning colour."""
     from ropemon.station.physical import alarm_settings
     from station_rig import Rig

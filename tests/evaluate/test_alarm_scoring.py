@@ -72,7 +72,7 @@ def test_a_fault_alarmed_in_time_late_on_the_wrong_rope_and_not_at_all():
     fig = M.fault_alarm_figures([ev(40.5, "raise", "stroke_limit", 2), ev(41.0, "raise", "deviation", 1)],
                                 kinds, 1, 0.0, 40.0, 41.0)
     assert not fig["alarmed"] and fig["wrong_rope"] == [2] and fig["latency_s"] is None
-    assert fig["any_on_rope"] == {"kind": "deviation", "t_s": 41.0}      # what today's station would show
+    assert fig["any_on_rope"] == {"kind": "deviation", "t_s": 41.0}      # what the legacy station would show
     assert fig["raised"] == {"stroke_limit": 1, "deviation": 1}
     # nothing of the kind: missed; an alarm before the fault's onset does not answer it
     fig = M.fault_alarm_figures([ev(5.0, "raise", "not_equalizing", 1), ev(6.0, "clear", "not_equalizing", 1)],

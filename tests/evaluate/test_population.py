@@ -216,7 +216,7 @@ def test_a_drawn_stroke_fault_end_to_end_alarmed_on_its_rope_in_time(tmp_path):
     """Tuning seed 12: its drawn fault puts rope 1's piston 3.1 mm into its extended margin at its
     closest (by offsets); the faulted wind is simulated, the node run on it as commissioned, and
     the station's events scored: the truth has the piston in its margin, the station raises its
-    stroke limit on rope 1 within 1 s; today's station raises none. The healthy wind is scored too."""
+    stroke limit on rope 1 within 1 s; the legacy station raises none. The healthy wind is scored too."""
     from ropemon.lab.evaluate import BED_QUICK
 
     f = P.draw_fault(12)

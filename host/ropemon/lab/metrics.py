@@ -469,7 +469,7 @@ def fault_alarm_figures(events, kinds, rope: int | None, onset_s: float, event_s
     alarm, any rope) at or after `onset_s` (the fault's start); `latency_s` from `event_s` (the
     physical event: e.g. the piston entering its margin); `in_time` when by `deadline_s`.
     `wrong_rope`: such a raise came only on other ropes (their numbers, from 0). `raised`: every
-    kind raised from the onset (counts), what today's station shows on the fault."""
+    kind raised from the onset (counts), what the legacy station shows on the fault."""
     spans = [s for s in alarm_spans(events) if s.t_raise >= onset_s - 1e-9]
     raised: dict[str, int] = {}
     for s in spans:

@@ -598,7 +598,7 @@ def fault_truth(f: FaultDraw, truth, meta: dict, hz: float, stroke_m: float, mar
 
 def station_settings(physical: dict) -> dict:
     """The alarm settings the station takes from this config (`physical.alarm_settings`, as
-    `ropemon monitor` and `ropemon replay --db` do): `station`; and today's station before the
+    `ropemon monitor` and `ropemon replay --db` do): `station`; and the legacy station before the
     equalizer's alarms, `legacy` (`legacy_deviation_possible=True, equalizer=None`)."""
     from ropemon.station.physical import Physical, SiteFigures, alarm_settings
 
@@ -1268,7 +1268,7 @@ def _lat(st: dict) -> str:
 
 
 def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
-    """docs/evaluation/faults.md: the Targets, fault class by fault class, today's station beside
+    """docs/evaluation/faults.md: the Targets, fault class by fault class, legacy station beside
     (`ran`: the command that ran the winds, when `command` scored them again)."""
     from ropemon.lab.metrics import STANDING_SHARE
 
@@ -1281,7 +1281,7 @@ def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
              + (f"; {n_duty} also through a {DUTY_TRIPS}-wind duty cycle with one rope creeping" if n_duty else "")
              + (f"; scored again in {out['wall_s']} s" if ran else f"; {out['wall_s']} s")
              + ". *station*: the alarms as shipped (`physical.alarm_settings` of the "
-             "commissioned config); *today's station*: the same with `legacy_deviation_possible=True, "
+             "commissioned config); *legacy station*: the same with `legacy_deviation_possible=True, "
              "equalizer=None`, the station before the equalizer's alarms. Both on the same node frames "
              "(`population.station_events`, as `ropemon replay --db`)."
              + ("" if t["legacy_distinct"] else " **These alarm settings have no legacy switch: both columns are "
@@ -1291,7 +1291,7 @@ def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
 
     def kinds(d: dict) -> str:
         return ", ".join(f"{k} {v}" for k, v in sorted(d.items(), key=lambda kv: -kv[1])) or "none"
-    lines += [f"| healthy hoists ({hs['winds']} winds) | target | station | today's station |", "|---|---|---|---|",
+    lines += [f"| healthy hoists ({hs['winds']} winds) | target | station | legacy station |", "|---|---|---|---|",
               f"| winds with an alarm standing through {STANDING_SHARE:.0%} or more of the wind | 0 | "
               f"{hs['standing_winds']} ({kinds(hs['standing'])}) | {hl['standing_winds']} ({kinds(hl['standing'])}) |",
               f"| alarms raised per healthy wind | at most 0.05 | {_cell(hs['raised_per_wind'])} ({kinds(hs['kinds'])}) "
@@ -1300,7 +1300,7 @@ def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
               f"| raises not counted | - | {ex_s} | {ex_l} |", ""]
     lines += ["| fault class | drawn | crossed its threshold | station: alarmed on the right rope (in time) | "
               "wrong rope | missed | station: event to alarm, s, median / p95 / max | target | "
-              "today's station: any alarm on the rope | today's station raised | not crossed, alarmed anyway |",
+              "legacy station: any alarm on the rope | legacy station raised | not crossed, alarmed anyway |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     for cls in (*FAULT_CLASSES, DUTY_CLASS):
         c, cl = st["classes"].get(cls), lg["classes"].get(cls)
@@ -1317,7 +1317,7 @@ def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
     sh, sf = st["silent"], lg["silent"]
     lines += ["", "Silent ropes: a rope truly beyond 10 % for 2 s or more without an alarm on it (an advisory does "
               "not count), healthy winds + faulted winds:", "",
-              "| silent ropes | target | station | today's station |", "|---|---|---|---|"]
+              "| silent ropes | target | station | legacy station |", "|---|---|---|---|"]
     if t["hidden_known"]:
         lines += [f"| true deviation within the imbalance the commissioning says the seals can hide | reported | "
                   f"{sh['healthy']['within_hidden']} + {sh['faulted']['within_hidden']} | "
@@ -1328,7 +1328,7 @@ def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
         lines.append(f"| all (the station gives no hidden imbalance to split them by) | - | "
                      f"{sh['healthy']['unsplit']} + {sh['faulted']['unsplit']} | "
                      f"{sf['healthy']['unsplit']} + {sf['faulted']['unsplit']} |")
-    lines += ["", "| seed | fault | crossed (truth) | station | today's station raised |", "|---|---|---|---|---|"]
+    lines += ["", "| seed | fault | crossed (truth) | station | legacy station raised |", "|---|---|---|---|---|"]
     for r in out["winds"]:
         for key in ("fault", "duty"):
             fa = r.get("targets", {}).get(key)
