@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ropemon.station.nodetime import NodeClock
 from ropemon.station.protocol import DAN_TO_N, L
 from ropemon.commission.site import G_M_S2
 
@@ -34,7 +35,7 @@ REST_AVG_S = 5.0        # a rest's figure: the mean over this long after arrival
 class FrameTable:
     """Merged frames of one node as arrays (one row per frame, time-ordered)."""
 
-    t_s: np.ndarray          # node time
+    t_s: np.ndarray          # node time, unwrapped (ropemon.station.nodetime): keeps counting through a wrap
     depth_m: np.ndarray
     speed_m_s: np.ndarray
     comp_n: np.ndarray       # (frames, ropes) compensated window-mean tension
@@ -44,16 +45,21 @@ class FrameTable:
 
     @classmethod
     def from_frames(cls, frames, ordered: bool = False) -> "FrameTable":
-        """From `ropemon.station.protocol.Frame`s; status-only frames (no ropes) are skipped,
-        a rope whose sensor failed for the window is NaN. Sorted by node time
-        unless `ordered` (keep the caller's order)."""
-        fs = [f for f in frames if f.ropes]
+        """From `ropemon.station.protocol.Frame`s in the order they arrived; status-only frames
+        (no ropes) are skipped, a rope whose sensor failed for the window is NaN. The node time
+        is unwrapped in that order (`nodetime.NodeClock`: a wrap of the u32 `time_ms` inside
+        the frames does not send the time back). Sorted by that time unless `ordered` (keep
+        the caller's order)."""
+        clock = NodeClock()
+        timed = [(clock.ms(f), f) for f in frames]
+        timed = [(ms, f) for ms, f in timed if f.ropes]
         if not ordered:
-            fs.sort(key=lambda f: f.time_ms)
-        n = max((len(f.ropes) for f in fs), default=0)
-        fs = [f for f in fs if len(f.ropes) == n]
+            timed.sort(key=lambda mf: mf[0])
+        n = max((len(f.ropes) for _, f in timed), default=0)
+        timed = [(ms, f) for ms, f in timed if len(f.ropes) == n]
+        fs = [f for _, f in timed]
         return cls(
-            t_s=np.array([f.time_ms / 1000 for f in fs], float),
+            t_s=np.array([ms / 1000 for ms, _ in timed], float),
             depth_m=np.array([f.depth_mm / 1000 for f in fs], float),
             speed_m_s=np.array([f.speed_mm_s / 1000 for f in fs], float),
             comp_n=np.array([[r.mean_dan * DAN_TO_N if r.mean_dan != L.TENSION_ABSENT else np.nan

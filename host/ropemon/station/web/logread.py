@@ -206,7 +206,9 @@ def _stored_trip(st: Store, trip_id: int) -> StoredTrip | None:
 
 def trip_detail(st: Store, trip_id: int, area_m2: list[float], shaft_m: float | None) -> dict | None:
     """One trip as `ropemon report` sees it: its frames from the rest before to the rest after
-    (bounded by the neighbouring winds and REST_WINDOW_S), and the rests' figures."""
+    (bounded by the neighbouring winds and REST_WINDOW_S), and the rests' figures. The node time
+    is unwrapped over these frames (`FrameTable.from_frames`, `ropemon.station.nodetime`), so a
+    wrap of the node's u32 time inside them moves neither a rest nor the chart's axis."""
     tr = _stored_trip(st, trip_id)
     if tr is None:
         return None
