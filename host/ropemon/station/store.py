@@ -20,6 +20,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ropemon.station.nodetime import NodeClock
 from ropemon.station.protocol import Frame, L, Rope
 
 OIL_TEMP_ABSENT = L.OIL_TEMP_ABSENT
@@ -528,8 +529,9 @@ class Store:
         """Write frames.csv, events.csv, link_stats.csv and trips.csv for people and spreadsheets:
         ropes numbered from 1 as on the cage (`r1_mean_dan`, events' `rope`), each time column
         followed by its ISO-8601 UTC form (`rx_time_utc`), an absent oil temperature empty; the
-        stroke mask and each rope's piston position (`r1_pos_01mm`) last, empty where the frame
-        has none."""
+        stroke mask and each rope's piston position (`r1_pos_01mm`), empty where the frame has
+        none, then `node_time_ms`: `time_ms` unwrapped per node in arrival order
+        (`ropemon.station.nodetime`), a time axis that keeps counting where the node's u32 wraps."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         self.commit()
@@ -544,7 +546,10 @@ class Store:
             w = csv.writer(fh)
             w.writerow(_with_utc(["id", *cols_v1], "rx_time")
                        + [f"r{i + 1}_{f}" for i in range(n_ropes) for f in rope_fields]
-                       + ["stroke_mask"] + [f"r{i + 1}_pos_01mm" for i in range(n_ropes)])
+                       + ["stroke_mask"] + [f"r{i + 1}_pos_01mm" for i in range(n_ropes)]
+                       + ["node_time_ms"])
+            clock = NodeClock()
+            node_i, seq_i, tms_i = (1 + cols_v1.index(c) for c in ("node", "seq", "time_ms"))
             cur = self.db.execute(f"SELECT id, {self._frame_sql} FROM frames ORDER BY id")
             rope_cur = self.db.execute(f"SELECT frame_id, rope, {self._rope_sql} FROM ropes ORDER BY frame_id, rope")
             pending = next(rope_cur, None)
@@ -558,11 +563,13 @@ class Store:
                         pos[pending[1]] = "" if pending[6] is None else pending[6]
                     pending = next(rope_cur, None)
                 row = list(row)
+                node_ms = clock.ms_of(row[node_i], row[seq_i], row[tms_i])
                 smask = row.pop()
                 row[-1] = row[-1].hex()  # mac
                 if row[oil] == OIL_TEMP_ABSENT:
                     row[oil] = ""
-                w.writerow(_with_utc(row, 1) + cells + ["" if smask is None else smask] + pos)
+                w.writerow(_with_utc(row, 1) + cells + ["" if smask is None else smask] + pos
+                           + [node_ms])
         paths.append(p)
         for table, times in (("events", ("time_s",)), ("link_stats", ("time_s",)),
                              ("trips", ("start_time", "end_time"))):
