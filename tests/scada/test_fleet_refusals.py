@@ -77,7 +77,10 @@ def test_metrics_the_station_cannot_send_are_refused_and_the_rest_written(tmp_pa
     assert fleet.stats["refused"] == 2 + 2 + 1 + 1 + 1 + 2 + 2 + 1
     assert fleet.stats["refused_messages"] == 0
     assert "bad-edge" in caplog.text and "not written" in caplog.text
-    assert len([r for r in caplog.records if "not written" in r.getMessage()]) == 1   # rate-limited
+    assert fleet.stats["refused_by_reason"] == {"node or rope": 7, "frame_seq": 2, "tension": 2, "timestamp": 1}
+    lines = [r.getMessage() for r in caplog.records if "not written" in r.getMessage()]
+    assert len(lines) == 4                                            # rate-limited: the first of each reason
+    assert all(f"({why})" in "".join(lines) for why in fleet.stats["refused_by_reason"])
     put(fleet, 11, "good-edge", ddata(1, 11, 10))
     wait(lambda: acks[-1:] == [11], 5, "a later message acknowledged")
     assert stored(tmp_path)[-1] == ("good-edge", 1, 1, 10, 12.5)

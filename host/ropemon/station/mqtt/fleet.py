@@ -37,17 +37,39 @@ low rate, many messages per commit under load) and only then acknowledges those 
 idle, so the writer seldom waits for the GIL between SQLite's steps. A message whose rows are not committed is
 not acknowledged, so the broker delivers it again (to this session, after a reconnect).
 
-What the station cannot have sent is refused, not written: a tension or frame_seq metric whose
-node number is not 0..MAX_NODE or rope number not 1..MAX_ROPE, a frame_seq that is not an integer
-in 0..2**63-1 (SQLite's INTEGER, PostgreSQL's BIGINT; the tensions of its node go with it), a
-tension that is neither null nor a finite number, a timestamp past MAX_TS_MS. Each refused metric
-is counted (`stats["refused"]`) and logged (a warning at the first, then at most every
-REFUSE_LOG_S with the count). A batch whose transaction fails for a reason of its data (not the
-database: `_data_error`) is written again message by message: a message the database still
-refuses (or one that cannot be decoded at all) is dropped, counted (`stats["refused_messages"]`),
-logged and acknowledged, so that it is not delivered again forever; the others are committed and
-acknowledged in order. A database that cannot be written at all (disk full, locked, gone) keeps
-the whole batch, unacknowledged, and the writer tries it again every second.
+The consumer takes only what it can account for. A message is refused whole (not written,
+acknowledged, counted in `stats["refused_messages"]`) when its topic is not
+spBv1.0/<group>/<message type>/<edge node>[/<device>] ("topic"), its payload is over MAX_PAYLOAD
+bytes ("too large", not decoded), it is not a Sparkplug B payload ("undecodable": random bytes,
+most payloads cut short), it has more than MAX_METRICS metrics ("too many metrics"), or it is a
+birth, data or DDEATH without its seq ("no seq": a payload cut short at a field's end). A primary
+host's STATE and commands (NCMD, DCMD) are not data and not refused. Within a message, what the
+station cannot have sent is refused, not written: a tension or frame_seq metric whose node number
+is not 0..MAX_NODE or rope number not 1..MAX_ROPE ("node or rope"), a frame_seq that is not an
+integer in 0..2**63-1 (SQLite's INTEGER, PostgreSQL's BIGINT; the tensions of its node go with it:
+"frame_seq"), a tension without its node's frame_seq ("no frame_seq"), a tension that is neither
+null nor a finite number ("tension"), a timestamp past MAX_TS_MS ("timestamp"), a position neither
+null nor finite (stored as NULL: "position"); each is counted in `stats["refused"]`. Every refusal
+is also counted by its reason in `stats["refused_by_reason"]` and logged on this module's logger:
+a warning at the first of a reason, then at most one line per reason every REFUSE_LOG_S with the
+count since (written by the writer within the period even when no more come).
+
+Metric names are parsed once (tension, position, frame_seq: node and rope) and remembered in a
+cache of at most NAME_CACHE names; a name past it empties the cache, which starts again
+(`stats["name_cache_cleared"]`, logged): the cache only saves parsing, so a new name is never
+refused for it and the names in use come back at their next message.
+
+A batch whose transaction fails for a reason of its data (not the database: `_data_error`) is
+written again message by message: a message the database still refuses ("historian"), or one
+that cannot be read ("unreadable"), is dropped, counted, logged and acknowledged, so that it is
+not delivered again forever; the others are committed and acknowledged in order. A database that
+cannot be written at all (disk full, locked, gone) keeps the whole batch, unacknowledged, and the
+writer tries it again every second.
+
+Where a message came from is the broker's to check (its ACL: docs/integration.md): a Sparkplug B
+payload carries no signature, and its seq and bdSeq are no proof either (anyone who reads the
+topics can send the next one, and the consumer sees gaps and repeats in normal operation: births
+are QoS 0, not kept for it while it is away, and what it did not acknowledge comes again).
 """
 from __future__ import annotations
 
@@ -73,7 +95,11 @@ MAX_NODE = 255           # a node id is one byte (docs/protocol.md)
 MAX_ROPE = 255           # ropes count from 1
 MAX_SEQ = 2**63 - 1      # frame_seq is a UInt64; the historian's column a signed 64-bit integer
 MAX_TS_MS = 253_402_300_799_999   # 9999-12-31 23:59:59.999 UTC: beyond it PostgreSQL's to_timestamp fails
-REFUSE_LOG_S = 60.0      # refused metrics and messages logged at most this often (after the first)
+REFUSE_LOG_S = 60.0      # refused metrics and messages logged at most this often per reason (after the first)
+MAX_PAYLOAD = 65_536     # bytes per message at most (a ropemon DBIRTH: 1.8 kB per cage node, 3.4 kB for two)
+MAX_METRICS = 1_000      # metrics per message at most (a ropemon DBIRTH: 34 for one cage node, 63 for two)
+NAME_CACHE = 10_000      # metric names whose parse is remembered (a ropemon station's for all 256 node ids: 7,429)
+KINDS = {"NBIRTH": 4, "NDEATH": 4, "NDATA": 4, "NCMD": 4, "DBIRTH": 5, "DDEATH": 5, "DDATA": 5, "DCMD": 5}
 HOLD = 10_000            # DDATA held per hoist while its aliases are unknown (1,000 s at 10 frames/s)
 HOLD_TOTAL = 100_000     # DDATA held in all (about 40 MB at 400 bytes each), over every hoist
 DROP_LOG_S = 60.0        # a hoist's dropped held DDATA logged at most this often (after the first)
@@ -202,7 +228,7 @@ class Fleet:
         self.topic = f"spBv1.0/{group}/#"
         self.stats = {"births": 0, "deaths": 0, "ddata": 0, "rows": 0, "seq_gaps": 0, "historical": 0,
                       "commits": 0, "held": 0, "dropped": 0, "rebirths_asked": 0, "refused": 0,
-                      "refused_messages": 0}
+                      "refused_messages": 0, "refused_by_reason": {}, "name_cache_cleared": 0}
         self.seq: dict[tuple[str, str], int] = {}     # (group, edge) -> last seq
         self.bdseq: dict[tuple[str, str], int] = {}   # (group, edge) -> bdSeq of its NBIRTH
         self.aliases: dict[tuple[str, str, str], dict[int, str]] = {}   # (group, edge, device) -> alias -> name
@@ -214,7 +240,8 @@ class Fleet:
         self._hold_gone: list[int] = []        # held ids to delete in it (named and written, or dropped)
         self._dropped_said: dict[tuple[str, str, str], tuple[float, int]] = {}   # dkey -> (logged at, dropped then)
         self._asked: dict[tuple[str, str], float] = {}                  # (group, edge) -> rebirth asked at
-        self._refused_said: tuple[float | None, int] = (None, 0)        # (logged at, refused since)
+        self._cache_said = -1e18                    # the name cache's emptying logged at (monotonic)
+        self._refused_said: dict[str, list] = {}    # reason -> [logged at, refused since, "refused" | "refused_messages"]
         self.connected = threading.Event()       # subscribed: the broker acknowledged the subscription
         self.lock = threading.Lock()
         self.error: str | None = None                  # the historian cannot be written (the writer retries)
@@ -294,33 +321,57 @@ class Fleet:
         node = s.group(1)
         return ("s", int(node), 0) if len(node) <= 3 and int(node) <= MAX_NODE else ("bad", 0, 0)
 
-    def _refuse(self, topic: str, reason: str, n: int = 1, what: str = "refused") -> None:
-        """Count n refused metrics (or messages: what="refused_messages") and log it, a warning at
-        the first and then at most every REFUSE_LOG_S with the count since (self.lock held)."""
+    def _refuse(self, topic: str, reason: str, detail: str, n: int = 1, what: str = "refused") -> None:
+        """Count n refused metrics (or messages: what="refused_messages") under `reason` (a short
+        fixed text: the key of stats["refused_by_reason"]) and log it: a warning at the first of the
+        reason, then at most one line per reason every REFUSE_LOG_S with the count since (here or
+        in `_say_refused`) (self.lock held)."""
         self.stats[what] += n
+        by = self.stats["refused_by_reason"]
+        by[reason] = by.get(reason, 0) + n
+        said = self._refused_said.setdefault(reason, [None, 0, what])
+        said[1] += n
         now = time.monotonic()
-        said_at, since = self._refused_said
-        since += n
-        if said_at is None or now - said_at >= REFUSE_LOG_S:
-            log.warning("fleet: %s: %s not written: %s (%d refused since the last warning, this one included; "
-                        "in all %s)",
-                        topic, "metric(s)" if what == "refused" else "message", reason, since,
-                        {k: self.stats[k] for k in ("refused", "refused_messages")})
-            said_at, since = now, 0
-        self._refused_said = (said_at, since)
+        if said[0] is None or now - said[0] >= REFUSE_LOG_S:
+            log.warning("fleet: %.200s: %s not written (%s): %s; %d since the last line for this reason, %d in all",
+                        topic, "metric(s)" if what == "refused" else "message", reason, detail, said[1], by[reason])
+            said[0], said[1] = now, 0
+
+    def _say_refused(self, force: bool = False) -> None:
+        """The counts of refusals not yet logged, one line per reason whose last line is REFUSE_LOG_S
+        old (or at once: `force`, at the stop) (self.lock held)."""
+        now = time.monotonic()
+        for reason, said in self._refused_said.items():
+            if said[1] and (force or now - said[0] >= REFUSE_LOG_S):
+                log.warning("fleet: %s not written (%s): %d since the last line for this reason, %.0f s ago; "
+                            "%d in all", "metric(s)" if said[2] == "refused" else "messages", reason, said[1],
+                            now - said[0], self.stats["refused_by_reason"][reason])
+                said[0], said[1] = now, 0
 
     def rows_of(self, topic: str, payload: bytes) -> list[tuple]:
-        """One message's historian rows (none for births, deaths and what is not Sparkplug)."""
+        """One message's historian rows (none for births, deaths and commands); a message that is
+        not Sparkplug B or past the limits refused whole (module docstring)."""
         from ropemon.station.mqtt import sparkplug as sp
         parts = topic.split("/")
-        if len(parts) < 4 or parts[0] != sp.NAMESPACE:
-            return []
-        group, kind, edge = parts[1], parts[2], parts[3]
-        device = parts[4] if len(parts) > 4 else None
+        if len(parts) == 3 and parts[0] == sp.NAMESPACE and parts[1] == "STATE":
+            return []                           # a primary host's STATE (JSON): not for the historian
+        kind = parts[2] if len(parts) > 2 else ""
+        if parts[0] != sp.NAMESPACE or KINDS.get(kind) != len(parts) or not all(parts[1:]):
+            return self._refuse_message(topic, "topic", "not spBv1.0/<group>/<message type>/<edge node>[/<device>]")
+        if kind in ("NCMD", "DCMD"):
+            return []                           # commands to an edge node (this consumer's rebirths too)
+        if len(payload) > MAX_PAYLOAD:
+            return self._refuse_message(topic, "too large", f"{len(payload)} bytes, more than {MAX_PAYLOAD}")
         try:
             p = sp.decode(payload)
-        except Exception:  # noqa: BLE001 - not Sparkplug: ignored
-            return []
+        except Exception as e:  # noqa: BLE001 - not Sparkplug B, or cut short
+            return self._refuse_message(topic, "undecodable", f"not a Sparkplug B payload ({type(e).__name__})")
+        if len(p.metrics) > MAX_METRICS:
+            return self._refuse_message(topic, "too many metrics", f"{len(p.metrics)}, more than {MAX_METRICS}")
+        if kind != "NDEATH" and not p.HasField("seq"):
+            return self._refuse_message(topic, "no seq", "a birth, data or death without its seq (cut short?)")
+        group, edge = parts[1], parts[3]
+        device = parts[4] if len(parts) > 4 else None
         with self.lock:
             key = (group, edge)
             if kind in ("NBIRTH", "NDEATH"):
@@ -367,6 +418,12 @@ class Fleet:
                 return []
             return self._ddata_rows(dkey, p, topic)
 
+    def _refuse_message(self, topic: str, reason: str, detail: str) -> list[tuple]:
+        """A message refused whole: counted, logged, no rows (it is acknowledged with its batch)."""
+        with self.lock:
+            self._refuse(topic, reason, detail, what="refused_messages")
+        return []
+
     def _ddata_rows(self, dkey: tuple[str, str, str], p: Any, topic: str) -> list[tuple]:
         """A DDATA's tension rows, its metrics named by the DBIRTH's aliases; what the station cannot
         have sent refused (module docstring) (self.lock held)."""
@@ -382,15 +439,20 @@ class Fleet:
             name = m.name or aliases[m.alias]
             what = names.get(name, ...)
             if what is ...:
-                what = names[name] = self._name(name) if len(names) < 100_000 else None
+                what = self._name(name)
+                if len(names) >= NAME_CACHE:      # bounded: emptied, the names in use come back at once
+                    names.clear()
+                    self._name_cache_cleared()
+                names[name] = what
             if what is None:
                 continue
             if what[0] == "bad":
-                self._refuse(topic, f"{name!r:.60}: node not 0..{MAX_NODE} or rope not 1..{MAX_ROPE}")
+                self._refuse(topic, "node or rope", f"{name!r:.60}: node not 0..{MAX_NODE} or rope not 1..{MAX_ROPE}")
             elif what[0] == "s":
                 v = sp.metric_value(m)
                 if v is not None and (type(v) is not int or not 0 <= v <= MAX_SEQ):
-                    self._refuse(topic, f"{name} = {v!r:.40}: not an integer 0..2**63-1 (nor its node's tensions)")
+                    self._refuse(topic, "frame_seq",
+                                 f"{name} = {v!r:.40}: not an integer 0..2**63-1 (nor its node's tensions)")
                     v = ...
                 seqs[what[1]] = v
             elif what[0] == "p":
@@ -398,32 +460,48 @@ class Fleet:
                 if type(v) is int:
                     v = float(v)
                 if v is not None and (type(v) is not float or not math.isfinite(v)):
-                    self._refuse(topic, f"{name} = {v!r:.40}: neither null nor a finite number (stored as NULL)")
+                    self._refuse(topic, "position",
+                                 f"{name} = {v!r:.40}: neither null nor a finite number (stored as NULL)")
                     v = None
                 positions[(what[1], what[2])] = v
             else:
                 tensions.append((what[1], what[2], m))
         rows = []
         for node, rope, m in tensions:
-            seq = seqs.get(node)
+            seq = seqs.get(node, None)
             if seq is None:
+                self._refuse(topic, "no frame_seq", f"node{node}/rope{rope}/tension: its node's frame_seq "
+                             "is not in the message (or null)")
                 continue
             if seq is ...:
-                self._refuse(topic, f"node{node}/rope{rope}/tension: its node's frame_seq was refused")
+                self._refuse(topic, "frame_seq", f"node{node}/rope{rope}/tension: its node's frame_seq was refused")
                 continue
             v = sp.metric_value(m)
             if type(v) is int:              # an integer metric type: REAL in the historian
                 v = float(v)
             if v is not None and (type(v) is not float or not math.isfinite(v)):
-                self._refuse(topic, f"node{node}/rope{rope}/tension = {v!r:.40}: neither null nor a finite number")
+                self._refuse(topic, "tension",
+                             f"node{node}/rope{rope}/tension = {v!r:.40}: neither null nor a finite number")
                 continue
             if not 0 <= m.timestamp <= MAX_TS_MS:
-                self._refuse(topic, f"node{node}/rope{rope}/tension: timestamp {m.timestamp} past year 9999")
+                self._refuse(topic, "timestamp",
+                             f"node{node}/rope{rope}/tension: timestamp {m.timestamp} past year 9999")
                 continue
             rows.append((group, edge, device, node, rope, m.timestamp, v, seq, bool(m.is_historical),
                          positions.get((node, rope))))
             self.stats["historical"] += bool(m.is_historical)
         return rows
+
+    def _name_cache_cleared(self) -> None:
+        """The name cache was full and has been emptied: counted, logged at most every REFUSE_LOG_S
+        (a station sends far fewer names: someone sends many new ones) (self.lock held)."""
+        self.stats["name_cache_cleared"] += 1
+        now = time.monotonic()
+        if now - self._cache_said >= REFUSE_LOG_S:
+            self._cache_said = now
+            log.warning("fleet: the metric name cache was full (%d names; a ropemon station sends at most 7,429): "
+                        "emptied, %d times in all (nothing refused for it)", NAME_CACHE,
+                        self.stats["name_cache_cleared"])
 
     def _hold(self, dkey: tuple[str, str, str], topic: str, payload: bytes) -> None:
         """A DDATA with an alias no DBIRTH named: held (in the `held` table with the batch), the
@@ -480,6 +558,8 @@ class Fleet:
                 try:
                     item = self._queue.get(timeout=0.2)
                 except queue.Empty:
+                    with self.lock:
+                        self._say_refused(force=self._stop.is_set())
                     if self._stop.is_set():
                         return
                     continue
@@ -492,7 +572,8 @@ class Fleet:
                         except Exception as e:  # noqa: BLE001 - one unreadable message must not stop the writer
                             rows = []
                             with self.lock:
-                                self._refuse(topic, f"cannot be read: {type(e).__name__}: {e}", what="refused_messages")
+                                self._refuse(topic, "unreadable", f"cannot be read: {type(e).__name__}: {e}",
+                                             what="refused_messages")
                         batch.append(((session, mid, qos), topic, rows, self._hold_new, self._hold_gone))
                         n += len(rows) + len(self._hold_new)
                         self._hold_new, self._hold_gone = [], []
@@ -518,8 +599,8 @@ class Fleet:
                             failed = f"cannot write the historian: {type(e1).__name__}: {e1}"
                             break
                         with self.lock:
-                            self._refuse(batch[0][1], f"the historian refused it: {type(e1).__name__}: {e1}",
-                                         what="refused_messages")
+                            self._refuse(batch[0][1], "historian", f"the historian refused it: {type(e1).__name__}: "
+                                         f"{e1}", what="refused_messages")
                     self._ack(batch[:1])
                     del batch[0]
                 if batch:
@@ -529,6 +610,8 @@ class Fleet:
                 continue
             self._ack(batch)
             batch = []
+            with self.lock:
+                self._say_refused()
 
     def _commit(self, batch: list[tuple]) -> None:
         """The messages' rows and held messages in one transaction (none when there is nothing to write)."""
