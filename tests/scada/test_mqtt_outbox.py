@@ -4,6 +4,7 @@ was committed but not acknowledged when the station died is sent by the next run
 from __future__ import annotations
 
 import socket
+import threading
 import time
 
 import pytest
@@ -12,6 +13,7 @@ pytest.importorskip("paho.mqtt")
 
 from ropemon.station import mqtt as face_mod  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
+from ropemon.station.mqtt import sparkplug as sp  # noqa: E402
 from ropemon.station.mqtt.outbox import Outbox  # noqa: E402
 from scada_rig import Rig, free_port, wait  # noqa: E402
 from test_mqtt import Spy, metric, mqtt_table  # noqa: E402
@@ -160,3 +162,148 @@ def test_a_rebirth_sends_a_quiet_hoists_rows_still_to_publish_before_its_ddeath(
                                                                ("DDEATH", ["h0"])]
     assert after[-1] == ("DDEATH", ["h0"])                                   # after all of h0's data
     assert not any(k[1] == ["h1"] for k in after[nbirth:])                   # h1 stays dead: no DBIRTH, no DDATA
+
+
+class CutProxy:
+    """A TCP proxy between the station and Mosquitto that reads the MQTT packets going both ways
+    and, once armed, cuts the connection at the next QoS 1 DDATA: `at = "publish"`: that PUBLISH
+    is swallowed and the connection closed (the broker never had it); `at = "puback"`: it is
+    forwarded, and the connection closed when the broker's PUBACK for it comes back, which is not
+    forwarded (the broker had it, the station never hears so). Later connections pass untouched."""
+
+    def __init__(self, broker_port: int) -> None:
+        self.broker_port = broker_port
+        self.at: str | None = None
+        self.cut = threading.Event()
+        self.cut_payload: bytes | None = None     # the DDATA the cut fell on
+        self._pid: int | None = None              # its packet id (at = "puback")
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def arm(self, at: str) -> None:
+        self.at = at
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.listener.accept()
+            except OSError:
+                return
+            broker = socket.create_connection(("127.0.0.1", self.broker_port))
+            pair = (client, broker)
+            threading.Thread(target=self._pump, args=(client, broker, pair, True), daemon=True).start()
+            threading.Thread(target=self._pump, args=(broker, client, pair, False), daemon=True).start()
+
+    @staticmethod
+    def _packet(src: socket.socket) -> tuple[bytes, int, bytes] | None:
+        """One MQTT packet: (the whole of it, its first byte, its body after the remaining length), None at the end."""
+        def read(n: int) -> bytes | None:
+            buf = b""
+            while len(buf) < n:
+                got = src.recv(n - len(buf))
+                if not got:
+                    return None
+                buf += got
+            return buf
+        head = read(1)
+        if head is None:
+            return None
+        length, shift, raw = 0, 0, b""
+        while True:
+            b = read(1)
+            if b is None:
+                return None
+            raw += b
+            length |= (b[0] & 0x7F) << shift
+            shift += 7
+            if not b[0] & 0x80:
+                break
+        body = read(length) if length else b""
+        return None if body is None else head + raw + body, head[0], body
+
+    def _close(self, pair) -> None:
+        for s in pair:
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            s.close()
+        self.cut.set()
+
+    def _pump(self, src, dst, pair, up: bool) -> None:
+        try:
+            while True:
+                got = self._packet(src)
+                if got is None:
+                    break
+                whole, first, body = got
+                if up and self.at and first >> 4 == 3 and (first >> 1) & 3 == 1:      # a QoS 1 PUBLISH
+                    n = int.from_bytes(body[:2], "big")
+                    if "/DDATA/" in body[2:2 + n].decode():
+                        self.cut_payload = body[2 + n + 2:]
+                        if self.at == "publish":
+                            self.at = None
+                            self._close(pair)                 # swallowed: the broker never had it
+                            return
+                        self._pid, self.at = int.from_bytes(body[2 + n:2 + n + 2], "big"), None
+                if not up and first >> 4 == 4 and self._pid is not None and int.from_bytes(body[:2], "big") == self._pid:
+                    self._pid = None
+                    self._close(pair)                         # the PUBACK is not forwarded
+                    return
+                dst.sendall(whole)
+        except OSError:
+            pass
+        for s in pair:
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    def close(self) -> None:
+        self.listener.close()
+
+
+@pytest.mark.parametrize("at", ["publish", "puback"])
+def test_a_ddata_cut_off_before_its_puback_is_sent_again_after_the_reconnection(tmp_path, broker, at):
+    """The connection is cut between a DDATA's PUBLISH and its PUBACK (before the broker had it,
+    or after, the PUBACK lost): its row stays in the outbox and goes out again, historical, after
+    the reconnection; no frame is lost. (A face that took a row as sent when it was published, not
+    when it was acknowledged, loses the first kind and does not send the second again.)"""
+    proxy = CutProxy(broker.port)
+    spy = Spy(broker.port)
+    rig = Rig(tmp_path, 1, mqtt_table(proxy.port))
+    (face,) = start_faces(rig.stations, rig.file)
+    alias = face.alias["h0"]["node1/frame_seq"]
+    try:
+        wait(lambda: face.connected and face.sessions == 1 and spy.kinds("DBIRTH"), what="birth")
+        for _ in range(5):
+            rig.feed("h0", (5000 + rig.seq["h0"], 5000, 4900, 5100))
+        wait(lambda: len(spy.kinds("DDATA")) == 5 and face.outbox.rows == 0, what="5 DDATA through, their rows gone")
+        proxy.arm(at)
+        for _ in range(5):
+            rig.feed("h0", (5000 + rig.seq["h0"], 5000, 4900, 5100))
+        wait(proxy.cut.is_set, what="the cut")
+        cut_seq = next(sp.metric_value(m) for m in sp.decode(proxy.cut_payload).metrics if m.alias == alias)
+        assert cut_seq == 6
+        wait(lambda: face.connected and face.sessions == 2, what="connected again")
+        for _ in range(5):
+            rig.feed("h0", (5000 + rig.seq["h0"], 5000, 4900, 5100))
+        wait(lambda: {metric(p, "node1/frame_seq") for _, p in spy.kinds("DDATA")} >= set(range(1, 16)), 10,
+             "every frame at the broker")
+        wait(lambda: face.outbox.rows == 0 and not face._inflight, 10, "every row acknowledged and deleted")
+    finally:
+        face.stop()
+        rig.close()
+        proxy.close()
+    time.sleep(0.2)
+    spy.close()
+    got = [(metric(p, "node1/frame_seq"), all(m.is_historical for m in p.metrics)) for _, p in spy.kinds("DDATA")]
+    seqs = [s for s, _ in got]
+    assert sorted(set(seqs)) == list(range(1, 16))                 # none lost
+    assert seqs[:5] == [1, 2, 3, 4, 5]
+    if at == "puback":                                             # the broker had it: at least once, twice here
+        assert seqs.count(6) == 2
+    else:
+        assert seqs.count(6) == 1
+    assert (6, True) in got                                        # sent again after the reconnection, historical
