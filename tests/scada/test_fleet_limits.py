@@ -138,3 +138,31 @@ def test_900_undecodable_and_truncated_payloads_are_counted_by_reason_and_logged
             said[m.group(1)] = said.get(m.group(1), 0) + int(m.group(2))
     assert said == got                                        # every refusal in some line's count
     stop(fleet)
+
+
+def test_the_aliases_kept_and_the_held_ddata_are_bounded_in_bytes(tmp_path, monkeypatch):
+    """DBIRTHs of ever new devices cannot fill the memory with aliases: past BIRTH_BYTES a new
+    device's DBIRTH is refused, counted ("too many births"), while a rebirth of a device known
+    is taken and an edge node's NBIRTH frees its devices' share; held DDATA are dropped, oldest
+    first and counted, past HOLD_BYTES."""
+    from test_fleet_held import EDGE, GROUP, dbirth, nbirth
+    from test_fleet_held import ddata as alias_ddata
+    size = len(dbirth("h0", 1))
+    monkeypatch.setattr(fleet_mod, "BIRTH_BYTES", 3 * size)
+    monkeypatch.setattr(fleet_mod, "HOLD_BYTES", 5 * len(alias_ddata("h0", 1, 1)))
+    fleet, _ = rig(tmp_path)
+    for k in range(5):
+        fleet.rows_of(sp.topic(GROUP, "DBIRTH", "junk", f"d{k}"), dbirth("h0", k))
+    assert reasons(fleet) == {"too many births": 2} and fleet.birth_bytes == 3 * size
+    fleet.rows_of(sp.topic(GROUP, "DBIRTH", "junk", "d0"), dbirth("h0", 9))    # a rebirth: replaces its own
+    assert reasons(fleet) == {"too many births": 2}
+    fleet.rows_of(sp.topic(GROUP, "NBIRTH", "junk"), nbirth(1))               # a new session: frees them
+    assert fleet.birth_bytes == 0
+    fleet.rows_of(sp.topic(GROUP, "NBIRTH", EDGE), nbirth(1))
+    fleet.rows_of(sp.topic(GROUP, "DBIRTH", EDGE, "h0"), dbirth("h0", 1))
+    assert fleet.rows_of(sp.topic(GROUP, "DDATA", EDGE, "h0"), alias_ddata("h0", 2, 1))   # named: its rows
+    for k in range(8):                                                         # h1's aliases unknown: held
+        fleet.rows_of(sp.topic(GROUP, "DDATA", EDGE, "h1"), alias_ddata("h1", 3 + k, k))
+    assert fleet.held_count == 5 and fleet.stats["dropped"] == 3
+    assert fleet.held_bytes == sum(len(item[2]) for q in fleet.held.values() for item in q)
+    fleet.historian.close()

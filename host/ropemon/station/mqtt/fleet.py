@@ -26,7 +26,8 @@ time of arrival) to the historian's `held` table in the transaction of its batch
 acknowledged, so a consumer that stops or dies before the DBIRTH loses nothing: at start it
 reads the held messages back and asks their edge nodes for a rebirth. The rows a DBIRTH names
 are written and their held messages deleted in one transaction. At most `HOLD` messages are
-held per hoist and `HOLD_TOTAL` in all (a broken edge node must not fill the disk): beyond
+held per hoist and `HOLD_TOTAL` (or `HOLD_BYTES` of payload) in all (a broken edge node must not
+fill the memory or the disk): beyond
 that the oldest held message is dropped, counted in `stats["dropped"]` and logged (a warning at
 the first drop per hoist, then at most every `DROP_LOG_S` with the count).
 
@@ -42,7 +43,9 @@ acknowledged, counted in `stats["refused_messages"]`) when its topic is not
 spBv1.0/<group>/<message type>/<edge node>[/<device>] ("topic"), its payload is over MAX_PAYLOAD
 bytes ("too large", not decoded), it is not a Sparkplug B payload ("undecodable": random bytes,
 most payloads cut short), it has more than MAX_METRICS metrics ("too many metrics"), or it is a
-birth, data or DDEATH without its seq ("no seq": a payload cut short at a field's end). A primary
+birth, data or DDEATH without its seq ("no seq": a payload cut short at a field's end), or a
+DBIRTH that would take the DBIRTHs whose aliases are kept past BIRTH_BYTES ("too many births":
+a rebirth replaces its device's, an edge node's NBIRTH or NDEATH frees its devices'). A primary
 host's STATE and commands (NCMD, DCMD) are not data and not refused. Within a message, what the
 station cannot have sent is refused, not written: a tension or frame_seq metric whose node number
 is not 0..MAX_NODE or rope number not 1..MAX_ROPE ("node or rope"), a frame_seq that is not an
@@ -102,6 +105,8 @@ NAME_CACHE = 10_000      # metric names whose parse is remembered (a ropemon sta
 KINDS = {"NBIRTH": 4, "NDEATH": 4, "NDATA": 4, "NCMD": 4, "DBIRTH": 5, "DDEATH": 5, "DDATA": 5, "DCMD": 5}
 HOLD = 10_000            # DDATA held per hoist while its aliases are unknown (1,000 s at 10 frames/s)
 HOLD_TOTAL = 100_000     # DDATA held in all (about 40 MB at 400 bytes each), over every hoist
+HOLD_BYTES = 64 << 20    # and their payloads at most this many bytes in all (64 MiB)
+BIRTH_BYTES = 16 << 20   # the DBIRTHs whose aliases are kept, bytes in all (16 MiB: 4,900 hoists of two nodes)
 DROP_LOG_S = 60.0        # a hoist's dropped held DDATA logged at most this often (after the first)
 REBIRTH_EVERY_S = 5.0    # at most one rebirth request per edge node this often
 
@@ -235,6 +240,9 @@ class Fleet:
         # DDATA waiting for their DBIRTH: (group, edge, device) -> deque of (held id, topic, payload, arrival_ms)
         self.held: dict[tuple[str, str, str], deque[tuple[int, str, bytes, int]]] = {}
         self.held_count = 0
+        self.held_bytes = 0                    # their payloads' bytes
+        self._birth_bytes: dict[tuple[str, str, str], int] = {}   # dkey -> its DBIRTH's bytes (aliases kept)
+        self.birth_bytes = 0                   # ... in all
         self._held_id = 0
         self._hold_new: list[tuple] = []       # held messages for the next transaction's `held` table
         self._hold_gone: list[int] = []        # held ids to delete in it (named and written, or dropped)
@@ -266,6 +274,7 @@ class Fleet:
         for hid, group, edge, device, topic, data, arrival_ms in historian.held():   # a previous run's
             self.held.setdefault((group, edge, device), deque()).append((hid, topic, bytes(data), arrival_ms))
             self.held_count += 1
+            self.held_bytes += len(data)
             self._held_id = max(self._held_id, hid)
         self.stats["held_loaded"] = self.held_count
 
@@ -380,6 +389,7 @@ class Fleet:
                 if kind == "NBIRTH" or bd is None or self.bdseq.get(key, bd) == bd:
                     for k in [k for k in self.aliases if k[:2] == key]:    # a session ends: its aliases
                         del self.aliases[k]
+                        self.birth_bytes -= self._birth_bytes.pop(k, 0)
                 if bd is not None and (kind == "NBIRTH" or key not in self.bdseq):
                     self.bdseq[key] = bd
                 if kind == "NBIRTH":
@@ -394,6 +404,13 @@ class Fleet:
                 return []
             dkey = (group, edge, device)
             if kind == "DBIRTH":
+                was = self._birth_bytes.get(dkey, 0)
+                if self.birth_bytes - was + len(payload) > BIRTH_BYTES:
+                    self._refuse(topic, "too many births", f"the DBIRTHs whose aliases are kept would take more "
+                                 f"than {BIRTH_BYTES} bytes", what="refused_messages")
+                    return []
+                self.birth_bytes += len(payload) - was
+                self._birth_bytes[dkey] = len(payload)
                 self.aliases[dkey] = aliases = {m.alias: m.name for m in p.metrics if m.HasField("alias")}
                 rows = []
                 held = self.held.pop(dkey, None)
@@ -407,6 +424,7 @@ class Fleet:
                         rows += self._ddata_rows(dkey, q, item[1])
                         self._hold_gone.append(item[0])
                         self.held_count -= 1
+                        self.held_bytes -= len(item[2])
                     if still:
                         self.held[dkey] = still
                 return rows
@@ -511,30 +529,32 @@ class Fleet:
         held = self.held.setdefault(dkey, deque())
         held.append(item)
         self.held_count += 1
+        self.held_bytes += len(item[2])
         self._hold_new.append((item[0], *dkey, item[1], item[2], item[3]))
         self.stats["held"] += 1
         while len(held) > HOLD:
             self._drop(dkey)
-        while self.held_count > HOLD_TOTAL:
+        while self.held_count > HOLD_TOTAL or self.held_bytes > HOLD_BYTES:
             self._drop(min((k for k, q in self.held.items() if q), key=lambda k: self.held[k][0][0]))
         self._ask_rebirth(dkey[0], dkey[1])
 
     def _drop(self, dkey: tuple[str, str, str]) -> None:
         """Drop the hoist's oldest held DDATA: lost, counted and logged (self.lock held)."""
         held = self.held[dkey]
-        hid = held.popleft()[0]
+        hid, _, data, _ = held.popleft()
         if not held:
             del self.held[dkey]
         self._hold_gone.append(hid)
         self.held_count -= 1
+        self.held_bytes -= len(data)
         self.stats["dropped"] += 1
         now = time.monotonic()
         said_at, n = self._dropped_said.get(dkey, (None, 0))
         n += 1
         if said_at is None or now - said_at >= DROP_LOG_S:
             log.warning("fleet: %s/%s/%s: %d DDATA dropped unwritten (oldest first): their aliases are unknown and "
-                        "more than %d are held for the hoist or %d in all (no DBIRTH came after the rebirth asked)",
-                        *dkey, n, HOLD, HOLD_TOTAL)
+                        "more than %d are held for the hoist or %d (%d MiB) in all (no DBIRTH came after the rebirth "
+                        "asked)", *dkey, n, HOLD, HOLD_TOTAL, HOLD_BYTES >> 20)
             said_at, n = now, 0
         self._dropped_said[dkey] = (said_at, n)
 
