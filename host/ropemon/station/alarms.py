@@ -388,6 +388,7 @@ class AlarmEngine:
         self._down_since: dict[str, float] = {}   # receiver -> when its port was first seen down
         self._raises: deque[float] = deque()       # times of annunciated raises (the flood count)
         self._equalizing: dict[int, EqualizingTracker] = {}
+        self._equalizing_ids: dict[int, tuple[str, ...]] = {}   # per node: its ropes' not_equalizing ids
         self._oil: dict[int, OilTracker] = {}
         self._rests: dict[int, RestTracker] = {}
         self._forecast: dict[int, list[AdjustForecast | None]] = {}
@@ -745,11 +746,16 @@ class AlarmEngine:
             tr = self._equalizing[node] = EqualizingTracker(q)
         skip = [sr is not None and sr.end is not None for sr in strokes]
         timing = timings[2]
-        for i, pt in enumerate(tr.update(frame, now_s, skip, xs)):
+        alarms = self._alarms
+        pts = tr.update(frame, now_s, skip, xs)
+        aids = self._equalizing_ids.get(node, ())
+        if len(aids) < len(pts):
+            aids = self._equalizing_ids[node] = tuple(f"not_equalizing:n{node}:r{i}" for i in range(len(pts)))
+        for i, pt in enumerate(pts):
             if pt is None:
                 continue
-            aid = f"not_equalizing:n{node}:r{i}"
-            if not pt.lags and aid not in self._alarms:
+            aid = aids[i]
+            if not pt.lags and aid not in alarms:
                 continue
             share = None if pt.ratio is None else round(abs(pt.ratio), 3)
             if pt.lags:

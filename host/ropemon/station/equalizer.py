@@ -288,6 +288,7 @@ class EqualizingTracker:
         self._ref_x: list[float | None] = []
         self._ref_p: list[float | None] = []
         self._ref_s: float | None = None
+        self._ref_usable: list[bool] = []      # which ropes the reference judges
         self._lo: list[float] = []             # each rope's own motion since the reference: its range
         self._hi: list[float] = []
         self._first: list[float | None] = []    # the others' motion when this rope's lag began
@@ -309,25 +310,31 @@ class EqualizingTracker:
             self.reset()
         if xs is None:
             xs = positions(frame)
-        ps = [None if r.raw_kpa == L.RAW_KPA_ABSENT else float(r.raw_kpa) for r in frame.ropes]
-        usable = [xs[i] is not None and ps[i] is not None for i in range(n)]
+        absent = L.RAW_KPA_ABSENT
+        ps = [None if r.raw_kpa == absent else float(r.raw_kpa) for r in frame.ropes]
+        usable = [x is not None and p is not None for x, p in zip(xs, ps)]
         if len(self._k_kpa) != n:
             self._k_kpa = [(s.per_rope(s.compliance_m_per_pa, i) or 0.0) * 1000.0 for i in range(n)]
             self._offs.clear()
-        sp_now = sorted(ps[i] for i in range(n) if usable[i])
-        off = [ps[i] - _median_without(sp_now, ps[i]) if usable[i] and len(sp_now) >= 2 else None
-               for i in range(n)]
+        idx = [i for i in range(n) if usable[i]]
+        off: list[float | None] = [None] * n
+        if len(idx) >= 2:
+            for i, m in zip(idx, _medians_without([ps[i] for i in idx])):
+                off[i] = ps[i] - m
         self._offs.append(off)
-        if (self._ref_s is None or len(self._ref_x) != n
-                or usable != [x is not None and p is not None for x, p in zip(self._ref_x, self._ref_p)]):
+        if self._ref_s is None or usable != self._ref_usable:
             self._anchor(xs, ps, usable, now_s)
             self.last = [None] * n
             return self.last
-        if sum(usable) < 2:
+        if len(idx) < 2:
             self.last = [None] * n
             return self.last
-        dx = [xs[i] - self._ref_x[i] if usable[i] else None for i in range(n)]
-        dp = [ps[i] - self._ref_p[i] if usable[i] else None for i in range(n)]
+        ref_x, ref_p = self._ref_x, self._ref_p
+        dx: list = [None] * n
+        dp: list = [None] * n
+        for i in idx:
+            dx[i] = xs[i] - ref_x[i]
+            dp[i] = ps[i] - ref_p[i]
         thr, still = self._thr, self._still
         if any(skip):
             # a piston at its end: the equalizer's motion is not its own (the stopped cylinder takes
@@ -336,31 +343,34 @@ class EqualizingTracker:
             self.last = [Participation(False, False, None, 0.0, 0.0, 0.0, 0.0, "") if u else None for u in usable]
             return self.last
         moved = 0.0
-        for i in range(n):
-            if usable[i]:
-                d = dx[i]
-                if d < self._lo[i]:
-                    self._lo[i] = d
-                elif d > self._hi[i]:
-                    self._hi[i] = d
-                if abs(d) > moved:
-                    moved = abs(d)
+        lo_, hi_ = self._lo, self._hi
+        for i in idx:
+            d = dx[i]
+            if d < lo_[i]:
+                lo_[i] = d
+            elif d > hi_[i]:
+                hi_[i] = d
+            if abs(d) > moved:
+                moved = abs(d)
         # a pressure departing from the others' (a tap reading a cylinder cut off from the manifold);
         # not a frozen transmitter (its own pressure still: SENSOR STUCK). A cut-off cylinder's piston
         # moves only by its own oil's compression (k times its own pressure change): one that moved
         # more, or went and came back, shares the manifold's oil (a balancing stroke, whose flow
         # parts the taps' pressures by tens of kPa), and is not cut off
-        idx = [i for i in range(n) if usable[i]]
-        sp = sorted(dp[i] for i in idx)
+        ops: list = [None] * n                 # each rope's others' pressure change (their median)
+        for i, m in zip(idx, _medians_without([dp[i] for i in idx])):
+            ops[i] = m
         departing: dict[int, tuple[float, float]] = {}
         ref_off = self._ref_off
+        dep_kpa, dep_frac, k_kpa = s.departure_kpa, s.departure_frac, self._k_kpa
         for i in idx:
-            op = _median_without(sp, dp[i])
-            dep = off[i] - ref_off[i] if off[i] is not None and ref_off[i] is not None else dp[i] - op
-            if (abs(dep) > max(s.departure_kpa, s.departure_frac * abs(op))
-                    and abs(dp[i]) >= max(s.departure_kpa / 3.0, 0.25 * abs(op))):
-                squeeze = self._k_kpa[i] * abs(dp[i]) + thr
-                if abs(dx[i]) <= squeeze and self._hi[i] - self._lo[i] <= squeeze:
+            op = ops[i]
+            oi, ri = off[i], ref_off[i]
+            dep = oi - ri if oi is not None and ri is not None else dp[i] - op
+            if (abs(dep) > max(dep_kpa, dep_frac * abs(op))
+                    and abs(dp[i]) >= max(dep_kpa / 3.0, 0.25 * abs(op))):
+                squeeze = k_kpa[i] * abs(dp[i]) + thr
+                if abs(dx[i]) <= squeeze and hi_[i] - lo_[i] <= squeeze:
                     departing[i] = (dep, op)
         if moved < thr and not departing:   # no piston moved beyond the tolerance: the usual case
             self.last = [Participation(False, False, None, dx[i], 0.0, 0.0, 0.0, "") if usable[i] else None
@@ -371,7 +381,9 @@ class EqualizingTracker:
             if now_s - self._ref_s >= s.anchor_max_s:
                 self._anchor(xs, ps, usable, now_s)
             return self.last
-        sx = sorted(dx[i] for i in idx)
+        meds: list = [None] * n                # each rope's others' motion (their median)
+        for i, m in zip(idx, _medians_without([dx[i] for i in idx])):
+            meds[i] = m
         by_abs = sorted(idx, key=lambda i: abs(dx[i]))
         least, second = by_abs[0], by_abs[1]
         out: list[Participation | None] = []
@@ -382,8 +394,8 @@ class EqualizingTracker:
                 out.append(None)
                 continue
             own = dx[i]
-            med = _median_without(sx, own)
-            op = _median_without(sp, dp[i])
+            med = meds[i]
+            op = ops[i]
             dep = dp[i] - op
             if abs(med) > moved_all:
                 moved_all = abs(med)
@@ -449,6 +461,7 @@ class EqualizingTracker:
     def _anchor(self, xs, ps, usable, now_s: float) -> None:
         self._ref_x = [x if u else None for x, u in zip(xs, usable)]
         self._ref_p = [p if u else None for p, u in zip(ps, usable)]
+        self._ref_usable = list(usable)
         self._ref_s = now_s
         ref_off: list[float | None] = []
         for i, u in enumerate(usable):
@@ -680,6 +693,16 @@ class RestTracker:
         if not s.stroke_m or not self.rests:
             return []
         return adjust_forecast(list(self.rests), s.stroke_m, s.margin_m, s.adjust_min_rests, s.adjust_trend_min_m)
+
+
+def _medians_without(vals: list[float]) -> list[float]:
+    """For each of `vals` (two or more), the median of the others: `_median_without` of each, the
+    sort done once (and for four values, the usual ropes, without a search)."""
+    v = sorted(vals)
+    if len(v) == 4:
+        v1, v2 = v[1], v[2]
+        return [v1 if x > v1 else v2 for x in vals]
+    return [_median_without(v, x) for x in vals]
 
 
 def _median_without(v: list[float], x: float) -> float:
