@@ -116,7 +116,7 @@ def test_only_the_stations_login_publishes_into_its_namespace(tmp_path, acl_brok
         wait(lambda: len(rows()) == 4, 10, "the station's frame 4")
         with fleet.lock:                                       # the consumer's NCMD reaches the station
             fleet._ask_rebirth("mine", "shaft-2")
-        wait(lambda: fleet.stats["births"] == 2, 10, "the station born again at the consumer's NCMD")
+        wait(lambda: fleet.stats["births"] > births, 10, "the station born again at the consumer's NCMD")
     finally:
         face.stop()
         rig.close()
