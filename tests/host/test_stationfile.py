@@ -121,6 +121,43 @@ def test_ropemon_serve_runs_the_hoists_and_prints_their_alarms_with_the_hoist(tm
                                                                                    ("south", "silent:n1")}
 
 
+def test_ropemon_serve_says_where_each_hoists_replay_protection_resumed(tmp_path):
+    """A restarted `ropemon serve` prints, per hoist with frames in its log, the replay
+    protection it resumed from it, as `ropemon monitor` does; a hoist with none: nothing."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from ropemon.station.decoder import SEQ_COUNT_BITS
+
+    node_json(tmp_path, "north.json", 1, KEY_N)
+    node_json(tmp_path, "south.json", 1, KEY_S)
+    station = write(tmp_path, GOOD.replace("silent_s = 3", "silent_s = 1").replace("[web]\nport = 8099\n", ""))
+    s = StationSet(load_station_file(station))
+    try:                                              # the first run: north logs boot 3, counts 1..5
+        for k in range(1, 6):
+            s.hoists["north"].station.feed("pithead", encode_frame(
+                node=1, seq=3 << SEQ_COUNT_BITS | k, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
+    finally:
+        s.close()
+    err_path = tmp_path / "stderr.txt"
+    with open(err_path, "w") as err:
+        p = subprocess.Popen([sys.executable, "-m", "ropemon.cli", "serve", str(station)],
+                             stdout=subprocess.PIPE, stderr=err, text=True)
+        try:
+            deadline = time.monotonic() + 20
+            first = p.stdout.readline()                   # an alarm line: the start is behind it
+            assert first and time.monotonic() < deadline
+        finally:
+            p.send_signal(signal.SIGTERM)
+            p.communicate(timeout=20)
+    text = err_path.read_text()
+    assert p.returncode == 0, text
+    assert "ropemon serve: hoist north: resumed replay protection from the log: node 1 at boot 3 count 5" in text
+    assert "hoist south" not in text
+
+
 def test_a_station_set_takes_other_receivers_for_a_hoist(tmp_path):
     """The demo points a hoist at its virtual ports instead of the station file's adapters."""
     node_json(tmp_path, "north.json", 1, KEY_N)

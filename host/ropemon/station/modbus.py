@@ -5,6 +5,12 @@
     port = 5020              # 502 needs root or CAP_NET_BIND_SERVICE; 0: any free port
     ack_coil = false         # true: writing 1 to coil h acknowledges hoist h's alarms
 
+The server answers functions 1 (read coils), 3 and 4 (read registers), 5 and 15 (write
+coils) and no other: any other function code (diagnostics 8, report server id 17, device
+identification 43, register writes, ...) decodes to a refusal, exception 1 ILLEGAL
+FUNCTION, which changes nothing; a request of those five that does not decode (a count
+out of range, too short) gets exception 3 ILLEGAL DATA VALUE. Neither is logged.
+
 Registers (function 3 holding or 4 input: the same map, read-only): map header at 0,
 hoist h's block at `HOIST_BASE + h * HOIST_STRIDE` (hoists in the station file's order).
 Values are 16-bit registers; a 32-bit value spans two, high word first (big-endian words,
@@ -24,20 +30,25 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import logging
+import struct
 import threading
 from typing import Any, Sequence
 
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusServerContext
+from pymodbus.exceptions import ModbusException
+from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 
 from ropemon.commission.tomlfields import Table
+from ropemon.station import logsummary
 from ropemon.station.pipeline import Acknowledge
 from ropemon.station.scadavalues import ALARM_KINDS, EQUALIZER_KINDS, HoistValues, NodeValues
 from ropemon.station.stationfile import StationFileError
 
 MAP_VERSION = 2
+FUNCTIONS = (1, 3, 4, 5, 15)   # the function codes answered (docs/integration.md); any other: ILLEGAL FUNCTION
 HOIST_BASE = 100            # hoist 0's block
 HOIST_STRIDE = 100          # registers per hoist block
 MAX_HOISTS = 64
@@ -212,14 +223,70 @@ class _Context(ModbusServerContext):
         return None
 
 
+class _Refusal(ModbusPDU):
+    """A request the server does not carry out: its answer is the exception `code`."""
+
+    def __init__(self, function_code: int, code: int) -> None:
+        super().__init__()
+        self.function_code, self.code = function_code, code
+
+    async def datastore_update(self, context: Any, device_id: int) -> ModbusPDU:
+        return ExceptionResponse(self.function_code, self.code)
+
+
+class _Decoder(DecodePDU):
+    """pymodbus's request decoder with only `FUNCTIONS`: any other function code decodes to a
+    `_Refusal` (ILLEGAL FUNCTION); a request of one of them that does not decode, to ILLEGAL
+    DATA VALUE (pymodbus would answer both as function 0 and log each)."""
+
+    def __init__(self) -> None:
+        super().__init__(True)
+        self.pdu_table = {fc: DecodePDU.pdu_table[fc] for fc in FUNCTIONS}
+
+    def decode(self, frame: bytes) -> ModbusPDU | None:
+        fc = frame[0]
+        if fc not in self.pdu_table:
+            return _Refusal(fc, ExcCodes.ILLEGAL_FUNCTION)
+        pdu = self.pdu_table[fc][0]()
+        try:
+            pdu.decode(frame[1:])
+        except (ModbusException, ValueError, IndexError, struct.error):
+            return _Refusal(fc, ExcCodes.ILLEGAL_VALUE)
+        return pdu
+
+
 class _Handler(ServerRequestHandler):
+    """One connection: its peer named for the ack's operator and the log (`logsummary.PEER`)."""
+
+    _peer: tuple[str, str] | None = None
+
+    def peer(self) -> tuple[str, str]:
+        if self._peer is None:
+            p = self.transport.get_extra_info("peername") if self.transport is not None else None
+            if not p:
+                return "?", ""
+            self._peer = f"{p[0]}:{p[1]}", str(p[0])
+        return self._peer
+
+    def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
+        token = logsummary.PEER.set(self.peer()[1])
+        try:
+            return super().callback_data(data, addr)
+        finally:
+            logsummary.PEER.reset(token)
+
     async def handle_request(self):
-        peer = self.transport.get_extra_info("peername") if self.transport is not None else None
-        _PEER.set(f"{peer[0]}:{peer[1]}" if peer else "?")
+        full, host = self.peer()
+        _PEER.set(full)
+        logsummary.PEER.set(host)
         await super().handle_request()
 
 
 class _Server(ModbusTcpServer):
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.decoder = _Decoder()      # every connection's framer decodes with it
+
     def callback_new_connection(self):
         return _Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
 

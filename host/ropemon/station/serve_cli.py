@@ -3,18 +3,20 @@
 Every hoist of the file gets the station `ropemon monitor` runs (receivers, alarms, its
 log); the faces the file configures ([web], [opcua], [modbus], [mqtt]) are started on it
 (`ropemon.station.faces`). Every alarm event is printed as one JSON line on stdout, as
-`ropemon monitor --headless` does, with the hoist's id. SIGTERM or SIGINT stops it with
-everything committed.
+`ropemon monitor --headless` does, with the hoist's id. On stderr: where each hoist's replay
+protection resumed from its log (as `ropemon monitor` says it), each face's address, and
+the log (`ropemon.station.logsummary`: repeated messages summarised). SIGTERM or SIGINT
+stops it with everything committed.
 """
 from __future__ import annotations
 
 import argparse
-import logging
 import signal
 import sys
 import threading
 from typing import IO
 
+from ropemon.station import logsummary
 from ropemon.station.alarms import AlarmEvent
 from ropemon.station.pipeline import Listener
 
@@ -63,12 +65,13 @@ def run(args: argparse.Namespace) -> int:
     except (StationFileError, StoreError, ValueError, OSError) as e:
         print(f"ropemon serve: {e}", file=sys.stderr)
         return 2
-    log = logging.getLogger("ropemon")     # the faces' messages and the web's logins, on stderr
-    if not log.handlers:
-        handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(logging.Formatter("ropemon serve: %(levelname)s %(name)s: %(message)s"))
-        log.addHandler(handler)
-        log.setLevel(logging.INFO)
+    # the faces' messages, the web's logins and pymodbus's and asyncua's warnings, on stderr,
+    # repeated ones summarised (a flood of bad traffic is a few lines a minute)
+    logsummary.install(sys.stderr, "ropemon serve")
+    for h in stations.hoists.values():
+        resumed = h.station.resumed_text()
+        if resumed is not None:
+            print(f"ropemon serve: hoist {h.id}: {resumed}", file=sys.stderr)
     faces = []
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
