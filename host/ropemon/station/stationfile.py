@@ -20,6 +20,7 @@
     port = 8080
     view_without_login = true
     users = "users.toml"            # operators and their roles (`ropemon user`)
+    session_idle_min = 30.0         # a login unused this many minutes ends (1-720)
     tls_cert = "..."                # optional, with tls_key
 
 Relative paths are taken from the station file's folder. Every refusal names the field
@@ -64,6 +65,7 @@ class WebFile:
     secret: Path | None = None      # the session cookies' signing key (made 0600 on first start)
     tls_cert: Path | None = None
     tls_key: Path | None = None
+    session_idle_min: float = 30.0  # a web session unused this long ends (docs/web.md)
 
 
 @dataclass(frozen=True)
@@ -159,7 +161,8 @@ def _web(t: Table, base: Path) -> WebFile:
 
     w = WebFile(t.string("bind", "127.0.0.1"), t.integer("port", 8080, lo=1, hi=65535),
                 t.boolean("view_without_login", True), opt_path("users"), opt_path("secret"),
-                opt_path("tls_cert"), opt_path("tls_key"))
+                opt_path("tls_cert"), opt_path("tls_key"),
+                t.number("session_idle_min", 30.0, ge=1.0, le=720.0))
     t.finish()
     if (w.tls_cert is None) != (w.tls_key is None):
         raise StationFileError("web.tls_cert, web.tls_key: give both or neither")

@@ -14,7 +14,12 @@
 An action becomes the station's command (`stations.submit(hoist, Acknowledge(user, "web"))`),
 carried out on the station's thread; the web never touches a listener or the alarm engine.
 Every refused input names its field and the reason (400); without a login 401 (a form is sent
-to the login page), without the CSRF token 403, without the role for it 403.
+to the login page), without the CSRF token 403, without the role for it 403; a login while the
+hashing pool is full 429 (auth.HashPool).
+
+A login is a session of the station's (auth.Sessions): the cookie holds its id. Pages and
+actions count as a session's activity; the page's own data requests (streams, .json) do not,
+so a screen left open ends its session after web.session_idle_min.
 """
 from __future__ import annotations
 
@@ -46,7 +51,7 @@ from ropemon.station.pipeline import (AcceptRewound, Acknowledge, RemoveFromServ
                                       Unshelve)
 from ropemon.station.store import StoreError
 from ropemon.station.web import logread
-from ropemon.station.web.auth import User, Users, csrf_ok, csrf_token
+from ropemon.station.web.auth import DEFAULT_IDLE_MIN, Sessions, User, Users, csrf_ok, csrf_token
 from ropemon.station.web.state import STALE_S, Subscriber, WebListener, dumps
 
 audit = logging.getLogger("ropemon.web.audit")   # logins and logouts (`ropemon serve` prints it)
@@ -70,7 +75,13 @@ class Context:
     listeners: dict[str, WebListener]
     readers: dict[str, logread.LogReader]
     users: Users
+    sessions: Sessions = None  # type: ignore[assignment]   # made on `users` with web.session_idle_min
     started_s: float = field(default_factory=time.time)
+
+    def __post_init__(self) -> None:
+        if self.sessions is None:
+            idle_min = getattr(self.web, "session_idle_min", DEFAULT_IDLE_MIN)
+            self.sessions = Sessions(self.users, idle_min * 60.0)
 
 
 class Refused(Exception):
@@ -88,8 +99,18 @@ def _ctx(request: Request) -> Context:
     return request.app.state.ctx
 
 
-def _user(request: Request) -> User | None:
-    return _ctx(request).users.get(request.session.get("user"))
+def _user(request: Request, touch: bool = True) -> User | None:
+    """The request's logged-in user, or None (the id of a session that has ended is dropped from
+    the cookie). `touch`: the request counts as the session's activity (pages and actions)."""
+    cached = request.scope.get("ropemon.user", False)
+    if cached is not False:
+        return cached
+    sid = request.session.get("sid")
+    user = _ctx(request).sessions.user(sid, touch=touch) if sid else None
+    if sid and user is None:
+        request.session.pop("sid", None)
+    request.scope["ropemon.user"] = user
+    return user
 
 
 def _wants_json(request: Request) -> bool:
@@ -105,8 +126,8 @@ def _hoist(request: Request) -> WebListener:
     return lst
 
 
-def _may_view(request: Request) -> bool:
-    return bool(_ctx(request).web.view_without_login or _user(request) is not None)
+def _may_view(request: Request, touch: bool = True) -> bool:
+    return bool(_ctx(request).web.view_without_login or _user(request, touch) is not None)
 
 
 def _login_redirect(request: Request) -> RedirectResponse:
@@ -229,7 +250,7 @@ async def live(request: Request) -> Response:
 
 async def snapshot_json(request: Request) -> Response:
     lst = _hoist(request)
-    if not _may_view(request):
+    if not _may_view(request, touch=False):
         return JSONResponse({"error": "log in to view"}, 401)
     return Response(dumps(lst.snapshot()), media_type="application/json")
 
@@ -238,17 +259,31 @@ def _sse(event: str, data: str) -> str:
     return f"event: {event}\ndata: {data}\n\n"
 
 
+STREAM_RECHECK_S = 5.0     # a stream that needs a login checks its session this often (it ends with it)
+_QUIET = object()          # nothing came within KEEPALIVE_S
+
+
 async def _stream(request: Request, subscribe: Any, unsubscribe: Any, first: str) -> StreamingResponse:
     sub = Subscriber(asyncio.get_running_loop())
     snap = subscribe(sub)
+    c = _ctx(request)
+    sid = None if c.web.view_without_login else request.session.get("sid")
 
     async def gen() -> Any:
+        checked = time.monotonic()
         try:
             yield "retry: 2000\n" + _sse(first, snap)
             while True:
+                item: Any
                 try:
                     item = await asyncio.wait_for(sub.queue.get(), KEEPALIVE_S)
                 except asyncio.TimeoutError:
+                    item = _QUIET
+                if sid is not None and time.monotonic() - checked >= STREAM_RECHECK_S:
+                    if c.sessions.user(sid, touch=False) is None:
+                        break               # logged out, or the session ended otherwise: nothing more
+                    checked = time.monotonic()
+                if item is _QUIET:
                     yield ": keepalive\n\n"
                     continue
                 if item is None:
@@ -265,13 +300,13 @@ async def _stream(request: Request, subscribe: Any, unsubscribe: Any, first: str
 
 async def hoist_stream(request: Request) -> Response:
     lst = _hoist(request)
-    if not _may_view(request):
+    if not _may_view(request, touch=False):
         return PlainTextResponse("log in to view", 401)
     return await _stream(request, lst.subscribe, lst.unsubscribe, "snapshot")
 
 
 async def overview_stream(request: Request) -> Response:
-    if not _may_view(request):
+    if not _may_view(request, touch=False):
         return PlainTextResponse("log in to view", 401)
     lsts = list(_ctx(request).listeners.values())
 
@@ -320,7 +355,7 @@ def _query_int(request: Request, name: str, lo: int, hi: int) -> int | None:
 
 async def history_json(request: Request) -> Response:
     lst = _hoist(request)
-    if not _may_view(request):
+    if not _may_view(request, touch=False):
         return JSONResponse({"error": "log in to view"}, 401)
     now = lst.now or time.time()           # the station's clock
     node = _query_int(request, "node", 0, 255)
@@ -431,7 +466,7 @@ async def trip_page(request: Request) -> Response:
 
 
 async def trip_json(request: Request) -> Response:
-    if not _may_view(request):
+    if not _may_view(request, touch=False):
         return JSONResponse({"error": "log in to view"}, 401)
     _lst, d = await _trip(request)
     if d["frames"] is None:
@@ -440,7 +475,7 @@ async def trip_json(request: Request) -> Response:
 
 
 async def trip_csv(request: Request) -> Response:
-    if not _may_view(request):
+    if not _may_view(request):                    # a download someone clicked: use
         return PlainTextResponse("log in to view", 401)
     lst, d = await _trip(request)
     if d["frames"] is None:
@@ -451,7 +486,7 @@ async def trip_csv(request: Request) -> Response:
 
 
 async def trip_png(request: Request) -> Response:
-    if not _may_view(request):
+    if not _may_view(request, touch=False):
         return PlainTextResponse("log in to view", 401)
     lst, d = await _trip(request)
     if d["report"] is None:
@@ -485,21 +520,26 @@ async def login(request: Request) -> Response:
     pw = form.get("password")
     nxt = _safe_next(str(form.get("next") or "/"))
     c = _ctx(request)
-    user: User | None
-    why: str | None
+    user: User | None = None
+    why: str | None = None
     if not isinstance(name, str) or not isinstance(pw, str) or not name or not pw \
             or len(name) > 64 or len(pw) > 1024:
         user, why = None, "give a name and a password"
-    else:
-        user, why = await asyncio.get_running_loop().run_in_executor(None, c.users.login, name, pw)
     where = request.client.host if request.client else "?"
+    busy = False
+    if why is None:      # on the hashing pool (at most auth.HASH_WORKERS at once), or refused at once
+        res = await asyncio.wrap_future(c.users.start_login(str(name), str(pw), where))
+        user, why, busy = res.user, res.why, res.busy
     if user is None:
         audit.warning("login refused: %r from %s: %s", name[:64] if isinstance(name, str) else None, where, why)
-        return _page(request, "login.html", {"next": nxt, "error": why, "title": "log in", "page": "login",
-                                             "no_users": not c.users.all()}, status=401)
+        page = _page(request, "login.html", {"next": nxt, "error": why, "title": "log in", "page": "login",
+                                             "no_users": not c.users.all()}, status=429 if busy else 401)
+        if busy:
+            page.headers["Retry-After"] = "1"
+        return page
     audit.info("login: %s (%s) from %s", user.name, user.role, where)
     request.session.clear()                 # a new session for the user (no fixation)
-    request.session["user"] = user.name
+    request.session["sid"] = c.sessions.new(user)
     csrf_token(request.session)
     return RedirectResponse(nxt, status_code=303)
 
@@ -508,8 +548,11 @@ async def logout(request: Request) -> Response:
     form = await request.form()
     if not csrf_ok(request.session, _text(form, "csrf")):
         return PlainTextResponse("csrf: missing or wrong token", 403)
-    if request.session.get("user"):
-        audit.info("logout: %s from %s", request.session["user"], request.client.host if request.client else "?")
+    c = _ctx(request)
+    name = c.sessions.name(request.session.get("sid"))
+    if name:             # every session of the user ends, not only this one
+        c.sessions.end_user(name)
+        audit.info("logout: %s from %s", name, request.client.host if request.client else "?")
     request.session.clear()
     return RedirectResponse("/", status_code=303)
 

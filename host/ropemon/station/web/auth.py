@@ -14,10 +14,24 @@ so nobody can act from the web. Roles, each with the rights of the ones before i
     operator    acknowledges, shelves and unshelves alarms, accepts a rewound node
     engineer    takes an alarm out of service and returns it
 
-The session cookie (Starlette's SessionMiddleware, signed with itsdangerous) carries the user's
-name and a CSRF token; the user's role is looked up in the users file at each request, so a
-user removed from the file loses its rights at once (the file is read again when it changes).
+Sessions (`Sessions`) are the station's, in memory: the session cookie (Starlette's
+SessionMiddleware, signed with itsdangerous) carries only a random session id and the CSRF
+token. A session holds the user's name and a stamp of the user's entry as it was at login
+(role and password hash); at every request the entry is looked up in the users file (read
+again when it changes, also when `ropemon user passwd` changes it from another process) and a
+session whose user is gone, or whose role or password changed, is ended. Logging out ends
+every session of that user; a session unused for web.session_idle_min ends; a restart of the
+station ends them all. A cookie copied before any of these is worth nothing after.
 Every action (POST) carries the token (form field `csrf` or header X-CSRF-Token), or is refused.
+
+Login costs are bounded (`HashPool`): every password check of the process (the web's logins and
+OPC UA's) runs on one pool of HASH_WORKERS threads at lowered CPU priority, with at most
+HASH_QUEUE more waiting; a login beyond that is refused at once as busy (the web answers 429).
+An unknown name is checked against a dummy hash on the same pool, so it costs what a known one
+costs. Failed logins are counted per (address, name) and per address: LOGIN_FAILS of one name
+from one address within LOGIN_WINDOW_S hold that name for that address only, ADDRESS_FAILS
+from one address hold that address; nobody can lock an operator out from another address.
+A caller that gives no address (OPC UA) is counted per name only.
 
 Other faces (OPC UA) check their logins against the same file through `Users` (`login`, `get`,
 `User.may`): this module imports no web library but argon2-cffi.
@@ -31,6 +45,8 @@ import secrets
 import stat
 import threading
 import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, MutableMapping
@@ -50,7 +66,16 @@ MAX_USERS_TOML = 256 * files.KB
 MAX_SECRET = 4 * files.KB
 MIN_PASSWORD = 8
 MAX_PASSWORD = 1024
-LOGIN_FAILS, LOGIN_WINDOW_S = 5, 300.0   # this many failed logins of one name within the window: wait
+LOGIN_FAILS, LOGIN_WINDOW_S = 5, 300.0   # this many failed logins of one name from one address: that pair waits
+ADDRESS_FAILS = 20                       # this many failed logins from one address within the window: it waits
+MAX_TRACKED = 10_000                     # addresses and (address, name) pairs with failures kept at most
+HASH_WORKERS = 2                         # password checks at once in the process (each 64 MiB with the defaults)
+HASH_QUEUE = 2                           # logins waiting for a worker; beyond: busy (the web answers 429)
+HASH_WAIT_S = 2.0                        # a login that waited this long for a worker is refused busy instead
+HASH_NICE = 10                           # the workers' CPU priority, lowered by this (the station's work first)
+DEFAULT_IDLE_MIN = 30.0                  # web.session_idle_min's default: a session unused this long ends
+MAX_SESSIONS = 1000                      # sessions kept at most (the least recently used ends first)
+BUSY = "the station is busy checking other logins: try again in a moment"
 
 
 class UsersError(ValueError):
@@ -161,6 +186,18 @@ def add_user(path: Path | str, name: str, role: str, password: str, ph: Password
     return user
 
 
+def set_password(path: Path | str, name: str, password: str, ph: PasswordHasher | None = None) -> User:
+    """A new password for a user already in the file (its role kept); a running station ends
+    the user's sessions when it next reads the file."""
+    check_password(password)
+    users = load_users(path)
+    if name not in users:
+        raise UsersError(f"{path}: no user {name!r} (add one with ropemon user add)")
+    user = users[name] = User(name, users[name].role, (ph or hasher()).hash(password))
+    save_users(path, users)
+    return user
+
+
 def remove_user(path: Path | str, name: str) -> bool:
     users = load_users(path)
     if users.pop(name, None) is None:
@@ -169,31 +206,154 @@ def remove_user(path: Path | str, name: str) -> bool:
     return True
 
 
+@dataclass(frozen=True)
+class LoginResult:
+    """A login's outcome: the user, or why not; `busy`: refused because the hashing pool is full
+    (not a failed login: try again; the web answers 429)."""
+
+    user: User | None
+    why: str | None = None
+    busy: bool = False
+
+
+class HashPool:
+    """At most `workers` password checks at once, at most `queue` more waiting, on threads whose
+    CPU priority is lowered by `nice` (argon2's lane threads inherit it); `submit` returns None
+    at once when the pool is full. `running` and `peak` count the checks running."""
+
+    def __init__(self, workers: int = HASH_WORKERS, queue: int = HASH_QUEUE, wait_s: float = HASH_WAIT_S,
+                 nice: int = HASH_NICE, clock: Any = time.monotonic) -> None:
+        self.workers, self.queue, self.wait_s, self.nice, self.clock = workers, queue, wait_s, nice, clock
+        self._slots = threading.BoundedSemaphore(workers + queue)
+        self._lock = threading.Lock()
+        self._ex = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ropemon-hash",
+                                      initializer=self._lower_priority)
+        self.running = self.peak = self.refused = self.late = 0
+
+    def _lower_priority(self) -> None:
+        if self.nice <= 0 or not hasattr(os, "setpriority"):
+            return
+        try:   # Linux: the priority is the thread's (PRIO_PROCESS of its own id)
+            tid = threading.get_native_id()
+            os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + self.nice))
+        except OSError:  # pragma: no cover
+            pass
+
+    def submit(self, fn: Any, *args: Any) -> Future | None:
+        """fn(*args) on a worker (a Future), or None when `workers + queue` are taken; a call that
+        waited more than wait_s for a worker returns LoginResult(None, BUSY, busy=True) instead."""
+        if not self._slots.acquire(blocking=False):
+            with self._lock:
+                self.refused += 1
+            return None
+        queued = self.clock()
+
+        def job() -> Any:
+            try:
+                if self.clock() - queued > self.wait_s:
+                    with self._lock:
+                        self.late += 1
+                    return LoginResult(None, BUSY, busy=True)
+                with self._lock:
+                    self.running += 1
+                    self.peak = max(self.peak, self.running)
+                try:
+                    return fn(*args)
+                finally:
+                    with self._lock:
+                        self.running -= 1
+            finally:
+                self._slots.release()
+
+        try:
+            return self._ex.submit(job)
+        except RuntimeError:   # pragma: no cover  (interpreter shutting down)
+            self._slots.release()
+            return None
+
+
+_POOL: HashPool | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def shared_pool() -> HashPool:
+    """The process's one hashing pool (the web face's and OPC UA's `Users` share it)."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = HashPool()
+        return _POOL
+
+
+class _Fails:
+    """Failure times per key within a window, for at most `cap` keys (the stalest dropped first)."""
+
+    def __init__(self, limit: int, window_s: float, cap: int = MAX_TRACKED) -> None:
+        self.limit, self.window_s, self.cap = limit, window_s, cap
+        self._t: dict[Any, deque[float]] = {}
+
+    def held_for(self, key: Any, now: float) -> float:
+        """Seconds this key is still held (0: not held)."""
+        q = self._t.get(key)
+        if q is None:
+            return 0.0
+        while q and now - q[0] >= self.window_s:
+            q.popleft()
+        if not q:
+            del self._t[key]
+            return 0.0
+        return self.window_s - (now - q[0]) if len(q) >= self.limit else 0.0
+
+    def add(self, key: Any, now: float) -> None:
+        q = self._t.get(key)
+        if q is None:
+            if len(self._t) >= self.cap:
+                self._prune(now)
+            q = self._t[key] = deque(maxlen=self.limit)
+        q.append(now)
+
+    def clear(self, key: Any) -> None:
+        self._t.pop(key, None)
+
+    def _prune(self, now: float) -> None:
+        for k in [k for k, q in self._t.items() if not q or now - q[-1] >= self.window_s]:
+            del self._t[k]
+        if len(self._t) >= self.cap:     # still full: drop the half failed least recently
+            for k in sorted(self._t, key=lambda k: self._t[k][-1])[: len(self._t) // 2]:
+                del self._t[k]
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+
 class Users:
     """The users file as the web face reads it: read again when it changes; logins checked
-    with argon2 (an unknown name costs as much as a wrong password), throttled per name."""
+    with argon2 on the process's hashing pool (an unknown name costs as much as a wrong
+    password), throttled per (address, name) and per address."""
 
     def __init__(self, path: Path | str | None, ph: PasswordHasher | None = None,
-                 clock: Any = time.monotonic) -> None:
+                 clock: Any = time.monotonic, pool: HashPool | None = None) -> None:
         self.path = Path(path) if path is not None else None
         self.ph = ph or hasher()
         self.clock = clock
+        self.pool = pool or shared_pool()
         self._lock = threading.Lock()
         self._users: dict[str, User] = {}
-        self._stamp: tuple[int, int] | None = None
-        self._fails: dict[str, list[float]] = {}
+        self._stamp: tuple[int, int, int] | None = None
+        self._fails = _Fails(LOGIN_FAILS, LOGIN_WINDOW_S)          # (address, name)
+        self._address_fails = _Fails(ADDRESS_FAILS, LOGIN_WINDOW_S)  # address
         self._dummy = self.ph.hash(secrets.token_hex(16))
         self.error: str | None = None
         if self.path is not None:
             self._users = load_users(self.path)      # refused at start: serve does not start
             self._stamp = self._file_stamp()
 
-    def _file_stamp(self) -> tuple[int, int] | None:
+    def _file_stamp(self) -> tuple[int, int, int] | None:
         try:
             st = os.stat(self.path)  # type: ignore[arg-type]
         except OSError:
             return None
-        return (st.st_mtime_ns, st.st_size)
+        return (st.st_mtime_ns, st.st_size, st.st_ino)   # the inode: a file replaced in the same tick
 
     def _refresh(self) -> None:
         if self.path is None:
@@ -218,29 +378,131 @@ class Users:
             return None
         return self.all().get(name)
 
-    def login(self, name: str, password: str) -> tuple[User | None, str | None]:
-        """(user, None), or (None, why) for a refused login."""
+    def login(self, name: str, password: str, client: str | None = None) -> tuple[User | None, str | None]:
+        """(user, None), or (None, why) for a refused login (also a busy pool); blocks until checked."""
+        r = self.check(name, password, client)
+        return r.user, r.why
+
+    def check(self, name: str, password: str, client: str | None = None) -> LoginResult:
+        """The login's outcome, waiting for the hashing pool (`start_login` without waiting)."""
+        return self.start_login(name, password, client).result()
+
+    def start_login(self, name: str, password: str, client: str | None = None) -> Future:
+        """A Future of the login's LoginResult: done at once when the name is held for this
+        client address (or the address is), or the pool is full; else when argon2 has checked."""
         now = self.clock()
+        addr = client or ""                 # "": a caller without addresses (OPC UA): per name only
         with self._lock:
             self._refresh()
-            fails = [t for t in self._fails.get(name, []) if now - t < LOGIN_WINDOW_S]
-            self._fails[name] = fails
+            held_addr = self._address_fails.held_for(addr, now) if addr else 0.0
+            held_name = self._fails.held_for((addr, name), now)
             user = self._users.get(name)
-        if len(fails) >= LOGIN_FAILS:
-            wait = LOGIN_WINDOW_S - (now - fails[0])
-            return None, f"too many failed logins for this name: try again in {wait:.0f} s"
+        if held_addr:
+            return _done(LoginResult(None, f"too many failed logins from this address: try again in {held_addr:.0f} s"))
+        if held_name:
+            return _done(LoginResult(None, f"too many failed logins for this name: try again in {held_name:.0f} s"))
+        fut = self.pool.submit(self._verify, user, name, password, addr)
+        return fut if fut is not None else _done(LoginResult(None, BUSY, busy=True))
+
+    def _verify(self, user: User | None, name: str, password: str, addr: str) -> LoginResult:
         ok = False
         try:
             ok = self.ph.verify(user.password if user else self._dummy, password) and user is not None
         except (VerificationError, InvalidHashError):
             ok = False
-        if not ok:
-            with self._lock:
-                self._fails.setdefault(name, []).append(now)
-            return None, "wrong name or password"
+        now = self.clock()
         with self._lock:
-            self._fails.pop(name, None)
-        return user, None
+            if not ok:
+                self._fails.add((addr, name), now)
+                if addr:
+                    self._address_fails.add(addr, now)
+                return LoginResult(None, "wrong name or password")
+            self._fails.clear((addr, name))
+        return LoginResult(user)
+
+
+def _done(result: LoginResult) -> Future:
+    f: Future = Future()
+    f.set_result(result)
+    return f
+
+
+def user_stamp(user: User) -> str:
+    """What a session remembers of its user's entry: a change of role or password ends it."""
+    return f"{user.role}\0{user.password}"
+
+
+@dataclass
+class Session:
+    name: str
+    stamp: str
+    seen: float       # the clock at its last use
+
+
+class Sessions:
+    """The station's login sessions, in memory, keyed by a random id (the cookie carries only the
+    id): a session ends when its user logs out (every session of that user), when the user's
+    entry is removed or its role or password changes, or after `idle_s` unused."""
+
+    def __init__(self, users: Users, idle_s: float, clock: Any = time.monotonic, cap: int = MAX_SESSIONS) -> None:
+        self.users, self.idle_s, self.clock, self.cap = users, idle_s, clock, cap
+        self._lock = threading.Lock()
+        self._s: dict[str, Session] = {}
+
+    def new(self, user: User) -> str:
+        sid = secrets.token_urlsafe(32)
+        now = self.clock()
+        with self._lock:
+            self._prune(now)
+            while len(self._s) >= self.cap:          # the least recently used goes
+                del self._s[min(self._s, key=lambda k: self._s[k].seen)]
+            self._s[sid] = Session(user.name, user_stamp(user), now)
+        return sid
+
+    def user(self, sid: Any, touch: bool = True) -> User | None:
+        """The session's user, or None (and the session ended) if it has ended; `touch`: this use
+        counts as activity (a page or an action; not the page's own data requests)."""
+        if not isinstance(sid, str) or not sid:
+            return None
+        now = self.clock()
+        with self._lock:
+            s = self._s.get(sid)
+            if s is None:
+                return None
+            if now - s.seen > self.idle_s:
+                del self._s[sid]
+                return None
+        u = self.users.get(s.name)
+        with self._lock:
+            if u is None or not hmac.compare_digest(user_stamp(u).encode(), s.stamp.encode()):
+                self._end_user(s.name)
+                return None
+            if sid in self._s and touch:
+                s.seen = max(s.seen, now)
+            return u if sid in self._s else None
+
+    def name(self, sid: Any) -> str | None:
+        with self._lock:
+            s = self._s.get(sid) if isinstance(sid, str) else None
+            return s.name if s else None
+
+    def end_user(self, name: str) -> int:
+        """End every session of `name`; how many there were."""
+        with self._lock:
+            return self._end_user(name)
+
+    def _end_user(self, name: str) -> int:
+        gone = [k for k, s in self._s.items() if s.name == name]
+        for k in gone:
+            del self._s[k]
+        return len(gone)
+
+    def _prune(self, now: float) -> None:
+        for k in [k for k, s in self._s.items() if now - s.seen > self.idle_s]:
+            del self._s[k]
+
+    def __len__(self) -> int:
+        return len(self._s)
 
 
 # -- the session's signing key and the CSRF token ------------------------------------------

@@ -2,11 +2,13 @@
 
     ropemon user add USERS.toml NAME --role operator     asks for the password twice
     ropemon user add USERS.toml NAME --role engineer --password-stdin   (one line on stdin)
+    ropemon user passwd USERS.toml NAME                  a new password, the role kept
     ropemon user remove USERS.toml NAME
     ropemon user list USERS.toml
 
 The file is written with mode 0600 and holds argon2id hashes only. No user is shipped: a
-station's web face lets nobody act until its engineer adds one.
+station's web face lets nobody act until its engineer adds one. A running station reads the
+file again when it changes: a new password, a new role or a removal ends that user's sessions.
 """
 from __future__ import annotations
 
@@ -26,6 +28,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "rewound node; engineer: also takes alarms out of service")
     a.add_argument("--password-stdin", action="store_true",
                    help="read the password from the first line of stdin instead of asking twice")
+    pw = sub.add_parser("passwd", help="set a user's password (the role kept); ends the user's web sessions")
+    pw.add_argument("users")
+    pw.add_argument("name")
+    pw.add_argument("--password-stdin", action="store_true",
+                    help="read the password from the first line of stdin instead of asking twice")
     r = sub.add_parser("remove", help="remove a user")
     r.add_argument("users")
     r.add_argument("name")
@@ -48,7 +55,7 @@ def _password(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        from ropemon.station.web.auth import UsersError, add_user, load_users, remove_user
+        from ropemon.station.web.auth import UsersError, add_user, load_users, remove_user, set_password
     except ImportError as e:
         print(f"ropemon user: needs the web face's libraries: pip install 'ropemon[web]' ({e})", file=sys.stderr)
         return 2
@@ -56,6 +63,12 @@ def run(args: argparse.Namespace) -> int:
         if args.user_command == "add":
             user = add_user(args.users, args.name, args.role, _password(args))
             print(f"ropemon user: {user.name} ({user.role}) in {args.users}", file=sys.stderr)
+        elif args.user_command == "passwd":
+            if args.name not in load_users(args.users):
+                print(f"ropemon user: no user {args.name!r} in {args.users}", file=sys.stderr)
+                return 1
+            user = set_password(args.users, args.name, _password(args))
+            print(f"ropemon user: new password for {user.name} ({user.role}) in {args.users}", file=sys.stderr)
         elif args.user_command == "remove":
             if not remove_user(args.users, args.name):
                 print(f"ropemon user: no user {args.name!r} in {args.users}", file=sys.stderr)
