@@ -10,6 +10,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+import time
 
 import pytest
 from argon2 import PasswordHasher
@@ -205,7 +206,8 @@ def test_an_unknown_name_is_checked_against_a_hash_of_the_same_cost(tmp_path):
 
 def test_a_stream_that_needs_a_login_ends_with_its_session(tmp_path, monkeypatch):
     from ropemon.station.web import app
-    monkeypatch.setattr(app, "STREAM_RECHECK_S", 0.0)
+    monkeypatch.setattr(app, "STREAM_RECHECK_S", 0.0, raising=False)
+    monkeypatch.setattr(app, "KEEPALIVE_S", 0.2)            # a line at least this often: no hang
     s = Site(tmp_path, STATION + "view_without_login = false\n")
     try:
         token = s.login("vic")
@@ -215,8 +217,13 @@ def test_a_stream_that_needs_a_login_ends_with_its_session(tmp_path, monkeypatch
             assert next(lines) == "retry: 2000"
             assert other.post("/logout", data={"csrf": token}, follow_redirects=False).status_code == 303
             s.frame()                                    # the stream wakes, finds its session ended
-            rest = list(lines)                           # and ends (a hang here is the failure)
-        assert not any(line.startswith("event: frame") for line in rest), rest
+            rest, ended, t_end = [], True, time.monotonic() + 5.0
+            for line in lines:                           # and ends
+                rest.append(line)
+                if time.monotonic() > t_end:
+                    ended = False
+                    break
+        assert ended and not any(line.startswith("event: frame") for line in rest), rest[-10:]
         assert s.client.get("/hoist/north/stream").status_code == 401
         other.close()
     finally:
