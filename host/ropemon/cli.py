@@ -17,7 +17,7 @@ COMMANDS = {
     "decode": ("ropemon.station.decode_cli", "decode frames from a capture file or stdin to JSON lines"),
     "monitor": ("ropemon.station.monitor", "live dashboard from one or more receiver serial ports"),
     "serve": ("ropemon.station.serve_cli", "run the hoists of a station file with its web and SCADA faces"),
-    "user": ("ropemon.station.web.user_cli", "add, remove or list the web face's users (argon2-hashed passwords)"),
+    "user": ("ropemon.station.web.user_cli", "add, remove, list or change the password of the web face's users (argon2-hashed passwords)"),
     "fleet": ("ropemon.station.mqtt.fleet", "a fleet historian: the stations' Sparkplug B into SQL"),
     "report": ("ropemon.station.report", "per-trip summary and plots from a ropemon database"),
     "export": ("ropemon.station.store_cli", "export a ropemon database to CSV"),
