@@ -76,6 +76,7 @@ class Summarised(logging.Handler):
         self.clock, self.timers = clock, timers
         self._kinds: dict[tuple[str, str, str], _Kind] = {}
         self._timer: threading.Timer | None = None
+        self._next_due = float("inf")               # the earliest end of a kind's interval
         self.levels_before: dict[str, int] = {}     # `install`'s loggers' levels before it
 
     def emit(self, record: logging.LogRecord) -> None:
@@ -94,7 +95,8 @@ class Summarised(logging.Handler):
         template = _DIGITS.sub("#", str(record.msg).split("\n", 1)[0])[:120]
         kind = (record.name, template, peer)
         now = self.clock()
-        self._due(now)
+        if now >= self._next_due:
+            self._due(now)
         k = self._kinds.get(kind)
         if k is None and len(self._kinds) >= self.max_kinds:
             kind = (record.name, "(other messages)", "")      # too many kinds at once: the rest as one
@@ -105,6 +107,7 @@ class Summarised(logging.Handler):
             self._arm(k.start + self.interval_s - now)
             return
         self._kinds[kind] = _Kind(now)
+        self._next_due = min(self._next_due, now + self.interval_s)
         self._write(record, text, peer)
 
     def _write(self, record: logging.LogRecord, text: str, peer: str) -> None:
@@ -133,6 +136,7 @@ class Summarised(logging.Handler):
                 k.start, k.count, k.last = now, 0, None
             else:
                 del self._kinds[kind]
+        self._next_due = min((k.start + self.interval_s for k in self._kinds.values()), default=float("inf"))
 
     def _arm(self, after_s: float) -> None:
         if not self.timers or self._timer is not None:
