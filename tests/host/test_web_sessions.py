@@ -224,6 +224,7 @@ def test_a_stream_that_needs_a_login_ends_with_its_session(tmp_path, monkeypatch
                     ended = False
                     break
         assert ended and not any(line.startswith("event: frame") for line in rest), rest[-10:]
+        assert "event: session_ended" in rest, rest[-10:]      # the page goes to the login form
         assert s.client.get("/hoist/north/stream").status_code == 401
         other.close()
     finally:

@@ -281,7 +281,8 @@ async def _stream(request: Request, subscribe: Any, unsubscribe: Any, first: str
                     item = _QUIET
                 if sid is not None and time.monotonic() - checked >= STREAM_RECHECK_S:
                     if c.sessions.user(sid, touch=False) is None:
-                        break               # logged out, or the session ended otherwise: nothing more
+                        yield _sse("session_ended", "{}")   # logged out, or ended otherwise: the page
+                        break                                # goes to the login form
                     checked = time.monotonic()
                 if item is _QUIET:
                     yield ": keepalive\n\n"

@@ -77,6 +77,11 @@
           handlers[name](JSON.parse(e.data));
         });
       }
+      es.addEventListener("session_ended", () => {      // logged out elsewhere, or idle too long
+        es.close();
+        markLost("SESSION ENDED");
+        window.location.assign("/login?next=" + encodeURIComponent(window.location.pathname));
+      });
       es.onerror = () => {
         markLost();
         if (es.readyState === EventSource.CLOSED) setTimeout(open, 3000);   // refused (e.g. logged out)
