@@ -183,6 +183,36 @@ def test_fault_truth_a_seized_seal_shows_in_the_first_load_change_its_piston_sit
     assert not P.fault_truth(v, tr, {}, 10.0, 0.2, 0.01)["crossed"]
 
 
+def test_fault_truth_against_the_healthy_wind_a_piston_held_alike_is_not_crossed():
+    """With the same hoist's healthy wind: a seized seal's piston that holds where the healthy
+    seal held its piston too shows nothing a sensor can tell; where the healthy piston moved
+    (0.2 mm more, taking part) it crossed; a cut-off cylinder's tap pressure parting from the
+    others' by 100 kPa more than on the healthy wind crosses whatever its piston does."""
+    t = truth_of()["t_s"]
+    moving = np.clip((t - 95) / 14, 0, 1)[:, None] * 1e-3
+    fault, healthy = truth_of(), truth_of()
+    fault["piston_x_m"] = np.repeat(moving, 4, axis=1)
+    fault["piston_x_m"][:, 2] *= 0.1                               # rope 3's 0.1 mm, the others' 1 mm
+    healthy["piston_x_m"] = fault["piston_x_m"].copy()             # the healthy seal held it alike
+    f = P.FaultDraw(1, "seized_seal", 3, {"seize_factor": 20.0, "seize_at_s": 30.0},
+                    ({"kind": "seized_seal", "rope": 3, "factor": 20.0, "at_s": 30.0},))
+    ft = P.fault_truth(f, fault, {}, 10.0, 0.2, 0.01, healthy=healthy)
+    assert not ft["crossed"] and "not observable" in ft["why"], ft
+    healthy["piston_x_m"][:, 2] = healthy["piston_x_m"][:, 0]      # on the healthy wind it moved 1 mm
+    ft = P.fault_truth(f, fault, {}, 10.0, 0.2, 0.01, healthy=healthy)
+    assert ft["crossed"] and ft["event_s"] == pytest.approx(95.0) and "healthy wind" in ft["why"]
+    healthy["piston_x_m"][:, 2] = 0.8 * healthy["piston_x_m"][:, 0] # moved, but 0.1 mm more only: not told
+    fault["piston_x_m"][:, 2] = 0.7 * fault["piston_x_m"][:, 0]
+    assert not P.fault_truth(f, fault, {}, 10.0, 0.2, 0.01, healthy=healthy)["crossed"]
+    # a manifold-side valve: the tap reads the cut-off cylinder, 300 kPa off the others' change
+    healthy["piston_x_m"][:, 2] = fault["piston_x_m"][:, 2]
+    p = 4e6 + np.clip((t - 95) / 14, 0, 1)[:, None] * np.array([-1e6, -1e6, -0.7e6, -1e6])
+    fault["p_tap_Pa"], healthy["p_tap_Pa"] = p, np.repeat(p[:, :1], 4, axis=1)
+    v = P.FaultDraw(1, "valve_closed", 3, {"valve_at_s": 30.0, "side": "manifold"})
+    ft = P.fault_truth(v, fault, {}, 10.0, 0.2, 0.01, healthy=healthy)
+    assert ft["crossed"] and "tap pressure +29" in ft["why"], ft
+
+
 def test_fault_truth_leak_rate_from_the_leaked_volume():
     tr = truth_of()
     t = tr["t_s"]

@@ -499,7 +499,9 @@ FAULT_ALARM_KINDS = {"stroke_offset": ("stroke_limit",), "stroke_creep": ("strok
 STROKE_DEADLINE_S = 1.0          # stroke limit within 1 s of the piston entering its margin
 LOAD_CHANGE_GRACE_S = 1.0        # not equalizing: by the end of the load change that shows it, and this
 NOT_EQUALIZING_MIN_TRAVEL_M = 0.2e-3   # a load change shows a rope not equalizing when the others'
-NOT_EQUALIZING_SHARE = 0.75            # pistons travel this much (median) and it less than this share of it
+NOT_EQUALIZING_SHARE = 0.75            # pistons travel this much (median) and it less than this share of it,
+OBSERVABLE_TRAVEL_M = 0.2e-3           # while on the healthy wind it took part and travelled this much more
+DEPARTURE_OBSERVABLE_KPA = 100.0       # or its tap's pressure change parts from the others' by this much more
 ADVISORY_LEAD_WINDS = 5          # the adjustment advisory at least this many winds before the margin
 LOAD_CHANGE_MERGE_S = 0.5
 
@@ -528,10 +530,39 @@ def wind_phases(meta: dict) -> list[tuple[float, float]]:
     return [(float(p["t0_s"]), float(p["t1_s"])) for p in meta.get("phases", []) if p.get("kind") == "wind"]
 
 
-def fault_truth(f: FaultDraw, truth, meta: dict, hz: float, stroke_m: float, margin_m: float) -> dict:
+def _load_change_figures(truth, t: np.ndarray, c0: float, c1: float, r: int):
+    """Over one load change of a run: each piston's travel (max - min, m), the others' median, and
+    rope r's tap pressure change less the others' median change (kPa; None without tap pressures)."""
+    k = (t >= c0) & (t <= c1)
+    if not k.any():
+        return None
+    x = np.asarray(truth["piston_x_m"], float)[k]
+    travel = x.max(axis=0) - x.min(axis=0)
+    others = float(np.median(np.delete(travel, r)))
+    dep = None
+    if "p_tap_Pa" in truth:
+        p = np.asarray(truth["p_tap_Pa"], float)[k]
+        dp = (p[-1] - p[0]) / 1e3
+        dep = float(dp[r] - np.median(np.delete(dp, r)))
+    return travel, others, dep
+
+
+def fault_truth(f: FaultDraw, truth, meta: dict, hz: float, stroke_m: float, margin_m: float,
+                healthy=None) -> dict:
     """What the faulted run's truth says of its fault: whether it crossed its alarm's threshold
     within the run (`crossed`, `why`), its onset, the physical event the alarm answers (`event_s`)
-    and the alarm's deadline. Rope from 0 (None: the node's)."""
+    and the alarm's deadline. Rope from 0 (None: the node's).
+
+    A closed valve or a seized seal crosses in a load change after its onset where its piston
+    travels less than NOT_EQUALIZING_SHARE of the others' (they NOT_EQUALIZING_MIN_TRAVEL_M or more)
+    and, against `healthy` (the same hoist's healthy wind's truth: the same trip, so the same load
+    changes), that differs observably from how the healthy seal behaved there: on the healthy wind
+    the piston took part (NOT_EQUALIZING_SHARE of its others' travel) and travelled
+    OBSERVABLE_TRAVEL_M more; or its tap's pressure change parts from the others' by
+    DEPARTURE_OBSERVABLE_KPA more than on the healthy wind (a cylinder cut off between tap and
+    manifold; its piston may then follow). A healthy seal at rest holds its piston through a load
+    change as a seized one does: where the healthy wind's piston held too, the sensors cannot tell.
+    Without `healthy` the piston's lag alone decides (every healthy piston taken to move)."""
     t = np.asarray(truth["t_s"], float) if "t_s" in truth else np.arange(len(truth["tension_N"])) / hz
     t_end = float(t[-1])
     x = np.asarray(truth["piston_x_m"], float)
@@ -578,21 +609,49 @@ def fault_truth(f: FaultDraw, truth, meta: dict, hz: float, stroke_m: float, mar
         onset = float(t[shut[0]])
     out["onset_s"] = onset
     hz_ = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else hz
+    th = None
+    if healthy is not None:
+        th = np.asarray(healthy["t_s"], float) if "t_s" in healthy else np.arange(len(healthy["piston_x_m"])) / hz
+    held_alike = []
     for c0, c1 in load_changes(truth, hz_):
         if c1 <= onset:
             continue
-        k = (t >= max(c0, onset)) & (t <= c1)
-        if not k.any():
+        fig = _load_change_figures(truth, t, max(c0, onset), c1, r)
+        if fig is None:
             continue
-        travel = x[k].max(axis=0) - x[k].min(axis=0)
-        others = float(np.median(np.delete(travel, r)))
-        if not (others >= NOT_EQUALIZING_MIN_TRAVEL_M and travel[r] < NOT_EQUALIZING_SHARE * others):
+        travel, others, dep = fig
+        lags = others >= NOT_EQUALIZING_MIN_TRAVEL_M and travel[r] < NOT_EQUALIZING_SHARE * others
+        where = f"the load change at {c0:.1f}-{c1:.1f} s"
+        if th is None:
+            if lags:
+                out.update(event_s=max(c0, onset), deadline_s=c1 + LOAD_CHANGE_GRACE_S, crossed=True,
+                           why=f"{where} (its piston {travel[r] * 1e3:.2f} mm, the others {others * 1e3:.2f} mm)")
+                return out
             continue
-        out.update(event_s=max(c0, onset), deadline_s=c1 + LOAD_CHANGE_GRACE_S, crossed=True,
-                   why=f"the load change at {c0:.1f}-{c1:.1f} s (its piston {travel[r] * 1e3:.2f} mm, "
-                       f"the others {others * 1e3:.2f} mm)")
-        return out
-    out["why"] = "its piston still moved with the others in every load change after the onset"
+        hfig = _load_change_figures(healthy, th, max(c0, onset), c1, r)
+        if hfig is None:
+            continue
+        htravel, hothers, hdep = hfig
+        took_part = htravel[r] >= NOT_EQUALIZING_SHARE * hothers
+        if lags and took_part and htravel[r] - travel[r] >= OBSERVABLE_TRAVEL_M:
+            out.update(event_s=max(c0, onset), deadline_s=c1 + LOAD_CHANGE_GRACE_S, crossed=True,
+                       why=f"{where} (its piston {travel[r] * 1e3:.2f} mm, the others {others * 1e3:.2f} mm; "
+                           f"on the healthy wind {htravel[r] * 1e3:.2f} mm, the others {hothers * 1e3:.2f} mm)")
+            return out
+        if dep is not None and hdep is not None and abs(dep) - abs(hdep) >= DEPARTURE_OBSERVABLE_KPA:
+            out.update(event_s=max(c0, onset), deadline_s=c1 + LOAD_CHANGE_GRACE_S, crossed=True,
+                       why=f"{where} (its tap pressure {dep:+.0f} kPa from the others' change, {hdep:+.0f} kPa "
+                           f"on the healthy wind; its piston {travel[r] * 1e3:.2f} mm, the others "
+                           f"{others * 1e3:.2f} mm)")
+            return out
+        if lags:
+            held_alike.append(f"{c0:.1f}-{c1:.1f} s ({travel[r] * 1e3:.2f} mm against {others * 1e3:.2f} mm; "
+                              f"healthy {htravel[r] * 1e3:.2f} mm against {hothers * 1e3:.2f} mm)")
+    if held_alike:
+        out["why"] = ("its piston held while the others moved only where the healthy seal held it alike (" +
+                      "; ".join(held_alike) + "): not observable")
+    else:
+        out["why"] = "its piston still moved with the others in every load change after the onset"
     return out
 
 
@@ -657,10 +716,10 @@ def frame_truth(truth, frames, hz: int, physical: dict):
 
 
 def score_alarms(frames, truth, meta, hz: int, physical: dict, settings: dict, fault: FaultDraw | None = None,
-                 stroke: tuple[float, float] | None = None) -> dict:
+                 stroke: tuple[float, float] | None = None, healthy=None) -> dict:
     """The Targets' figures of one run (a healthy wind, or the faulted one with `fault`) for each
-    alarm configuration of `settings` (`station_settings`): the healthy-hoist figures, or the fault's;
-    the silent ropes either way."""
+    alarm configuration of `settings` (`station_settings`): the healthy-hoist figures, or the fault's
+    (`healthy`: the same hoist's healthy wind's truth, for `fault_truth`); the silent ropes either way."""
     from ropemon.lab import metrics as M
 
     times, d, valid, hidden = frame_truth(truth, frames, hz, physical)
@@ -672,7 +731,7 @@ def score_alarms(frames, truth, meta, hz: int, physical: dict, settings: dict, f
     ft = None
     if fault is not None:
         stroke = stroke or site_stroke()
-        ft = fault_truth(fault, truth, meta, hz, *stroke)
+        ft = fault_truth(fault, truth, meta, hz, *stroke, healthy=healthy)
         out["truth"] = {k: v for k, v in ft.items()}
     for which in ("station", "legacy"):
         ev = station_events(frames, settings[which])
@@ -718,7 +777,8 @@ def run_fault(h: Hoist, f: FaultDraw, wind_dir, physical: dict, settings: dict, 
         shutil.copyfile(Path(wind_dir) / NODE_EVALUATED, fdir / NODE_EVALUATED)
         frames = EV.firmware_frames(physical, RunDir(fdir).sensors_path, fdir, fdir / NODE_EVALUATED)
         run = RunDir(fdir)
-        out.update(score_alarms(frames, run.truth, run.meta, run.sample_hz, physical, settings, f))
+        out.update(score_alarms(frames, run.truth, run.meta, run.sample_hz, physical, settings, f,
+                                healthy=RunDir(wind_dir).truth))
     except (EV.EvaluationError, OSError, ValueError, KeyError) as e:
         out["error"] = f"{type(e).__name__}: {e}"
     out["wall_s"] = round(time.monotonic() - t0, 1)
@@ -1285,7 +1345,13 @@ def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
              "equalizer=None`, the station before the equalizer's alarms. Both on the same node frames "
              "(`population.station_events`, as `ropemon replay --db`)."
              + ("" if t["legacy_distinct"] else " **These alarm settings have no legacy switch: both columns are "
-                                               "the same station.**"), ""]
+                                               "the same station.**"), "",
+             "A closed valve or a seized seal *crossed* in a load change after its onset where its piston travelled "
+             f"under {NOT_EQUALIZING_SHARE:.0%} of the others' ({NOT_EQUALIZING_MIN_TRAVEL_M * 1e3:.1f} mm or more) "
+             "while on the same hoist's healthy wind it took part and travelled "
+             f"{OBSERVABLE_TRAVEL_M * 1e3:.1f} mm more, or where its tap's pressure change parted from the others' by "
+             f"{DEPARTURE_OBSERVABLE_KPA:.0f} kPa more than on the healthy wind: where the healthy seal held its "
+             "piston alike, neither positions nor pressures can tell the fault.", ""]
     ex_s = ", ".join(f"{k}: {v}" for k, v in hs["excluded"].items()) or "none"
     ex_l = ", ".join(f"{k}: {v}" for k, v in hl["excluded"].items()) or "none"
 
@@ -1376,7 +1442,8 @@ def rescore_targets(seed: int, work) -> dict:
             fr = RunDir(wind_dir / sub)
             out["targets"][key] = {"class": f.kind, "rope": f.rope, "params": f.params,
                                    "faults": [dict(t) for t in f.faults], "describe": f.describe(),
-                                   **score_alarms(fr.frames(), fr.truth, fr.meta, fr.sample_hz, physical, settings, f)}
+                                   **score_alarms(fr.frames(), fr.truth, fr.meta, fr.sample_hz, physical, settings, f,
+                                                  healthy=run.truth)}
     except (OSError, ValueError, KeyError) as e:
         out["error"] = f"{type(e).__name__}: {e}"
     out["wall_s"] = round(time.monotonic() - t0, 1)
