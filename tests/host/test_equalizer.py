@@ -223,6 +223,44 @@ def test_a_balancing_stroke_whose_flow_parts_the_pressures_is_not_a_cut_off_cyli
     assert s.events == []
 
 
+def test_a_slow_balancing_stroke_under_the_tolerance_whose_flow_parts_two_taps_raises_nothing():
+    """As on a simulated healthy wind (cold oil): one piston slides +0.2 mm and another -0.2 mm over
+    3 s, under the motion tolerance (0.26 mm), while their flow parts the two taps by +107 and -73
+    kPa and the others' pressures stay. A cut-off cylinder's piston moves no more than its own oil's
+    compression (k x 107 kPa: 32 um) give or take the frame's resolution (0.12 mm): these slid
+    farther, so they share the manifold's oil; nothing raises. The same departure with the pistons
+    still is a cut-off cylinder (and raises: the test below)."""
+    x0 = K * 2.5e6
+    s = Stream().feed([2500] * 4, [x0] * 4, n=30)
+    for k in range(31):
+        f = k / 30
+        s.feed([2500 + 107 * f, 2500 - 73 * f, 2500, 2500], [x0 + 0.2e-3 * f, x0 - 0.2e-3 * f, x0, x0])
+    s.feed([2607, 2427, 2500, 2500], [x0 + 0.2e-3, x0 - 0.2e-3, x0, x0], n=20)
+    assert s.events == []
+    s = Stream().feed([2500] * 4, [x0] * 4, n=30)
+    for k in range(31):
+        s.feed([2500 + 107 * k / 30, 2500, 2500, 2500], [x0] * 4)
+    s.feed([2607, 2500, 2500, 2500], [x0] * 4, n=20)
+    assert [e.alarm for e in s.events if e.action == "raise"] == ["not_equalizing:n1:r0"]
+    # the valve opened again: its tap with the others', and in the next loading its piston moves
+    # with theirs: cleared
+    s.feed([2500] * 4, [x0] * 4, n=20)
+    hoist(s, 2500, 6500, 8.0)
+    assert [(e.alarm, e.action) for e in s.events] == [("not_equalizing:n1:r0", "raise"),
+                                                       ("not_equalizing:n1:r0", "clear")]
+
+
+def test_the_others_medians_sorted_once_are_the_medians_of_each_left_out():
+    """`_medians_without` (one sort per frame) gives what `_median_without` gives rope by rope,
+    ties and all, for two to six ropes."""
+    from ropemon.station.equalizer import _median_without, _medians_without
+    rng = random.Random(3)
+    for n in range(2, 7):
+        for _ in range(300):
+            vals = [float(rng.choice([-2, -1, 0, 0, 1, 3])) + rng.choice([0.0, 0.5]) for _ in range(n)]
+            assert _medians_without(vals) == [_median_without(sorted(vals), x) for x in vals], vals
+
+
 def test_a_closed_valve_towards_the_manifold_departs_in_pressure():
     """The tap reads the cut-off cylinder: its pressure departs from the others' while its piston
     moves only by its own oil's compression."""
@@ -279,6 +317,28 @@ def test_a_flow_transient_in_the_reference_frame_is_not_a_departure():
         p = 7500 - 25 * (k - 5)
         out = tr.update(frame([p] * 4, [K * p * 1000] * 4, k), 0.1 * k)
         assert not any(o.lags for o in out), k
+
+
+def test_a_reference_taken_within_a_slip_does_not_make_the_taps_return_a_departure():
+    """As on a simulated healthy wind at the pithead: the tracker's reference falls within a slip
+    (rope 2's piston -0.3 mm, rope 3's +0.3 mm in 0.3 s, its flow parting their taps by -200 and
+    +150 kPa); once the pistons are still the taps read the manifold's pressure again. The
+    reference's offsets are those of the last frames where the pistons moved alike, so nothing
+    departs; the pressure then rises alike on every tap (the payload landing) and nothing raises."""
+    tr = EqualizingTracker(dataclasses.replace(EQ, anchor_max_s=2.25))
+    x = [K * 6.5e6] * 4
+    k = 0
+    for k in range(20):                                            # 2 s at rest
+        tr.update(frame([6500] * 4, x, k), 0.1 * k)
+    for j, (d, dp2, dp3) in enumerate(((-1e-4, -200, 150), (-2e-4, -190, 140), (-3e-4, -120, 90))):
+        k += 1
+        xs = [x[0], x[1] + d, x[2] - d, x[3]]
+        tr.update(frame([6500, 6500 + dp2, 6500 + dp3, 6500], xs, k), 0.1 * k)   # the reference moves on here
+    for j in range(60):                                            # still, then the taps rise alike
+        k += 1
+        p = 6500 + 10 * max(0, j - 20)
+        out = tr.update(frame([p] * 4, [x[0], x[1] - 3e-4, x[2] + 3e-4, x[3]], k), 0.1 * k)
+        assert not any(o.lags for o in out), (k, out)
 
 
 def test_a_frozen_transmitter_is_not_a_cut_off_cylinder():

@@ -275,15 +275,20 @@ class EqualizingTracker:
     """
 
     OFFSET_FRAMES = 5
+    QUIET_S = 1.0
 
     def __init__(self, s: EqualizerSettings) -> None:
         self.s = s
         self._thr = s.motion_tolerance_m
         self._still = s.position_step_m + 3.0 * s.motion_sigma_m    # "did not move", at the frame's resolution
         self._k_kpa: list[float] = []          # per rope: k in m per kPa
-        # each rope's pressure less the others' median, over the last OFFSET_FRAMES frames: the
+        # each rope's pressure less the others' median, over the last OFFSET_FRAMES quiet frames: the
         # reference's is their median, so a flow transient in the reference frame is not a departure
         self._offs: deque[list[float | None]] = deque(maxlen=self.OFFSET_FRAMES)
+        self._offs_any: deque[list[float | None]] = deque(maxlen=self.OFFSET_FRAMES)  # quiet or not
+        # (now_s, positions) of the last QUIET_S and one frame before: a frame is quiet when no piston
+        # moved beyond the frame's resolution (`_still`) since QUIET_S ago (no flow parts the taps)
+        self._xhist: deque[tuple[float, list[float | None]]] = deque(maxlen=128)
         self._ref_off: list[float | None] = []
         self._ref_x: list[float | None] = []
         self._ref_p: list[float | None] = []
@@ -298,6 +303,8 @@ class EqualizingTracker:
     def reset(self) -> None:
         self._ref_s = None
         self._offs.clear()
+        self._offs_any.clear()
+        self._xhist.clear()
 
     def update(self, frame: Frame, now_s: float, skip: Sequence[bool] = (),
                xs: list[float | None] | None = None) -> list[Participation | None]:
@@ -316,12 +323,39 @@ class EqualizingTracker:
         if len(self._k_kpa) != n:
             self._k_kpa = [(s.per_rope(s.compliance_m_per_pa, i) or 0.0) * 1000.0 for i in range(n)]
             self._offs.clear()
+            self._offs_any.clear()
         idx = [i for i in range(n) if usable[i]]
         off: list[float | None] = [None] * n
         if len(idx) >= 2:
             for i, m in zip(idx, _medians_without([ps[i] for i in idx])):
                 off[i] = ps[i] - m
-        self._offs.append(off)
+        hist = self._xhist
+        hist.append((now_s, xs))
+        while len(hist) > 2 and now_s - hist[1][0] >= self.QUIET_S:
+            hist.popleft()
+        # the pistons' motion over the last QUIET_S: where they moved alike (within the frame's
+        # resolution) no oil flowed between the cylinders, only the compression's, alike on every tap
+        quiet_of: list[bool] = [False] * n     # the others than this rope moved alike
+        flowing_of: list[bool] = [False] * n   # they did not (known: QUIET_S of frames behind)
+        quiet = False                          # all did
+        t_old, x_old = hist[0]
+        if now_s - t_old >= self.QUIET_S and len(x_old) == n and len(idx) >= 2 and all(
+                x_old[i] is not None for i in idx):
+            mv = sorted((xs[i] - x_old[i], i) for i in idx)
+            st_ = self._still
+            lo_i, hi_i = mv[0][1], mv[-1][1]
+            quiet = mv[-1][0] - mv[0][0] <= st_
+            for i in idx:
+                if len(mv) == 2:
+                    quiet_of[i] = True         # one other rope: alike with itself
+                    continue
+                top = mv[-2][0] if i == hi_i else mv[-1][0]
+                bot = mv[1][0] if i == lo_i else mv[0][0]
+                quiet_of[i] = top - bot <= st_
+                flowing_of[i] = not quiet_of[i]
+        if quiet:
+            self._offs.append(off)
+        self._offs_any.append(off)
         if self._ref_s is None or usable != self._ref_usable:
             self._anchor(xs, ps, usable, now_s)
             self.last = [None] * n
@@ -354,9 +388,14 @@ class EqualizingTracker:
                 moved = abs(d)
         # a pressure departing from the others' (a tap reading a cylinder cut off from the manifold);
         # not a frozen transmitter (its own pressure still: SENSOR STUCK). A cut-off cylinder's piston
-        # moves only by its own oil's compression (k times its own pressure change): one that moved
-        # more, or went and came back, shares the manifold's oil (a balancing stroke, whose flow
-        # parts the taps' pressures by tens of kPa), and is not cut off
+        # moves only by its own oil's compression (k times its own pressure change), give or take the
+        # frame's resolution (`still`, not the motion tolerance: a slow balancing stroke under the
+        # tolerance parts the taps by tens of kPa with its flow): one that moved more, or went and
+        # came back, shares the manifold's oil, and is not cut off. Judged only while the others'
+        # pistons moved alike within QUIET_S (no oil flowing between them: a slip's flow parts the
+        # taps by 100 kPa and more while it lasts), against the offsets of frames where all moved
+        # alike (a reference taken within a slip would make the taps' return to the manifold's
+        # pressure look a departure)
         ops: list = [None] * n                 # each rope's others' pressure change (their median)
         for i, m in zip(idx, _medians_without([dp[i] for i in idx])):
             ops[i] = m
@@ -364,12 +403,14 @@ class EqualizingTracker:
         ref_off = self._ref_off
         dep_kpa, dep_frac, k_kpa = s.departure_kpa, s.departure_frac, self._k_kpa
         for i in idx:
+            if not quiet_of[i]:
+                continue
             op = ops[i]
             oi, ri = off[i], ref_off[i]
             dep = oi - ri if oi is not None and ri is not None else dp[i] - op
             if (abs(dep) > max(dep_kpa, dep_frac * abs(op))
                     and abs(dp[i]) >= max(dep_kpa / 3.0, 0.25 * abs(op))):
-                squeeze = k_kpa[i] * abs(dp[i]) + thr
+                squeeze = k_kpa[i] * abs(dp[i]) + still
                 if abs(dx[i]) <= squeeze and hi_[i] - lo_[i] <= squeeze:
                     departing[i] = (dep, op)
         if moved < thr and not departing:   # no piston moved beyond the tolerance: the usual case
@@ -412,7 +453,10 @@ class EqualizingTracker:
                 out.append(Participation(False, False, None, own, med, dep, op, ""))
                 self._first[i] = None
                 continue
-            follows = abs(med) - abs(own) < 0.75 * thr and abs(own) / abs(med) >= s.follow_ratio
+            # following (the evidence that clears) only where its pressure was judged too: a frame
+            # whose flow parts the taps shows no departure, and no return from one either
+            follows = (abs(med) - abs(own) < 0.75 * thr and abs(own) / abs(med) >= s.follow_ratio
+                       and not flowing_of[i])
             # against the least moved of the others: a seal at rest holds its piston a while, and
             # where some pistons hold while others slide, a held one is not the odd one out. So only
             # the least moved rope of all can lag (any other has one moved less than itself).
@@ -465,7 +509,9 @@ class EqualizingTracker:
         self._ref_s = now_s
         ref_off: list[float | None] = []
         for i, u in enumerate(usable):
-            v = sorted(o[i] for o in self._offs if i < len(o) and o[i] is not None) if u else []
+            # the quiet frames' (none yet: the last frames', quiet or not)
+            offs = self._offs if any(i < len(o) and o[i] is not None for o in self._offs) else self._offs_any
+            v = sorted(o[i] for o in offs if i < len(o) and o[i] is not None) if u else []
             ref_off.append(v[len(v) // 2] if v else None)
         self._ref_off = ref_off
         self._lo = [0.0] * len(xs)
