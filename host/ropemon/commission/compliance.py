@@ -29,6 +29,16 @@ pressure over the first 4 s after the hoist stops at the end of the recording
 out, gives no `bounce_hz` (`null`), and the node keeps its default.
 
     ropemon fit-compliance NODE.json SENSORS.rsens [--out compliance.json] [--check]
+                           [--site SITE.toml [--payload-kg KG]]
+
+With --site the fit checks itself before it is accepted (`check_fit`): the node's float
+reference (ropemon.commission.reference) runs over the recording with the fit and without it
+(NODE.json's compensation as it is), and their totals at the rests whose load is known (the
+empty cage and its tail ropes from SITE.toml, or with a weighed payload) are compared with that
+load, raw p x A's beside them. A fit that puts the total at any such rest farther off than
+without it by more than CHECK_TOL_FRAC of the load is refused (exit 2, nothing written, the
+figures on stderr); by more than CHECK_MARGINAL_FRAC it is accepted with a warning. The
+pistons' common motion against what the fit predicts from the pressure is reported too.
 
 It prints the fit as JSON. When NODE.json was itself built with a compliance fit,
 the command also re-checks it: it prints on stderr how far k, the pressure noise
@@ -56,6 +66,7 @@ import numpy as np
 from ropemon.commission.nodejson import namur_limits, physical_params
 from ropemon.station.protocol import L
 from ropemon.commission.reference import read_rsens
+from ropemon.commission.site import G_M_S2
 from ropemon.station import files
 
 MIN_SPAN_PA = 0.3e6   # the pressure must change at least this much over the recording
@@ -487,6 +498,294 @@ def recheck(ph: dict, res: ComplianceFit) -> list[tuple[str, bool]]:
     return out
 
 
+# ---------------------------------------------------------------- the fit's own check
+
+# physical keys a compliance fit gives (site.check_compliance) and those only a config with one keeps
+FIT_KEYS = ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa", "displacement_noise_m", "bounce_hz")
+WITH_FIT_KEYS = ("friction_play_sigmas", "noise_follow_s")
+# A fit is refused when, at a rest of known load, it puts the node's total farther from that load than
+# the node reads without it by more than this fraction of the load: the spread of the node's
+# empty-cage pithead total over simulated winds of one hoist (within 0.3 % on 39 of 40 noise
+# seeds, docs/commissioning.md, friction_play_sigmas), i.e. what the same node reads apart from
+# wind to wind; the rest means' own noise (the transmitters' over the averaged samples) is far
+# below it and is added. Farther by more than CHECK_MARGINAL_FRAC: accepted with a warning
+# (about what one of the re-check tolerances is worth, section "Re-check in service").
+CHECK_TOL_FRAC = 0.003
+CHECK_MARGINAL_FRAC = 0.001
+CHECK_NOISE_SIGMAS = 3.0
+REST_SPEED_M_S = 0.05     # the cage stands: slower than this
+REST_MIN_S = 2.0          # a standstill at least this long with the pressure steady is a rest
+REST_STEADY_PA_S = 50e3   # ... steady: the median pressure's 1 s mean moves slower than this (a load change is faster)
+REST_AVG_MAX_S = 5.0      # a rest's figure: the mean over its second half, at most this long
+KNOWN_MATCH_FRAC = 0.10   # a rest carries a known load when the node reads within this of it
+MOTION_WARN_FRAC = 0.10   # the pistons' motion off the fitted compliance's by this much is warned
+PAYLOAD_MAX_FRAC = 1.5    # --payload-kg: at most this times the site's rated payload
+
+
+@dataclass
+class KnownLoad:
+    """What the static load at the cage's rope ends is at a rest (from SITE.toml [hoist]):
+    the empty cage, the tail ropes hanging from it to their loop at the shaft bottom and,
+    when weighed, a payload."""
+
+    cage_kg: float
+    tail_ropes: int
+    tail_kg_per_m: float
+    shaft_m: float
+    payload_kg: float | None = None
+
+    def load_n(self, depth_m: float, payload_kg: float = 0.0) -> float:
+        tail_m = max(self.shaft_m - depth_m, 0.0)
+        return (self.cage_kg + payload_kg + self.tail_ropes * self.tail_kg_per_m * tail_m) * G_M_S2
+
+
+def known_load(site_path: Path, payload_kg: float | None, ph: dict) -> KnownLoad:
+    """The known load from SITE.toml, checked against the node.json it built (its cage weight);
+    `payload_kg` a weighed payload (> 0, at most PAYLOAD_MAX_FRAC x the rated payload)."""
+    from ropemon.commission.site import SiteError, in_file, load_site
+
+    try:
+        h = load_site(site_path).hoist
+    except SiteError as e:
+        raise ComplianceError(str(in_file(e, site_path))) from None
+    was = ph.get("conveyance_weight_N")
+    if isinstance(was, (int, float)) and abs(h.cage_mass_kg * G_M_S2 - was) > 1e-6 * max(1.0, abs(was)):
+        raise ComplianceError(f"{site_path}: hoist.cage_mass_kg = {h.cage_mass_kg:g} kg weighs "
+                              f"{h.cage_mass_kg * G_M_S2:.0f} N, the node.json's physical.conveyance_weight_N is "
+                              f"{was:.0f} N: not the site the config was built from")
+    if payload_kg is not None:
+        top = PAYLOAD_MAX_FRAC * h.rated_payload_kg
+        if not (math.isfinite(payload_kg) and 0 < payload_kg <= top):
+            raise ComplianceError(f"--payload-kg: must be > 0 and at most {top:g} kg ({PAYLOAD_MAX_FRAC:g} x "
+                                  f"hoist.rated_payload_kg), got {payload_kg:g}")
+    return KnownLoad(h.cage_mass_kg, h.tail_ropes, h.tail_rope_kg_per_m, h.shaft_depth_m, payload_kg)
+
+
+def with_fit(ph: dict, res: "ComplianceFit | None") -> dict:
+    """`physical` ph with this fit's compliance in place of any it had (None: without any)."""
+    from ropemon.commission.site import SiteError, check_compliance
+
+    out = {k: v for k, v in ph.items() if k not in FIT_KEYS + WITH_FIT_KEYS}
+    if res is None:
+        return out
+    try:
+        out.update(check_compliance(res.as_dict(), int(ph["ropes"]), "the fit"))
+    except SiteError as e:
+        raise ComplianceError(str(e)) from None
+    out.update({k: ph[k] for k in WITH_FIT_KEYS if k in ph})
+    return out
+
+
+def has_compliance(ph: dict) -> bool:
+    k = ph.get("hydraulic_compliance_m_per_Pa")
+    return isinstance(k, list) and any(k)
+
+
+def rests(ph: dict, records: np.ndarray) -> list[tuple[int, int, float]]:
+    """(first, end) samples averaged and the depth (m) of each rest of the recording: the cage
+    standing (its net travel over 1 s below REST_SPEED_M_S) and the median pressure steady (its 1 s mean moving
+    slower than REST_STEADY_PA_S) for at least REST_MIN_S; the mean over the second half, at
+    most REST_AVG_MAX_S, ending half a second before the stretch does (the arrival's bounce and
+    a load change settled, the next not begun). The depth counts from
+    physical.start_depth_m, where the node starts (the Hall marks' snapping is not applied)."""
+    n, fs = int(ph["ropes"]), float(ph["sample_hz"])
+    m = records.shape[0]
+    counter = records[:, 2 * n + 2].astype(np.int64)
+    step = np.concatenate([[0], (np.diff(counter) + 32768) % 65536 - 32768])
+    depth = float(ph.get("start_depth_m", 0.0)) + np.cumsum(step) * float(ph["speed_m_per_pulse"])
+    # standing: the net travel over 1 s slower than REST_SPEED_M_S (the ropes' stretch and bounce
+    # after a load change move the cage by centimetres, back and forth)
+    win = max(1, int(round(fs)))
+    moving = np.abs(np.convolve(step, np.ones(win), "same")) * float(ph["speed_m_per_pulse"]) * fs / win \
+        > REST_SPEED_M_S
+    cols = []
+    for i in range(n):
+        p, _, ok, _, _ = _scaled(ph, records, i)
+        cols.append(np.where(ok, p, np.nan))
+    with np.errstate(all="ignore"):
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            pm = np.nanmedian(np.array(cols), axis=0)
+    w = max(1, int(round(fs)))
+    valid = np.isfinite(pm)
+    c = np.concatenate([[0.0], np.cumsum(np.nan_to_num(pm))])
+    rate = np.full(m, np.inf)
+    if m > 2 * w:
+        j = np.arange(w, m - w + 1)
+        rate[j] = np.abs((c[j + w] - c[j]) - (c[j] - c[j - w])) / w * fs / w  # 1 s means 1 s apart
+    steady = ~moving & valid & (rate < REST_STEADY_PA_S)
+    out = []
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], steady.astype(np.int8), [0]])))
+    for s, e in zip(edges[::2], edges[1::2]):
+        if e - s < REST_MIN_S * fs:
+            continue
+        e -= w // 2  # the 1 s means see a load change coming half a second early
+        a = max((s + e) // 2, e - int(REST_AVG_MAX_S * fs))
+        out.append((int(a), int(e), float(np.median(depth[a:e]))))
+    return out
+
+
+@dataclass
+class RestFigure:
+    """A rest of known load: the node's total there with this fit, without it (NODE.json's
+    compensation as it is), with no compliance at all (when NODE.json has one), and raw p x A."""
+
+    t_s: float
+    depth_m: float
+    what: str
+    known_n: float
+    with_n: float
+    without_n: float
+    raw_n: float
+    none_n: float | None = None
+
+    def err(self, v: float) -> float:
+        return (v - self.known_n) / self.known_n
+
+    @property
+    def harm(self) -> float:
+        """How much farther from the known load the fit puts the total than it is without it."""
+        return abs(self.err(self.with_n)) - abs(self.err(self.without_n))
+
+    def figure(self, name: str, v: float) -> str:
+        return f"{name} {self.err(v) * 100:+.2f} % ({(v - self.known_n) / 1e3:+.2f} kN)"
+
+    def line(self) -> str:
+        s = (f"rest at {self.t_s:.1f} s, depth {self.depth_m:.1f} m, {self.what} {self.known_n / 1e3:.2f} kN: "
+             f"{self.figure('with the fit', self.with_n)}, {self.figure('without', self.without_n)}")
+        if self.none_n is not None:
+            s += f", {self.figure('with no compliance', self.none_n)}"
+        return s + f", {self.figure('raw p x A', self.raw_n)}"
+
+    def as_dict(self) -> dict:
+        d = {"t_s": self.t_s, "depth_m": self.depth_m, "load": self.what, "known_N": self.known_n,
+             "with_N": self.with_n, "without_N": self.without_n, "raw_N": self.raw_n,
+             "with_err": self.err(self.with_n), "without_err": self.err(self.without_n),
+             "raw_err": self.err(self.raw_n)}
+        if self.none_n is not None:
+            d.update(none_N=self.none_n, none_err=self.err(self.none_n))
+        return d
+
+
+@dataclass
+class FitCheck:
+    """The fit checked where the load is known (`check_fit`)."""
+
+    rests: list[RestFigure]
+    tol_frac: float                 # the refusal's tolerance, of the known load
+    motion_rms_m: float | None      # the pistons' common motion off the fit's prediction (rms, m)
+    motion_frac: float | None       # ... over the predicted motion's rms
+    rests_found: int = 0            # rests in the recording (known load or not)
+
+    @property
+    def worst(self) -> RestFigure | None:
+        return max(self.rests, key=lambda r: r.harm) if self.rests else None
+
+    @property
+    def verdict(self) -> str:
+        """'unchecked' (no rest of known load), 'worse' (refused), 'marginal' (warned), 'ok'."""
+        w = self.worst
+        if w is None:
+            return "unchecked"
+        if w.harm > self.tol_frac:
+            return "worse"
+        return "marginal" if w.harm > CHECK_MARGINAL_FRAC else "ok"
+
+    def configured_harm(self) -> RestFigure | None:
+        """The rest where NODE.json's own compliance puts the total farthest beyond what no
+        compliance reads, when that is beyond the tolerance (None: within, or none to compare)."""
+        rs = [r for r in self.rests if r.none_n is not None]
+        if not rs:
+            return None
+        r = max(rs, key=lambda r: abs(r.err(r.without_n)) - abs(r.err(r.none_n)))
+        return r if abs(r.err(r.without_n)) - abs(r.err(r.none_n)) > self.tol_frac else None
+
+    def as_dict(self) -> dict:
+        w = self.worst
+        return {"verdict": self.verdict, "tolerance_frac": self.tol_frac,
+                "worst_harm_frac": None if w is None else w.harm, "rests_found": self.rests_found,
+                "rests": [r.as_dict() for r in self.rests],
+                "motion_residual_rms_m": self.motion_rms_m, "motion_residual_frac": self.motion_frac}
+
+
+def _totals(ph: dict, records: np.ndarray, spans) -> tuple[list[float], list[float]]:
+    """The node's compensated total and raw p x A (N) over each span, by the float reference."""
+    from ropemon.commission.reference import compensate
+
+    c = compensate(ph, records)
+    with np.errstate(all="ignore"):
+        comp = [float(np.nanmean(c.tension_n[a:b].sum(axis=1))) for a, b, _ in spans]
+        raw = [float(np.mean(c.raw_tension_n[a:b].sum(axis=1))) for a, b, _ in spans]
+    return comp, raw
+
+
+def motion_residual(ph: dict, records: np.ndarray, res: "ComplianceFit") -> tuple[float | None, float | None]:
+    """The pistons' common motion sum A_i x_i against what the fit predicts from the pressure,
+    sum A_i k_i p_i, over the whole recording (balancing strokes and groove creep cancel in the
+    sum), each PIECE_S piece about its own mean (a slow drift of the oil's temperature moves
+    the offset): the rms of the difference over sum A_i (m of mean piston travel), and that over
+    the predicted motion's rms. None when the recording has no such piece."""
+    n, fs = int(ph["ropes"]), float(ph["sample_hz"])
+    b = max(1, int(round(BLOCK_S * fs)))
+    P, X = [], []
+    for i in range(n):
+        p, x, ok, _, _ = _scaled(ph, records, i)
+        P.append(_blocks(p, ok, b))
+        X.append(_blocks(x, ok, b))
+    P, X = np.array(P), np.array(X)
+    a = _areas(ph, n)
+    valid = ~np.isnan(P).any(axis=0) & ~np.isnan(X).any(axis=0)
+    pieces = _pieces(valid, max(2, int(round(PIECE_S / (b / fs)))))
+    if not pieces:
+        return None, None
+    v = a @ np.nan_to_num(X) / a.sum()
+    q = (a * np.asarray(res.k_m_per_pa)) @ np.nan_to_num(P) / a.sum()
+    dv = np.concatenate([v[j] - v[j].mean() for j in pieces])
+    dq = np.concatenate([q[j] - q[j].mean() for j in pieces])
+    rms = float(np.sqrt(np.mean((dv - dq) ** 2)))
+    pred = float(np.sqrt(np.mean(dq ** 2)))
+    return rms, (rms / pred if pred > 0 else None)
+
+
+def check_fit(ph: dict, records: np.ndarray, res: "ComplianceFit", load: KnownLoad) -> FitCheck:
+    """Run the node's float reference (ropemon.commission.reference) over the recording with this
+    fit and without it (NODE.json's compensation as it is; and with no compliance at all when
+    NODE.json has one), and compare their totals at the rests whose load is known: the empty
+    cage, or the cage with the weighed payload, whichever the node reads within
+    KNOWN_MATCH_FRAC of (without the fit); a rest near neither carries an unknown load and is
+    not compared. Also the pistons' motion against the fit's prediction (`motion_residual`)."""
+    spans = rests(ph, records)
+    without, raw = _totals(ph, records, spans)
+    known = []
+    for (a, b, depth), tot in zip(spans, without):
+        cands = [("empty cage", load.load_n(depth))]
+        if load.payload_kg:
+            cands.append((f"cage with {load.payload_kg:g} kg", load.load_n(depth, load.payload_kg)))
+        what, n_known = min(cands, key=lambda c: abs(tot - c[1]))
+        known.append((what, n_known) if math.isfinite(tot) and abs(tot - n_known) <= KNOWN_MATCH_FRAC * n_known
+                     else None)
+    keep = [j for j, k in enumerate(known) if k is not None]
+    fs = float(ph["sample_hz"])
+    figs: list[RestFigure] = []
+    tol = CHECK_TOL_FRAC
+    if keep:
+        sel = [spans[j] for j in keep]
+        withv, _ = _totals(with_fit(ph, res), records, sel)
+        nonev = _totals(with_fit(ph, None), records, sel)[0] if has_compliance(ph) else [None] * len(sel)
+        for j, w, nn in zip(keep, withv, nonev):
+            a, b, depth = spans[j]
+            figs.append(RestFigure(a / fs + (b - a) / (2 * fs), depth, known[j][0], known[j][1], w, without[j],
+                                   raw[j], nn))
+        # the rest means' own noise: the transmitters' over the averaged samples, summed over the ropes
+        a_mean = float(np.mean(_areas(ph, int(ph["ropes"]))))
+        shortest = min(b - a for a, b, _ in sel)
+        noise_n = res.pressure_noise_pa * a_mean * math.sqrt(int(ph["ropes"]) / shortest)
+        tol = CHECK_TOL_FRAC + CHECK_NOISE_SIGMAS * noise_n / min(f.known_n for f in figs)
+    rms, frac = motion_residual(ph, records, res)
+    return FitCheck(figs, tol, rms, frac, len(spans))
+
+
 def add_arguments(p) -> None:
     p.add_argument("node_json", metavar="NODE.json", type=Path,
                    help="node.json (from `ropemon config`) whose physical section scales the channels")
@@ -496,7 +795,14 @@ def add_arguments(p) -> None:
                    help="also write the JSON here (name it in SITE.toml [compliance] file)")
     p.add_argument("--check", action="store_true",
                    help="exit 1 when k, the pressure noise or the bounce moved beyond its tolerance "
-                        "since the fit NODE.json was built with")
+                        "since the fit NODE.json was built with, or when NODE.json's own compliance makes "
+                        "the total at the rests of known load worse than none (with --site)")
+    p.add_argument("--site", metavar="SITE.toml", type=Path,
+                   help="the site NODE.json was built from: its cage mass, tail ropes and shaft depth give "
+                        "the known load at the recording's rests, where the fit is checked before it is "
+                        "accepted (the node's float reference with and without it)")
+    p.add_argument("--payload-kg", metavar="KG", type=float,
+                   help="a weighed payload the cage carried at some rests of the recording (with --site)")
 
 
 def run(args) -> int:
@@ -514,6 +820,9 @@ def run(args) -> int:
         if (ropes, hz) != (ph.get("ropes"), ph.get("sample_hz")):
             raise ComplianceError(f"{args.rsens}: {ropes} ropes at {hz} Hz, {args.node_json} has "
                                   f"{ph.get('ropes')} at {ph.get('sample_hz')} Hz")
+        load = None if args.site is None else known_load(args.site, args.payload_kg, ph)
+        if args.site is None and args.payload_kg is not None:
+            raise ComplianceError("--payload-kg: needs --site (the cage and tail ropes it is added to)")
         try:
             res = fit(ph, recs)
         except (KeyError, TypeError, IndexError) as e:
@@ -522,22 +831,79 @@ def run(args) -> int:
     except (OSError, ValueError) as e:
         print(f"ropemon fit-compliance: error: {e}", file=sys.stderr)
         return 2
-    text = json.dumps(res.as_dict(), indent=1) + "\n"
+    chk = None
+    if args.site is not None:
+        try:
+            chk = check_fit(ph, recs, res, load)
+        except (KeyError, TypeError, IndexError) as e:
+            print(f"ropemon fit-compliance: error: {args.node_json}: cannot run the node's reference on it "
+                  f"({e!r})", file=sys.stderr)
+            return 2
+        except ValueError as e:
+            print(f"ropemon fit-compliance: error: {e}", file=sys.stderr)
+            return 2
+        for r in chk.rests:
+            print(f"ropemon fit-compliance: check: {r.line()}", file=sys.stderr)
+        w = chk.worst
+        if chk.verdict == "worse":
+            print(f"ropemon fit-compliance: error: the fitted compliance makes the node's total worse where the load "
+                  f"is known: at the rest at {w.t_s:.1f} s (depth {w.depth_m:.1f} m, {w.what} "
+                  f"{w.known_n / 1e3:.2f} kN) {w.figure('it reads', w.with_n)} with the fit, "
+                  f"{w.figure('', w.without_n).strip()} without it ({args.node_json.name} as it is), "
+                  f"{w.figure('raw p x A', w.raw_n)}: {w.harm * 100:.2f} % of the load farther off, beyond the "
+                  f"tolerance {chk.tol_frac * 100:.2f} %; nothing written (check the displacement transmitters' "
+                  "scaling and mounting and the oil circuit, then record another commissioning wind; "
+                  "docs/commissioning.md, \"The fit's own check\")", file=sys.stderr)
+            return 2
+    text = json.dumps(res.as_dict() if chk is None else dict(res.as_dict(), check=chk.as_dict()), indent=1) + "\n"
     if args.out is not None:
         args.out.write_text(text)
     sys.stdout.write(text)
     lines = recheck(ph, res)
+    if chk is not None:
+        bad = chk.configured_harm()
+        if bad is not None:
+            lines.append((f"its own compliance puts the total at the rest at {bad.t_s:.1f} s ({bad.what} "
+                          f"{bad.known_n / 1e3:.2f} kN) {(abs(bad.err(bad.without_n)) - abs(bad.err(bad.none_n))) * 100:.2f} "
+                          f"% of the load farther off than no compliance ({bad.figure('it reads', bad.without_n)}, "
+                          f"{bad.figure('with none', bad.none_n)}; tolerance {chk.tol_frac * 100:.2f} %)", True))
     for line, beyond in lines:
         print(f"ropemon fit-compliance: against {args.node_json.name}: {line}{': CHANGED' if beyond else ''}",
               file=sys.stderr)
     for w in res.warnings:
         print(f"ropemon fit-compliance: warning: {w}", file=sys.stderr)
+    if chk is None:
+        print("ropemon fit-compliance: warning: the fit is not checked against a known load (give --site "
+              "SITE.toml: the node's total at the recording's rests with and without it)", file=sys.stderr)
+    else:
+        for w in check_warnings(chk):
+            print(f"ropemon fit-compliance: warning: {w}", file=sys.stderr)
     changed = any(beyond for _, beyond in lines)
     if changed:
         print(f"ropemon fit-compliance: {args.node_json.name} no longer fits this hoist: name this fit in "
               "SITE.toml [compliance], rebuild the config (ropemon config) and deploy it "
               "(docs/commissioning.md, \"Re-check in service\")", file=sys.stderr)
     return 1 if changed and args.check else 0
+
+
+def check_warnings(chk: FitCheck) -> list[str]:
+    """What the check warns of (the fit still accepted): no rest of known load, a fit within the
+    tolerance but no better than without it, the pistons' motion off the fit's prediction."""
+    out = []
+    w = chk.worst
+    if chk.verdict == "unchecked":
+        out.append(f"the fit is not checked: none of the recording's {chk.rests_found} rests reads within "
+                   f"{KNOWN_MATCH_FRAC * 100:g} % of a known load (the empty cage, or --payload-kg); record the "
+                   "commissioning wind with a rest of the empty cage")
+    elif chk.verdict == "marginal":
+        out.append(f"the fit puts the total at the rest at {w.t_s:.1f} s {w.harm * 100:.2f} % of the load farther off "
+                   f"than without it (within the tolerance {chk.tol_frac * 100:.2f} %): accepted, but it does "
+                   "not improve the reading there")
+    if chk.motion_frac is not None and chk.motion_frac > MOTION_WARN_FRAC:
+        out.append(f"the pistons' common motion departs from what the fitted compliance predicts from the pressure "
+                   f"by {chk.motion_rms_m * 1e6:.1f} um rms, {chk.motion_frac * 100:.0f} % of the predicted motion "
+                   f"(warned beyond {MOTION_WARN_FRAC * 100:g} %)")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
