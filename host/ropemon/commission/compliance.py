@@ -504,12 +504,12 @@ def recheck(ph: dict, res: ComplianceFit) -> list[tuple[str, bool]]:
 FIT_KEYS = ("hydraulic_compliance_m_per_Pa", "pressure_noise_Pa", "displacement_noise_m", "bounce_hz")
 WITH_FIT_KEYS = ("friction_play_sigmas", "noise_follow_s")
 # A fit is refused when, at a rest of known load, it puts the node's total farther from that load than
-# the node reads without it by more than this fraction of the load: the spread of the node's
-# empty-cage pithead total over simulated winds of one hoist (within 0.3 % on 39 of 40 noise
-# seeds, docs/commissioning.md, friction_play_sigmas), i.e. what the same node reads apart from
-# wind to wind; the rest means' own noise (the transmitters' over the averaged samples) is far
-# below it and is added. Farther by more than CHECK_MARGINAL_FRAC: accepted with a warning
-# (about what one of the re-check tolerances is worth, section "Re-check in service").
+# the node reads without it by more than this fraction of the load: what the channels cannot
+# resolve at a rest (their noise alone spreads the empty-cage pithead total from wind to wind by
+# a standard deviation of 0.13-0.19 % whatever reads them, docs/accuracy.md, "Transmitter
+# noise"); three times the rest means' own noise (the transmitters' over the averaged samples,
+# far below it) is added. Farther by more than CHECK_MARGINAL_FRAC: accepted with a warning
+# (what one of the re-check tolerances is worth, docs/commissioning.md, "Re-check in service").
 CHECK_TOL_FRAC = 0.003
 CHECK_MARGINAL_FRAC = 0.001
 CHECK_NOISE_SIGMAS = 3.0
