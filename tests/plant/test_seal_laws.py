@@ -369,7 +369,7 @@ def test_example_tables_have_the_field_trip_magnitudes(name):
 
 def test_example_table_refuses_an_unknown_law():
     with pytest.raises(ValueError, match="law"):
-        example_table("dahl")
+        example_table("bouc-wen")
 
 
 BAD = [
@@ -386,7 +386,7 @@ BAD = [
     ("elasto-plastic", {"z_ba_fraction": 1.0}, "plant.friction.z_ba_fraction"),
     ("elasto-plastic", {"sigma0": -1.0}, "plant.friction.sigma0"),
     ("elasto-plastic", {"v_threshold": 1e-4}, "plant.friction.v_threshold"),
-    ("elasto-plastic", {"law": "dahl"}, "plant.friction.law"),
+    ("elasto-plastic", {"law": "bouc-wen"}, "plant.friction.law"),
 ]
 
 

@@ -44,6 +44,9 @@ SCORING_SEEDS = tuple(range(101, 201))
 PREFIX = "population-"
 
 LAWS = ("lugre", "maxwell-slip", "elasto-plastic")
+# Seal families `draw` never picks (so the tuning and scoring hoists stay as they are): a
+# leave-one-family-out evaluation gives a drawn hoist one of these by seal_table(law, h.draws, ...).
+HELD_OUT_LAWS = ("dahl", "bliman-sorine")
 # The ranges each hoist is drawn from (uniform unless `log`: uniform in the logarithm).
 RANGES = {
     "force_level": (0.25, 1.0, "log"),     # seal forces x this, relative to the field trip's (worn) seal
@@ -114,17 +117,21 @@ def _scale_line(line: dict, level: float, slope_ratio: float = 1.0) -> dict:
 
 
 def seal_table(law: str, draws: dict, rope_scale) -> dict:
-    """The plant's friction table for a law from its example (`plant.friction.example_table`),
-    scaled by the draws."""
+    """The plant's friction table for a law (LAWS or HELD_OUT_LAWS) from its example
+    (`plant.friction.example_table`), scaled by the draws. A held-out law's own parameters come
+    from the draws no other law of the hoist uses: Dahl's exponent 1-2 from z_ba_fraction's,
+    Bliman-Sorine's eta (x0.5-2 of 0.1) and ef (x0.5-2, over stiffness_scale) from element_spread's."""
     from ropemon.lab.plant.friction import example_table
 
     t = example_table(law)
     level, ratio = draws["force_level"], draws["slope_ratio"]
     out = dict(t)
     for k in ("Fs", "Fc", "sigma2"):
-        out[k] = _scale_line(t[k], level, ratio)
-    out["vs"] = {"intercept": t["vs"]["intercept"] * draws["vs_scale"],
-                 "slope": t["vs"].get("slope", 0.0) * draws["vs_scale"]}
+        if k in t:
+            out[k] = _scale_line(t[k], level, ratio)
+    if "vs" in t:
+        out["vs"] = {"intercept": t["vs"]["intercept"] * draws["vs_scale"],
+                     "slope": t["vs"].get("slope", 0.0) * draws["vs_scale"]}
     stiff = level * draws["stiffness_scale"]  # the pre-sliding distance moves with stiffness_scale only
     if "sigma0" in t:
         out["sigma0"] = t["sigma0"] * stiff
@@ -134,6 +141,12 @@ def seal_table(law: str, draws: dict, rope_scale) -> dict:
         out["k"] = [k * stiff / d for k, d in zip(t["k"], draws["element_spread"])]
     if law == "elasto-plastic":
         out["z_ba_fraction"] = round(draws["z_ba_fraction"], 3)
+    if law == "dahl":          # z_ba_fraction's uniform 0.2-0.8 as an exponent 1-2
+        out["exponent"] = round(1.0 + (draws["z_ba_fraction"] - 0.2) / 0.6, 3)
+    if law == "bliman-sorine":  # lengths scattered as Maxwell-slip's breaks, ef moving with stiffness_scale
+        spread = draws["element_spread"]
+        out["eta"] = round(t["eta"] * spread[0], 4)
+        out["ef"] = float(f"{t['ef'] * spread[1] / draws['stiffness_scale']:.4e}")
     out["force_scale"] = [round(float(s), 4) for s in rope_scale]
     return out
 

@@ -19,6 +19,9 @@ clamped at 0: cavitation is not modelled). Parameters may be per rope.
 - `ElastoPlastic`: Dupont, Hayward, Armstrong, Altpeter, IEEE TAC 2002: purely elastic
   below the break-away deflection z_ba, LuGre-like sliding beyond z_ss.
 
+Two rate-independent laws from the literature live beside these in `rate_independent`
+(`MORE_LAWS`: Dahl, second-order Bliman-Sorine); `from_table` builds them too.
+
 Every law takes a per-rope `force_scale` (default 1): rope i's force and its partials
 are s_i times the law's (Fs, Fc, sigma2 and the stiffnesses scaled alike), the state
 dynamics and pre-sliding distances are unchanged.
@@ -476,16 +479,28 @@ class ElastoPlastic:
 
 
 LAWS = ("lugre", "coulomb-stribeck", "maxwell-slip", "elasto-plastic")
+# rate_independent.py's laws: built by from_table, not yet run by the fast stepper (stepper.Stepper)
+MORE_LAWS = ("dahl", "bliman-sorine")
+ALL_LAWS = LAWS + MORE_LAWS
+# the pressure lines each law reads (the others: all of LINE_KEYS)
+LAW_LINES = {"dahl": ("Fc", "sigma2"), "bliman-sorine": ("Fs", "Fc", "sigma2")}
 
 
 def example_table(law: str) -> dict:
-    """A [plant.friction] table of `law` (one of LAWS) with the magnitudes of paper-field-trip's
+    """A [plant.friction] table of `law` (one of ALL_LAWS) with the magnitudes of paper-field-trip's
     LuGre seal: Fs = 2500 + 2000 p, Fc = 1700 + 1200 p (N, p in MPa), vs = 4 - 0.1 p mm/s,
     sigma2 = 20000 + 2000 p N s/m, pre-sliding over ~80 um at 8 kN (Maxwell-slip: elements
-    breaking at 10, 30, 60 and 120 um at s = 8 kN). A fresh dict: perturb it freely."""
+    breaking at 10, 30, 60 and 120 um at s = 8 kN; Dahl: sigma0 as LuGre's, exponent 1;
+    Bliman-Sorine: lengths 40 and 400 um). Laws without a Stribeck velocity (Dahl, Bliman-Sorine)
+    or a static level (Dahl) have only the lines they read (`LAW_LINES`). A fresh dict: perturb
+    it freely."""
+    if law not in ALL_LAWS:
+        raise ValueError(f"law: must be one of {ALL_LAWS}, got {law!r}")
     t: dict = {"law": law, "Fs": {"intercept": 2500.0, "slope": 2000.0},
                "Fc": {"intercept": 1700.0, "slope": 1200.0}, "vs": {"intercept": 0.004, "slope": -0.0001},
                "sigma2": {"intercept": 20000.0, "slope": 2000.0}}
+    for k in set(LINE_KEYS) - set(LAW_LINES.get(law, LINE_KEYS)):
+        del t[k]
     if law == "lugre":
         t.update(sigma0=1.0e8, sigma1=5.0e4)
     elif law == "coulomb-stribeck":
@@ -496,8 +511,10 @@ def example_table(law: str) -> dict:
                  sharpness=50.0, sigma1=5.0e4)
     elif law == "elasto-plastic":
         t.update(sigma0=1.0e8, sigma1=5.0e4, z_ba_fraction=0.4)
-    else:
-        raise ValueError(f"law: must be one of {LAWS}, got {law!r}")
+    elif law == "dahl":
+        t.update(sigma0=1.0e8, exponent=1.0)
+    elif law == "bliman-sorine":
+        t.update(eta=0.1, ef=4.0e-4)
     return t
 
 
@@ -520,8 +537,11 @@ def from_table(t: dict, where: str, n_ropes: int | None = None):
     from ropemon.lab.plant.scenario import ScenarioError, number
 
     law = t.get("law", "lugre")
+    if law not in ALL_LAWS:
+        raise ScenarioError(f"{where}.law: must be one of {', '.join(repr(a) for a in ALL_LAWS)}, got {law!r}")
+    keys = LAW_LINES.get(law, LINE_KEYS)
     lines = {}
-    for k in LINE_KEYS:
+    for k in keys:
         v = t.get(k)
         if not isinstance(v, dict):
             raise ScenarioError(f"{where}.{k}: missing, or not a table {{intercept = ..., slope = ...}}")
@@ -529,7 +549,7 @@ def from_table(t: dict, where: str, n_ropes: int | None = None):
         if unknown:
             raise ScenarioError(f"{where}.{k}.{sorted(unknown)[0]}: unknown field")
         lines[k] = Line(number(v, "intercept", f"{where}.{k}"), number(v, "slope", f"{where}.{k}", default=0.0))
-    if lines["vs"].intercept <= 0:
+    if "vs" in lines and lines["vs"].intercept <= 0:
         raise ScenarioError(f"{where}.vs.intercept: must be > 0")
     scale = None
     if "force_scale" in t:
@@ -537,7 +557,7 @@ def from_table(t: dict, where: str, n_ropes: int | None = None):
             raise ScenarioError(f"{where}.force_scale: must be a list of one number per rope"
                                 + (f" ({n_ropes})" if n_ropes is not None else ""))
         scale = _numbers(t, "force_scale", where, gt=0)
-    common = {"law", *LINE_KEYS, "force_scale"}
+    common = {"law", *keys, "force_scale"}
     if law == "lugre":
         extra = common | {"sigma0", "sigma1"}
         f = LuGre(**lines, sigma0=number(t, "sigma0", where, gt=0), sigma1=number(t, "sigma1", where, ge=0),
@@ -559,8 +579,21 @@ def from_table(t: dict, where: str, n_ropes: int | None = None):
         extra = common | {"sigma0", "sigma1", "z_ba_fraction"}
         f = ElastoPlastic(**lines, sigma0=number(t, "sigma0", where, gt=0), sigma1=number(t, "sigma1", where, ge=0),
                           z_ba_fraction=number(t, "z_ba_fraction", where, ge=0, lt=1), force_scale=scale)
-    else:
-        raise ScenarioError(f"{where}.law: must be one of {', '.join(repr(a) for a in LAWS)}, got {law!r}")
+    elif law == "dahl":
+        from ropemon.lab.plant.rate_independent import Dahl
+
+        if lines["Fc"].intercept <= 0:
+            raise ScenarioError(f"{where}.Fc.intercept: must be > 0")
+        extra = common | {"sigma0", "sigma1", "exponent"}
+        f = Dahl(**lines, sigma0=number(t, "sigma0", where, gt=0),
+                 exponent=number(t, "exponent", where, 1.0, ge=1, le=4),
+                 sigma1=number(t, "sigma1", where, 0.0, ge=0), force_scale=scale)
+    else:  # bliman-sorine
+        from ropemon.lab.plant.rate_independent import BlimanSorine
+
+        extra = common | {"eta", "ef"}
+        f = BlimanSorine(**lines, eta=number(t, "eta", where, gt=0, lt=1), ef=number(t, "ef", where, gt=0),
+                         force_scale=scale)
     unknown = set(t) - extra
     if unknown:
         raise ScenarioError(f"{where}.{sorted(unknown)[0]}: unknown field for law {law!r}")
