@@ -273,7 +273,7 @@ def test_a_plant_run_stays_within_the_laws_bounds(halving_run):
 def test_halving_the_step_changes_tensions_and_friction_by_less_than_0_1_percent_of_rated(halving_run):
     """As test_convergence for LuGre (there by the fast stepper): halving every step moves rope
     tensions by 5.5 N (Dahl) / 5.7 N (Bliman-Sorine), friction by 7.2 / 7.1 N, against 80 N (0.1 % of
-    the rated 80 kN; LuGre by the same dense BDF2: 5.4 / 6.1 N); the pistons by 0.23 / 0.18 um; x stays
+    the rated 80 kN; LuGre by the same dense BDF2: 5.5 / 6.1 N); the pistons by 0.23 / 0.18 um; x stays
     the integral of v within 0.011 um."""
     name, sc, a, b = halving_run
     idx = np.searchsorted(b["t"], a["t"])
