@@ -23,6 +23,7 @@ import numpy as np
 
 from ropemon.lab.plant.friction import CoulombStribeck, ElastoPlastic, LuGre, MaxwellSlip
 from ropemon.lab.plant.model import G, LEAK_KNEE_PA, TAU_VALVE_S
+from ropemon.lab.plant.rate_independent import BlimanSorine, Dahl
 from ropemon.lab.plant.solver import GAMMA
 
 
@@ -45,7 +46,7 @@ class Stepper:
         self.lugre = isinstance(fr, LuGre)
         # 0: LuGre, 1: Coulomb-Stribeck (both inline), 2: a law's own scalar `terms` per rope
         self.kind = 0 if self.lugre else 1 if isinstance(fr, CoulombStribeck) else 2
-        if self.kind == 2 and not isinstance(fr, (MaxwellSlip, ElastoPlastic)):
+        if self.kind == 2 and not isinstance(fr, (MaxwellSlip, ElastoPlastic, Dahl, BlimanSorine)):
             raise TypeError(f"no fast stepper for friction law {type(fr).__name__}")
         self.terms = fr.terms if self.kind == 2 else None
         self.scale = None if fr.force_scale is None else [float(a) for a in fr.force_scale]
