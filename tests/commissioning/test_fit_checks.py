@@ -127,7 +127,8 @@ def fit_compliance(w: dict, *extra: str, rsens: Path | None = None, node: Path |
 
 
 def figures(err: str) -> list[str]:
-    return [line for line in err.splitlines() if line.startswith("ropemon fit-compliance: check: rest at")]
+    return [line for line in err.splitlines()
+            if line.startswith("ropemon fit-compliance: check: rest at") and "with the fit" in line]
 
 
 def pct(text: str, name: str) -> float:
@@ -185,6 +186,9 @@ def test_a_good_fit_is_accepted_and_its_check_recorded(wind, tmp_path, capsys):
     assert chk["worst_harm_frac"] < 0
     assert chk["motion_residual_frac"] < 0.1
     assert len(figures(cap.err)) == 2 and "error" not in cap.err and "warning" not in cap.err
+    # the loaded rests: near no known load without --payload-kg, and said so
+    assert len(chk["not_compared"]) == 2
+    assert cap.err.count("load not known: reads") == 2 and cap.err.count("of a known load; not compared") == 2
     # a weighed payload makes the loaded rests known too
     assert fit_compliance(wind, "--payload-kg", str(PAYLOAD_KG)) == 0
     chk = json.loads(capsys.readouterr().out)["check"]
@@ -242,3 +246,31 @@ def test_a_known_load_that_cannot_be_used_is_refused(wind, tmp_path, capsys, ext
     cap = capsys.readouterr()
     assert code == 2 and cap.out == "" and not out.exists()
     assert cap.err.startswith("ropemon fit-compliance: error: ") and message in cap.err
+
+
+def fig(with_err: float, without_err: float, known: float = 185e3) -> compliance.RestFigure:
+    return compliance.RestFigure(70.0, 2.0, "empty cage", known, known * (1 + with_err), known * (1 + without_err),
+                                 known * 1.05)
+
+
+@pytest.mark.parametrize("with_err,without_err,verdict", [
+    (0.0005, 0.030, "ok"),        # better
+    (0.0102, 0.010, "ok"),        # farther off by 0.02 %: within what the channels resolve
+    (-0.012, 0.010, "marginal"),  # by 0.2 %: accepted with a warning
+    (-0.014, 0.010, "worse"),     # by 0.4 %: refused
+])
+def test_the_verdict_and_its_tolerance(with_err, without_err, verdict):
+    chk = compliance.FitCheck([fig(0.0, 0.05), fig(with_err, without_err)], 0.003, 1e-6, 0.02, 3)
+    assert chk.verdict == verdict and chk.worst.harm == pytest.approx(abs(with_err) - abs(without_err))
+    warned = compliance.check_warnings(chk)
+    assert bool(warned) == (verdict == "marginal")
+    if warned:
+        assert warned[0].startswith("the fit puts the total at the rest at 70.0 s 0.20 % of the load farther off")
+
+
+def test_no_rest_of_known_load_leaves_the_fit_unchecked_and_says_so():
+    chk = compliance.FitCheck([], 0.003, 1e-6, 0.2, 2, [(5.0, 300.0, 210e3), (70.0, 2.0, 250e3)])
+    assert chk.verdict == "unchecked" and chk.as_dict()["worst_harm_frac"] is None
+    warned = compliance.check_warnings(chk)
+    assert warned[0].startswith("the fit is not checked: none of the recording's 2 rests reads within 10 % of a known")
+    assert "departs from what the fitted compliance predicts" in warned[1] and "20 % of the predicted" in warned[1]

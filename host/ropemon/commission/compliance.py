@@ -677,6 +677,7 @@ class FitCheck:
     motion_rms_m: float | None      # the pistons' common motion off the fit's prediction (rms, m)
     motion_frac: float | None       # ... over the predicted motion's rms
     rests_found: int = 0            # rests in the recording (known load or not)
+    unknown: list[tuple[float, float, float]] = field(default_factory=list)  # (t_s, depth_m, N read) not compared
 
     @property
     def worst(self) -> RestFigure | None:
@@ -706,6 +707,7 @@ class FitCheck:
         return {"verdict": self.verdict, "tolerance_frac": self.tol_frac,
                 "worst_harm_frac": None if w is None else w.harm, "rests_found": self.rests_found,
                 "rests": [r.as_dict() for r in self.rests],
+                "not_compared": [{"t_s": t, "depth_m": d, "without_N": v} for t, d, v in self.unknown],
                 "motion_residual_rms_m": self.motion_rms_m, "motion_residual_frac": self.motion_frac}
 
 
@@ -783,7 +785,8 @@ def check_fit(ph: dict, records: np.ndarray, res: "ComplianceFit", load: KnownLo
         noise_n = res.pressure_noise_pa * a_mean * math.sqrt(int(ph["ropes"]) / shortest)
         tol = CHECK_TOL_FRAC + CHECK_NOISE_SIGMAS * noise_n / min(f.known_n for f in figs)
     rms, frac = motion_residual(ph, records, res)
-    return FitCheck(figs, tol, rms, frac, len(spans))
+    unknown = [((a + b) / (2 * fs), depth, without[j]) for j, (a, b, depth) in enumerate(spans) if known[j] is None]
+    return FitCheck(figs, tol, rms, frac, len(spans), unknown)
 
 
 def add_arguments(p) -> None:
@@ -844,6 +847,10 @@ def run(args) -> int:
             return 2
         for r in chk.rests:
             print(f"ropemon fit-compliance: check: {r.line()}", file=sys.stderr)
+        for t, depth, v in chk.unknown:
+            print(f"ropemon fit-compliance: check: rest at {t:.1f} s, depth {depth:.1f} m, load not known: reads "
+                  f"{v / 1e3:.2f} kN without the fit, not within {KNOWN_MATCH_FRAC * 100:g} % of a known load; "
+                  "not compared", file=sys.stderr)
         w = chk.worst
         if chk.verdict == "worse":
             print(f"ropemon fit-compliance: error: the fitted compliance makes the node's total worse where the load "
