@@ -707,7 +707,8 @@ class FitCheck:
         return {"verdict": self.verdict, "tolerance_frac": self.tol_frac,
                 "worst_harm_frac": None if w is None else w.harm, "rests_found": self.rests_found,
                 "rests": [r.as_dict() for r in self.rests],
-                "not_compared": [{"t_s": t, "depth_m": d, "without_N": v} for t, d, v in self.unknown],
+                "not_compared": [{"t_s": t, "depth_m": d, "without_N": v if math.isfinite(v) else None}
+                                 for t, d, v in self.unknown],
                 "motion_residual_rms_m": self.motion_rms_m, "motion_residual_frac": self.motion_frac}
 
 
