@@ -228,6 +228,7 @@ def test_the_check_in_service_reports_the_comparison(wind, tmp_path, capsys):
     (["--payload-kg", "nan"], "--payload-kg: must be > 0"),
     ("other cage", "hoist.cage_mass_kg = 9000 kg weighs 88290 N, the node.json's physical.conveyance_weight_N"),
     ("no site", "--payload-kg: needs --site"),
+    ("missing site", "site.toml: cannot read: No such file or directory"),
 ])
 def test_a_known_load_that_cannot_be_used_is_refused(wind, tmp_path, capsys, extra, message):
     out = tmp_path / "compliance.json"
@@ -237,6 +238,9 @@ def test_a_known_load_that_cannot_be_used_is_refused(wind, tmp_path, capsys, ext
         shutil.copy(wind["dir"] / "paper-friction.json", tmp_path)
         shutil.copy(wind["dir"] / "paper-compliance.json", tmp_path)
         code = ropemon(["fit-compliance", str(wind["node"]), str(wind["rsens"]), "--site", str(site),
+                        "--out", str(out)])
+    elif extra == "missing site":
+        code = ropemon(["fit-compliance", str(wind["node"]), str(wind["rsens"]), "--site", str(tmp_path / "site.toml"),
                         "--out", str(out)])
     elif extra == "no site":
         code = ropemon(["fit-compliance", str(wind["node"]), str(wind["rsens"]), "--payload-kg", "100",
