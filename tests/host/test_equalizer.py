@@ -341,6 +341,27 @@ def test_a_reference_taken_within_a_slip_does_not_make_the_taps_return_a_departu
         assert not any(o.lags for o in out), (k, out)
 
 
+def test_no_evidence_of_following_while_oil_flows_between_the_others():
+    """A rope raised as cut off clears only on frames whose taps it could be judged on: while two
+    of the others slide against each other (their flow parts the taps), its piston moving with
+    their median is no evidence; once they have moved alike for a second, it is."""
+    tr = EqualizingTracker(EQ)
+    k = 0
+    for k in range(20):
+        tr.update(frame([2500] * 4, [0.0] * 4, k), 0.1 * k)
+    for j in range(1, 11):                                         # all +0.5 mm; ropes 3 and 4 part
+        k += 1
+        d = 0.4e-3 * j / 10
+        out = tr.update(frame([2500 + 50 * j] * 4, [0.5e-3 * j / 10] * 2 + [0.5e-3 * j / 10 + d,
+                                                                          0.5e-3 * j / 10 - d], k), 0.1 * k)
+    assert not out[0].lags and not out[0].follows and out[0].own_m == pytest.approx(0.5e-3)
+    for j in range(12):                                            # then all alike for 1.2 s
+        k += 1
+        out = tr.update(frame([3000 + 50 * j] * 4, [0.5e-3 + 0.2e-3 * j / 11] * 2 + [
+            0.9e-3 + 0.2e-3 * j / 11, 0.1e-3 + 0.2e-3 * j / 11], k), 0.1 * k)
+    assert out[0].follows
+
+
 def test_a_frozen_transmitter_is_not_a_cut_off_cylinder():
     """Its pressure still while the others' move, its piston with theirs: SENSOR STUCK's, not this."""
     s = Stream().feed([2500] * 4, [K * 2.5e6] * 4, n=30)

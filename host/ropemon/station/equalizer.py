@@ -335,24 +335,25 @@ class EqualizingTracker:
             hist.popleft()
         # the pistons' motion over the last QUIET_S: where they moved alike (within the frame's
         # resolution) no oil flowed between the cylinders, only the compression's, alike on every tap
-        quiet_of: list[bool] = [False] * n     # the others than this rope moved alike
-        flowing_of: list[bool] = [False] * n   # they did not (known: QUIET_S of frames behind)
-        quiet = False                          # all did
+        quiet = False                          # all moved alike
+        quiet_of = flowing_of = [False] * n    # the others than this rope did; they did not (known)
         t_old, x_old = hist[0]
         if now_s - t_old >= self.QUIET_S and len(x_old) == n and len(idx) >= 2 and all(
                 x_old[i] is not None for i in idx):
-            mv = sorted((xs[i] - x_old[i], i) for i in idx)
+            mv = [xs[i] - x_old[i] for i in idx]
             st_ = self._still
-            lo_i, hi_i = mv[0][1], mv[-1][1]
-            quiet = mv[-1][0] - mv[0][0] <= st_
-            for i in idx:
-                if len(mv) == 2:
-                    quiet_of[i] = True         # one other rope: alike with itself
-                    continue
-                top = mv[-2][0] if i == hi_i else mv[-1][0]
-                bot = mv[1][0] if i == lo_i else mv[0][0]
-                quiet_of[i] = top - bot <= st_
-                flowing_of[i] = not quiet_of[i]
+            quiet = max(mv) - min(mv) <= st_
+            if quiet or len(mv) == 2:          # (one other rope: alike with itself)
+                quiet_of = usable
+            else:
+                srt = sorted(zip(mv, idx))
+                lo_i, hi_i = srt[0][1], srt[-1][1]
+                quiet_of = [False] * n
+                for i in idx:
+                    top = srt[-2][0] if i == hi_i else srt[-1][0]
+                    bot = srt[1][0] if i == lo_i else srt[0][0]
+                    quiet_of[i] = top - bot <= st_
+                flowing_of = [u and not q for u, q in zip(usable, quiet_of)]
         if quiet:
             self._offs.append(off)
         self._offs_any.append(off)
