@@ -90,8 +90,11 @@ $(MPY32_STAMP): $(STAMP) $(wildcard tools/mpy32/*.sh tools/mpy32/Makefile tools/
 demo: $(STAMP)
 	$(BIN)/ropemon demo --serve
 
+# pytest on TEST_WORKERS processes (pytest-xdist), each taking whole files, so a file's tests
+# keep their order and share their module fixtures; `make test TEST_WORKERS=0` runs them in one.
+TEST_WORKERS ?= 2
 test: $(STAMP) $(NODE_STAMP) $(BROWSER_STAMP) $(BROKER_STAMP) $(MPY32_STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 	$(BIN)/python tests/run_micropython.py
 
 bench: $(STAMP) $(BROWSER_STAMP) $(BROKER_STAMP)
