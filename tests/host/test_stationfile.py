@@ -175,3 +175,24 @@ def test_a_station_set_takes_other_receivers_for_a_hoist(tmp_path):
         s.close()
     with pytest.raises(ValueError, match="west"):
         StationSet(sf, receivers={"west": [("radio", "loop://")]})
+
+
+def test_ropemon_serve_on_a_taken_port_says_which_face_and_exits_2(tmp_path):
+    """A face that cannot listen (its port taken by another program) stops the start with one
+    line naming the face and the reason, exit 2: no traceback."""
+    import socket
+    import subprocess
+    import sys
+
+    node_json(tmp_path, "north.json", 1, KEY_N)
+    node_json(tmp_path, "south.json", 1, KEY_S)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        station = write(tmp_path, GOOD.replace("[web]\nport = 8099\n", f"[modbus]\nport = {port}\n"))
+        p = subprocess.run([sys.executable, "-m", "ropemon.cli", "serve", "--quiet", str(station)],
+                           capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2, p.stderr
+    assert "Traceback" not in p.stderr, p.stderr
+    assert "ropemon serve: [modbus]: cannot start:" in p.stderr, p.stderr

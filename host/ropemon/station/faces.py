@@ -58,7 +58,10 @@ def start_faces(stations: Any, sf: StationFile) -> list[Face]:
             except ImportError as e:
                 raise FaceError(f"[{name}]: the {name} face needs its libraries: pip install 'ropemon[{extra}]' "
                                 f"({e})") from None
-            started.append(mod.start(stations, config))
+            try:
+                started.append(mod.start(stations, config))
+            except OSError as e:               # its port taken, a certificate unreadable: the face's own words
+                raise FaceError(f"[{name}]: cannot start: {e}") from None
     except Exception:
         for f in started:
             f.stop()
