@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from ropemon.commission import tomlfields
+from ropemon.station import tomlfields
 from ropemon.station import faces
 from ropemon.station.stationfile import load_station_file
 

@@ -1,10 +1,10 @@
-"""A site file and a scenario refuse the same fault in the same words (ropemon.commission.tomlfields)."""
+"""A site file and a scenario refuse the same fault in the same words (ropemon.station.tomlfields)."""
 import shutil
 from pathlib import Path
 
 import pytest
 
-from ropemon.commission import tomlfields
+from ropemon.station import tomlfields
 from ropemon.lab.plant import scenario
 from ropemon.commission.site import SiteError, _Table, load_site
 

@@ -16,11 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ropemon.commission import tomlfields
-from ropemon.station import files
+from ropemon.station import files, tomlfields
 from ropemon.station import physical as physical_section
-
-G_M_S2 = 9.81
+from ropemon.station.physical import G_M_S2
 
 # ISO 3448 viscosity grades (cSt at 40 C).
 ISO_VG_GRADES = (2, 3, 5, 7, 10, 15, 22, 32, 46, 68, 100, 150, 220, 320, 460, 680, 1000, 1500)

@@ -95,7 +95,7 @@ def scenario_seal(path: Path | str, rope: int | None = None) -> tuple[dict[str, 
     other law is wrapped as it is (params None: no lines to scatter about). With a
     per-rope `force_scale`, `rope` picks that rope's seal; None is the seal at scale 1.
     """
-    from ropemon.commission import tomlfields
+    from ropemon.station import tomlfields
     from ropemon.lab.plant import friction as plant_friction
     from ropemon.lab.plant.scenario import ScenarioError, table
 

@@ -12,7 +12,7 @@ A bad file is refused with its name and the reason, never read for ever, never a
   no key twice);
 - CSV fields are limited in length and the rows in number (`csv_rows`).
 
-Every reader takes the caller's exception class (`error`, as `ropemon.commission.tomlfields`
+Every reader takes the caller's exception class (`error`, as `ropemon.station.tomlfields`
 does), so a refusal reaches the command as the error it already reports; the default is
 `FileRefused`, a ValueError. The messages start with the path. The product (station,
 commissioning) and the lab all read through here.

@@ -41,7 +41,7 @@ from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 
-from ropemon.commission.tomlfields import Table
+from ropemon.station.tomlfields import Table
 from ropemon.station import logsummary
 from ropemon.station.pipeline import Acknowledge
 from ropemon.station.scadavalues import ALARM_KINDS, EQUALIZER_KINDS, HoistValues, NodeValues

@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
-from ropemon.commission.tomlfields import Table
+from ropemon.station.tomlfields import Table
 from ropemon.station import files
 from ropemon.station.alarms import PRIORITY, ActiveAlarm, AlarmEvent
 from ropemon.station.link import Received

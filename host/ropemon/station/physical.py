@@ -28,14 +28,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ropemon.commission import tomlfields
-from ropemon.station import files
+from ropemon.station import files, tomlfields
 from ropemon.station.alarms import AlarmSettings
 from ropemon.station.equalizer import EqualizerSettings
 from ropemon.station.protocol import DAN_TO_N, KEY_LEN_MAX, KEY_LEN_MIN, L
 from ropemon.station.uncertainty import DEFAULTS as BAND_DEFAULTS
 from ropemon.station.uncertainty import BandParams, Line
 
+G_M_S2 = 9.81                   # gravity, m/s2: a mass's weight wherever the figures need one
 MAX_NODE_JSON_BYTES = 4 << 20   # a node.json is a few tens of kB; a bigger file is not one
 MAX_MARKS = 64                  # Hall marks the node holds
 MAX_LOSS_TEMPS = 8              # temperature rows of the loss table

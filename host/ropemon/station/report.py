@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from ropemon.station.nodetime import NodeClock
+from ropemon.station.physical import G_M_S2
 from ropemon.station.protocol import DAN_TO_N, L
-from ropemon.commission.site import G_M_S2
 
 REST_SPEED_M_S = 0.05   # slower than this: the cage is standing
 SETTLE_S = 1.0          # skip the bounce right after the cage stops

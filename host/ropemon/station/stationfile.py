@@ -24,7 +24,7 @@
     tls_cert = "..."                # optional, with tls_key
 
 Relative paths are taken from the station file's folder. Every refusal names the field
-and the reason; unknown tables and fields are refused (`commission.tomlfields`).
+and the reason; unknown tables and fields are refused (`station.tomlfields`).
 """
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ropemon.commission import tomlfields
-from ropemon.commission.tomlfields import Table
+from ropemon.station import tomlfields
+from ropemon.station.tomlfields import Table
 from ropemon.station import files
 
 MAX_STATION_TOML = 1 * files.MB

@@ -519,7 +519,7 @@ def example_table(law: str) -> dict:
 
 
 def _numbers(t: dict, key: str, where: str, *, gt=None, length: int | None = None) -> tuple[float, ...]:
-    from ropemon.commission import tomlfields
+    from ropemon.station import tomlfields
     from ropemon.lab.plant.scenario import ScenarioError
 
     v = t.get(key)

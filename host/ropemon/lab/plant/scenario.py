@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ropemon.commission import tomlfields
+from ropemon.station import tomlfields
 from ropemon.lab.plant import friction as friction_mod
 from ropemon.lab.plant.hydraulics import Local, Path as PipePath, PathSet, Segment
 from ropemon.lab.plant.stepper import METHODS

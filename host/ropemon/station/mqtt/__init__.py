@@ -49,7 +49,7 @@ from typing import Any
 
 import paho.mqtt.client as paho
 
-from ropemon.commission.tomlfields import Table
+from ropemon.station.tomlfields import Table
 from ropemon.station.mqtt import sparkplug as sp
 from ropemon.station.mqtt.outbox import Outbox
 from ropemon.station.scadavalues import HoistValues, NodeValues

@@ -54,7 +54,7 @@ from typing import Any, MutableMapping
 from argon2 import PasswordHasher, extract_parameters
 from argon2.exceptions import InvalidHashError, VerificationError
 
-from ropemon.commission.tomlfields import Table
+from ropemon.station.tomlfields import Table
 from ropemon.station import files
 
 ROLES = ("viewer", "operator", "engineer")
