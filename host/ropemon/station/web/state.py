@@ -28,7 +28,7 @@ from typing import Any
 
 from ropemon.station.alarms import ActiveAlarm, AlarmEvent
 from ropemon.station.link import Received
-from ropemon.station.monitor import STALE_S, alarm_text, has_positions, link_figures, merge_figures, piston
+from ropemon.station.views import STALE_S, alarm_text, has_positions, link_figures, merge_figures, piston
 from ropemon.station.pipeline import AlarmState, Listener, StationStatus
 from ropemon.station.protocol import DAN_TO_N, Frame, L
 
