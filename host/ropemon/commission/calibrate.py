@@ -27,6 +27,10 @@ Method (docs/commissioning.md, "Friction calibration"):
    separately, in N and as a fraction of the level's Fs. Beyond
    RESIDUAL_MAX_SLIDING or RESIDUAL_MAX_PRESLIDING (RMS over Fs) the seal is one
    the node's model cannot represent: a warning, and `representable` false.
+7. The check (`check_bed`, the command only): the node's float reference over the record with
+   the fit and raw p x A, against the bed's force, held out by level where 4 or more levels
+   allow it; a fit that reads it worse than raw p x A beyond BED_CHECK_NOISE_SIGMAS times the
+   bed's force noise is refused, nothing written (docs/commissioning.md, "fit-friction's check").
 
 Every refusal (bad columns, NaN, one pressure level, one direction, too few
 points, no convergence) raises FitError with the reason; the command exits 1.
@@ -881,13 +885,40 @@ def summary(doc: dict[str, Any]) -> str:
     return "\n".join(rows)
 
 
+def check_lines(chk: BedCheck) -> list[str]:
+    """The check's figures as printed (stderr), one line per part, held out and as written."""
+    rows = []
+    for name, figs in (("held out", chk.parts if chk.held_out else None), ("as written", chk.in_sample)):
+        if figs is not None:
+            rows += [f"check on the bed's force ({name}): {chk.line(part, figs)}" for part in BED_CHECK_PARTS]
+    return rows
+
+
 def run(args) -> int:
     try:
         rec = read_csv(args.data)
         doc, levels, warnings = fit(rec, source=Path(args.data).name)
+        chk = check_bed(rec, doc)
     except FitError as e:
         print(f"fit-friction: error: {e}", file=sys.stderr)
         return 1
+    except ValueError as e:  # the node's reference cannot take the fit (site.check_friction, physical)
+        print(f"fit-friction: error: the node's float reference cannot run this fit on the bed: {e}", file=sys.stderr)
+        return 1
+    for line in check_lines(chk):
+        print(f"fit-friction: {line}", file=sys.stderr)
+    if chk.verdict == "worse":
+        print(f"fit-friction: error: the fit reads the bed's force worse than raw p x A: {chk.worst_line()}: "
+              f"{chk.worst_harm:.0f} N rms more, beyond the tolerance {chk.tol_N:.0f} N ({BED_CHECK_NOISE_SIGMAS:g} x "
+              f"the bed's force noise {chk.noise_N:.0f} N); nothing written (docs/commissioning.md, "
+              "\"fit-friction's check\")", file=sys.stderr)
+        return 1
+    if chk.verdict == "marginal":
+        warnings.append(f"check: the fit reads the bed's force no better than raw p x A: {chk.worst_line()}: "
+                        f"{chk.worst_harm:.0f} N rms more (within the tolerance {chk.tol_N:.0f} N): accepted, but "
+                        "it does not improve the reading there")
+    doc["check"] = chk.as_dict()
+    doc["warnings"] = warnings
     for w in warnings:
         print(f"fit-friction: warning: {w}", file=sys.stderr)
     out = Path(args.out)
@@ -899,3 +930,216 @@ def run(args) -> int:
         for path in write_plots(Path(args.plots), rec, doc, levels):
             print(f"wrote {path}")
     return 0
+
+
+# ---------------------------------------------------------------- the fit's own check
+
+# The bed knows the true force (its force sensor): the node's float reference
+# (ropemon.commission.reference) is run over the bed's record with the fitted seal and without
+# friction compensation (raw p x A), each against the bed's force. Its error there is the bed's
+# friction minus the node's estimate of it (raw p x A: the whole friction). A fit whose RMS error,
+# over the whole record, the sliding samples or the samples at rest (slower than a quarter of vs:
+# reversals and standstills), exceeds raw p x A's by more than BED_CHECK_NOISE_SIGMAS times the
+# bed's force noise is refused; by less, but worse than raw, accepted with a warning.
+BED_CHECK_NOISE_SIGMAS = 3.0
+BED_CHECK_PARTS = ("all", "sliding", "rest")
+BED_CHECK_MIN_LEVELS = MIN_LEVELS + 1   # a level can be left out of the lines when the others still give them
+
+
+def _bed_segments(rec: Record) -> list[tuple[int, int]]:
+    """The record's stretches between time gaps (a pressure level each, from rest)."""
+    dt = _sample_period(rec)
+    cuts = [0] + (np.flatnonzero(np.diff(rec.t) > 5 * dt) + 1).tolist() + [len(rec.t)]
+    return [(a, b) for a, b in zip(cuts, cuts[1:]) if b > a]
+
+
+def bed_physical(rec: Record, fr: dict[str, Any], x: np.ndarray, p_max_MPa: float) -> dict[str, Any]:
+    """A one-cylinder `physical` section of the node for the bed: the shipped default's
+    settings (ropemon.commission.nodejson.example_physical: velocity filter, observer, play)
+    at the bed's sample rate, without a compliance (the bed's displacement is the piston's),
+    channels spanning the record's pressure and position, and the friction `fr`, its lines held
+    above `p_max_MPa` (the top of the tested range, as `ropemon config` holds them)."""
+    from ropemon.commission.nodejson import example_physical
+
+    ph = example_physical()
+    fs = int(round(1.0 / _sample_period(rec)))
+    lo, hi = float(np.min(x)), float(np.max(x))
+    span = max(hi - lo, 0.01)
+    x_lo, x_hi = lo - 0.1 * span, hi + 0.1 * span
+    p_top = max(25e6, 1.3 * float(np.max(rec.p)) * 1e6)
+    one = {"ropes": 1, "sample_hz": fs, "frame_hz": next(f for f in (10, 5, 2, 1) if fs % f == 0),
+           "cylinder_area_m2": ph["cylinder_area_m2"][:1],
+           "pressure_channels": [{"counts_4mA": 9600, "counts_20mA": 48000, "range_Pa": [0.0, p_top]}],
+           "displacement_channels": [{"counts_lo": 9600, "counts_hi": 48000, "range_m": [x_lo, x_hi]}],
+           "stroke_m": [2 * max(abs(x_lo), abs(x_hi)) + 0.02],
+           "piston_speed_max_m_s": max(ph["piston_speed_max_m_s"], 1.5 * float(np.max(np.abs(rec.v)))),
+           "loss": dict(ph["loss"], dp_Pa=ph["loss"]["dp_Pa"][:1]),
+           "friction": fr, "friction_p_max_MPa": p_max_MPa}
+    ph.update(one)
+    return ph
+
+
+def node_friction(rec: Record, fr: dict[str, Any] | None, p_max_MPa: float,
+                  span: tuple[int, int] | None = None) -> np.ndarray:
+    """The friction (N) the node's float reference estimates over the record (or the samples
+    `span` of it), from its position (the bed's velocity integrated from rest at each level's
+    start) and pressure, with the friction section `fr` (its lines, sigma0, sigma1); None:
+    no friction compensation (0)."""
+    from ropemon.commission.reference import compensate
+
+    a, b = span if span is not None else (0, len(rec.t))
+    if fr is None:
+        return np.zeros(b - a)
+    out = np.empty(b - a)
+    for s, e in _bed_segments(Record(rec.t[a:b], rec.p[a:b], rec.v[a:b], rec.F[a:b])):
+        s, e = s + a, e + a
+        dts = np.diff(rec.t[s:e])
+        x = np.concatenate([[0.0], np.cumsum(0.5 * (rec.v[s:e - 1] + rec.v[s + 1:e]) * dts)])
+        sub = Record(rec.t[s:e], rec.p[s:e], rec.v[s:e], rec.F[s:e])
+        ph = bed_physical(sub, fr, x, p_max_MPa)
+        pc, dc = ph["pressure_channels"][0], ph["displacement_channels"][0]
+        r = np.zeros((e - s, 6), np.uint16)
+        r[:, 0] = np.clip(np.round(pc["counts_4mA"] + sub.p * 1e6 / pc["range_Pa"][1]
+                                   * (pc["counts_20mA"] - pc["counts_4mA"])), 0, 65535)
+        (x_lo, x_hi) = dc["range_m"]
+        r[:, 1] = np.clip(np.round(dc["counts_lo"] + (x - x_lo) / (x_hi - x_lo)
+                                   * (dc["counts_hi"] - dc["counts_lo"])), 0, 65535)
+        r[:, 2], r[:, 3] = 60000, 0xFFFF
+        out[s - a:e - a] = compensate(ph, r).friction_n[:, 0]
+    return out
+
+
+def force_noise_N(rec: Record, runs: list[tuple[int, int]]) -> float:
+    """The bed's force noise (N rms): the robust spread of the force's second differences over
+    sqrt(6), within the settled halves of the runs (where the friction is steady)."""
+    d = np.concatenate([np.diff(rec.F[a:b], 2) for a, b in runs if b - a > 2] or [np.zeros(1)])
+    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(6)
+
+
+def _lines_without(doc: dict[str, Any], drop: set[int]) -> dict[str, Any]:
+    """The friction lines fitted to the per-level Stribeck parameters of every level but `drop`."""
+    keep = [lv for i, lv in enumerate(doc["levels"]) if i not in drop]
+    p = np.array([lv["pressure_MPa"] for lv in keep])
+    out = {}
+    for key in PARAMS:
+        slope, icpt = np.polyfit(p, np.array([lv[key] for lv in keep]), 1)
+        out[key] = {"slope": float(slope), "intercept": float(icpt)}
+    return out
+
+
+def _errors(err: np.ndarray, raw: np.ndarray) -> dict[str, Any] | None:
+    if not err.size:
+        return None
+    return {"samples": int(err.size),
+            "fit_rms_N": float(np.sqrt(np.mean(err ** 2))), "fit_max_N": float(np.max(np.abs(err))),
+            "raw_rms_N": float(np.sqrt(np.mean(raw ** 2))), "raw_max_N": float(np.max(np.abs(raw)))}
+
+
+@dataclass
+class BedCheck:
+    """The fit checked on the bed (`check_bed`): per part the node's error on the bed's force
+    with the fit and raw p x A, the bed's force noise, the tolerance, on which data."""
+
+    parts: dict[str, dict[str, Any] | None]       # held-out (or in-sample) figures per part
+    in_sample: dict[str, dict[str, Any] | None]   # the fit as written on its whole record
+    held_out: bool                                # parts are of levels left out of the lines
+    noise_N: float
+    tol_N: float
+
+    def harm(self, part: str, figures: dict[str, dict[str, Any] | None] | None = None) -> float | None:
+        """How much larger the fit's RMS error is than raw p x A's in `part` (N; < 0: smaller)."""
+        c = (self.parts if figures is None else figures).get(part)
+        return None if c is None else c["fit_rms_N"] - c["raw_rms_N"]
+
+    @property
+    def worst(self) -> tuple[str, str]:
+        """(figures, part) where the fit does least well against raw p x A: figures 'parts'
+        (held out, or in-sample) or 'in_sample' (the fit as written on its whole record)."""
+        cands = [(name, part) for name in ("parts", "in_sample") for part in BED_CHECK_PARTS
+                 if self.harm(part, getattr(self, name)) is not None]
+        return max(cands, key=lambda c: self.harm(c[1], getattr(self, c[0])))
+
+    @property
+    def worst_harm(self) -> float:
+        name, part = self.worst
+        return self.harm(part, getattr(self, name))
+
+    @property
+    def verdict(self) -> str:
+        """'worse' (refused), 'marginal' (worse than raw p x A within the tolerance), 'ok'."""
+        h = self.worst_harm
+        return "worse" if h > self.tol_N else ("marginal" if h > 0 else "ok")
+
+    def worst_line(self) -> str:
+        name, part = self.worst
+        which = ("the fit as written, on its whole record" if name == "in_sample" or not self.held_out else
+                 "each level against the lines of the other levels")
+        return f"{self.line(part, getattr(self, name))} ({which})"
+
+    def line(self, part: str, figures: dict[str, dict[str, Any] | None] | None = None) -> str:
+        c = (figures or self.parts)[part]
+        if c is None:
+            return f"{part}: no samples"
+        return (f"{part} ({c['samples']} samples): with the fit {c['fit_rms_N']:.0f} N rms ({c['fit_max_N']:.0f} "
+                f"N worst), raw p x A {c['raw_rms_N']:.0f} N rms ({c['raw_max_N']:.0f} N worst)")
+
+    def as_dict(self) -> dict[str, Any]:
+        name, part = self.worst
+        return {"verdict": self.verdict,
+                "data": "held-out levels" if self.held_out else "the fit's own record",
+                "noise_N": self.noise_N, "tolerance_N": self.tol_N,
+                "worst": {"figures": "in_sample" if name == "in_sample" or not self.held_out else "held_out",
+                          "part": part, "harm_N": self.worst_harm},
+                "held_out": self.parts if self.held_out else None, "in_sample": self.in_sample}
+
+
+def check_bed(rec: Record, doc: dict[str, Any], runs: list[tuple[int, int]] | None = None) -> BedCheck:
+    """Run the node's float reference over the bed's record with the fit `doc` and without
+    friction compensation, each against the bed's force (its error there: the node's friction
+    minus the bed's; raw p x A's: minus the bed's friction), RMS and worst, over all samples,
+    the sliding ones and those at rest (slower than a quarter of the fit's vs, or within the
+    velocity's noise band: reversals and standstills).
+
+    Held out: with BED_CHECK_MIN_LEVELS or more pressure levels each level (the record between
+    time gaps) is run with the lines fitted to the other levels' Stribeck parameters (sigma0,
+    sigma1 as fitted), so no level is checked against lines it gave; the verdict is on those
+    figures and on those of the fit as written over its whole record (`in_sample`), whichever
+    is worse against raw p x A (the lines as written must read the bed too). With fewer levels
+    only the latter (`held_out` false).
+    """
+    from ropemon.commission.site import check_friction, SiteError
+
+    runs = find_runs(rec) if runs is None else runs
+    top = float(doc["pressure_range_MPa"][1])
+    fr = check_friction(doc, top, refuse_unheld=False)
+    vm, floor = _velocity_smooth(rec)
+    p = _median_filter(rec.p, 5)
+    rest = np.abs(vm) < np.maximum(line_at(doc, "vs", p) / 4, 4 * floor)
+    raw = -rec.F
+    masks = {"all": np.ones(len(rest), bool), "sliding": ~rest, "rest": rest}
+
+    def parts(err: np.ndarray) -> dict[str, dict[str, Any] | None]:
+        return {k: _errors(err[m], raw[m]) for k, m in masks.items()}
+
+    full = node_friction(rec, fr, top) - rec.F
+    in_sample = parts(full)
+    held = None
+    lv_p = np.array([lv["pressure_MPa"] for lv in doc["levels"]])
+    if len(lv_p) >= BED_CHECK_MIN_LEVELS:
+        held = np.empty(len(rec.t))
+        for a, b in _bed_segments(rec):
+            seg = p[a:b]
+            near = np.abs(lv_p[:, None] - seg[None, :]) <= np.maximum(LEVEL_GAP_MPA, 0.1 * lv_p[:, None])
+            drop = set(np.flatnonzero(near.mean(axis=1) > 0.05).tolist())
+            if len(lv_p) - len(drop) < MIN_LEVELS:
+                held = None
+                break
+            try:
+                lines = check_friction(dict(doc, **_lines_without(doc, drop)), top, refuse_unheld=False)
+            except SiteError:   # the other levels' lines are not physical at this level's pressure
+                held = None
+                break
+            held[a:b] = node_friction(rec, lines, top, (a, b)) - rec.F[a:b]
+    noise = force_noise_N(rec, runs)
+    return BedCheck(parts(held) if held is not None else in_sample, in_sample, held is not None, noise,
+                    BED_CHECK_NOISE_SIGMAS * noise)

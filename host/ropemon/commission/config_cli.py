@@ -34,6 +34,72 @@ def node_json_from_site(site: Site, friction: dict[str, Any] | None = None,
         raise SiteError(f"{e} (node config built from {site.path})") from None
 
 
+# The verdicts of the fits' own checks (`check` of fit-compliance --site and of fit-friction):
+# "worse" is refused unless the override is given, "marginal" and "unchecked" are warned, as is a
+# fit without a check (fit-compliance without --site, a fit-friction before it checked its fits).
+CHECK_VERDICTS = {"compliance": ("ok", "marginal", "unchecked", "worse"), "friction": ("ok", "marginal", "worse")}
+OVERRIDE = {"compliance": "--accept-unchecked-compliance", "friction": "--accept-unchecked-friction"}
+
+
+def _check_figure(table: dict[str, Any], key: str, field: str, lo: float, hi: float, unit: str = "") -> float | None:
+    """table[key] (None when absent or null), a number within lo..hi; SiteError naming `field`."""
+    v = table.get(key)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+        raise SiteError(f"{field}: must be a number within {lo:g}..{hi:g}{unit}, got {v!r}")
+    return float(v)
+
+
+def fit_check(fit: Any, what: str, accept: bool = False) -> list[str]:
+    """The warnings for a fit's own check (`what`: "compliance" or "friction"); SiteError naming
+    the field for a check that cannot be read, or one whose verdict refused the fit ("worse")
+    unless `accept` (the override flag: then a warning)."""
+    if not isinstance(fit, dict):
+        return []
+    name = what
+    if "check" not in fit:
+        if what == "compliance":
+            return ["compliance: the fit carries no check (fitted without --site): it was not compared with a "
+                    "known load; refit with `ropemon fit-compliance ... --site SITE.toml` (docs/commissioning.md, "
+                    "\"The fit's own check\")"]
+        return ["friction: the fit carries no check on the bed's force (made before fit-friction checked its "
+                "fits): rerun `ropemon fit-friction` on the bed's record"]
+    chk = fit["check"]
+    if not isinstance(chk, dict):
+        raise SiteError(f"{name}.check: must be an object, got {type(chk).__name__}")
+    verdict = chk.get("verdict")
+    if verdict not in CHECK_VERDICTS[what]:
+        raise SiteError(f"{name}.check.verdict: must be one of {', '.join(CHECK_VERDICTS[what])}, got {verdict!r}")
+    if what == "compliance":
+        harm = _check_figure(chk, "worst_harm_frac", f"{name}.check.worst_harm_frac", -1.0, 1.0)
+        tol = _check_figure(chk, "tolerance_frac", f"{name}.check.tolerance_frac", 0.0, 1.0)
+        figures = ("" if harm is None else f"the total at a rest of known load {harm * 100:.2f} % of the load "
+                   f"farther off than without it" + ("" if tol is None else f", tolerance {tol * 100:.2f} %"))
+    else:
+        worst = chk.get("worst")
+        if worst is not None and not isinstance(worst, dict):
+            raise SiteError(f"{name}.check.worst: must be an object, got {type(worst).__name__}")
+        harm = None if worst is None else _check_figure(worst, "harm_N", f"{name}.check.worst.harm_N", -1e9, 1e9,
+                                                        " N")
+        tol = _check_figure(chk, "tolerance_N", f"{name}.check.tolerance_N", 0.0, 1e9, " N")
+        figures = ("" if harm is None else f"{harm:.0f} N rms more error on the bed's force than raw p x A"
+                   + ("" if tol is None else f", tolerance {tol:.0f} N"))
+    figures = f" ({figures})" if figures else ""
+    if verdict == "worse":
+        msg = (f"{name}.check.verdict: 'worse': the fit's own check found it makes the node read worse than "
+               f"without it{figures}")
+        if not accept:
+            raise SiteError(msg + f"; refused (fit again, or give {OVERRIDE[what]} to use it anyway)")
+        return [msg + f"; used anyway ({OVERRIDE[what]})"]
+    if verdict == "marginal":
+        return [f"{name}: the fit's own check found it no better than without it{figures}: accepted"]
+    if verdict == "unchecked":
+        return [f"{name}: the fit's own check found no rest of known load in its recording: it was not compared "
+                "with a known load"]
+    return []
+
+
 def site_warnings(site: Site, doc: dict[str, Any], friction_doc: dict[str, Any] | None) -> list[str]:
     """Things that are allowed but that the commissioning engineer should look at."""
     out = []
@@ -186,6 +252,10 @@ def add_arguments(p) -> None:
                    help="friction fit to use instead of the site's [friction] file")
     p.add_argument("--compliance", metavar="COMPLIANCE.json",
                    help="hydraulic compliance fit to use instead of the site's [compliance] file")
+    p.add_argument("--accept-unchecked-compliance", action="store_true",
+                   help="use a compliance fit whose own check found it makes the node read worse (warned)")
+    p.add_argument("--accept-unchecked-friction", action="store_true",
+                   help="use a friction fit whose own check on the bed found it reads worse than raw p x A (warned)")
 
 
 def run(args) -> int:
@@ -196,20 +266,23 @@ def run(args) -> int:
         print(f"config: error: {in_file(e, args.site)}", file=sys.stderr)
         return 1
     fpath = Path(args.friction) if args.friction else site.friction_path
+    cpath = Path(args.compliance) if args.compliance else site.compliance_path
     try:
         friction_doc = None
         if fpath is not None:
             friction_doc = read_friction(fpath)
             friction = friction_doc
-        compliance = read_compliance(args.compliance) if args.compliance else None
-        doc = node_json_from_site(site, friction, compliance)
+        compliance = read_compliance(cpath) if cpath is not None else None
+        checks = fit_check(friction, "friction", getattr(args, "accept_unchecked_friction", False))
+        checks += fit_check(compliance, "compliance", getattr(args, "accept_unchecked_compliance", False))
+        doc = node_json_from_site(site, friction, compliance if args.compliance else None)
     except SiteError as e:  # a fault of the fit files is named with the file (of SITE.toml, with the field)
-        fits = {"friction": fpath if friction is not None else None, "compliance": args.compliance}
+        fits = {"friction": fpath if friction is not None else None, "compliance": cpath}
         path = next((p for k, p in fits.items() if p and (str(e).startswith(k + ".") or str(e).startswith(k + ":"))),
                     None)
         print(f"config: error: {in_file(e, path) if path else e}", file=sys.stderr)
         return 1
-    for w in site_warnings(site, doc, friction_doc):
+    for w in checks + site_warnings(site, doc, friction_doc):
         print(f"config: warning: {w}", file=sys.stderr)
     out = Path(args.out)
     try:
