@@ -153,7 +153,7 @@ def test_ropemon_serve_starts_every_face_on_a_copy_of_the_example(tmp_path):
     for lib in ("starlette", "uvicorn", "asyncua", "pymodbus", "paho.mqtt", "cryptography"):
         pytest.importorskip(lib)
     from ropemon.commission.nodejson import example_physical, make_node_json
-    from ropemon.station.web.auth import add_user
+    from ropemon.station.users import add_user
 
     text = EXAMPLE.read_text()
     ports = {k: _free_port() for k in ("web", "opcua", "modbus", "mqtt", "gateway")}

@@ -69,16 +69,19 @@ def test_every_module_has_a_house():
     assert top == {"cli", "firmware", "station", "commission", "lab"}
 
 
+LOGINS = "ropemon.station.users"
 WEB_LIBRARIES = ("starlette", "uvicorn", "jinja2", "argon2", "itsdangerous", "multipart", "python_multipart",
                  "httpx", "httpx2")
 
 
 def test_only_the_web_face_imports_its_libraries_and_only_by_name():
     """The station's core installs without the web extra; nothing of the station outside
-    station/web/ imports it (faces.py names the module as a string), except another face
-    reading the one users file through `ropemon.station.web.auth`."""
-    loaded = _imported_by([m for m in _modules(station) if not _face(m)])
+    station/web/ imports it (faces.py names the module as a string). The users file and its
+    logins (`ropemon.station.users`) are the faces' that log in (web, OPC UA), whose extras
+    carry argon2: of the web's libraries it takes argon2 alone."""
+    loaded = _imported_by([m for m in _modules(station) if not _face(m) and m != LOGINS])
     assert not {m for m in loaded if m.split(".")[0] in WEB_LIBRARIES}
+    assert {m.split(".")[0] for m in _imported_by([LOGINS])} & set(WEB_LIBRARIES) == {"argon2"}
     root = Path(station.__file__).parent
     found = []
     for path in root.rglob("*.py"):
@@ -91,7 +94,5 @@ def test_only_the_web_face_imports_its_libraries_and_only_by_name():
                 names = [a.name for a in node.names]
             else:
                 continue
-            shared = _face(f"ropemon.station.{path.relative_to(root).with_suffix('').parts[0]}")
-            found += [f"{path.name}: {n}" for n in names if n.startswith("ropemon.station.web")
-                      and not (shared and n.startswith("ropemon.station.web.auth"))]
+            found += [f"{path.name}: {n}" for n in names if n.startswith("ropemon.station.web")]
     assert not found

@@ -22,7 +22,8 @@ from ropemon.station.store import Store
 
 starlette_testclient = pytest.importorskip("starlette.testclient")
 from ropemon.station.web import auth  # noqa: E402
-from ropemon.station.web.auth import Users, UsersError, add_user, load_users  # noqa: E402
+from ropemon.station import users as accounts  # noqa: E402
+from ropemon.station.users import Users, UsersError, add_user, load_users  # noqa: E402
 from ropemon.station.web.server import WebError, attach  # noqa: E402
 
 KEY_N, KEY_S = bytes(range(16)), bytes(range(1, 17))
@@ -382,7 +383,7 @@ def test_login_is_refused_with_a_wrong_password_and_throttled(site, caplog):
     caplog.set_level("INFO", logger="ropemon.web.audit")
     c = site.client
     token = csrf_of(c.get("/login").text)
-    for _ in range(auth.LOGIN_FAILS):
+    for _ in range(accounts.LOGIN_FAILS):
         r = c.post("/login", data={"csrf": token, "name": "olga", "password": "wrong password"})
         assert r.status_code == 401 and "wrong name or password" in r.text
     r = c.post("/login", data={"csrf": token, "name": "olga", "password": PASSWORDS["olga"]})
@@ -390,7 +391,7 @@ def test_login_is_refused_with_a_wrong_password_and_throttled(site, caplog):
     r = c.post("/login", data={"csrf": token, "name": "nobody", "password": "whatever it is"})
     assert r.status_code == 401
     refused = [r.getMessage() for r in caplog.records if r.name == "ropemon.web.audit"]
-    assert len(refused) == auth.LOGIN_FAILS + 2 and all(m.startswith("login refused: ") for m in refused)
+    assert len(refused) == accounts.LOGIN_FAILS + 2 and all(m.startswith("login refused: ") for m in refused)
     assert "'olga' from testclient: too many failed logins" in refused[-2] and "'nobody'" in refused[-1]
 
 
@@ -500,7 +501,7 @@ def test_the_session_secret_is_made_owner_only(tmp_path):
 def test_a_user_removed_from_the_file_loses_the_session_rights(site, tmp_path):
     aid = raise_deviation(site)
     token = site.login("olga")
-    auth.remove_user(tmp_path / "users.toml", "olga")
+    accounts.remove_user(tmp_path / "users.toml", "olga")
     r = site.client.post("/hoist/north/ack", data={"csrf": token, "alarm": aid}, headers={"X-Requested-With": "fetch"})
     assert r.status_code == 401
 

@@ -1,4 +1,4 @@
-"""The web face's sessions end, and its logins are throttled per client address (ropemon.station.web.auth).
+"""The web face's sessions end, and its logins are throttled per client address (ropemon.station.web.auth, ropemon.station.users).
 
 A cookie copied from a logged-in browser is worth nothing once the user logs out, changes the
 password (from another process, as `ropemon user passwd` does) or changes role, or once the
@@ -19,7 +19,7 @@ starlette_testclient = pytest.importorskip("starlette.testclient")
 from test_web import CHEAP, PASSWORDS, STATION, Site, csrf_of, raise_deviation  # noqa: E402
 
 from ropemon.station.stationfile import StationFileError, load_station_file  # noqa: E402
-from ropemon.station.web import auth  # noqa: E402
+from ropemon.station import users as accounts  # noqa: E402
 
 
 @pytest.fixture
@@ -70,7 +70,7 @@ def test_a_copied_cookie_is_refused_after_a_password_change_by_ropemon_user_pass
                         "--password-stdin"], input="olga's new long secret\n", capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0, r.stderr
-    assert auth.load_users(tmp_path / "users.toml")["olga"].role == "operator"      # the role kept
+    assert accounts.load_users(tmp_path / "users.toml")["olga"].role == "operator"      # the role kept
     assert _ack(thief, token, aid) == 401
     assert _ack(site.client, token, aid) == 401            # the session it was copied from too
     r = subprocess.run([sys.executable, "-m", "ropemon.cli", "user", "passwd", str(tmp_path / "users.toml"), "kim",
@@ -90,7 +90,7 @@ def test_a_copied_cookie_is_refused_after_a_role_change(site, tmp_path):
     token = site.login("olga")
     thief = _copy(site)
     assert _ack(thief, token, aid) == 200
-    auth.add_user(tmp_path / "users.toml", "olga", "engineer", PASSWORDS["olga"], CHEAP)   # up, not down
+    accounts.add_user(tmp_path / "users.toml", "olga", "engineer", PASSWORDS["olga"], CHEAP)   # up, not down
     assert _ack(thief, token, aid) == 401
     assert _ack(site.client, token, aid) == 401
     thief.close()
@@ -134,7 +134,7 @@ def test_a_name_locked_from_one_address_still_logs_in_from_another(site):
     a = starlette_testclient.TestClient(site.attached.app, client=("10.20.0.66", 40000))
     b = starlette_testclient.TestClient(site.attached.app, client=("10.20.0.7", 40001))
     try:
-        for _ in range(auth.LOGIN_FAILS):
+        for _ in range(accounts.LOGIN_FAILS):
             assert _login(a, "olga", "a wrong password") == 401
         r = a.post("/login", data={"csrf": csrf_of(a.get("/login").text), "name": "olga",
                                    "password": PASSWORDS["olga"]})
@@ -150,7 +150,7 @@ def test_an_address_failing_with_many_names_is_held_and_the_others_are_not(site)
     a = starlette_testclient.TestClient(site.attached.app, client=("10.20.0.66", 40000))
     b = starlette_testclient.TestClient(site.attached.app, client=("10.20.0.7", 40001))
     try:
-        for i in range(auth.ADDRESS_FAILS):
+        for i in range(accounts.ADDRESS_FAILS):
             assert _login(a, f"guess{i}", "a wrong password") == 401
         r = a.post("/login", data={"csrf": csrf_of(a.get("/login").text), "name": "olga",
                                    "password": PASSWORDS["olga"]})
@@ -179,7 +179,7 @@ def test_a_login_beyond_the_pool_is_refused_busy_429_and_unknown_names_use_the_p
     s = Site(tmp_path)
     gate = _Gate()
     users = s.attached.ctx.users
-    users.ph, users.pool = gate, auth.HashPool(workers=1, queue=0)
+    users.ph, users.pool = gate, accounts.HashPool(workers=1, queue=0)
     users._dummy = gate.hash("whatever")
     try:
         first = threading.Thread(target=_login, args=(s.client, "nobody", "a wrong password"))
@@ -200,8 +200,8 @@ def test_a_login_beyond_the_pool_is_refused_busy_429_and_unknown_names_use_the_p
 
 
 def test_an_unknown_name_is_checked_against_a_hash_of_the_same_cost(tmp_path):
-    users = auth.Users(None)
-    assert auth.extract_parameters(users._dummy) == auth.extract_parameters(auth.hasher().hash("x" * 12))
+    users = accounts.Users(None)
+    assert accounts.extract_parameters(users._dummy) == accounts.extract_parameters(accounts.hasher().hash("x" * 12))
 
 
 def test_a_stream_that_needs_a_login_ends_with_its_session(tmp_path, monkeypatch):

@@ -26,7 +26,7 @@ from ropemon.station.opcua import parse_table  # noqa: E402
 from ropemon.station.protocol import encode_frame  # noqa: E402
 from ropemon.station.stationfile import StationFileError, load_station_file  # noqa: E402
 from ropemon.station.store import Store  # noqa: E402
-from ropemon.station.web.auth import add_user  # noqa: E402
+from ropemon.station.users import add_user  # noqa: E402
 
 KEY = bytes(range(16))
 CLIENT_URI = "urn:ropemon:test-client"

@@ -25,7 +25,7 @@ from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.hoists import StationSet  # noqa: E402
 from ropemon.station.opcua import parse_table  # noqa: E402
 from ropemon.station.stationfile import load_station_file  # noqa: E402
-from ropemon.station.web.auth import add_user  # noqa: E402
+from ropemon.station.users import add_user  # noqa: E402
 
 KEY = bytes(range(16))
 

@@ -4,7 +4,7 @@ FLOOD unauthenticated logins with random names, from as many client addresses (1
 so that per-address throttling does not hide the pool), all sent at once to a station's web
 face (uvicorn in its own thread, as `ropemon serve` runs it), with the real argon2id hasher
 (64 MiB per check) and the process's real hashing pool. Checked: argon2 never runs more than
-auth.HASH_WORKERS checks at once, what does not fit is refused with 429 (or waits), the
+accounts.HASH_WORKERS checks at once, what does not fit is refused with 429 (or waits), the
 process's peak RSS grows by at most the bound docs/web.md states, a simple request's latency
 stays low, and afterwards an operator logs in at once. The figures are printed
 (`pytest tests/web/test_login_flood.py -q -s`).
@@ -28,7 +28,8 @@ from argon2 import PasswordHasher  # noqa: E402
 from ropemon.commission.nodejson import example_physical, make_node_json  # noqa: E402
 from ropemon.station.hoists import StationSet  # noqa: E402
 from ropemon.station.stationfile import load_station_file  # noqa: E402
-from ropemon.station.web import auth, server  # noqa: E402
+from ropemon.station import users as accounts  # noqa: E402
+from ropemon.station.web import server  # noqa: E402
 
 FLOOD = 200
 ARGON2_MIB = 64                       # argon2-cffi's default memory cost (65536 KiB)
@@ -137,7 +138,7 @@ async def _flood(port: int, cookie: str, csrf: str) -> tuple[list[int], list[flo
 def _station(tmp_path: Path, port: int) -> StationSet:
     (tmp_path / "north.json").write_text(json.dumps(make_node_json(example_physical(), node_id=1,
                                                                    key=bytes(range(16)))))
-    auth.add_user(tmp_path / "users.toml", "olga", "operator", "olga's long secret")     # the real cost
+    accounts.add_user(tmp_path / "users.toml", "olga", "operator", "olga's long secret")     # the real cost
     (tmp_path / "station.toml").write_text(f"""
 [[hoist]]
 id = "north"
@@ -181,18 +182,18 @@ def test_a_login_flood_is_bounded_in_hashes_at_once_memory_and_latency(tmp_path)
             t.join()
         peak = max(sampler.peak, _status_kib("VmHWM") if hwm else 0)
         growth_mib = (peak - rss0) / 1024
-        bound_mib = auth.HASH_WORKERS * ARGON2_MIB + SLACK_MIB
+        bound_mib = accounts.HASH_WORKERS * ARGON2_MIB + SLACK_MIB
         n401, n429 = codes.count(401), codes.count(429)
         lat.sort()
         print(f"\nlogin flood: {FLOOD} at once in {took:.2f} s: {n401} checked (401), {n429} refused busy (429); "
-              f"argon2 checks at once at most {counting.peak} (pool {auth.HASH_WORKERS}), {counting.total} in all "
+              f"argon2 checks at once at most {counting.peak} (pool {accounts.HASH_WORKERS}), {counting.total} in all "
               f"(pool: {users.pool.refused} refused full, {users.pool.late} waited too long); "
               f"peak RSS {rss0 / 1024:.0f} -> {peak / 1024:.0f} MiB (+{growth_mib:.0f} MiB, bound +{bound_mib} MiB); "
               f"a simple request during it: median {lat[len(lat) // 2] * 1000:.0f} ms, "
               f"max {lat[-1] * 1000:.0f} ms over {len(lat)}; a thread waking every 10 ms: at most "
               f"{max(wake.late) * 1000:.0f} ms late")
         assert set(codes) <= {401, 429}, codes
-        assert counting.peak <= auth.HASH_WORKERS, counting.peak
+        assert counting.peak <= accounts.HASH_WORKERS, counting.peak
         assert n401 == counting.total and n429 > 0
         assert growth_mib <= bound_mib
         assert lat and lat[-1] < 2.0 and max(wake.late) < 1.0     # 200 requests at once do queue on the loop

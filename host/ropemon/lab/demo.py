@@ -297,7 +297,7 @@ def write_demo_station(out: Path, node_json: Path, shaft_m: float, port: int | N
     import secrets
 
     try:
-        from ropemon.station.web.auth import add_user
+        from ropemon.station.users import add_user
     except ImportError as e:
         raise RuntimeError(f"--serve needs the web face's libraries: pip install 'ropemon[web]' ({e})") from None
     users = out / "users.toml"

@@ -2,7 +2,7 @@
 
 `WebStation(folder, hoists=N)` writes what an installed station has (one node.json per
 hoist with its own key, station.toml with a [web] table on a free localhost port, a users
-file made with `ropemon.station.web.auth.add_user`), opens one pty pair per hoist as its
+file made with `ropemon.station.users.add_user`), opens one pty pair per hoist as its
 receiver (`lab.vserial.VirtualPort`: the station opens the pty as it would open an RS485
 adapter), and runs `ropemon serve station.toml` as a subprocess (or, with `server`, another
 command on the same ptys: the web benchmark's baseline). A feeder thread writes each
@@ -181,7 +181,7 @@ class WebStation:
                   f"view_without_login = {'true' if view_without_login else 'false'}"]
         self.users_path: Path | None = None
         if users:
-            from ropemon.station.web.auth import add_user
+            from ropemon.station.users import add_user
             self.users_path = self.folder / "users.toml"
             for name, (role, password) in users.items():
                 add_user(self.users_path, name, role, password)

@@ -291,7 +291,7 @@ _CALLER: contextvars.ContextVar[Any] = contextvars.ContextVar("ropemon_opcua_cal
 
 
 class _UserManager:
-    """asyncua's user manager on the station's users file (`ropemon.station.web.auth.Users`, the
+    """asyncua's user manager on the station's users file (`ropemon.station.users.Users`, the
     web face's: one file, one set of roles): a listed user with the right password, or, with
     allow_anonymous, a client without a name, as a viewer."""
 
@@ -1247,7 +1247,7 @@ def start(stations: Any, table: Any) -> OpcuaFace:
     cfg = parse_table(table, stations.file.path.parent)
     users = None
     if cfg.users is not None:
-        from ropemon.station.web.auth import Users, UsersError
+        from ropemon.station.users import Users, UsersError
         try:
             users = Users(cfg.users)
         except (UsersError, OSError) as e:

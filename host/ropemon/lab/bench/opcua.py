@@ -103,7 +103,7 @@ def _write_station(d: Path, port: int) -> Path:
     import json
 
     from ropemon.commission.nodejson import example_physical, make_node_json
-    from ropemon.station.web.auth import add_user
+    from ropemon.station.users import add_user
 
     (d / "node.json").write_text(json.dumps(make_node_json(example_physical(), node_id=1, key=KEY)))
     users = d / "users.toml"

@@ -15,7 +15,7 @@ An action becomes the station's command (`stations.submit(hoist, Acknowledge(use
 carried out on the station's thread; the web never touches a listener or the alarm engine.
 Every refused input names its field and the reason (400); without a login 401 (a form is sent
 to the login page), without the CSRF token 403, without the role for it 403; a login while the
-hashing pool is full 429 (auth.HashPool).
+hashing pool is full 429 (users.HashPool).
 
 A login is a session of the station's (auth.Sessions): the cookie holds its id. Pages and
 actions count as a session's activity; the page's own data requests (streams, .json) do not,
@@ -51,7 +51,8 @@ from ropemon.station.pipeline import (AcceptRewound, Acknowledge, RemoveFromServ
                                       Unshelve)
 from ropemon.station.store import StoreError
 from ropemon.station.web import logread
-from ropemon.station.web.auth import DEFAULT_IDLE_MIN, Sessions, User, Users, csrf_ok, csrf_token
+from ropemon.station.users import User, Users
+from ropemon.station.web.auth import DEFAULT_IDLE_MIN, Sessions, csrf_ok, csrf_token
 from ropemon.station.web.state import STALE_S, Subscriber, WebListener, dumps
 
 audit = logging.getLogger("ropemon.web.audit")   # logins and logouts (`ropemon serve` prints it)
@@ -528,7 +529,7 @@ async def login(request: Request) -> Response:
         user, why = None, "give a name and a password"
     where = request.client.host if request.client else "?"
     busy = False
-    if why is None:      # on the hashing pool (at most auth.HASH_WORKERS at once), or refused at once
+    if why is None:      # on the hashing pool (at most users.HASH_WORKERS at once), or refused at once
         res = await asyncio.wrap_future(c.users.start_login(str(name), str(pw), where))
         user, why, busy = res.user, res.why, res.busy
     if user is None:

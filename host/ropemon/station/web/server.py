@@ -19,7 +19,8 @@ from typing import Any
 
 from ropemon.station.web import logread
 from ropemon.station.web.app import Context, build_app
-from ropemon.station.web.auth import Users, UsersError, load_secret
+from ropemon.station.users import Users, UsersError
+from ropemon.station.web.auth import load_secret
 from ropemon.station.web.state import WebListener
 
 START_TIMEOUT_S = 10.0

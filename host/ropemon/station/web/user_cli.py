@@ -55,7 +55,7 @@ def _password(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        from ropemon.station.web.auth import UsersError, add_user, load_users, remove_user, set_password
+        from ropemon.station.users import UsersError, add_user, load_users, remove_user, set_password
     except ImportError as e:
         print(f"ropemon user: needs the web face's libraries: pip install 'ropemon[web]' ({e})", file=sys.stderr)
         return 2
