@@ -107,15 +107,19 @@ bench: $(STAMP) $(BROWSER_STAMP) $(BROKER_STAMP)
 	$(BIN)/ropemon bench modbus
 	$(BIN)/ropemon bench mqtt
 
-# The named scenarios, then the population of drawn hoists on the scoring seeds; their tables
+# The named scenarios, the population of drawn hoists on the scoring seeds, then 4 hoists of each
+# seal family (leave one family out: the present families scored from the population's winds, the
+# held-out Dahl and Bliman-Sorine simulated); their tables
 # go to docs/evaluation/ (generated: each file's first line names the command that made it).
 evaluate: $(STAMP)
 	$(BIN)/ropemon evaluate --out out/evaluate
 	$(BIN)/ropemon evaluate --population 100 --seeds scoring --faults --duty-cycles 2 --out out/evaluate
+	$(BIN)/ropemon evaluate --leave-one-family-out 4 --seeds scoring --rescore --out out/evaluate
 	mkdir -p docs/evaluation
 	cp out/evaluate/accuracy.md docs/evaluation/scenarios.md
 	cp out/evaluate/population.md docs/evaluation/population.md
 	cp out/evaluate/faults.md docs/evaluation/faults.md
+	cp out/evaluate/generalisation.md docs/evaluation/generalisation.md
 
 clean:
 	rm -rf $(VENV) node_modules out $(MPY32_DIR)

@@ -986,7 +986,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "alarms against the Targets (faults.md, faults.json)")
     p.add_argument("--rescore", action="store_true",
                    help="with --population --faults --out OUT: score the station's alarms as they are now on the "
-                        "winds a run left in OUT/population (no simulation); writes faults.md and faults.json only")
+                        "winds a run left in OUT/population (no simulation); writes faults.md and faults.json only; "
+                        "with --leave-one-family-out --out OUT: the present families' hoists scored from the winds "
+                        "OUT/population holds (the held-out families' simulated)")
+    p.add_argument("--leave-one-family-out", type=int, metavar="N",
+                   help="N hoists of each seal family (population.LAWS and HELD_OUT_LAWS) on the --seeds, node "
+                        "and raw p x A by phase, do no harm at the rests (ropemon.lab.generalise; "
+                        "generalisation.md, generalisation.json)")
+    p.add_argument("--family", action="append", metavar="NAME",
+                   help="with --leave-one-family-out: only this seal family (repeatable); default all")
     p.add_argument("--duty-cycles", type=int, default=0, metavar="K",
                    help=f"with --faults: the first K hoists also through a {population.DUTY_TRIPS}-wind duty cycle "
                         "with one rope creeping (the adjustment advisory); default 0")
@@ -1115,7 +1123,38 @@ def rescore_population(args: argparse.Namespace, seeds, log, t0: float) -> int:
     return 1 if any("error" in w for w in winds) else 0
 
 
+def run_generalisation(args: argparse.Namespace) -> int:
+    """`--leave-one-family-out N`: ropemon.lab.generalise."""
+    from ropemon.lab import generalise
+
+    families = args.family or list(generalise.FAMILIES)
+    unknown = [f for f in families if f not in generalise.FAMILIES]
+    if unknown or args.leave_one_family_out < 1 or args.population is not None or args.no_firmware:
+        print("ropemon evaluate: --leave-one-family-out N (N >= 1, with the firmware, not with --population); "
+              f"--family one of {', '.join(generalise.FAMILIES)}", file=sys.stderr)
+        return 2
+    if args.rescore and not args.out:
+        print("ropemon evaluate: --leave-one-family-out --rescore needs the --out of a population run", file=sys.stderr)
+        return 2
+    command = (f"ropemon evaluate --leave-one-family-out {args.leave_one_family_out} --seeds {args.seeds}"
+               + "".join(f" --family {f}" for f in args.family or ()) + (" --quick" if args.quick else "")
+               + (f" --rescore --out {args.out}" if args.rescore else ""))
+    out = generalise.evaluate(families, args.leave_one_family_out, args.out, args.jobs,
+                              BED_QUICK if args.quick else None, command, args.seeds,
+                              lambda s: print(s, file=sys.stderr, flush=True),
+                              args.out / "generalisation" if args.out else None,
+                              args.out / "population" if args.rescore else None)
+    if args.json:
+        json.dump({k: v for k, v in out.items() if k != "markdown"}, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(out["markdown"])
+    return 1 if out["summary"]["all"]["errors"] else 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.leave_one_family_out is not None:
+        return run_generalisation(args)
     if args.population is not None:
         return run_population(args)
     names = args.scenarios or default_scenarios()
