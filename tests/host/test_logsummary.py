@@ -122,12 +122,17 @@ def test_the_summary_comes_when_its_interval_ends_without_another_record():
         h.close()
 
 
-def test_serves_logging_takes_asyncua_and_pymodbus_through_the_summary():
+def test_serves_logging_takes_asyncua_and_pymodbus_through_the_summary(monkeypatch):
     """`install` (what `ropemon serve` calls): asyncua's and pymodbus's loggers at WARNING and
     summarised, the station's own at INFO."""
     asyncua = pytest.importorskip("asyncua.server.binary_server_asyncio")
     pytest.importorskip("pymodbus")
     from pymodbus.logging import Log
+
+    # pymodbus keeps, per process, the last frames (appended to its next error) and its last
+    # message (not repeated): what a Modbus test before this one in the same process left
+    monkeypatch.setattr(Log, "frame_dump", [])
+    monkeypatch.setattr(Log, "last_log_text", "")
 
     out = io.StringIO()
     h = logsummary.install(out, "ropemon serve")
