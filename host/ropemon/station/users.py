@@ -16,7 +16,7 @@ so nobody can act from the web or OPC UA. Roles, each with the rights of the one
     engineer    takes an alarm out of service and returns it
 
 Login costs are bounded (`HashPool`): every password check of the process (the web's logins and
-OPC UA's) runs on one pool of HASH_WORKERS threads at lowered CPU priority, with at most
+OPC UA's) runs on one pool of HASH_WORKERS threads, with at most
 HASH_QUEUE more waiting; a login beyond that is refused at once as busy (the web answers 429).
 An unknown name is checked against a dummy hash on the same pool, so it costs what a known one
 costs. Failed logins are counted per (address, name) and per address: LOGIN_FAILS of one name
@@ -62,7 +62,6 @@ MAX_TRACKED = 10_000                     # addresses and (address, name) pairs w
 HASH_WORKERS = 2                         # password checks at once in the process (each 64 MiB with the defaults)
 HASH_QUEUE = 2                           # logins waiting for a worker; beyond: busy (the web answers 429)
 HASH_WAIT_S = 2.0                        # a login that waited this long for a worker is refused busy instead
-HASH_NICE = 10                           # the workers' CPU priority, lowered by this (the station's work first)
 BUSY = "the station is busy checking other logins: try again in a moment"
 
 
@@ -205,27 +204,18 @@ class LoginResult:
 
 
 class HashPool:
-    """At most `workers` password checks at once, at most `queue` more waiting, on threads whose
-    CPU priority is lowered by `nice` (argon2's lane threads inherit it); `submit` returns None
-    at once when the pool is full. `running` and `peak` count the checks running."""
+    """At most `workers` password checks at once, at most `queue` more waiting; `submit` returns
+    None at once when the pool is full. `running` and `peak` count the checks running. The
+    threads keep the station's CPU priority: a lowered one starves under load, and OPC UA's
+    server waits for its logins on its own loop (asyncua checks a login synchronously)."""
 
     def __init__(self, workers: int = HASH_WORKERS, queue: int = HASH_QUEUE, wait_s: float = HASH_WAIT_S,
-                 nice: int = HASH_NICE, clock: Any = time.monotonic) -> None:
-        self.workers, self.queue, self.wait_s, self.nice, self.clock = workers, queue, wait_s, nice, clock
+                 clock: Any = time.monotonic) -> None:
+        self.workers, self.queue, self.wait_s, self.clock = workers, queue, wait_s, clock
         self._slots = threading.BoundedSemaphore(workers + queue)
         self._lock = threading.Lock()
-        self._ex = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ropemon-hash",
-                                      initializer=self._lower_priority)
+        self._ex = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ropemon-hash")
         self.running = self.peak = self.refused = self.late = 0
-
-    def _lower_priority(self) -> None:
-        if self.nice <= 0 or not hasattr(os, "setpriority"):
-            return
-        try:   # Linux: the priority is the thread's (PRIO_PROCESS of its own id)
-            tid = threading.get_native_id()
-            os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + self.nice))
-        except OSError:  # pragma: no cover
-            pass
 
     def submit(self, fn: Any, *args: Any) -> Future | None:
         """fn(*args) on a worker (a Future), or None when `workers + queue` are taken; a call that
