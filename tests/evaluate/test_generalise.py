@@ -135,8 +135,9 @@ def test_the_family_summary_counts_the_winds_that_do_no_harm():
         **s, "own_tuning_seeds": []}}, "all": s}, "hoists": rs}
     md = G.markdown(out, "ropemon evaluate --leave-one-family-out 4")
     assert md.splitlines()[0] == "Made by `ropemon evaluate --leave-one-family-out 4`"
-    assert any(ln.startswith("| Dahl | 3 of 3 |") and "| 2 of 3 | +0.90 (seed 2, rope 1) |" in ln
+    assert any(ln.startswith("| Dahl | all scored | 3 of 3 |") and "| 2 of 3 | +0.90 (seed 2, rope 1) |" in ln
                for ln in md.splitlines())
+    assert s["accepted"] == [1, 2, 3] and s["do_no_harm_accepted"]["rest-pithead"]["ok"] == 2
 
 
 def test_a_fit_without_a_static_peak_is_lifted_for_scoring(tmp_path):

@@ -250,6 +250,8 @@ def run_hoist(family: str, seed: int, work, bed: dict | None = None, reuse=None)
         out["reused"] = str(Path(reuse) / h.name)
         out["commissioning"] = {"ok": True, "problems": [], "seal_refused": None}
         try:
+            out["friction_check"] = friction_check(EV.fit_plant_seal(dict(h.friction), Path(reuse), seed, bed),
+                                                   Path(reuse))
             case = case_from_run(Path(reuse) / h.name)
             out.update(wind_figures(frame_arrays(case), case.rated_n))
         except (EV.EvaluationError, OSError, ValueError, KeyError) as e:
@@ -261,7 +263,9 @@ def run_hoist(family: str, seed: int, work, bed: dict | None = None, reuse=None)
     wdir = hdir / "case"
     try:
         name = scenario_for(family, seed, hdir)
-        out["lifted"] = lift_fit(EV.fit_plant_seal(dict(h.friction), hdir, seed, bed), hdir)
+        fit = EV.fit_plant_seal(dict(h.friction), hdir, seed, bed)
+        out["friction_check"] = friction_check(fit, hdir)
+        out["lifted"] = lift_fit(fit, hdir)
         case = EV.build_case(name, wdir, seed, True, bed, diagnostics=False)
     except (EV.EvaluationError, OSError, ValueError, KeyError) as e:
         # the commissioning refusing the seal is an outcome (the node is not installed), not an error
@@ -277,6 +281,38 @@ def run_hoist(family: str, seed: int, work, bed: dict | None = None, reuse=None)
         out.update(wind_figures(frame_arrays(case), case.rated_n))
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out
+
+
+def friction_check(fit: dict, cache_dir) -> str | None:
+    """The verdict of `ropemon fit-friction`'s own check on the bed (`calibrate.check_bed` on the bed's
+    record beside the fit's cache in `cache_dir`): "ok", "marginal", "worse" (fit-friction writes no
+    fit), "error: ..." (the check cannot run the fit: fit-friction writes none either); None: no
+    record found. The evaluation's own fit (`evaluate.fit_plant_seal`) does not run the check."""
+    from ropemon.commission import calibrate
+
+    if isinstance(fit.get("check"), dict):
+        return fit["check"].get("verdict")
+    csvs = [c.with_suffix(".csv") for c in Path(cache_dir).glob("friction-*.json")
+            if json.loads(c.read_text()) == fit]
+    csvs = [c for c in csvs if c.is_file()]
+    if not csvs:
+        return None
+    try:
+        return calibrate.check_bed(calibrate.read_csv(csvs[0]), fit).verdict
+    except (calibrate.FitError, ValueError) as e:
+        return f"error: {e}"
+
+
+def accepted(r: dict) -> bool:
+    """Whether the commissioning as shipped would have installed the node on a scored hoist: the fit
+    passes the site's check unlifted, its own check is not "worse", and `ropemon config` takes the seal."""
+    return ("phases" in r and not r.get("lifted") and not refused_by_check(r)
+            and not r["commissioning"]["seal_refused"])
+
+
+def refused_by_check(r: dict) -> bool:
+    v = r.get("friction_check")
+    return v == "worse" or (v or "").startswith("error")
 
 
 def is_commissioning_refusal(e: Exception) -> bool:
@@ -371,19 +407,22 @@ def family_summary(results: list[dict]) -> dict:
                  "not_commissioned": [r["seed"] for r in results if "not_commissioned" in r],
                  "seal_refused": [r["seed"] for r in scored if r["commissioning"]["seal_refused"]],
                  "lifted": [r["seed"] for r in results if r.get("lifted")],
-                 "phases": {}, "do_no_harm": {}}
+                 "phases": {}}
     for name, _label in PHASE_COLUMNS:
         out["phases"][name] = {e: {k: _mm((r["phases"][e][name] or {}).get(k) for r in scored)
                                    for k in ("rope_rms_pct", "total_rms_pct")} for e in ESTIMATORS}
-    for rest in RESTS:
-        d = [r["do_no_harm"][rest] for r in scored if r["do_no_harm"][rest] is not None]
-        worst = max(d, key=lambda x: x["excess_pct"]) if d else None
-        out["do_no_harm"][rest] = {
-            "winds": len(d), "ok": sum(x["ok"] for x in d),
-            "share": round(sum(x["ok"] for x in d) / len(d), 3) if d else None,
-            "worst_excess_pct": worst["excess_pct"] if worst else None,
-            "worst": (f"seed {next(r['seed'] for r in scored if r['do_no_harm'][rest] is worst)}, {worst['worst']}"
-                      if worst else None)}
+    out["check_worse"] = [r["seed"] for r in results if refused_by_check(r)]
+    out["accepted"] = [r["seed"] for r in scored if accepted(r)]
+    for key, rs in (("do_no_harm", scored), ("do_no_harm_accepted", [r for r in scored if accepted(r)])):
+        out[key] = {}
+        for rest in RESTS:
+            d = [(r["seed"], r["do_no_harm"][rest]) for r in rs if r["do_no_harm"][rest] is not None]
+            worst = max(d, key=lambda x: x[1]["excess_pct"]) if d else None
+            out[key][rest] = {
+                "winds": len(d), "ok": sum(x["ok"] for _s, x in d),
+                "share": round(sum(x["ok"] for _s, x in d) / len(d), 3) if d else None,
+                "worst_excess_pct": worst[1]["excess_pct"] if worst else None,
+                "worst": f"seed {worst[0]}, {worst[1]['worst']}" if worst else None}
     return out
 
 
@@ -429,13 +468,15 @@ def markdown(out: dict, command: str) -> str:
              "the present families their own tuning seeds were among those the settings were chosen on:", "",
              "| family | scored (asked) | seeds | not commissioned: `fit-friction` or `ropemon config` refuses "
              "| the site's check refuses the fit (Fs below Fc): scored with Fs lifted to Fc "
+             "| fit-friction's check on the bed refuses the fit (worse than raw p x A, or it cannot run it; scored "
+             "anyway) "
              "| node refused the config | `ropemon config` refuses the seal (scored anyway) "
-             "| tuning seeds of its own among 1-20 |", "|---|---|---|---|---|---|---|---|"]
+             "| tuning seeds of its own among 1-20 |", "|---|---|---|---|---|---|---|---|---|"]
     for f in fams:
         c = s["families"][f]
         lines.append(f"| {FAMILY_NAMES.get(f, f)} | {c['scored']} ({len(c['seeds'])}) | "
                      f"{', '.join(map(str, c['seeds'])) or '-'} | {', '.join(map(str, c['not_commissioned'])) or 'none'} | "
-                     f"{', '.join(map(str, c['lifted'])) or 'none'} | "
+                     f"{', '.join(map(str, c['lifted'])) or 'none'} | {', '.join(map(str, c['check_worse'])) or 'none'} | "
                      f"{', '.join(map(str, c['refused'])) or 'none'} | "
                      f"{', '.join(map(str, c['seal_refused'])) or 'none'} | {len(c['own_tuning_seeds'])} |")
     errs = [r for r in out["hoists"] if "error" in r]
@@ -463,16 +504,18 @@ def markdown(out: dict, command: str) -> str:
               f"the truth (RMS over the rest) than raw p x A's plus {DNH_MARGIN_PCT} % of rated, and the largest "
               "excess of the node's error over raw's (a rope or the total, % of rated; negative: better than raw "
               "everywhere):", "",
-              "| family | bottom: winds ok | bottom: worst excess | top: winds ok | top: worst excess |",
-              "|---|---|---|---|---|"]
+              "| family | hoists | bottom: winds ok | bottom: worst excess | top: winds ok | top: worst excess |",
+              "|---|---|---|---|---|---|"]
     for f in [*fams, None]:
         c = s["all"] if f is None else s["families"][f]
-        cells = []
-        for rest in RESTS:
-            d = c["do_no_harm"][rest]
-            cells += [f"{d['ok']} of {d['winds']}" if d["winds"] else "-",
-                      f"{d['worst_excess_pct']:+.2f} ({d['worst']})" if d["worst_excess_pct"] is not None else "-"]
-        lines.append(f"| {'all' if f is None else FAMILY_NAMES.get(f, f)} | " + " | ".join(cells) + " |")
+        for key, which in (("do_no_harm", "all scored"),
+                           ("do_no_harm_accepted", "those the commissioning accepts")):
+            cells = []
+            for rest in RESTS:
+                d = c[key][rest]
+                cells += [f"{d['ok']} of {d['winds']}" if d["winds"] else "-",
+                          f"{d['worst_excess_pct']:+.2f} ({d['worst']})" if d["worst_excess_pct"] is not None else "-"]
+            lines.append(f"| {'all' if f is None else FAMILY_NAMES.get(f, f)} | {which} | " + " | ".join(cells) + " |")
     lines += ["", "| family | seed | hoist | wind RMS node / raw | bottom: rope RMS node / raw, total node / raw "
               "| top: rope RMS node / raw, total node / raw |", "|---|---|---|---|---|---|"]
     for r in out["hoists"]:
