@@ -151,3 +151,13 @@ def test_a_fit_without_a_static_peak_is_lifted_for_scoring(tmp_path):
     assert lifted["Fs"] == {"intercept": 1400.0, "slope": 900.0} and lifted["Fc"] == fit["Fc"]
     ok = dict(fit, Fs={"intercept": 1400.0, "slope": 950.0})
     assert G.lift_fit(ok, tmp_path) is None
+
+
+def test_only_a_finished_population_wind_is_reused(tmp_path):
+    d = tmp_path / "population-101"
+    assert not G.reusable(d)
+    (d / "sim").mkdir(parents=True)
+    for f in ("frames.bin", "node-evaluated.json", "sim/truth.npz"):
+        assert not G.reusable(d)
+        (d / f).write_bytes(b"")
+    assert G.reusable(d)
