@@ -304,3 +304,93 @@ def test_positions_and_the_stroke_mask_are_logged_and_exported(tmp_path):
     assert [rows[1][f"r{i}_pos_01mm"] for i in range(1, 5)] == [""] * 4   # a version-2 frame has none
     header = next(csv.reader((tmp_path / "csv" / "frames.csv").open()))
     assert header.index("r4_raw_kpa") < header.index("stroke_mask") < header.index("r1_pos_01mm")
+
+
+def _event(t, action, alarm="deviation:n1:r2", kind="deviation", node=1, rope=1, message="rope 2 deviates",
+           operator=None):
+    from ropemon.station.alarms import AlarmEvent
+    return AlarmEvent(t, action, alarm, kind, node, rope, 0.2, 0.1, message, 0.25, operator)
+
+
+def _drop_event_columns(path):
+    """The events table as files written before `worst` and `operator` had it."""
+    db = sqlite3.connect(path)
+    db.execute("ALTER TABLE events DROP COLUMN worst")
+    db.execute("ALTER TABLE events DROP COLUMN operator")
+    db.commit()
+    db.close()
+
+
+def test_the_log_reads_of_the_faces_events(tmp_path):
+    """`Store.events` and `Store.event_kinds`: the web's event log and OPC UA's event history."""
+    p = tmp_path / "a.db"
+    with Store(p) as s:
+        s.add_event(_event(10.0, "raise"))
+        s.add_event(_event(30.0, "ack", operator="alice (web)", message="acknowledged 50% now"))
+        s.add_event(_event(20.0, "clear"))          # logged after, but earlier in time
+        s.add_event(_event(40.0, "accept", alarm="rewound:n2", kind="link_integrity", node=2, rope=None,
+                           message="accepted by bob"))
+        assert [e["id"] for e in s.events()] == [1, 2, 3, 4]
+        assert list(s.events()[0]) == ["id", "time_s", "action", "alarm", "kind", "node", "rope", "value",
+                                       "threshold", "message", "worst", "operator"]
+        assert [e["id"] for e in s.events(newest_first=True, limit=2)] == [4, 3]
+        assert [e["id"] for e in s.events(by_time=True)] == [1, 3, 2, 4]
+        assert [e["id"] for e in s.events(by_time=True, newest_first=True, limit=3)] == [4, 2, 3]
+        assert [e["id"] for e in s.events(since=20.0, until=30.0, by_time=True)] == [3, 2]
+        assert [e["id"] for e in s.events(action="clear")] == [3]
+        assert [e["id"] for e in s.events(kind="link_integrity")] == [4]
+        assert [e["id"] for e in s.events(node=1)] == [1, 2, 3]
+        assert [e["id"] for e in s.events(text="alice")] == [2]                 # the operator
+        assert [e["id"] for e in s.events(text="50%")] == [2]                   # % is a character
+        assert s.events(text="5_%") == []
+        assert [e["id"] for e in s.events(text="rewound")] == [4]               # the alarm id
+        assert [e["id"] for e in s.events(operator_only=True)] == [2, 4]
+        assert s.event_kinds() == ["deviation", "link_integrity"]
+    _drop_event_columns(p)
+    with Store(p, readonly=True) as s:                  # an older file, read-only: no such keys
+        rows = s.events()
+        assert [e["id"] for e in rows] == [1, 2, 3, 4] and not {"worst", "operator"} & set(rows[0])
+        assert [e["id"] for e in s.events(text="bob")] == [4]
+        assert s.events(text="alice") == []
+        assert [e["id"] for e in s.events(operator_only=True)] == [2, 4]       # ack, accept
+        assert [e["id"] for e in s.events(by_time=True, newest_first=True, limit=1)] == [4]
+        assert s.event_kinds() == ["deviation", "link_integrity"]
+
+
+def test_the_log_reads_of_the_faces_trips_and_trends(tmp_path):
+    """`Store.trips(newest_first, limit)`, `trip`, `depth_span`, `frame_buckets`,
+    `tension_buckets` and `nodes`, on a new file and on a schema 1 one read-only."""
+    from ropemon.station.protocol import L
+    plan = [(0, 50), (10000, 100), (0, 50), (-10000, 100), (0, 50)]   # rest, down 100 m, rest, up, rest
+    frames, depth = [], 0
+    for speed, n in plan:
+        for _ in range(n):
+            ropes = [(5000, 4990, 5010, 6000)] * 3 + [(L.TENSION_ABSENT, 0, 0, 0)]
+            _, w = encode_frame(node=1, seq=len(frames), ropes=ropes, speed_mm_s=speed, depth_mm=depth)
+            frames.append(StreamDecoder().feed(w)[0])
+            depth += speed // 10
+    _, w = encode_frame(node=3, seq=0, ropes=[(6000, 5990, 6010, 7000)] * 2, depth_mm=5)
+    frames.append(StreamDecoder().feed(w)[0])
+    p = tmp_path / "a.db"
+    with Store(p, trip_rest_s=3.0) as s:
+        for i, f in enumerate(frames):
+            s.add_frame("a", f, i * 0.1)
+    old = tmp_path / "old.db"
+    _schema_1_file(old, frames)                         # rx_time 100 + i
+    for path, t0, dt, readonly in ((p, 0.0, 0.1, False), (old, 100.0, 1.0, True)):
+        with Store(path, readonly=readonly) as s:
+            down, up = s.trips()
+            assert s.trips(newest_first=True) == [up, down] and s.trips(newest_first=True, limit=1) == [up]
+            assert s.trips(3) == [] and s.trips(1, limit=1) == [down]
+            assert s.trip(down.id) == down and s.trip(99) is None
+            assert s.depth_span(1, down.first_frame_id, down.last_frame_id) == 100_000
+            assert s.depth_span(1, up.last_frame_id) == 0 and s.depth_span(2, 1) == 0
+            assert s.nodes() == [1, 3]
+            fb = s.frame_buckets(1, t0, t0 + 1000 * dt, 100 * dt)          # 100 frames a bucket
+            assert [b.bucket for b in fb] == [0, 1, 2, 3] and sum(b.frames for b in fb) == 350
+            assert (fb[0].frames, fb[0].depth_mm) == (100, 12250) and fb[0].rx_time == pytest.approx(t0 + 49.5 * dt)
+            assert s.frame_buckets(1, t0 + 100 * dt, t0 + 149 * dt, 100 * dt)[0].frames == 50
+            tb = s.tension_buckets(1, t0, t0 + 1000 * dt, 100 * dt)
+            assert [(b.bucket, b.rope) for b in tb[:4]] == [(0, 0), (0, 1), (0, 2), (1, 0)]   # rope 4: none
+            assert (tb[0].mean_dan, tb[0].min_dan, tb[0].max_dan) == (5000, 4990, 5010)
+            assert len(tb) == 4 * 3 and s.tension_buckets(3, t0, t0 + 1000 * dt, 100 * dt)[0].mean_dan == 6000

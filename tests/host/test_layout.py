@@ -96,3 +96,15 @@ def test_only_the_web_face_imports_its_libraries_and_only_by_name():
                 continue
             found += [f"{path.name}: {n}" for n in names if n.startswith("ropemon.station.web")]
     assert not found
+
+
+def test_only_the_store_writes_sql_against_the_log():
+    """Every read of a hoist's log is a `Store` method: no module of the station but store.py
+    runs SQL or probes a table. The exception: the MQTT outbox and the fleet historian
+    (mqtt/outbox.py, mqtt/fleet.py), which own databases of their own."""
+    root = Path(station.__file__).parent
+    own = {Path("store.py"), Path("mqtt/outbox.py"), Path("mqtt/fleet.py")}
+    found = [f"{path.relative_to(root)}: {word}" for path in sorted(root.rglob("*.py"))
+             if path.relative_to(root) not in own
+             for word in ("execute(", "PRAGMA") if word in path.read_text()]
+    assert not found

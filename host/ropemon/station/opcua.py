@@ -62,6 +62,7 @@ CERT_DAYS = 5 * 365
 SEVERITY = {1: 800, 2: 500, 3: 300}
 QUEUE_MAX = 50_000          # messages waiting for the server; past it frames are dropped (counted)
 HISTORY_MAX_VALUES = 10_000  # values in one history-read answer; a continuation point gives the rest
+#: the events columns a history event is made of (`Store.events` rows cut down to them)
 EVENT_COLUMNS = ("id", "time_s", "action", "alarm", "kind", "node", "rope", "message", "operator")
 MAX_SHELVE_MIN = 720.0       # the longest TimedShelve, and a OneShotShelve's bound (as the web face's)
 
@@ -378,19 +379,8 @@ class _History:
         store = self._open(db)
         if store is None:
             return []
-        have = {r[1] for r in store.db.execute("PRAGMA table_info(events)")}
-        cols = [c for c in EVENT_COLUMNS if c in have]
-        where, args = [], []
-        if lo is not None:
-            where.append("time_s >= ?")
-            args.append(lo)
-        if hi is not None:
-            where.append("time_s <= ?")
-            args.append(hi)
-        order = "DESC" if newest_first else "ASC"
-        cur = store.db.execute(f"SELECT {','.join(cols)} FROM events {'WHERE ' + ' AND '.join(where) if where else ''} "
-                               f"ORDER BY time_s {order}, id {order} LIMIT ?", (*args, limit))
-        return [dict(zip(cols, r)) for r in cur]
+        rows = store.events(since=lo, until=hi, by_time=True, newest_first=newest_first, limit=limit)
+        return [{c: r[c] for c in EVENT_COLUMNS if c in r} for r in rows]
 
     async def stop(self) -> None:
         self._pool.submit(self._close).result()

@@ -19,6 +19,7 @@ import sqlite3
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, NamedTuple
 
 from ropemon.station.nodetime import NodeClock
 from ropemon.station.protocol import Frame, L, Rope
@@ -112,6 +113,7 @@ _EVENT_COLS = ("time_s", "action", "alarm", "kind", "node", "rope", "value", "th
                "operator")
 #: events columns added to schema 1 later; files written before get them on open (NULL in old rows).
 _EVENT_COLS_ADDED = {"worst": "REAL", "operator": "TEXT"}
+_TRIP_SQL = "id, node, start_time, end_time, start_depth_mm, end_depth_mm, first_frame_id, last_frame_id"
 
 
 def _open_readonly(path: str) -> sqlite3.Connection:
@@ -172,6 +174,23 @@ class Trip:
     end_depth_mm: int | None
     first_frame_id: int
     last_frame_id: int | None
+
+
+class FrameBucket(NamedTuple):
+    """One time bucket of a node's frames (`Store.frame_buckets`)."""
+    bucket: int          # (rx_time - t0) // bucket_s
+    rx_time: float       # the mean rx_time of its frames
+    depth_mm: float      # their mean depth
+    frames: int          # how many
+
+
+class TensionBucket(NamedTuple):
+    """One rope's tension in one time bucket (`Store.tension_buckets`), in daN."""
+    bucket: int
+    rope: int            # from 0
+    mean_dan: float      # the mean of the frames' window means
+    min_dan: int         # the lowest window minimum
+    max_dan: int         # the highest window maximum
 
 
 class _TripDetector:
@@ -235,6 +254,9 @@ class Store:
             for col, typ in _EVENT_COLS_ADDED.items():
                 if col not in have:
                     self.db.execute(f"ALTER TABLE events ADD COLUMN {col} {typ}")
+        # the events columns this file has (a read-only older one may lack worst, operator)
+        have = {r[1] for r in self.db.execute("PRAGMA table_info(events)")}
+        self._event_cols = ("id", *(c for c in _EVENT_COLS if c in have))
         self._trip = _TripDetector(trip_moving_mm_s, trip_rest_s, trip_start_m)
         for tid, node in self.db.execute("SELECT id, node FROM trips WHERE end_time IS NULL"):
             self._trip.open[node] = tid
@@ -458,8 +480,8 @@ class Store:
 
     # -- replay protection across restarts --------------------------------------
 
-    def _nodes(self) -> list[int]:
-        """Nodes with frames in the log (one index probe per node, not a scan)."""
+    def nodes(self) -> list[int]:
+        """Nodes with frames in the log, ascending (one index probe per node, not a scan)."""
         out: list[int] = []
         while True:
             row = self.db.execute("SELECT min(node) FROM frames WHERE node > ?",
@@ -490,7 +512,7 @@ class Store:
         (`authenticated` NULL) count for nothing: anyone could have sent them."""
         starts = self._line_starts()
         out: dict[int, int] = {}
-        for node in self._nodes():
+        for node in self.nodes():
             row = self.db.execute("SELECT seq FROM frames WHERE node = ? AND authenticated = 1 AND id >= ? "
                                   "ORDER BY seq DESC LIMIT 1", (node, starts.get(node, 0))).fetchone()
             if row is not None:
@@ -506,19 +528,104 @@ class Store:
             "ORDER BY rx_time DESC, id DESC LIMIT ?", (node, start, n)).fetchall()
         return [sf.frame for sf in self._stored(rows[::-1])]
 
-    def trips(self, node: int | None = None) -> list[Trip]:
-        sql = "SELECT id, node, start_time, end_time, start_depth_mm, end_depth_mm, first_frame_id, last_frame_id FROM trips"
-        args: tuple = ()
+    def trips(self, node: int | None = None, *, newest_first: bool = False,
+              limit: int | None = None) -> list[Trip]:
+        """Trips in start_time order (newest first with `newest_first`), optionally of one node,
+        at most `limit`."""
+        sql = f"SELECT {_TRIP_SQL} FROM trips"
+        args: list[Any] = []
         if node is not None:
             sql += " WHERE node = ?"
-            args = (node,)
-        return [Trip(*r) for r in self.db.execute(sql + " ORDER BY start_time, id", args)]
+            args.append(node)
+        order = "DESC" if newest_first else "ASC"
+        sql += f" ORDER BY start_time {order}, id {order}"
+        if limit is not None:
+            sql += " LIMIT ?"
+            args.append(limit)
+        return [Trip(*r) for r in self.db.execute(sql, args)]
 
-    def events(self) -> list[dict]:
-        have = {r[1] for r in self.db.execute("PRAGMA table_info(events)")}   # an older read-only file
-        cur = self.db.execute(f"SELECT id, {','.join(c for c in _EVENT_COLS if c in have)} FROM events ORDER BY id")
-        names = [d[0] for d in cur.description]
-        return [dict(zip(names, r)) for r in cur]
+    def trip(self, trip_id: int) -> Trip | None:
+        """The trip with this id, None if there is none."""
+        row = self.db.execute(f"SELECT {_TRIP_SQL} FROM trips WHERE id = ?", (trip_id,)).fetchone()
+        return Trip(*row) if row else None
+
+    def depth_span(self, node: int, first_id: int, last_id: int | None = None) -> int:
+        """How far `node`'s depth ranged (highest minus lowest depth_mm) over its frames with
+        first_id <= id <= last_id (None: to the newest); 0 without frames."""
+        row = self.db.execute("SELECT max(depth_mm) - min(depth_mm) FROM frames WHERE node = ? AND id >= ? "
+                              "AND id <= ?", (node, first_id, last_id if last_id is not None else 1 << 62)).fetchone()
+        return row[0] or 0
+
+    def frame_buckets(self, node: int, t0: float, t1: float, bucket_s: float) -> list[FrameBucket]:
+        """`node`'s frames with t0 <= rx_time <= t1 in buckets of `bucket_s` from t0, in bucket
+        order (only buckets with frames): their mean time and depth and their count."""
+        rows = self.db.execute(
+            "SELECT CAST((rx_time - ?) / ? AS INTEGER) AS b, avg(rx_time), avg(depth_mm), count(*) FROM frames "
+            "WHERE node = ? AND rx_time >= ? AND rx_time <= ? GROUP BY b ORDER BY b",
+            (t0, bucket_s, node, t0, t1)).fetchall()
+        return [FrameBucket(*r) for r in rows]
+
+    def tension_buckets(self, node: int, t0: float, t1: float, bucket_s: float) -> list[TensionBucket]:
+        """Each rope's tension over `node`'s frames with t0 <= rx_time <= t1, in the buckets of
+        `frame_buckets`, in bucket then rope order; a rope record without a tension is left out."""
+        rows = self.db.execute(
+            "SELECT CAST((f.rx_time - ?) / ? AS INTEGER) AS b, r.rope, avg(r.mean_dan), min(r.min_dan), "
+            "max(r.max_dan) FROM frames f JOIN ropes r ON r.frame_id = f.id "
+            "WHERE f.node = ? AND f.rx_time >= ? AND f.rx_time <= ? AND r.mean_dan != ? "
+            "GROUP BY b, r.rope ORDER BY b, r.rope",
+            (t0, bucket_s, node, t0, t1, L.TENSION_ABSENT)).fetchall()
+        return [TensionBucket(*r) for r in rows]
+
+    def events(self, *, since: float | None = None, until: float | None = None, action: str | None = None,
+               kind: str | None = None, node: int | None = None, text: str | None = None,
+               operator_only: bool = False, by_time: bool = False, newest_first: bool = False,
+               limit: int | None = None) -> list[dict[str, Any]]:
+        """Rows of the events table as dicts (`id` and the columns of docs/storage.md; an older
+        read-only file without `worst` and `operator` has no such keys), in the order they were
+        logged (id) or with `by_time` in time_s order (then id), newest first with `newest_first`,
+        at most `limit`. Filters: since <= time_s <= until, the action, the kind, the node;
+        `text` found in the message, the alarm id or the operator; `operator_only`: what a person
+        did (an operator is named, or an acceptance or a baseline; in a file without the
+        operator column: the operator actions)."""
+        where: list[str] = []
+        args: list[Any] = []
+        operator = "operator" in self._event_cols
+        if action:
+            where.append("action = ?")
+            args.append(action)
+        if kind:
+            where.append("kind = ?")
+            args.append(kind)
+        if node is not None:
+            where.append("node = ?")
+            args.append(node)
+        if text:
+            where.append("(message LIKE ? ESCAPE '\\' OR alarm LIKE ? ESCAPE '\\'"
+                         + (" OR operator LIKE ? ESCAPE '\\')" if operator else ")"))
+            pat = "%" + text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
+            args += [pat, pat] + ([pat] if operator else [])
+        if since is not None:
+            where.append("time_s >= ?")
+            args.append(since)
+        if until is not None:
+            where.append("time_s <= ?")
+            args.append(until)
+        if operator_only:
+            where.append("(operator IS NOT NULL OR action IN ('accept', 'rebase'))" if operator
+                         else "action IN ('ack', 'shelve', 'unshelve', 'out_of_service', 'in_service', 'accept')")
+        sql = f"SELECT {','.join(self._event_cols)} FROM events"
+        if where:
+            sql += " WHERE " + " AND ".join(where)
+        order = "DESC" if newest_first else "ASC"
+        sql += f" ORDER BY time_s {order}, id {order}" if by_time else f" ORDER BY id {order}"
+        if limit is not None:
+            sql += " LIMIT ?"
+            args.append(limit)
+        return [dict(zip(self._event_cols, r)) for r in self.db.execute(sql, args)]
+
+    def event_kinds(self) -> list[str]:
+        """The distinct kinds in the events table, sorted."""
+        return [r[0] for r in self.db.execute("SELECT DISTINCT kind FROM events ORDER BY kind")]
 
     def link_stats(self) -> list[dict]:
         cur = self.db.execute("SELECT * FROM link_stats ORDER BY id")

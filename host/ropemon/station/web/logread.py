@@ -3,7 +3,7 @@
 Each hoist's log is opened read-only (`Store(path, readonly=True)`) in a thread of its own
 (`LogReader`: one worker, so the SQLite connection stays on the thread that made it) and read
 there, never on the web's event loop nor the station's thread. The station's writer keeps
-writing meanwhile (WAL): a reader sees what is committed.
+writing meanwhile (WAL): a reader sees what is committed. Every read is a `Store` method: no SQL here.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ropemon.station.protocol import DAN_TO_N, L
+from ropemon.station.protocol import DAN_TO_N
 from ropemon.station.report import MIN_TRAVEL_M, FrameTable, Rest, Trip, rest_of
 from ropemon.station.store import Store, StoreError
 from ropemon.station.store import Trip as StoredTrip
@@ -56,7 +56,7 @@ class LogReader:
     def close(self) -> None:
         def shut() -> None:
             if self._store is not None:
-                self._store.db.close()
+                self._store.close()
                 self._store = None
         try:
             self._pool.submit(shut).result(timeout=5)
@@ -76,7 +76,7 @@ def _f(x: Any, nd: int = 2) -> float | None:
 
 
 def nodes(st: Store) -> list[int]:
-    return st._nodes()
+    return st.nodes()
 
 
 def history(st: Store, node: int, t0: float, t1: float, max_points: int = MAX_POINTS) -> dict:
@@ -84,16 +84,8 @@ def history(st: Store, node: int, t0: float, t1: float, max_points: int = MAX_PO
     most `max_points` buckets, with each bucket's lowest and highest window value and the depth."""
     span = max(t1 - t0, 1e-3)
     bucket = span / max_points
-    rows = st.db.execute(
-        "SELECT CAST((f.rx_time - ?) / ? AS INTEGER) AS b, r.rope, avg(r.mean_dan), min(r.min_dan), max(r.max_dan) "
-        "FROM frames f JOIN ropes r ON r.frame_id = f.id "
-        "WHERE f.node = ? AND f.rx_time >= ? AND f.rx_time <= ? AND r.mean_dan != ? "
-        "GROUP BY b, r.rope ORDER BY b, r.rope",
-        (t0, bucket, node, t0, t1, L.TENSION_ABSENT)).fetchall()
-    frames = st.db.execute(
-        "SELECT CAST((rx_time - ?) / ? AS INTEGER) AS b, avg(rx_time), avg(depth_mm), count(*) FROM frames "
-        "WHERE node = ? AND rx_time >= ? AND rx_time <= ? GROUP BY b ORDER BY b",
-        (t0, bucket, node, t0, t1)).fetchall()
+    rows = st.tension_buckets(node, t0, t1, bucket)
+    frames = st.frame_buckets(node, t0, t1, bucket)
     # a bucket without frames between two with frames: a gap (None), so the chart does not bridge it
     gap_s = max(3 * bucket, 2.0)
     points: list[tuple[Any, ...]] = []
@@ -126,69 +118,30 @@ def history(st: Store, node: int, t0: float, t1: float, max_points: int = MAX_PO
 def events(st: Store, action: str | None = None, kind: str | None = None, node: int | None = None,
            text: str | None = None, t0: float | None = None, t1: float | None = None,
            operator_only: bool = False, limit: int = 500) -> list[dict]:
-    """The events table, newest first, filtered."""
-    have = {r[1] for r in st.db.execute("PRAGMA table_info(events)")}
-    cols = [c for c in ("id", "time_s", "action", "alarm", "kind", "node", "rope", "value", "threshold",
-                        "message", "worst", "operator") if c in have]
-    where, args = [], []   # type: list[str], list[Any]
-    if action:
-        where.append("action = ?")
-        args.append(action)
-    if kind:
-        where.append("kind = ?")
-        args.append(kind)
-    if node is not None:
-        where.append("node = ?")
-        args.append(node)
-    if text:
-        where.append("(message LIKE ? ESCAPE '\\' OR alarm LIKE ? ESCAPE '\\'"
-                     + (" OR operator LIKE ? ESCAPE '\\')" if "operator" in have else ")"))
-        pat = "%" + text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
-        args += [pat, pat] + ([pat] if "operator" in have else [])
-    if t0 is not None:
-        where.append("time_s >= ?")
-        args.append(t0)
-    if t1 is not None:
-        where.append("time_s <= ?")
-        args.append(t1)
-    if operator_only:
-        where.append("(operator IS NOT NULL OR action IN ('accept', 'rebase'))" if "operator" in have
-                     else "action IN ('ack', 'shelve', 'unshelve', 'out_of_service', 'in_service', 'accept')")
-    sql = f"SELECT {','.join(cols)} FROM events"
-    if where:
-        sql += " WHERE " + " AND ".join(where)
-    sql += " ORDER BY id DESC LIMIT ?"
-    args.append(min(max(limit, 1), MAX_EVENTS))
-    out = []
-    for r in st.db.execute(sql, args):
-        d = dict(zip(cols, r))
+    """The events table, newest first, filtered (ropes numbered from 1)."""
+    out = st.events(since=t0, until=t1, action=action, kind=kind, node=node, text=text,
+                    operator_only=operator_only, newest_first=True, limit=min(max(limit, 1), MAX_EVENTS))
+    for d in out:
         if d.get("rope") is not None:
             d["rope"] += 1
-        out.append(d)
     return out
 
 
 def event_kinds(st: Store) -> list[str]:
-    return [r[0] for r in st.db.execute("SELECT DISTINCT kind FROM events ORDER BY kind")]
+    return st.event_kinds()
 
 
 # -- trips -----------------------------------------------------------------------------------
 
 
 def _travel_m(st: Store, t: StoredTrip) -> float:
-    last = t.last_frame_id if t.last_frame_id is not None else 1 << 62
-    row = st.db.execute("SELECT max(depth_mm) - min(depth_mm) FROM frames WHERE node = ? AND id >= ? AND id <= ?",
-                        (t.node, t.first_frame_id, last)).fetchone()
-    return (row[0] or 0) / 1000
+    return st.depth_span(t.node, t.first_frame_id, t.last_frame_id) / 1000
 
 
 def trip_list(st: Store, limit: int = 200) -> list[dict]:
     """The store's trips, newest first, with how far each moved (creep at a landing: `wind` false)."""
-    rows = st.db.execute("SELECT id, node, start_time, end_time, start_depth_mm, end_depth_mm, first_frame_id, "
-                         "last_frame_id FROM trips ORDER BY start_time DESC, id DESC LIMIT ?", (limit,)).fetchall()
     out = []
-    for r in rows:
-        t = StoredTrip(*r)
+    for t in st.trips(newest_first=True, limit=limit):
         travel = _travel_m(st, t)
         out.append({"id": t.id, "node": t.node, "start_time": t.start_time, "end_time": t.end_time,
                     "start_depth_m": t.start_depth_mm / 1000,
@@ -198,18 +151,12 @@ def trip_list(st: Store, limit: int = 200) -> list[dict]:
     return out
 
 
-def _stored_trip(st: Store, trip_id: int) -> StoredTrip | None:
-    row = st.db.execute("SELECT id, node, start_time, end_time, start_depth_mm, end_depth_mm, first_frame_id, "
-                        "last_frame_id FROM trips WHERE id = ?", (trip_id,)).fetchone()
-    return StoredTrip(*row) if row else None
-
-
 def trip_detail(st: Store, trip_id: int, area_m2: list[float], shaft_m: float | None) -> dict | None:
     """One trip as `ropemon report` sees it: its frames from the rest before to the rest after
     (bounded by the neighbouring winds and REST_WINDOW_S), and the rests' figures. The node time
     is unwrapped over these frames (`FrameTable.from_frames`, `ropemon.station.nodetime`), so a
     wrap of the node's u32 time inside them moves neither a rest nor the chart's axis."""
-    tr = _stored_trip(st, trip_id)
+    tr = st.trip(trip_id)
     if tr is None:
         return None
     same = st.trips(tr.node)
