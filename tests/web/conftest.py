@@ -1,4 +1,5 @@
-"""Real-browser tests of the station's web face: Debian's chromium, driven by Selenium.
+"""Tests of the station's web face: through Starlette's TestClient (test_web*.py, no browser), and
+in a real browser (Debian's chromium, driven by Selenium; only a test that asks for `browser` starts one).
 
 Fixtures:
     browser     one headless chromium per test module (a fresh profile each)
