@@ -244,7 +244,7 @@ def test_anonymous_and_wrong_password_refused(rig, client_cert):
 def test_allow_anonymous_admits_a_client_without_a_name_over_the_secure_channel(client_cert):
     """Every endpoint signs and encrypts, so an anonymous session always comes with the channel's
     certificate: allow_anonymous admits it (with no name: a viewer), and without it it is refused."""
-    from ropemon.station.opcua import _UserManager
+    from ropemon.station.opcua.certs import _UserManager
     cert = client_cert[0].read_bytes()
     user = _UserManager(None, allow_anonymous=True).get_user(None, certificate=cert)
     assert user is not None and user.name is None

@@ -132,7 +132,7 @@ def _run(mode: str, d: Path, client_cert: tuple[str, str], seconds: float, rep: 
     from ropemon.station.faces import start_faces
     from ropemon.station.hoists import StationSet
     from ropemon.station.link import Received
-    from ropemon.station.opcua import CERT_FILE
+    from ropemon.station.opcua.certs import CERT_FILE
     from ropemon.station.stationfile import load_station_file
 
     port = free_port()
