@@ -401,37 +401,30 @@ def stroke_limits(ph: dict | Physical) -> dict[str, list[int]]:
     return out
 
 
-def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, key: bytes = EXAMPLE_KEY) -> dict:
-    """The integer node section for physical section `ph` and the node's id and key (raises
-    ValueError naming the field)."""
-    p = as_physical(ph)
-    pp = physical_params(p)
-    n = p.ropes
-    fs = p.sample_hz
-    frame_hz = p.frame_hz
+TENSION_MAX_N = 1 << 19  # N: config.py TENSION_MAX_N
+
+
+def _header_section(p: Physical, pp: dict, node_id: int, key: bytes) -> dict[str, Any]:
+    """The node section's head: the node's identity (id, key), the rope count and rates, the
+    alarms' figures (rated tension, imbalance, battery low) and the battery's scale."""
     if type(node_id) is not int or not 0 <= node_id <= 255:
         raise ValueError(f"node_id: must be an integer 0..255, got {node_id!r}")
     key = bytes(key)
     if not KEY_LEN_MIN <= len(key) <= KEY_LEN_MAX:
         raise ValueError(f"key: must be {KEY_LEN_MIN}..{KEY_LEN_MAX} bytes, got {len(key)}")
-    areas = p.cylinder_area_m2
     for i, w in enumerate(pp["area_w"]):
         if not 0.5 <= w <= 1.5:
             raise ValueError(f"physical.cylinder_area_m2[{i}]: {w:.2f} times the ropes' mean area; the node "
                              "shares the oil's motion among cylinders within 0.5 .. 1.5 of it")
-    rated = p.rated_rope_tension_N
-    p_max_pa = pp["p_max_pa"]
-    p_kpa_max = math.ceil(p_max_pa / 1000)
+    p_kpa_max = math.ceil(pp["p_max_pa"] / 1000)
     _check("physical.pressure_channels", p_kpa_max, 100000)
-    tension_limit = 1 << 19  # N: config.py TENSION_MAX_N
-
     nd: dict[str, Any] = {
         "node_id": node_id,
         "key": list(key),
-        "ropes": n,
-        "sample_hz": fs,
-        "frame_hz": frame_hz,
-        "rated_rope_tension_n": round(rated),
+        "ropes": p.ropes,
+        "sample_hz": p.sample_hz,
+        "frame_hz": p.frame_hz,
+        "rated_rope_tension_n": round(p.rated_rope_tension_N),
         "imbalance_permille": round(p.imbalance_frac * 1000),
         "battery_low_mv": round(p.battery_low_V * 1000),
         "p_kpa_max": p_kpa_max,
@@ -439,7 +432,13 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
     bm, bs = fit_mul_shift(p.battery_V_per_count * 1000, 65535,
                            "physical.battery_V_per_count")
     nd["battery_mv_mul"], nd["battery_mv_shift"] = bm, bs
+    return nd
 
+
+def _pressure_section(p: Physical, pp: dict) -> tuple[list[dict], float]:
+    """`pressure`: each pressure channel's NAMUR fault limits, kPa and tension scales and step
+    limit; and the largest raw tension (N) the channels read within their fault limits."""
+    areas = p.cylinder_area_m2
     pressure = []
     raw_t_max = 0.0
     for i, ch in enumerate(p.pressure_channels):
@@ -453,15 +452,17 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
         for c in (flo, fhi):
             t = lo * areas[i] + (c - c4) * pa_per_count * areas[i]
             _check(f"physical.cylinder_area_m2[{i}] x {f[9:]}.range_Pa (tension at the NAMUR "
-                   "limits)", t, tension_limit)
+                   "limits)", t, TENSION_MAX_N)
             raw_t_max = max(raw_t_max, abs(t))
         pressure.append({"counts_4ma": c4, "fault_lo_counts": flo, "fault_hi_counts": fhi,
                          "kpa_at_4ma": round(lo / 1000), "kpa_mul": km, "kpa_shift": ks,
                          "tension_n_at_4ma": round(lo * areas[i]), "tension_n_mul": tm,
                          "tension_n_shift": ts, "step_max_counts": pp["pressure_step_counts"][i]})
-    nd["pressure"] = pressure
-    nd["step_recover"] = pp["pressure_step_recover"]
+    return pressure, raw_t_max
 
+
+def _displacement_section(p: Physical) -> list[dict]:
+    """`displacement`: each displacement channel's fault limits and its scale (um/256)."""
     displacement = []
     for i, ch in enumerate(p.displacement_channels):
         f = f"physical.displacement_channels[{i}]"
@@ -475,17 +476,18 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
                    lo * 256e6 + (c - clo) * q8_per_count, 1 << 25)
         displacement.append({"counts_lo": clo, "fault_lo_counts": flo, "fault_hi_counts": fhi,
                              "q8um_at_lo": round(lo * 256e6), "q8um_mul": dm, "q8um_shift": ds})
-    nd["displacement"] = displacement
-    nd.update(stroke_limits(p))
+    return displacement
 
-    v_max = pp["v_max"]
-    dx_max = round(v_max / fs * 256e6)
+
+def _velocity_section(pp: dict, fs: int) -> dict[str, int]:
+    """`velocity`: the piston velocity's low-pass gain and the largest believable step per sample."""
+    dx_max = round(pp["v_max"] / fs * 256e6)
     _check("physical.piston_speed_max_m_s (dx_max * sample_hz)", dx_max * fs, 1 << 28)
-    v_max_um_s = (dx_max * fs + 128) >> 8
-    nd["velocity"] = {"alpha_q14": max(1, round(pp["alpha"] * 16384)), "dx_max_q8um": dx_max}
-    play_q8um = [round(w * 256e6) for w in pp["plays_m"]]
-    rest_play_q8um = [round(w * 256e6) for w in pp["rest_plays_m"]]
-    rest_q16um = [round(w * 65536e6) for w in pp["rest_m"]]  # the activity is held in um/65536
+    return {"alpha_q14": max(1, round(pp["alpha"] * 16384)), "dx_max_q8um": dx_max}
+
+
+def _stroke_fields(pp: dict) -> dict[str, int]:
+    """friction's stroke threshold and slide following's lo and span, in the node's um/256."""
     stroke_q8um = round(pp["stroke_m"] * 256e6)
     _check("physical.stroke_sigmas (stroke threshold, um/256)", stroke_q8um, (1 << 15) + 1)
     slide_lo_q8um = round(pp["slide_lo_m"] * 256e6)
@@ -493,6 +495,15 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
     _check("physical.slide_follow_lo_sigmas (slide following's lo, um/256)", slide_lo_q8um, (1 << 24) + 1)
     _check("physical.slide_follow_hi_sigmas (slide following's span hi - lo, um/256)",
            slide_span_q8um, (1 << 20) + 1)
+    return {"stroke_q8um": stroke_q8um, "slide_lo_q8um": slide_lo_q8um, "slide_span_q8um": slide_span_q8um}
+
+
+def _play_fields(pp: dict) -> dict[str, Any]:
+    """friction's plays (um/256), the rest hold's activity threshold (um/65536) and noise
+    following's level (kPa/16, Q6), per count of healthy pressure channels."""
+    play_q8um = [round(w * 256e6) for w in pp["plays_m"]]
+    rest_play_q8um = [round(w * 256e6) for w in pp["rest_plays_m"]]
+    rest_q16um = [round(w * 65536e6) for w in pp["rest_m"]]  # the activity is held in um/65536
     _check("physical.friction_play_sigmas (play half-width, um/256)", max(play_q8um), 1 << 24)
     _check("physical.rest_play_sigmas (play half-width, um/256)", max(rest_play_q8um), (1 << 20) + 1)
     _check("physical.rest_sigmas (activity threshold, um/65536)", max(rest_q16um), (1 << 21) + 1)
@@ -503,7 +514,14 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
         _check("physical.pressure_noise_Pa (noise following's level, kPa/16 Q6)", noise_ref_q6, (1 << 18) + 1)
         _check("physical.rest_sigmas (activity threshold with noise following, um/65536)",
                max(rest_q16um), 1 << 20)
+    return {"play_q8um": play_q8um, "rest_play_q8um": rest_play_q8um, "rest_q16um": rest_q16um,
+            "noise_ref_q6": noise_ref_q6}
 
+
+def _seal_fields(p: Physical, dx_max: int, v_max_um_s: int, p_kpa_max: int) -> tuple[dict, dict, float]:
+    """The LuGre seal's keys of `friction`: (sigma0 and sigma1's multipliers, the pressure lines
+    Fs, Fc, vs and sigma2 with sigma2's shift, the largest friction force in N)."""
+    fs = p.sample_hz
     fr = p.friction
 
     def flin(key: str) -> tuple[float, float]:
@@ -551,9 +569,22 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
                             mul_max=1 << 15) if b2 else (0, 0)
     lin["sigma2_q"] = {"at_0": round(a2 * q), "slope_mul": m2, "slope_shift": sh2}
     _check("physical.friction.sigma2 (sigma2 * v_max, N/16)", s2max * v_max_um_s, 1 << 19)
+    fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p_mpa for p_mpa in (0.0, p_kpa_max / 1000))
+    f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous
+    sigmas = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s}
+    return sigmas, {**lin, "sigma2_shift": s2sh}, f_max
+
+
+def _gexp_table() -> list[int]:
+    """friction's `gexp_q14`: exp(-u**2) in Q14 at u = 0, GEXP_STEP, ..., its last point 0."""
     gexp = [round(math.exp(-(k * GEXP_STEP) ** 2) * 16384) for k in range(GEXP_POINTS)]
     gexp[-1] = 0
-    # hydraulic compliance in (um/256 per kPa) * 2**shift, the largest below 2**17
+    return gexp
+
+
+def _compliance_fields(pp: dict) -> dict[str, Any]:
+    """friction's hydraulic compliance per rope in (um/256 per kPa) * 2**shift, the largest
+    shift that keeps every one below 2**17."""
     k_u = [k * 1e3 * 256e6 for k in pp["compliance"]]
     ksh = 30
     while ksh > 5 and max(k_u) * (1 << ksh) >= (1 << 17) - 1:
@@ -563,26 +594,42 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
         if q >= 1 << 17 or (q * 3125) >> (ksh - 5) >= 1 << 25:
             raise ValueError(f"physical.hydraulic_compliance_m_per_Pa[{i}]: too large for the node "
                              "(k times 100 MPa must stay within 0.13 m)")
-    nd["friction"] = {"sigma0_mul": s0m, "sigma0_shift": s0s, "c1_mul": c1m, "c1_shift": c1s,
-                      "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": play_q8um,
-                      "rest_play_q8um": rest_play_q8um, "rest_q16um": rest_q16um,
-                      "noise_ref_q6": noise_ref_q6, "noise_shift": pp["noise_shift"],
-                      "alpha_l_q14": round(pp["alpha_l"] * 16384), "alpha_a_q14": round(pp["alpha_a"] * 16384),
-                      **_tracker_fields(pp["tracker"]), "compliance_q": kq,
-                      "compliance_shift": ksh, "warmup_samples": min(pp["warmup"], 65535),
-                      "alpha_e_q14": round(pp["alpha_e"] * 16384), "area_q8": [round(a * 256) for a in pp["area_w"]],
-                      "stroke_q8um": stroke_q8um,
-                      "stroke_vmin_q16": round(pp["stroke_vmin"] * 65536e6),
-                      "stroke_settle": min(pp["stroke_settle"], 65535),
-                      "slide_lo_q8um": slide_lo_q8um, "slide_span_q8um": slide_span_q8um,
-                      **lin, "sigma2_shift": s2sh, "gexp_q14": gexp}
-    fs_max = max(flin("Fs")[0] + flin("Fs")[1] * p_mpa for p_mpa in (0.0, p_kpa_max / 1000))
-    f_max = fs_max * (1 + c1 * 2) + s2max / 16 * v_max_um_s  # |zf| <= Fs, damping, viscous
+    return {"compliance_q": kq, "compliance_shift": ksh}
 
+
+def _friction_section(p: Physical, pp: dict, dx_max: int, v_max_um_s: int,
+                      p_kpa_max: int) -> tuple[dict[str, Any], float]:
+    """`friction`: the seal (LuGre), its plays and rest hold, noise following, the pressure
+    tracker, the compliance, the stroke and slide following; and the largest friction force (N)."""
+    stroke = _stroke_fields(pp)
+    plays = _play_fields(pp)
+    sigmas, lines, f_max = _seal_fields(p, dx_max, v_max_um_s, p_kpa_max)
+    gexp = _gexp_table()
+    compliance = _compliance_fields(pp)
+    section = {**sigmas,
+               "alpha_z_q14": max(1, round(pp["alpha_z"] * 16384)), "play_q8um": plays["play_q8um"],
+               "rest_play_q8um": plays["rest_play_q8um"], "rest_q16um": plays["rest_q16um"],
+               "noise_ref_q6": plays["noise_ref_q6"], "noise_shift": pp["noise_shift"],
+               "alpha_l_q14": round(pp["alpha_l"] * 16384), "alpha_a_q14": round(pp["alpha_a"] * 16384),
+               **_tracker_fields(pp["tracker"]), **compliance,
+               "warmup_samples": min(pp["warmup"], 65535),
+               "alpha_e_q14": round(pp["alpha_e"] * 16384), "area_q8": [round(a * 256) for a in pp["area_w"]],
+               "stroke_q8um": stroke["stroke_q8um"],
+               "stroke_vmin_q16": round(pp["stroke_vmin"] * 65536e6),
+               "stroke_settle": min(pp["stroke_settle"], 65535),
+               "slide_lo_q8um": stroke["slide_lo_q8um"], "slide_span_q8um": stroke["slide_span_q8um"],
+               **lines, "gexp_q14": gexp}
+    return section, f_max
+
+
+def _loss_section(p: Physical) -> tuple[dict[str, Any], float]:
+    """`loss`: the pipe-loss table per rope (piston speeds in um/s, forces in N per temperature
+    row); and the largest loss force (N)."""
+    areas = p.cylinder_area_m2
     temps, flows, dps = p.loss.temps_C, p.loss.flow_m3_s, p.loss.dp_Pa
     v_rows, f_rows = [], []
     loss_max = 0.0
-    for i in range(n):
+    for i in range(p.ropes):
         v_row = [round(q / areas[i] * 1e6) for q in flows]
         if any(b <= a for a, b in zip(v_row, v_row[1:])) or v_row[-1] >= 1 << 19:
             raise ValueError(f"physical.loss.flow_m3_s: piston speeds of rope {i} not "
@@ -598,28 +645,32 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
                 loss_max = max(loss_max, abs(x))
             rows.append(fr_row)
         f_rows.append(rows)
-    nd["loss"] = {"temps_cc": [round(t * 100) for t in temps], "v_um_s": v_rows,
-                  "force_n": f_rows}
+    return {"temps_cc": [round(t * 100) for t in temps], "v_um_s": v_rows, "force_n": f_rows}, loss_max
 
-    t_max = raw_t_max + loss_max + f_max
-    _check("physical (largest tension: raw + loss + friction)", t_max, tension_limit)
-    _check("physical.frame_hz (tension sums over a window)", t_max * (fs // frame_hz), I30)
 
+def _temperature_section(p: Physical) -> dict[str, int]:
+    """`temperature`: the oil temperature input's scale and fault limits (all 0 and `fitted` 0
+    when not fitted) and the temperature assumed without it."""
     temp = p.temperature
     assumed = round(p.oil_temp_assumed_C * 100)
     if temp is None:
-        nd["temperature"] = {"fitted": 0, "counts_at_0c": 0, "cc_mul": 0, "cc_shift": 0,
-                             "fault_lo_counts": 0, "fault_hi_counts": 0, "assumed_cc": assumed}
-    else:
-        c0, cpc = temp.counts_at_0C, temp.counts_per_C
-        tm_, ts_ = fit_mul_shift(100 / cpc, 65535, "physical.temperature.counts_per_C")
-        ends = sorted((c0 - 40 * cpc, c0 + 125 * cpc))  # a reading outside -40..125 C is a fault
-        nd["temperature"] = {"fitted": 1, "counts_at_0c": round(c0), "cc_mul": tm_,
-                             "cc_shift": ts_,
-                             "fault_lo_counts": max(0, math.ceil(ends[0])),
-                             "fault_hi_counts": min(65534, math.floor(ends[1])),
-                             "assumed_cc": assumed}
+        return {"fitted": 0, "counts_at_0c": 0, "cc_mul": 0, "cc_shift": 0,
+                "fault_lo_counts": 0, "fault_hi_counts": 0, "assumed_cc": assumed}
+    c0, cpc = temp.counts_at_0C, temp.counts_per_C
+    tm_, ts_ = fit_mul_shift(100 / cpc, 65535, "physical.temperature.counts_per_C")
+    ends = sorted((c0 - 40 * cpc, c0 + 125 * cpc))  # a reading outside -40..125 C is a fault
+    return {"fitted": 1, "counts_at_0c": round(c0), "cc_mul": tm_,
+            "cc_shift": ts_,
+            "fault_lo_counts": max(0, math.ceil(ends[0])),
+            "fault_hi_counts": min(65534, math.floor(ends[1])),
+            "assumed_cc": assumed}
 
+
+def _shaft_section(p: Physical) -> dict[str, Any]:
+    """`shaft`: the speed encoder's scale, the most pulses per sample, the Hall marks, and the
+    snap distance and start depth (mm)."""
+    fs = p.sample_hz
+    frame_hz = p.frame_hz
     mpp = p.speed_m_per_pulse
     mmpp_q16 = round(mpp * 1000 * 65536)
     max_pulses = math.ceil(p.setting("hoist_speed_max_m_s") / mpp / fs) + 1
@@ -630,9 +681,34 @@ def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, k
     marks_mm = [round(m * 1000) for m in p.hall_marks_m]
     if any(b <= a for a, b in zip(marks_mm, marks_mm[1:])):
         raise ValueError("physical.hall_marks_m: must ascend in mm (the node's resolution)")
-    nd["shaft"] = {"mm_per_pulse_q16": mmpp_q16, "max_pulses_per_sample": max_pulses,
-                   "marks_mm": marks_mm, "snap_mm": round(p.setting("hall_snap_m") * 1000),
-                   "start_depth_mm": round(p.setting("start_depth_m") * 1000)}
+    return {"mm_per_pulse_q16": mmpp_q16, "max_pulses_per_sample": max_pulses,
+            "marks_mm": marks_mm, "snap_mm": round(p.setting("hall_snap_m") * 1000),
+            "start_depth_mm": round(p.setting("start_depth_m") * 1000)}
+
+
+def build_node_section(ph: dict | Physical, *, node_id: int = EXAMPLE_NODE_ID, key: bytes = EXAMPLE_KEY) -> dict:
+    """The integer node section for physical section `ph` and the node's id and key (raises
+    ValueError naming the field): one function per section, checked in this order."""
+    p = as_physical(ph)
+    pp = physical_params(p)
+    fs = p.sample_hz
+    nd = _header_section(p, pp, node_id, key)
+    nd["pressure"], raw_t_max = _pressure_section(p, pp)
+    nd["step_recover"] = pp["pressure_step_recover"]
+    nd["displacement"] = _displacement_section(p)
+    nd.update(stroke_limits(p))
+    nd["velocity"] = _velocity_section(pp, fs)
+    dx_max = nd["velocity"]["dx_max_q8um"]
+    v_max_um_s = (dx_max * fs + 128) >> 8
+    nd["friction"], f_max = _friction_section(p, pp, dx_max, v_max_um_s, nd["p_kpa_max"])
+    nd["loss"], loss_max = _loss_section(p)
+
+    t_max = raw_t_max + loss_max + f_max
+    _check("physical (largest tension: raw + loss + friction)", t_max, TENSION_MAX_N)
+    _check("physical.frame_hz (tension sums over a window)", t_max * (fs // p.frame_hz), I30)
+
+    nd["temperature"] = _temperature_section(p)
+    nd["shaft"] = _shaft_section(p)
 
     # Last line of defence: the node's own validator must accept what we built.
     cfg_mod = node_module("config")
