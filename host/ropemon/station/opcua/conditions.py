@@ -11,6 +11,7 @@ import datetime
 import math
 import time
 import uuid
+from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
 from ropemon.station.alarms import PRIORITY, ActiveAlarm
@@ -56,6 +57,10 @@ class _Conditions:
     by_condition: dict[Any, tuple[str, str]]
     by_shelving: dict[Any, tuple[str, str]]
     event_ids: dict[bytes, tuple[str, str]]
+    # the face's own (face.py)
+    _nid: Callable[[str], Any]
+    _object: Callable[..., Awaitable[Any]]
+    _write: Callable[..., Awaitable[None]]
 
     async def _alarms(self, h: _Hoist, state: AlarmState) -> None:
         from asyncua import ua
