@@ -78,7 +78,7 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
     equal to what the node sent, and nothing corrupted gets through."""
     from ropemon.lab import radio
     from ropemon.lab.demo import DemoClock, demo_host, play_to_host, read_frames_bin, summarize
-    from ropemon.station.physical import SiteFigures, alarm_settings
+    from ropemon.station.sitefigures import SiteFigures, alarm_settings
     from ropemon.station.protocol import load_node_keys
 
     out, _, _ = demo_run
@@ -108,7 +108,7 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
 def test_demo_runs_with_the_slack_alarm_on_and_no_false_slack(demo_run):
     """The simulator's node.json (built by `ropemon config`'s code) carries the empty cage
     load, so the demo's alarms include SLACK; a normal wind must not raise it."""
-    from ropemon.station.physical import SiteFigures, alarm_settings
+    from ropemon.station.sitefigures import SiteFigures, alarm_settings
 
     out, s, _ = demo_run
     site = SiteFigures.from_node_json(out / "sim" / "node.json")

@@ -3,7 +3,7 @@ import io
 
 from rich.console import Console
 
-from ropemon.station.physical import SiteFigures, alarm_settings
+from ropemon.station.sitefigures import SiteFigures, alarm_settings
 from station_rig import Rig
 from ropemon.station.protocol import Rope, encode_frame
 

@@ -7,9 +7,9 @@ import pytest
 from rich.console import Console
 
 from ropemon.station.monitor import MonitorView, sparkline, stroke_gauge
-from ropemon.station.physical import SiteFigures
 from ropemon.station.pipeline import AlarmState
 from ropemon.station.protocol import L, Rope, decode_raw, encode_frame
+from ropemon.station.sitefigures import SiteFigures
 
 AREA = 0.0314
 SITE = SiteFigures([AREA] * 4, rated_rope_tension_n=80_000, rated_load_n=320_000,
@@ -193,7 +193,7 @@ def test_band_beside_the_deviation_the_hoist_status_and_legacy_deviation_possibl
     its pressure barely moved reads +6 % but may reach 10 %: no alarm (the seals' reach is the
     hoist's figure, shown as status); only the legacy station (`legacy_deviation_possible`, the
     evaluation's baseline) raises DEVIATION POSSIBLE for it, in the warning colour."""
-    from ropemon.station.physical import alarm_settings
+    from ropemon.station.sitefigures import alarm_settings
     from station_rig import Rig
     from ropemon.station.uncertainty import BandParams
 

@@ -5,8 +5,8 @@ import numpy as np
 from ropemon.lab import radio
 from ropemon.lab.demo import DemoClock, Sent, demo_host, play_to_host, summarize
 from ropemon.station.monitor import MonitorView
-from ropemon.station.physical import SiteFigures, alarm_settings
 from ropemon.station.protocol import Rope, decode_raw, encode_frame
+from ropemon.station.sitefigures import SiteFigures, alarm_settings
 
 KEY = bytes(range(32))
 SITE = SiteFigures([0.0314] * 4, 80_000, 320_000, 0.10, 3.4)

@@ -203,7 +203,7 @@ def test_a_decoder_error_is_shown_on_the_link_line_and_logged_once(tmp_path):
     """SerialReceiver survives an exception of its consumer; the monitor must not hide it:
     the link line shows the count and the last error, the log gets one event per new error."""
     from ropemon.station.monitor import MonitorView
-    from ropemon.station.physical import SiteFigures
+    from ropemon.station.sitefigures import SiteFigures
     from ropemon.station.pipeline import Station, station_listeners
     from ropemon.station.store import Store
 

@@ -11,8 +11,8 @@ import pytest
 import docedit
 from ropemon.commission.nodejson import seal
 from ropemon.firmware import FIRMWARE_DIR
-from ropemon.station.physical import (Physical, PhysicalError, SiteFigures, alarm_settings, load_node_json,
-                                      site_from_configs)
+from ropemon.station.physical import Physical, PhysicalError, load_node_json
+from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = json.loads((FIRMWARE_DIR / "node.json").read_text())["physical"]

@@ -634,7 +634,7 @@ def test_the_hoist_status_goes_out_at_once_when_it_comes_then_at_most_once_a_sec
     from types import SimpleNamespace
 
     from ropemon.station.alarms import HoistStatus
-    from ropemon.station.physical import SiteFigures
+    from ropemon.station.sitefigures import SiteFigures
     from ropemon.station.pipeline import AlarmState
     from ropemon.station.web.state import WebListener
 

@@ -137,7 +137,7 @@ def frame_time_s(body: bytes) -> float | None:
 
 def station_config(config: str | Path) -> tuple[dict[int, bytes], object]:
     """(keys, AlarmSettings) from a node.json, as `ropemon monitor --config` takes them. Raises ReplayError."""
-    from ropemon.station.physical import SiteFigures, alarm_settings
+    from ropemon.station.sitefigures import SiteFigures, alarm_settings
     from ropemon.station.protocol import load_node_keys
     try:
         return load_node_keys(config), alarm_settings(SiteFigures.from_node_json(config))

@@ -523,7 +523,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from ropemon.station.monitor import MonitorView
-    from ropemon.station.physical import SiteFigures, alarm_settings
+    from ropemon.station.sitefigures import SiteFigures, alarm_settings
     from ropemon.commission.replay import ReplayError, replay
     from ropemon.station.store import Store
 

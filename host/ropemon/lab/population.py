@@ -672,7 +672,8 @@ def station_settings(physical: dict) -> dict:
     """The alarm settings the station takes from this config (`physical.alarm_settings`, as
     `ropemon monitor` and `ropemon replay --db` do): `station`; and the legacy station before the
     equalizer's alarms, `legacy` (`legacy_deviation_possible=True, equalizer=None`)."""
-    from ropemon.station.physical import Physical, SiteFigures, alarm_settings
+    from ropemon.station.physical import Physical
+    from ropemon.station.sitefigures import SiteFigures, alarm_settings
 
     s = alarm_settings(SiteFigures.from_physical(Physical.from_dict(physical)))
     names = {fl.name for fl in dataclasses.fields(s)}

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from ropemon.station.physical import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.pipeline import AlarmListener, Command, Listener, Station, StoreListener
 from ropemon.station.protocol import load_node_keys
+from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.stationfile import HoistFile, StationFile
 
 

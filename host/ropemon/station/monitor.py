@@ -38,10 +38,10 @@ from rich.text import Text
 from ropemon.station.alarms import ActiveAlarm, AlarmEvent
 from ropemon.station.decode_cli import add_key_arguments, node_id
 from ropemon.station.link import DEFAULT_BAUDRATE, Received
-from ropemon.station.physical import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Shelve, Station,
                                       StationStatus, Unshelve, station_listeners)
 from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
+from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.uncertainty import DeviationBand
 from ropemon.station.views import (STALE_S, alarm_text, has_positions, is_warning, link_figures,
                                    merge_figures, piston)
