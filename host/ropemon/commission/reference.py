@@ -376,198 +376,306 @@ def _median(values: list) -> float:
 REST_D_MAX = 64e-6  # |x_s - x_l| is clamped here for the activity (as the node: 2**14 um/256)
 
 
+# The observer, stage by stage as firmware/ropenode/kernel.py's `step` runs them (each
+# stage's function names the kernel's comment that opens it). The kernel's other stages
+# are the reference's too, outside the observer: the channels (counts, NAMUR, the
+# implausible step) and the oil temperature in `compensate`, the pipe loss in
+# `_loss_force`, the LuGre friction in `lugre_friction`, the tension in `compensate` and
+# the window statistics in `decimate`.
+#
+#   kernel.py step                                      reference
+#   the LuGre position's pressure part: the median      _pressure_median_and_noise
+#   noise following; the play for the median's noise    _pressure_median_and_noise
+#   the pressure tracker                                PressureTracker.step
+#   k p_l and its step: the oil's common motion         _common_motion
+#   a balancing stroke (mode 0 unless allw)             _observer
+#   per rope: velocity x_f                              _velocity
+#   per rope: the LuGre's position x_h = k p_l + b      _lugre_position
+#   per rope: the rest hold's play and activity         _rest_hold_and_play
+#   balancing strokes: cl, take-over, decision          _balancing_strokes
+#     ... slide following's take-over (mode 0)          _take_over
+#     ... a stroke's start: the stopped pistons' e      _stroke_start_offsets
+
+
+class _ObserverState:
+    """The observer's settings and its state between samples, per rope (lists) and common
+    (the kernel's S words named in comments), and its per-sample outputs."""
+
+    def __init__(self, pp: dict, k: int, n: int, fs: float, tracker_class: type):
+        self.n = n
+        # noise following: the level per channel (_NL), its last two pressures (_NP1,
+        # _NP2) and how many of them it has (_NRUN); the ratio (NOISE_Q10)
+        self.nref, self.nsh = pp["noise_ref_pa"], pp["noise_shift"]
+        self.a_n = 2.0 ** -self.nsh
+        self.lv, self.p1, self.p2, self.run = [self.nref] * n, [0.0] * n, [0.0] * n, [0] * n
+        self.ratio = 1.0
+        self.alpha, self.dx_max, self.plays = pp["alpha"], pp["v_max"] / fs, pp["plays_m"]
+        self.rest, self.rest_plays = pp["rest_m"], pp["rest_plays_m"]
+        self.alpha_l, self.alpha_a = pp["alpha_l"], pp["alpha_a"]
+        self.alpha_z, self.alpha_e, self.warm = pp["alpha_z"], pp["alpha_e"], pp["warmup"]
+        self.tracker = tracker_class(pp["tracker"])
+        self.kh, self.aw = pp["compliance"], pp["area_w"]
+        self.th, self.vmin, self.settle = pp["stroke_m"], pp["stroke_vmin"], pp["stroke_settle"]
+        # slide following: what e holds beyond lo .. lo + span (times its noise) is proven
+        # travel of the piston: that share of the take-over goes in as seal travel (through
+        # x_s and the play), not re-anchored (span 0: off)
+        self.sl_lo, self.sl_span = pp["slide_lo_m"], pp["slide_span_m"]
+        # per rope: _STARTED, XF, XS, XP, _XH, _PL, _XB, _E, _MOT, _XL, _ACT, _WARM
+        self.started = [False] * n
+        self.xf, self.xs, self.xp, self.xh, self.pl, self.xb, self.e, self.mot, self.xl, self.act = (
+            [0.0] * n for _ in range(10))
+        self.w = [0] * n
+        # the stroke tracking: _CL, _SMODE, _SSGN, _SCNT
+        self.cl, self.mode, self.sgn, self.cnt = 0.0, 0, 0, 0
+        # outputs per sample
+        self.nr = np.ones(k)
+        self.dx = np.zeros((k, n))
+        self.dxs = np.zeros((k, n))
+        self.dxp = np.zeros((k, n))
+        self.ev = np.zeros((k, n))
+        self.clv = np.zeros(k)
+
+
+def _pressure_median_and_noise(s: _ObserverState, j: int, pr: list, pokr: list) -> tuple:
+    """kernel.py step, "the LuGre position's pressure part first ... the median of the
+    healthy pressure channels", "noise following" and "the play, and the rest hold's play
+    and threshold, for the noise of this median": (the median or None for no healthy
+    channel, play, rest play, rest threshold)."""
+    n = s.n
+    healthy = [p for p, ok in zip(pr, pokr) if ok]
+    pm = _median(healthy)
+    c = len(healthy) - 1 if healthy else n - 1  # the median of fewer is noisier
+    if s.nsh:
+        # noise following: each healthy channel's level, a low-pass of its clipped
+        # |second difference|, within 1/NOISE_RANGE .. NOISE_RANGE of nref; the plays
+        # and the threshold scale by the healthy channels' median level over nref
+        lv, p1, p2, run, nref = s.lv, s.p1, s.p2, s.run, s.nref
+        for i in range(n):
+            if not pokr[i]:
+                run[i] = 0
+                continue
+            if run[i] == 2:
+                d = min(abs(pr[i] - 2 * p1[i] + p2[i]), NOISE_CLIP * lv[i])
+                lv[i] = min(max(lv[i] + s.a_n * (d - lv[i]), nref / NOISE_RANGE), NOISE_RANGE * nref)
+            else:
+                run[i] += 1
+            p2[i], p1[i] = p1[i], pr[i]
+        if healthy:
+            s.ratio = math.floor(_median([lv[i] for i in range(n) if pokr[i]]) / nref * 1024) / 1024
+        s.nr[j] = s.ratio
+    ratio = s.ratio
+    play, rest_play, hold = s.plays[c] * ratio, s.rest_plays[c] * ratio, s.rest[c] * ratio
+    return (pm if healthy else None), play, rest_play, hold
+
+
+def _common_motion(s: _ObserverState, xr: list, okr: list, pk: float) -> tuple:
+    """kernel.py step, "k p_l ... and its step this sample; their sum over the ropes,
+    weighted by area, is the oil's common motion", with a rope's (re)start after a loop
+    fault: (cv, allw), allw whether every rope is healthy, started before and warmed up
+    (and strokes are tracked: `if P[_STH] == 0: allw = 0`)."""
+    kh, pl, mot, w = s.kh, s.pl, s.mot, s.w
+    cv = 0.0
+    allw = s.th > 0
+    for i in range(s.n):
+        if not okr[i]:
+            s.started[i] = False  # after a loop fault the filters start again, the seal state is kept
+            allw = False
+            continue
+        if not s.started[i]:
+            s.started[i] = True
+            s.xf[i] = s.xs[i] = s.xp[i] = s.xh[i] = s.xl[i] = xr[i]
+            s.act[i] = REST_D_MAX  # not quiet until the activity has settled
+            pl[i] = pk
+            s.xb[i] = xr[i] - kh[i] * pl[i]
+            w[i] = 0
+            s.e[i] = 0.0
+            allw = False
+        m = kh[i] * pl[i]
+        pl[i] = pk
+        mot[i] = _clamp(kh[i] * pl[i] - m, s.dx_max)
+        cv += mot[i] * s.aw[i]
+        if w[i] < s.warm:
+            allw = False
+    return cv, allw
+
+
+def _velocity(s: _ObserverState, j: int, i: int, x: float) -> None:
+    """kernel.py step, per rope, "velocity: x_f += alpha (x - x_f), increment clamped to
+    +-dx_max"."""
+    step = _clamp(s.alpha * (x - s.xf[i]), s.dx_max)
+    s.xf[i] += step
+    s.dx[j, i] = step
+
+
+def _lugre_position(s: _ObserverState, j: int, i: int, hold: float) -> int:
+    """kernel.py step, per rope, "the LuGre's position x_h = k p_l + b": how quiet by the
+    rest hold's activity (qt), b in a stroke and its low-pass (the warm-up's running mean),
+    x_h, "e: low-pass of x_f - x_h" and x_s's clamped step. Returns how quiet (0 .. 256)."""
+    xf, xb, xh, w = s.xf, s.xb, s.xh, s.w
+    kp = s.kh[i] * s.pl[i]
+    a = s.alpha_z
+    # how quiet (0 .. 256): the whole hold below `hold`, none from twice it, by the
+    # activity of the last sample, in the node's steps
+    q = 0
+    if hold > 0:
+        q = 256 if s.act[i] <= hold else max(0, math.floor(256 * (2 * hold - s.act[i]) / hold))
+    if s.mode > 0:  # a stroke: the stopped ropes stand, the sliding one's b stands
+        if i != s.mode - 1:
+            xb[i] -= s.mot[i]
+        else:
+            a = 0.0
+    if w[i] < s.warm:
+        a = max(s.alpha_z, 1.0 / (w[i] + 1))
+    elif q:  # at rest b stands: its wander would be seal travel
+        a = (round(a * 16384) * (256 - q) // 256) / 16384
+    inc = a * (xf[i] - kp - xb[i])
+    xb[i] += inc
+    step = kp + xb[i] - xh[i]
+    xh[i] += step
+    if w[i] < s.warm:
+        step -= inc
+        w[i] += 1
+    s.e[i] += s.alpha_e * (xf[i] - xh[i] - s.e[i])
+    step = _clamp(step, s.dx_max)
+    s.xs[i] += step
+    s.dxs[j, i] = step
+    return q
+
+
+def _rest_hold_and_play(s: _ObserverState, j: int, i: int, q: int, play: float, rest_play: float) -> None:
+    """kernel.py step, per rope, "the rest hold's play widens with qt; its activity: the
+    low-pass of |x_s - x_l|, x_l a slower low-pass of x_s", then the play x_p (dx_p)."""
+    xs, xp = s.xs, s.xp
+    # the rest hold's activity: low-pass of |x_s - x_l|, x_l a slower low-pass of x_s
+    s.xl[i] += s.alpha_l * (xs[i] - s.xl[i])
+    s.act[i] += s.alpha_a * (min(abs(xs[i] - s.xl[i]), REST_D_MAX) - s.act[i])
+    wp = play + (rest_play - play) * q / 256
+    if xs[i] > xp[i] + wp:
+        s.dxp[j, i] = xs[i] - wp - xp[i]
+    elif xs[i] < xp[i] - wp:
+        s.dxp[j, i] = xs[i] + wp - xp[i]
+    xp[i] += s.dxp[j, i]
+
+
+def _take_over(s: _ObserverState) -> None:
+    """kernel.py step, balancing strokes, `if mode == 0:` "what e holds beyond a quarter of
+    the threshold ... x_h takes it over at 1/64 per sample ... Slide following"."""
+    e, th, sl_lo, sl_span = s.e, s.th, s.sl_lo, s.sl_span
+    # e beyond a quarter of the threshold (noise: 1.6 sigma) is real unequal
+    # sharing: x_h takes it over at 1/64 per sample; with slide following the
+    # share f of it is left out of x_h: x_h's next step carries it into x_s
+    for i in range(s.n):
+        a = abs(e[i]) - th / 4
+        if a > 0:
+            f = min(max((abs(e[i]) - sl_lo) / sl_span, 0.0), 1.0) if sl_span > 0 else 0.0
+            a = math.copysign(a / 64, e[i])
+            s.xb[i] += a
+            s.xh[i] += a * (1 - f)
+            e[i] -= a
+
+
+def _stroke_start_offsets(s: _ObserverState) -> None:
+    """kernel.py step, balancing strokes, `if best > 0:` "until the stroke was seen the
+    stopped pistons' x_h went on with the pressure: their offset is the stroke piston's
+    lead shared by area ... plus the lag of e": the stopped ropes' e."""
+    n, mode, aw, e = s.n, s.mode, s.aw, s.e
+    # the stopped pistons' x_h went on with the pressure until the stroke was
+    # seen: their offset is the stroke piston's lead shared by area, plus the
+    # lag of e (a low-pass) behind that ramp
+    # in the node's steps (kernel.py): the area ratio in Q8 and the lead in um/256
+    # (floored), the common
+    # motion per unit area in um/4096 (floored, |cl| held within 2**25 and the
+    # quotient within 65535 of the node's units) and the lag in um/256 (floored):
+    # a systematic offset of up to ~0.01 um otherwise, which x_h keeps and the
+    # next stroke threshold sees
+    others = sum(aw[i] for i in range(n) if i != mode - 1)
+    if others > 0:
+        aq = [round(a * 256) for a in aw]
+        so = sum(aq) - aq[mode - 1]
+        ae = round(s.alpha_e * 16384)
+        c = _clamp(s.cl * 256e6 * 256, float(1 << 25))
+        t = _clamp(float(math.floor(16 * c / sum(aq))), 65535.0)
+        lag = math.floor(t * (16384 - ae) / (ae << 4)) / 256e6
+        lead = math.floor(e[mode - 1] * 256e6 * ((aq[mode - 1] << 8) // so) / 256) / 256e6
+        for i in range(n):
+            if i != mode - 1:
+                e[i] = -lead - lag
+
+
+def _balancing_strokes(s: _ObserverState, j: int, cv: float, allw: bool, strokes: list | None,
+                       follow: Follow | None) -> None:
+    """kernel.py step, "balancing strokes": `if allw == 0:` the tracking's state and cl
+    zeroed; else cl, the low-pass of the common motion, the take-over (no stroke), the
+    stroke decision (`stroke_decision`, the node's taken per `follow`), a start's stopped
+    pistons' e, and "a stroke starts or ends: x_h re-anchored by e, without seal travel"."""
+    n, e = s.n, s.e
+    apart = follow is not None and bool(follow.tracking[j]) != allw
+    if apart:  # no comparison decides this
+        follow.disputes.append((j, "tracking" if allw else "not tracking",
+                                "tracking" if follow.tracking[j] else "not tracking"))
+    if not allw:
+        s.mode, s.sgn, s.cnt, s.cl = 0, 0, 0, 0.0
+        return
+    s.cl += s.alpha_e * (cv - s.cl)
+    if s.mode == 0:
+        _take_over(s)
+    was = (s.mode, s.sgn, s.cnt)
+    s.mode, s.sgn, s.cnt = stroke_decision(was, e, s.cl, s.th, s.vmin, s.settle)
+    if follow is not None and not apart:  # (a sample disputed above is not compared again)
+        node = tuple(int(v) for v in follow.state[j])
+        if (s.mode, s.sgn, s.cnt) != node:
+            # the same decision on the node's values: the two part by rounding only
+            if stroke_decision(was, follow.e[j].tolist(), float(follow.cl[j]), s.th, s.vmin,
+                               s.settle) == node:
+                follow.followed.append(j)
+                s.mode, s.sgn, s.cnt = node
+            else:
+                follow.disputes.append((j, (s.mode, s.sgn, s.cnt), node))
+    re = s.mode != was[0]
+    if re and strokes is not None:
+        strokes.append((j, s.mode - 1, list(e)))
+    if re and s.mode > 0:
+        _stroke_start_offsets(s)
+    if re:  # a stroke starts or ends: x_h re-anchored by e, without seal travel
+        for i in range(n):
+            s.xb[i] += e[i]
+            s.xh[i] += e[i]
+            e[i] = 0.0
+
+
 def _observer(pp: dict, P: np.ndarray, X: np.ndarray, OK: np.ndarray, POK: np.ndarray, fs: float,
               strokes: list | None = None, tracker_class: type | None = None, follow: Follow | None = None):
     """Piston increments (dx, dx_s, dx_p)[sample, rope] of the velocity filter, the LuGre
     position x_h = k p_l + b (p_l the pressure tracker's estimate of the median of the
     healthy pressure channels) and its play, with the balancing-stroke tracking and the
-    rest hold (docs/model.md).
+    rest hold (docs/model.md); also the noise ratio [sample], e [sample, rope] and cl
+    [sample] after each sample.
 
     Runs while both loops of a rope are healthy and starts again (with its warm-up)
-    after a fault of either; strokes are tracked only while every rope runs warmed up."""
+    after a fault of either; strokes are tracked only while every rope runs warmed up.
+    Each sample runs the kernel's stages in the kernel's order (see the table above)."""
     k, n = P.shape
-    nref, nsh = pp["noise_ref_pa"], pp["noise_shift"]
-    a_n = 2.0 ** -nsh
-    lv, p1, p2, run = [nref] * n, [0.0] * n, [0.0] * n, [0] * n
-    ratio = 1.0
-    nr = np.ones(k)
-    alpha, dx_max, plays = pp["alpha"], pp["v_max"] / fs, pp["plays_m"]
-    rest, rest_plays, alpha_l, alpha_a = pp["rest_m"], pp["rest_plays_m"], pp["alpha_l"], pp["alpha_a"]
-    alpha_z, alpha_e, warm = pp["alpha_z"], pp["alpha_e"], pp["warmup"]
-    tracker = (tracker_class or PressureTracker)(pp["tracker"])
-    kh, aw = pp["compliance"], pp["area_w"]
-    th, vmin, settle = pp["stroke_m"], pp["stroke_vmin"], pp["stroke_settle"]
-    dx = np.zeros((k, n))
-    dxs = np.zeros((k, n))
-    dxp = np.zeros((k, n))
-    ev = np.zeros((k, n))
-    clv = np.zeros(k)
-    started = [False] * n
-    xf, xs, xp, xh, pl, xb, e, mot, xl, act = ([0.0] * n for _ in range(10))
-    w = [0] * n
-    cl, mode, sgn, cnt = 0.0, 0, 0, 0
-    # slide following: what e holds beyond lo .. lo + span (times its noise) is proven
-    # travel of the piston: that share of the take-over goes in as seal travel (through
-    # x_s and the play), not re-anchored (span 0: off)
-    sl_lo, sl_span = pp["slide_lo_m"], pp["slide_span_m"]
-    clamp = lambda v, lim: lim if v > lim else (-lim if v < -lim else v)  # noqa: E731
+    s = _ObserverState(pp, k, n, fs, tracker_class or PressureTracker)
     for j, (xr, pr, okr, pokr) in enumerate(zip(X.tolist(), P.tolist(), OK.tolist(), POK.tolist())):
-        healthy = [p for p, ok in zip(pr, pokr) if ok]
-        pm = _median(healthy)
-        c = len(healthy) - 1 if healthy else n - 1  # the median of fewer is noisier
-        if nsh:
-            # noise following: each healthy channel's level, a low-pass of its clipped
-            # |second difference|, within 1/NOISE_RANGE .. NOISE_RANGE of nref; the plays
-            # and the threshold scale by the healthy channels' median level over nref
-            for i in range(n):
-                if not pokr[i]:
-                    run[i] = 0
-                    continue
-                if run[i] == 2:
-                    d = min(abs(pr[i] - 2 * p1[i] + p2[i]), NOISE_CLIP * lv[i])
-                    lv[i] = min(max(lv[i] + a_n * (d - lv[i]), nref / NOISE_RANGE), NOISE_RANGE * nref)
-                else:
-                    run[i] += 1
-                p2[i], p1[i] = p1[i], pr[i]
-            if healthy:
-                ratio = math.floor(_median([lv[i] for i in range(n) if pokr[i]]) / nref * 1024) / 1024
-            nr[j] = ratio
-        play, rest_play, hold = plays[c] * ratio, rest_plays[c] * ratio, rest[c] * ratio
-        pk = tracker.step(pm if healthy else None)
-        cv = 0.0
-        allw = th > 0
-        for i in range(n):
-            if not okr[i]:
-                started[i] = False  # after a loop fault the filters start again, the seal state is kept
-                allw = False
-                continue
-            if not started[i]:
-                started[i] = True
-                xf[i] = xs[i] = xp[i] = xh[i] = xl[i] = xr[i]
-                act[i] = REST_D_MAX  # not quiet until the activity has settled
-                pl[i] = pk
-                xb[i] = xr[i] - kh[i] * pl[i]
-                w[i] = 0
-                e[i] = 0.0
-                allw = False
-            m = kh[i] * pl[i]
-            pl[i] = pk
-            mot[i] = clamp(kh[i] * pl[i] - m, dx_max)
-            cv += mot[i] * aw[i]
-            if w[i] < warm:
-                allw = False
+        y, play, rest_play, hold = _pressure_median_and_noise(s, j, pr, pokr)
+        pk = s.tracker.step(y)  # kernel.py: "the pressure tracker"
+        cv, allw = _common_motion(s, xr, okr, pk)
+        # kernel.py: "a balancing stroke ...": `if allw == 0: mode = 0`
         if not allw:
-            if mode > 0 and strokes is not None:  # a fault or a restart ends the stroke
-                strokes.append((j, -1, list(e)))
-            mode = 0
-        for i in range(n):
+            if s.mode > 0 and strokes is not None:  # a fault or a restart ends the stroke
+                strokes.append((j, -1, list(s.e)))
+            s.mode = 0
+        for i in range(n):  # kernel.py: the per-rope loop, its observer part
             if not okr[i]:
                 continue
-            step = clamp(alpha * (xr[i] - xf[i]), dx_max)
-            xf[i] += step
-            dx[j, i] = step
-            kp = kh[i] * pl[i]
-            a = alpha_z
-            # how quiet (0 .. 256): the whole hold below `hold`, none from twice it, by the
-            # activity of the last sample, in the node's steps
-            q = 0
-            if hold > 0:
-                q = 256 if act[i] <= hold else max(0, math.floor(256 * (2 * hold - act[i]) / hold))
-            if mode > 0:  # a stroke: the stopped ropes stand, the sliding one's b stands
-                if i != mode - 1:
-                    xb[i] -= mot[i]
-                else:
-                    a = 0.0
-            if w[i] < warm:
-                a = max(alpha_z, 1.0 / (w[i] + 1))
-            elif q:  # at rest b stands: its wander would be seal travel
-                a = (round(a * 16384) * (256 - q) // 256) / 16384
-            inc = a * (xf[i] - kp - xb[i])
-            xb[i] += inc
-            step = kp + xb[i] - xh[i]
-            xh[i] += step
-            if w[i] < warm:
-                step -= inc
-                w[i] += 1
-            e[i] += alpha_e * (xf[i] - xh[i] - e[i])
-            step = clamp(step, dx_max)
-            xs[i] += step
-            dxs[j, i] = step
-            # the rest hold's activity: low-pass of |x_s - x_l|, x_l a slower low-pass of x_s
-            xl[i] += alpha_l * (xs[i] - xl[i])
-            act[i] += alpha_a * (min(abs(xs[i] - xl[i]), REST_D_MAX) - act[i])
-            wp = play + (rest_play - play) * q / 256
-            if xs[i] > xp[i] + wp:
-                dxp[j, i] = xs[i] - wp - xp[i]
-            elif xs[i] < xp[i] - wp:
-                dxp[j, i] = xs[i] + wp - xp[i]
-            xp[i] += dxp[j, i]
-        apart = follow is not None and bool(follow.tracking[j]) != allw
-        if apart:  # no comparison decides this
-            follow.disputes.append((j, "tracking" if allw else "not tracking",
-                                    "tracking" if follow.tracking[j] else "not tracking"))
-        if not allw:
-            mode, sgn, cnt, cl = 0, 0, 0, 0.0
-            ev[j] = e
-            clv[j] = cl
-            continue
-        cl += alpha_e * (cv - cl)
-        if mode == 0:
-            # e beyond a quarter of the threshold (noise: 1.6 sigma) is real unequal
-            # sharing: x_h takes it over at 1/64 per sample; with slide following the
-            # share f of it is left out of x_h: x_h's next step carries it into x_s
-            for i in range(n):
-                a = abs(e[i]) - th / 4
-                if a > 0:
-                    f = min(max((abs(e[i]) - sl_lo) / sl_span, 0.0), 1.0) if sl_span > 0 else 0.0
-                    a = math.copysign(a / 64, e[i])
-                    xb[i] += a
-                    xh[i] += a * (1 - f)
-                    e[i] -= a
-        was = (mode, sgn, cnt)
-        mode, sgn, cnt = stroke_decision(was, e, cl, th, vmin, settle)
-        if follow is not None and not apart:  # (a sample disputed above is not compared again)
-            node = tuple(int(v) for v in follow.state[j])
-            if (mode, sgn, cnt) != node:
-                # the same decision on the node's values: the two part by rounding only
-                if stroke_decision(was, follow.e[j].tolist(), float(follow.cl[j]), th, vmin, settle) == node:
-                    follow.followed.append(j)
-                    mode, sgn, cnt = node
-                else:
-                    follow.disputes.append((j, (mode, sgn, cnt), node))
-        re = mode != was[0]
-        if re and strokes is not None:
-            strokes.append((j, mode - 1, list(e)))
-        if re and mode > 0:
-            # the stopped pistons' x_h went on with the pressure until the stroke was
-            # seen: their offset is the stroke piston's lead shared by area, plus the
-            # lag of e (a low-pass) behind that ramp
-            # in the node's steps (kernel.py): the area ratio in Q8 and the lead in um/256
-            # (floored), the common
-            # motion per unit area in um/4096 (floored, |cl| held within 2**25 and the
-            # quotient within 65535 of the node's units) and the lag in um/256 (floored):
-            # a systematic offset of up to ~0.01 um otherwise, which x_h keeps and the
-            # next stroke threshold sees
-            others = sum(aw[i] for i in range(n) if i != mode - 1)
-            if others > 0:
-                aq = [round(a * 256) for a in aw]
-                so = sum(aq) - aq[mode - 1]
-                ae = round(alpha_e * 16384)
-                c = clamp(cl * 256e6 * 256, float(1 << 25))
-                t = clamp(float(math.floor(16 * c / sum(aq))), 65535.0)
-                lag = math.floor(t * (16384 - ae) / (ae << 4)) / 256e6
-                lead = math.floor(e[mode - 1] * 256e6 * ((aq[mode - 1] << 8) // so) / 256) / 256e6
-                for i in range(n):
-                    if i != mode - 1:
-                        e[i] = -lead - lag
-        if re:  # a stroke starts or ends: x_h re-anchored by e, without seal travel
-            for i in range(n):
-                xb[i] += e[i]
-                xh[i] += e[i]
-                e[i] = 0.0
-        ev[j] = e
-        clv[j] = cl
-    return dx, dxs, dxp, nr, ev, clv
+            _velocity(s, j, i, xr[i])
+            q = _lugre_position(s, j, i, hold)
+            _rest_hold_and_play(s, j, i, q, play, rest_play)
+        _balancing_strokes(s, j, cv, allw, strokes, follow)
+        s.ev[j] = s.e
+        s.clv[j] = s.cl
+    return s.dx, s.dxs, s.dxp, s.nr, s.ev, s.clv
+
 
 def decimate(ph: dict, comp: Compensated) -> Frames:
     """Frame-window mean/min/max of the good samples (NaN for a window with none)."""
