@@ -4,7 +4,7 @@ import io
 from rich.console import Console
 
 from ropemon.station.sitefigures import SiteFigures, alarm_settings
-from station_rig import Rig
+from e2e_rig import Rig
 from ropemon.station.protocol import Rope, encode_frame
 
 KEY = bytes(range(16))

@@ -194,7 +194,7 @@ def test_band_beside_the_deviation_the_hoist_status_and_legacy_deviation_possibl
     hoist's figure, shown as status); only the legacy station (`legacy_deviation_possible`, the
     evaluation's baseline) raises DEVIATION POSSIBLE for it, in the warning colour."""
     from ropemon.station.sitefigures import alarm_settings
-    from station_rig import Rig
+    from e2e_rig import Rig
     from ropemon.station.uncertainty import BandParams
 
     phys = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,

@@ -418,7 +418,7 @@ def test_slow_inputs_are_read_one_sample_in_20_and_the_counter_wraps():
 def test_a_bus_error_makes_that_ropes_sample_a_sensor_fault_on_the_node():
     """End to end: chip 0x49 (rope 2) stops answering mid-window; the node's frame flags
     rope 2's pressure and displacement as faulted, the other ropes stay healthy."""
-    from fwtest_util import node_doc
+    from firmware_rig import node_doc
     from ropenode import config, layout
     from ropenode.node import K, Node
 

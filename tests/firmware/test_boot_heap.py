@@ -21,7 +21,7 @@ import json
 import os
 import random
 
-from fwtest_util import find_file, node_doc
+from firmware_rig import find_file, node_doc
 
 from ropenode import layout
 from ropenode.node import K, Node

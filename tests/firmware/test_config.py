@@ -2,7 +2,7 @@
 
 Runs under CPython (pytest) and the real MicroPython (tests/run_micropython.py).
 """
-from fwtest_util import node_doc
+from firmware_rig import node_doc
 
 from ropenode import config
 from ropenode.crc16 import crc16

@@ -7,7 +7,7 @@ reference on the node) must equal binascii.crc32 where the port has it
 """
 import struct
 
-from fwtest_util import cobs_decode, frame_raw, load_json, unhex
+from firmware_rig import cobs_decode, frame_raw, load_json, unhex
 
 from ropenode import layout
 from ropenode.cobs import encode_into

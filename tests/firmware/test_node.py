@@ -9,7 +9,7 @@ import os
 import random
 import struct
 
-from fwtest_util import frame_raw, node_doc
+from firmware_rig import frame_raw, node_doc
 
 from ropenode import bootseq, layout
 from ropenode.bootseq import FrameSeq

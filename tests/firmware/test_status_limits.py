@@ -12,7 +12,7 @@ Runs under CPython (pytest) and the real MicroPython (tests/run_micropython.py).
 import array
 import struct
 
-from fwtest_util import frame_raw, node_doc
+from firmware_rig import frame_raw, node_doc
 
 from ropenode import kernel, layout
 from ropenode.config import parse

@@ -8,7 +8,7 @@ collection, which runs when the outermost call from JavaScript returns, so the d
 collections between a test's steps are top-level calls from Node.js (that is how
 test_boot_heap.py measures the heap the config release frees here). The port has no host
 filesystem: firmware/, tests/firmware/ and tests/vectors/ are copied into its in-memory one
-at the same relative places, so fwtest_util.find_file finds firmware/node.json and
+at the same relative places, so firmware_rig.find_file finds firmware/node.json and
 tests/vectors/frames.json, and /tmp is writable.
 """
 from __future__ import annotations

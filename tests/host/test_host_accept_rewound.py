@@ -6,7 +6,7 @@ import io
 
 from rich.console import Console
 
-from host_framegen import KEYS
+from host_rig import KEYS
 from ropemon.station.decoder import SEQ_COUNT_BITS
 from ropemon.station.monitor import MonitorView, handle_keys, operator_name
 from ropemon.station.pipeline import AcceptRewound, Station, station_listeners

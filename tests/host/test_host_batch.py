@@ -7,7 +7,7 @@ import random
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from host_framegen import KEYS, frame_set
+from host_rig import KEYS, frame_set
 from ropemon.station.batch import decode_bytes, decode_file
 from ropemon.station.decoder import StreamDecoder
 

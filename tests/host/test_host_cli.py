@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from host_framegen import KEYS, frame_set
+from host_rig import KEYS, frame_set
 from ropemon.station.decoder import StreamDecoder
 from ropemon.station.protocol import L
 from ropemon.station.store import Store

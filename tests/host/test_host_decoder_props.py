@@ -7,7 +7,7 @@ import random
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from host_framegen import KEYS, expected, frame_set
+from host_rig import KEYS, expected, frame_set
 from ropemon.station.decoder import StreamDecoder
 from ropemon.station.merge import Merger
 from ropemon.station.protocol import L, MAX_BODY_LEN

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from host_framegen import KEYS
+from host_rig import KEYS
 from ropemon.station.alarms import AlarmEngine, AlarmSettings, Timing
 from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder
 from ropemon.firmware import FIRMWARE_DIR

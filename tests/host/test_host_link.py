@@ -7,7 +7,7 @@ import threading
 import time
 import tty
 
-from host_framegen import frame_set
+from host_rig import frame_set
 from ropemon.station.link import FrameHub, SerialReceiver
 
 
@@ -172,7 +172,7 @@ def test_a_failing_consumer_does_not_end_the_link():
 
 
 def test_hub_passes_the_operator_acceptance_to_every_receiver():
-    from host_framegen import KEYS
+    from host_rig import KEYS
     from ropemon.station.decoder import SEQ_COUNT_BITS
     from ropemon.station.protocol import encode_frame
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from host_framegen import KEYS, frame_set
+from host_rig import KEYS, frame_set
 from ropemon.station.decoder import ReplayGuard, StreamDecoder
 from ropemon.firmware import node_module
 from ropemon.station.protocol import (L, CRC_RESIDUE, CrcError, MacError, MalformedError, Rope, VersionError,

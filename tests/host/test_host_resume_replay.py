@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from host_framegen import KEYS
+from host_rig import KEYS
 from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder, frame_bytes
 from ropemon.station.monitor import MonitorView
 from ropemon.station.pipeline import AcceptRewound, Station, station_listeners

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from host_framegen import frame_set
+from host_rig import frame_set
 from ropemon.station.alarms import AlarmEngine
 from ropemon.station.decoder import StreamDecoder
 from ropemon.station.protocol import encode_frame

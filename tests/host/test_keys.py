@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from host_framegen import KEYS, frame_set
+from host_rig import KEYS, frame_set
 from ropemon.cli import main
 from ropemon.station.protocol import keys_from_options, read_key_file
 

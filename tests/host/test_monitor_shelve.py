@@ -7,7 +7,7 @@ import io
 
 from rich.console import Console
 
-from host_framegen import KEYS
+from host_rig import KEYS
 from ropemon.station.monitor import SHELVE_REASONS, MonitorView, handle_keys
 from ropemon.station.pipeline import Station, station_listeners
 from ropemon.station.protocol import encode_frame

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 
-from host_framegen import KEYS
+from host_rig import KEYS
 from ropemon.station.alarms import AlarmEvent, AlarmSettings
 from ropemon.station.decoder import SEQ_COUNT_BITS
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmListener, AlarmState, Listener, Station,

@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from webrig import ARTEFACTS, OPERATOR, SAVED, SHORT_WIND, new_browser, quit_browser
+from web_rig import ARTEFACTS, OPERATOR, SAVED, SHORT_WIND, new_browser, quit_browser
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,7 @@
 and the simulated wind the browser tests and the benchmark play is a wind."""
 from __future__ import annotations
 
-from webrig import js_fixed
+from web_rig import js_fixed
 
 from ropemon.lab.bench.web import CodedWind, _code
 from ropemon.lab.webstation import Wind, kn

@@ -14,7 +14,7 @@ import urllib.request
 
 import pytest
 from selenium.webdriver.common.by import By
-from webrig import OPERATOR, js_fixed, save_screenshot, wait_for
+from web_rig import OPERATOR, js_fixed, save_screenshot, wait_for
 
 from ropemon.lab.webstation import kn
 

@@ -12,7 +12,7 @@ import threading
 
 import pytest
 from selenium.webdriver.common.by import By
-from webrig import SHORT_WIND, save_screenshot, wait_for
+from web_rig import SHORT_WIND, save_screenshot, wait_for
 
 from ropemon.lab.webstation import WebStation, Wind
 from ropemon.station.protocol import L, decode_raw, decode_wire, encode_frame

@@ -9,7 +9,7 @@ from functools import partial
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
 
-from webrig import save_screenshot
+from web_rig import save_screenshot
 
 PAGE = b"""<!doctype html><html><head><meta charset="utf-8"><title>ropemon smoke</title></head>
 <body style="font-family: sans-serif">
