@@ -329,31 +329,7 @@ class EqualizingTracker:
         if len(idx) >= 2:
             for i, m in zip(idx, _medians_without([ps[i] for i in idx])):
                 off[i] = ps[i] - m
-        hist = self._xhist
-        hist.append((now_s, xs))
-        while len(hist) > 2 and now_s - hist[1][0] >= self.QUIET_S:
-            hist.popleft()
-        # the pistons' motion over the last QUIET_S: where they moved alike (within the frame's
-        # resolution) no oil flowed between the cylinders, only the compression's, alike on every tap
-        quiet = False                          # all moved alike
-        quiet_of = flowing_of = [False] * n    # the others than this rope did; they did not (known)
-        t_old, x_old = hist[0]
-        if now_s - t_old >= self.QUIET_S and len(x_old) == n and len(idx) >= 2 and all(
-                x_old[i] is not None for i in idx):
-            mv = [xs[i] - x_old[i] for i in idx]
-            st_ = self._still
-            quiet = max(mv) - min(mv) <= st_
-            if quiet or len(mv) == 2:          # (one other rope: alike with itself)
-                quiet_of = usable
-            else:
-                srt = sorted(zip(mv, idx))
-                lo_i, hi_i = srt[0][1], srt[-1][1]
-                quiet_of = [False] * n
-                for i in idx:
-                    top = srt[-2][0] if i == hi_i else srt[-1][0]
-                    bot = srt[1][0] if i == lo_i else srt[0][0]
-                    quiet_of[i] = top - bot <= st_
-                flowing_of = [u and not q for u, q in zip(usable, quiet_of)]
+        quiet, quiet_of, flowing_of = self._motion(n, xs, usable, idx, now_s)
         if quiet:
             self._offs.append(off)
         self._offs_any.append(off)
@@ -370,7 +346,7 @@ class EqualizingTracker:
         for i in idx:
             dx[i] = xs[i] - ref_x[i]
             dp[i] = ps[i] - ref_p[i]
-        thr, still = self._thr, self._still
+        thr = self._thr
         if any(skip):
             # a piston at its end: the equalizer's motion is not its own (the stopped cylinder takes
             # no oil, the others part), so nobody is judged, and the reference restarts after
@@ -400,6 +376,58 @@ class EqualizingTracker:
         ops: list = [None] * n                 # each rope's others' pressure change (their median)
         for i, m in zip(idx, _medians_without([dp[i] for i in idx])):
             ops[i] = m
+        departing = self._departing(idx, quiet_of, off, dx, dp, ops)
+        if moved < thr and not departing:   # no piston moved beyond the tolerance: the usual case
+            self.last = [Participation(False, False, None, dx[i], 0.0, 0.0, 0.0, "") if usable[i] else None
+                         for i in range(n)]
+            for i in range(n):
+                if self._first[i] is not None:
+                    self._first[i] = None
+            if now_s - self._ref_s >= s.anchor_max_s:
+                self._anchor(xs, ps, usable, now_s)
+            return self.last
+        out, moved_all, any_lag = self._participation(n, usable, idx, dx, dp, ops, departing, flowing_of)
+        self.last = out
+        if (moved_all >= s.reanchor_m and not any_lag) or now_s - self._ref_s >= s.anchor_max_s:
+            self._anchor(xs, ps, usable, now_s)
+        return out
+
+    def _motion(self, n: int, xs, usable, idx, now_s: float) -> tuple[bool, list[bool], list[bool]]:
+        """The pistons' motion over the last QUIET_S (the history `_xhist` taken this frame): whether
+        all moved alike, per rope whether the others than it did, and whether they did not (known)."""
+        hist = self._xhist
+        hist.append((now_s, xs))
+        while len(hist) > 2 and now_s - hist[1][0] >= self.QUIET_S:
+            hist.popleft()
+        # the pistons' motion over the last QUIET_S: where they moved alike (within the frame's
+        # resolution) no oil flowed between the cylinders, only the compression's, alike on every tap
+        quiet = False                          # all moved alike
+        quiet_of = flowing_of = [False] * n    # the others than this rope did; they did not (known)
+        t_old, x_old = hist[0]
+        if now_s - t_old >= self.QUIET_S and len(x_old) == n and len(idx) >= 2 and all(
+                x_old[i] is not None for i in idx):
+            mv = [xs[i] - x_old[i] for i in idx]
+            st_ = self._still
+            quiet = max(mv) - min(mv) <= st_
+            if quiet or len(mv) == 2:          # (one other rope: alike with itself)
+                quiet_of = usable
+            else:
+                srt = sorted(zip(mv, idx))
+                lo_i, hi_i = srt[0][1], srt[-1][1]
+                quiet_of = [False] * n
+                for i in idx:
+                    top = srt[-2][0] if i == hi_i else srt[-1][0]
+                    bot = srt[1][0] if i == lo_i else srt[0][0]
+                    quiet_of[i] = top - bot <= st_
+                flowing_of = [u and not q for u, q in zip(usable, quiet_of)]
+        return quiet, quiet_of, flowing_of
+
+    def _departing(self, idx, quiet_of, off, dx, dp, ops) -> dict[int, tuple[float, float]]:
+        """The ropes whose pressure departs from the others' (see `update`): rope -> (departure, the
+        others' pressure change), judged where the others moved alike."""
+        s = self.s
+        still = self._still
+        lo_, hi_ = self._lo, self._hi
         departing: dict[int, tuple[float, float]] = {}
         ref_off = self._ref_off
         dep_kpa, dep_frac, k_kpa = s.departure_kpa, s.departure_frac, self._k_kpa
@@ -414,15 +442,14 @@ class EqualizingTracker:
                 squeeze = k_kpa[i] * abs(dp[i]) + still
                 if abs(dx[i]) <= squeeze and hi_[i] - lo_[i] <= squeeze:
                     departing[i] = (dep, op)
-        if moved < thr and not departing:   # no piston moved beyond the tolerance: the usual case
-            self.last = [Participation(False, False, None, dx[i], 0.0, 0.0, 0.0, "") if usable[i] else None
-                         for i in range(n)]
-            for i in range(n):
-                if self._first[i] is not None:
-                    self._first[i] = None
-            if now_s - self._ref_s >= s.anchor_max_s:
-                self._anchor(xs, ps, usable, now_s)
-            return self.last
+        return departing
+
+    def _participation(self, n: int, usable, idx, dx, dp, ops, departing,
+                       flowing_of) -> tuple[list[Participation | None], float, bool]:
+        """Per rope its participation on a frame where a piston moved beyond the tolerance or a
+        pressure departs; with the others' largest motion and whether any rope is held lagging."""
+        s = self.s
+        thr, still = self._thr, self._still
         meds: list = [None] * n                # each rope's others' motion (their median)
         for i, m in zip(idx, _medians_without([dx[i] for i in idx])):
             meds[i] = m
@@ -498,10 +525,7 @@ class EqualizingTracker:
                              "while its pressure followed theirs: its oil does not reach the manifold (a stop "
                              "valve closed on the cylinder's side of the tap, or a blocked hose)")
             out.append(Participation(lags, follows and not lags, ratio, own, ox, dep, op, cause))
-        self.last = out
-        if (moved_all >= s.reanchor_m and not any_lag) or now_s - self._ref_s >= s.anchor_max_s:
-            self._anchor(xs, ps, usable, now_s)
-        return out
+        return out, moved_all, any_lag
 
     def _anchor(self, xs, ps, usable, now_s: float) -> None:
         self._ref_x = [x if u else None for x, u in zip(xs, usable)]
