@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from ropemon.station.alarms import AlarmEngine, AlarmSettings, Timing
+from ropemon.station.alarms import AlarmEngine, AlarmSettings
+from ropemon.station.alarmstate import Timing
 from ropemon.station.decoder import StreamDecoder
 from ropemon.station.protocol import L, encode_frame
 
@@ -374,7 +375,7 @@ def test_debounced_series_is_the_engines_debounce():
     the engine does, skipped frames included."""
     import numpy as np
 
-    from ropemon.station.alarms import Debounce
+    from ropemon.station.alarmstate import Debounce
     from ropemon.lab.metrics import debounced
 
     rng = np.random.default_rng(7)

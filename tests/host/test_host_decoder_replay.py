@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from host_rig import KEYS
-from ropemon.station.alarms import AlarmEngine, AlarmSettings, Timing
+from ropemon.station.alarms import AlarmEngine, AlarmSettings
+from ropemon.station.alarmstate import Timing
 from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder
 from ropemon.firmware import FIRMWARE_DIR
 from ropemon.station.protocol import encode_frame

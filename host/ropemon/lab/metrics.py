@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ropemon.station.alarms import AlarmSettings, Debounce, Timing
+from ropemon.station.alarms import AlarmSettings
+from ropemon.station.alarmstate import Debounce, Timing
 
 PHASES = ("rest-pithead", "rest-bottom", "acceleration", "constant-speed",
           "deceleration", "reversal-creep")

@@ -15,7 +15,7 @@ warning that the band of the deviation reaches the limit while the node's deviat
 the seals' static friction makes that stand on every rope: the imbalance the seals can hide is
 the hoist's standing status instead, `AlarmEngine.hoist_status`), overload (total vs rated),
 slack (a rope below a floor), sensor_fault (fault bits), sensor_stuck (a rope's
-pressure frozen while the others move, see `_StuckTracker`), config_fault, silent
+pressure frozen while the others move, see `StuckTracker`), config_fault, silent
 (no frame from a node: also a configured node never heard since the station started),
 no_data (no frame from any node since the station started, no node configured),
 battery_low, pressure_noise (the node's noise_changed bit: its transmitters' noise moved
@@ -48,9 +48,11 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+from ropemon.station.alarmstate import Debounce, Timing, _Alarm, _worse
 from ropemon.station.equalizer import (AdjustForecast, EqualizerSettings, EqualizingTracker, OilTracker,
-                                       RestTracker, _median_without, has_positions, positions, stroke_check)
+                                       RestTracker, has_positions, positions, stroke_check)
 from ropemon.station.protocol import DAN_TO_N, L, Frame
+from ropemon.station.stuck import StuckTracker
 from ropemon.station.uncertainty import (BandParams, DeviationBand, RopeInterval, SealBandTracker, deviation_bounds,
                                          hidden_reach)
 
@@ -60,25 +62,11 @@ FLOOD_RAISES, FLOOD_S = 10, 600.0
 PRIORITY = {"stroke_limit": 1, "not_equalizing": 1,
             "battery_low": 2, "pressure_noise": 2, "sensor_stuck": 2, "alarm_flood": 2, "oil_loss": 2,
             "deviation_possible": 3, "rope_adjust": 3}
-#: Kinds whose worst value is the lowest (the others: the largest in magnitude).
-WORST_LOW = frozenset({"slack", "battery_low", "not_equalizing", "rope_adjust"})
 #: Kinds judged on a rope's piston position: not judged while its displacement channel fails.
 POSITION_KINDS = ("stroke_limit", "not_equalizing")
 #: Kinds judged on a rope's tension: not judged while the rope has none (its sensor failed).
 TENSION_KINDS = ("deviation", "deviation_possible", "slack")
 SENSOR_FAULT_BITS = L.ST_PRESSURE_FAULT | L.ST_DISPLACEMENT_FAULT | L.ST_SPEED_FAULT
-# A condition "held for 0.5 s" over frames 0.1 s apart holds at the sixth frame, whatever the
-# float rounding of the two times (38 * 0.1 and 43 * 0.1 are 0.49999999999999 apart).
-HOLD_TOLERANCE_S = 1e-6
-
-
-@dataclass(frozen=True)
-class Timing:
-    """Debounce of one alarm kind."""
-
-    raise_after_s: float = 0.5
-    clear_after_s: float = 2.0
-    min_frames: int = 2
 
 
 @dataclass(frozen=True)
@@ -97,7 +85,7 @@ class AlarmSettings:
     battery_hysteresis_mv: int = 100
     silent_s: float = 5.0                   # no frame from a node for longer than this
     # sensor_stuck: a rope's raw_kpa stays within +-stuck_deadband_kpa for stuck_s while the mean
-    # of the other ropes' raw_kpa moves by more than stuck_others_kpa (see _StuckTracker).
+    # of the other ropes' raw_kpa moves by more than stuck_others_kpa (see StuckTracker).
     stuck_s: float | None = 5.0
     stuck_deadband_kpa: int = 5
     stuck_others_kpa: int = 50
@@ -147,82 +135,6 @@ class AlarmEvent:
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
-
-
-@dataclass
-class Debounce:
-    """The debounce of one alarm condition (module doc): `step` takes one evaluation and says
-    when the debounced condition raises or clears. The engine holds one per alarm;
-    `ropemon.lab.metrics.debounced` runs the same over an evaluation's frames."""
-
-    timing: Timing
-    present: bool = False        # debounced condition
-    since_s: float | None = None  # start of the pending change
-    since_n: int = 0
-
-    def step(self, now_s: float, raise_cond: bool, clear_cond: bool) -> str | None:
-        """'raise' or 'clear' when the debounced condition changes at this evaluation, else None."""
-        want = clear_cond if self.present else raise_cond
-        if not want:
-            self.since_s, self.since_n = None, 0
-            return None
-        if self.since_s is None:
-            self.since_s, self.since_n = now_s, 0
-        self.since_n += 1
-        t = self.timing
-        hold = t.clear_after_s if self.present else t.raise_after_s
-        if now_s - self.since_s < hold - HOLD_TOLERANCE_S or self.since_n < t.min_frames:
-            return None
-        self.since_s, self.since_n = None, 0
-        self.present = not self.present
-        return "raise" if self.present else "clear"
-
-
-@dataclass
-class _Alarm:
-    id: str
-    kind: str
-    node: int | None
-    rope: int | None
-    debounce: Debounce
-    latched: bool = False        # raised and not acknowledged
-    value: float | None = None
-    threshold: float | None = None
-    message: str = ""
-    raised_s: float | None = None
-    band: float | None = None    # deviation_possible: the deviation's band (fraction)
-    worst: float | None = None   # worst value since raised
-    cleared_s: float | None = None
-    acked_s: float | None = None
-    acked_by: str | None = None
-    shelved_until: float | None = None
-    shelved: str | None = None   # "reason, by whom" while shelved
-    out_of_service: str | None = None  # "reason, by whom" while out of service
-    suppressed: bool = False     # by design (its rope's sensor failed)
-
-    @property
-    def present(self) -> bool:
-        return self.debounce.present
-
-    @property
-    def active(self) -> bool:
-        return self.present or self.latched
-
-    @property
-    def hidden(self) -> bool:
-        """Not annunciated: shelved, out of service or suppressed by design."""
-        return self.shelved is not None or self.out_of_service is not None or self.suppressed
-
-    def state(self) -> str:
-        if self.out_of_service is not None:
-            return "out_of_service"
-        if self.shelved is not None:
-            return "shelved"
-        if self.suppressed:
-            return "suppressed"
-        if self.present:
-            return "unacknowledged" if self.latched else "acknowledged"
-        return "rtn_unacknowledged" if self.latched else "normal"
 
 
 @dataclass(frozen=True)
@@ -291,96 +203,11 @@ def _fault_ropes(mask: int) -> str:
     return (": " + "; ".join(parts)) if parts else ""
 
 
-def _worse(kind: str, worst: float | None, value: float | None) -> float | None:
-    if value is None or worst is None:
-        return worst if value is None else value
-    if kind in WORST_LOW:
-        return min(worst, value)
-    return value if abs(value) > abs(worst) else worst
-
-
-class _StuckTracker:
-    """One node's evidence for sensor_stuck: O(ropes) state, constant work per frame.
-
-    A 4-20 mA transmitter frozen inside the band (electronics hung, diaphragm blocked, a
-    valve closed at the tap) gives a plausible constant: NAMUR NE43 cannot see it. The
-    connected cylinders share the load, so a live rope's tap pressure moves with the
-    others; and a live transmitter's noise moves its window mean. Per rope this keeps an
-    anchor (the raw_kpa it has stayed within +-deadband of, and since when) and the range
-    of the mean of the other present ropes' raw_kpa since that anchor. Stuck = still for
-    stuck_s while the others moved by more than stuck_others_kpa: never at rest (nobody
-    moved), and a live rope moving with the others resets its own anchor.
-
-    The deadband (5 kPa) is wider than the 1 kPa resolution because a frozen loop current
-    still passes the ADC noise: 1 count = 1.3 kPa on a 0-25 MPa, 16-bit channel, and with 3
-    counts of noise (the `sensor-noise` evaluation) the window mean of a frozen reading spans
-    +-3 kPa, which a 1 or 2 kPa deadband takes for movement (missed or flickering alarm).
-    It stays far below the others' 50 kPa: on the evaluation's streams through the firmware
-    (all variants, duty-cycle-50's 50 winds included) no live rope held within +-5 kPa for
-    5 s while the others moved more than 10 kPa.
-    The others' mean, not each other rope, keeps the state O(ropes); when the set of present
-    ropes changes that mean jumps, so every anchor restarts.
-    """
-
-    __slots__ = ("present", "anchor_kpa", "anchor_s", "lo_kpa", "hi_kpa", "median")
-
-    def __init__(self, median: bool = False) -> None:
-        # median: the others' median instead of their mean (the station with the equalizer's alarms:
-        # a cylinder cut off from the manifold parts its pressure from the rest, which then must not
-        # look stuck against it); the same for up to three ropes
-        self.median = median
-        self.present: tuple[bool, ...] = ()
-        self.anchor_kpa: list[int] = []
-        self.anchor_s: list[float] = []
-        self.lo_kpa: list[float] = []
-        self.hi_kpa: list[float] = []
-
-    def update(self, raw_kpa: list[int], present: tuple[bool, ...], now_s: float, deadband_kpa: int) -> None:
-        """Take one frame's raw_kpa per rope (present: not RAW_KPA_ABSENT)."""
-        total = 0
-        for p, kpa in zip(present, raw_kpa):
-            if p:
-                total += kpa
-        count = sum(present)
-        if self.median and count > 3:
-            srt = sorted(k for p, k in zip(present, raw_kpa) if p)
-
-            def others_of(kpa: int) -> float:
-                return _median_without(srt, kpa)
-        else:
-            def others_of(kpa: int) -> float:
-                return (total - kpa) / (count - 1)
-        if present != self.present:
-            n = len(raw_kpa)
-            self.present = present
-            self.anchor_kpa = list(raw_kpa)
-            self.anchor_s = [now_s] * n
-            self.lo_kpa = [0.0] * n
-            self.hi_kpa = [0.0] * n
-            for i in range(n):
-                if present[i] and count > 1:
-                    self.lo_kpa[i] = self.hi_kpa[i] = others_of(raw_kpa[i])
-            return
-        if count < 2:
-            return
-        for i, kpa in enumerate(raw_kpa):
-            if not present[i]:
-                continue
-            others = others_of(kpa)
-            if abs(kpa - self.anchor_kpa[i]) > deadband_kpa:
-                self.anchor_kpa[i], self.anchor_s[i] = kpa, now_s
-                self.lo_kpa[i] = self.hi_kpa[i] = others
-            elif others < self.lo_kpa[i]:
-                self.lo_kpa[i] = others
-            elif others > self.hi_kpa[i]:
-                self.hi_kpa[i] = others
-
-
 class AlarmEngine:
     def __init__(self, settings: AlarmSettings | None = None):
         self.settings = settings or AlarmSettings()
         self._alarms: dict[str, _Alarm] = {}
-        self._stuck: dict[int, _StuckTracker] = {}
+        self._stuck: dict[int, StuckTracker] = {}
         self._bands: dict[int, SealBandTracker] = {}
         self._last_frame_s: dict[int, float] = {}
         self._link_bad: dict[str, int] = {}
@@ -408,10 +235,7 @@ class AlarmEngine:
         if self._started_s is None:
             self._started_s = now_s
         self._last_frame_s[node] = now_s
-        self._step(ev, "no_data", "no_data", None, None, s.silent_timing, now_s, False, True, 0.0, s.silent_s,
-                   "frames arriving")
-        self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
-                   False, True, 0.0, s.silent_s, "frames arriving")
+        self._check_arrived(ev, node, now_s)
         ropes = frame.ropes
         # Ropes whose sensor gave no healthy sample carry TENSION_ABSENT: they are not judged
         # (their alarms hold their state; sensor_fault reports them) and not averaged in.
@@ -428,46 +252,70 @@ class AlarmEngine:
                 tr = self._bands[node] = SealBandTracker(s.band)
             tr.update(frame)
         if present:
-            tensions = [t for _, t in present]
-            mean = sum(tensions) / len(tensions)
-            # Connected cylinders equalise the ropes, so an absent rope is taken at the mean.
-            total = round(mean * len(ropes))
-            estimated = len(present) < len(ropes)
-            if s.deviation_frac is not None and len(present) >= 2:
-                thr = s.deviation_frac
-                for i, t in present:
-                    dev = (t - mean) / mean if mean >= s.deviation_min_mean_dan else 0.0
-                    a = abs(dev)
-                    self._step(ev, f"deviation:n{node}:r{i}", "deviation", node, i, s.timing, now_s,
-                               a > thr, a < thr - s.deviation_hysteresis_frac, round(dev, 4), thr,
-                               f"rope {i + 1} {t} daN is {dev:+.1%} from the mean {mean:.0f} daN")
-            if s.band is not None and s.deviation_frac is not None and s.legacy_deviation_possible:
-                # after the deviation alarms: the warning yields to a raised certain alarm
-                self._check_possible(ev, node, self._bands[node].last, now_s, None)
-            if s.rated_load_dan is not None:
-                limit = s.rated_load_dan * s.overload_frac
-                low = s.rated_load_dan * (s.overload_frac - s.overload_hysteresis_frac)
-                self._step(ev, f"overload:n{node}", "overload", node, None, s.timing, now_s,
-                           total > limit, total < low, total, limit,
-                           f"total load {total} daN{' (estimated: a rope absent)' if estimated else ''} "
-                           f"vs limit {limit:.0f} daN")
-            if s.slack_dan is not None:
-                for i, t in present:
-                    self._step(ev, f"slack:n{node}:r{i}", "slack", node, i, s.timing, now_s,
-                               t < s.slack_dan, t > s.slack_dan + s.slack_hysteresis_dan, t, s.slack_dan,
-                               f"rope {i + 1} {t} daN below slack floor {s.slack_dan} daN")
+            self._check_tension(ev, node, len(ropes), present, now_s)
         if s.stuck_s is not None:
             self._check_stuck(ev, node, ropes, now_s, s.stuck_s)
         if s.equalizer is not None and ropes:
             self._check_equalizer(ev, frame, now_s, s.equalizer)
+        self._check_node_status(ev, frame, now_s)
+        return self._log(ev)
+
+    def _check_arrived(self, ev, node: int, now_s: float) -> None:
+        """A frame from `node`: no_data and its silent alarm clear."""
+        s = self.settings
+        self._step(ev, "no_data", "no_data", timing=s.silent_timing, now_s=now_s, raise_cond=False,
+                   clear_cond=True, value=0.0, threshold=s.silent_s, message="frames arriving")
+        self._step(ev, f"silent:n{node}", "silent", node=node, timing=s.silent_timing, now_s=now_s,
+                   raise_cond=False, clear_cond=True, value=0.0, threshold=s.silent_s, message="frames arriving")
+
+    def _check_tension(self, ev, node: int, n_ropes: int, present: list[tuple[int, int]], now_s: float) -> None:
+        """deviation, deviation_possible (legacy), overload and slack from the tensions of the ropes
+        `present` (rope, mean_dan); an absent rope is taken at the mean for the total."""
+        s = self.settings
+        tensions = [t for _, t in present]
+        mean = sum(tensions) / len(tensions)
+        # Connected cylinders equalise the ropes, so an absent rope is taken at the mean.
+        total = round(mean * n_ropes)
+        estimated = len(present) < n_ropes
+        if s.deviation_frac is not None and len(present) >= 2:
+            thr = s.deviation_frac
+            for i, t in present:
+                dev = (t - mean) / mean if mean >= s.deviation_min_mean_dan else 0.0
+                a = abs(dev)
+                self._step(ev, f"deviation:n{node}:r{i}", "deviation", node=node, rope=i, timing=s.timing,
+                           now_s=now_s, raise_cond=a > thr, clear_cond=a < thr - s.deviation_hysteresis_frac,
+                           value=round(dev, 4), threshold=thr,
+                           message=f"rope {i + 1} {t} daN is {dev:+.1%} from the mean {mean:.0f} daN")
+        if s.band is not None and s.deviation_frac is not None and s.legacy_deviation_possible:
+            # after the deviation alarms: the warning yields to a raised certain alarm
+            self._check_possible(ev, node, self._bands[node].last, now_s, None)
+        if s.rated_load_dan is not None:
+            limit = s.rated_load_dan * s.overload_frac
+            low = s.rated_load_dan * (s.overload_frac - s.overload_hysteresis_frac)
+            self._step(ev, f"overload:n{node}", "overload", node=node, timing=s.timing, now_s=now_s,
+                       raise_cond=total > limit, clear_cond=total < low, value=total, threshold=limit,
+                       message=f"total load {total} daN{' (estimated: a rope absent)' if estimated else ''} "
+                       f"vs limit {limit:.0f} daN")
+        if s.slack_dan is not None:
+            for i, t in present:
+                self._step(ev, f"slack:n{node}:r{i}", "slack", node=node, rope=i, timing=s.timing, now_s=now_s,
+                           raise_cond=t < s.slack_dan, clear_cond=t > s.slack_dan + s.slack_hysteresis_dan,
+                           value=t, threshold=s.slack_dan,
+                           message=f"rope {i + 1} {t} daN below slack floor {s.slack_dan} daN")
+
+    def _check_node_status(self, ev, frame: Frame, now_s: float) -> None:
+        """What the node says of itself: sensor_fault, config_fault, battery_low, node_imbalance,
+        pressure_noise (its status bits, fault mask and battery)."""
+        s = self.settings
+        node = frame.node
         fault = bool(frame.status & SENSOR_FAULT_BITS) or frame.fault_mask != 0
         flags = ",".join(f for f in frame.status_flags if f.endswith("_fault") and f != "config_fault")
-        self._step(ev, f"sensor_fault:n{node}", "sensor_fault", node, None, s.fault_timing, now_s,
-                   fault, not fault, frame.fault_mask, None,
-                   f"sensor fault {flags or '-'}{_fault_ropes(frame.fault_mask)}")
+        self._step(ev, f"sensor_fault:n{node}", "sensor_fault", node=node, timing=s.fault_timing, now_s=now_s,
+                   raise_cond=fault, clear_cond=not fault, value=frame.fault_mask,
+                   message=f"sensor fault {flags or '-'}{_fault_ropes(frame.fault_mask)}")
         cfg = bool(frame.status & L.ST_CONFIG_FAULT) or frame.kind == L.KIND_STATUS
-        self._step(ev, f"config_fault:n{node}", "config_fault", node, None, s.fault_timing, now_s,
-                   cfg, not cfg, None, None, "node reports a config fault: no compensated tension")
+        self._step(ev, f"config_fault:n{node}", "config_fault", node=node, timing=s.fault_timing, now_s=now_s,
+                   raise_cond=cfg, clear_cond=not cfg, message="node reports a config fault: no compensated tension")
         bit = bool(frame.status & L.ST_BATTERY_LOW)
         mv = frame.battery_mv
         if s.battery_low_mv is not None:
@@ -475,17 +323,17 @@ class AlarmEngine:
             hi = not bit and mv > s.battery_low_mv + s.battery_hysteresis_mv
         else:
             lo, hi = bit, not bit
-        self._step(ev, f"battery_low:n{node}", "battery_low", node, None, s.timing, now_s,
-                   lo, hi, mv, s.battery_low_mv, f"battery {mv} mV low")
+        self._step(ev, f"battery_low:n{node}", "battery_low", node=node, timing=s.timing, now_s=now_s,
+                   raise_cond=lo, clear_cond=hi, value=mv, threshold=s.battery_low_mv, message=f"battery {mv} mV low")
         imb = bool(frame.status & L.ST_IMBALANCE)
-        self._step(ev, f"node_imbalance:n{node}", "node_imbalance", node, None, s.fault_timing, now_s,
-                   imb, not imb, None, None, "the node reports a rope beyond its own imbalance limit")
+        self._step(ev, f"node_imbalance:n{node}", "node_imbalance", node=node, timing=s.fault_timing, now_s=now_s,
+                   raise_cond=imb, clear_cond=not imb,
+                   message="the node reports a rope beyond its own imbalance limit")
         noisy = bool(frame.status & L.ST_NOISE_CHANGED)
-        self._step(ev, f"pressure_noise:n{node}", "pressure_noise", node, None, s.fault_timing, now_s,
-                   noisy, not noisy, None, None,
-                   f"pressure transmitters' noise more than {L.NOISE_TOL_Q10 * 100 // 1024} % off the "
+        self._step(ev, f"pressure_noise:n{node}", "pressure_noise", node=node, timing=s.fault_timing, now_s=now_s,
+                   raise_cond=noisy, clear_cond=not noisy,
+                   message=f"pressure transmitters' noise more than {L.NOISE_TOL_Q10 * 100 // 1024} % off the "
                    "commissioned: re-check the config (ropemon fit-compliance --check)")
-        return self._log(ev)
 
     def tick(self, now_s: float) -> list[AlarmEvent]:
         """Time passes without frames: the node-silent alarm (for a configured node never heard,
@@ -498,26 +346,28 @@ class AlarmEngine:
         while self._raises and self._raises[0] < now_s - FLOOD_S:
             self._raises.popleft()
         n = len(self._raises)
-        self._step(ev, "alarm_flood", "alarm_flood", None, None, s.silent_timing, now_s, n > FLOOD_RAISES,
-                   n <= FLOOD_RAISES // 2, n, FLOOD_RAISES,
-                   f"alarm flood: {n} alarms raised in the last {FLOOD_S / 60:.0f} min")
+        self._step(ev, "alarm_flood", "alarm_flood", timing=s.silent_timing, now_s=now_s, raise_cond=n > FLOOD_RAISES,
+                   clear_cond=n <= FLOOD_RAISES // 2, value=n, threshold=FLOOD_RAISES,
+                   message=f"alarm flood: {n} alarms raised in the last {FLOOD_S / 60:.0f} min")
         if self._started_s is None:
             self._started_s = now_s
         quiet_since_start = now_s - self._started_s
         if not self._last_frame_s and not s.nodes:
-            self._step(ev, "no_data", "no_data", None, None, s.silent_timing, now_s,
-                       quiet_since_start > s.silent_s, False, round(quiet_since_start, 3), s.silent_s,
-                       f"no frame from any node since the station started {quiet_since_start:.0f} s ago")
+            self._step(ev, "no_data", "no_data", timing=s.silent_timing, now_s=now_s,
+                       raise_cond=quiet_since_start > s.silent_s, clear_cond=False,
+                       value=round(quiet_since_start, 3), threshold=s.silent_s,
+                       message=f"no frame from any node since the station started {quiet_since_start:.0f} s ago")
         for node in s.nodes:
             if node not in self._last_frame_s:
-                self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
-                           quiet_since_start > s.silent_s, False, round(quiet_since_start, 3), s.silent_s,
-                           f"no frame from node {node} since the station started {quiet_since_start:.0f} s ago")
+                self._step(ev, f"silent:n{node}", "silent", node=node, timing=s.silent_timing, now_s=now_s,
+                           raise_cond=quiet_since_start > s.silent_s, clear_cond=False,
+                           value=round(quiet_since_start, 3), threshold=s.silent_s,
+                           message=f"no frame from node {node} since the station started {quiet_since_start:.0f} s ago")
         for node, last in self._last_frame_s.items():
             quiet = now_s - last
-            self._step(ev, f"silent:n{node}", "silent", node, None, s.silent_timing, now_s,
-                       quiet > s.silent_s, quiet <= s.silent_s, round(quiet, 3), s.silent_s,
-                       f"no frame from node {node} for {quiet:.1f} s")
+            self._step(ev, f"silent:n{node}", "silent", node=node, timing=s.silent_timing, now_s=now_s,
+                       raise_cond=quiet > s.silent_s, clear_cond=quiet <= s.silent_s, value=round(quiet, 3),
+                       threshold=s.silent_s, message=f"no frame from node {node} for {quiet:.1f} s")
             if node in self._bands and quiet > 0 and s.legacy_deviation_possible:
                 self._check_possible(ev, node, self._bands[node].intervals(quiet), now_s, quiet)
         return self._log(ev)
@@ -533,9 +383,9 @@ class AlarmEngine:
         new = bad - self._link_bad.get(source, 0)
         self._link_bad[source] = bad
         ev: list[AlarmEvent] = []
-        self._step(ev, f"link_integrity:{source}", "link_integrity", None, None, self.settings.link_timing,
-                   now_s, new > 0, new <= 0, new, 0,
-                   f"receiver {source}: {mac_fail} MAC failures, {replayed} replays, "
+        self._step(ev, f"link_integrity:{source}", "link_integrity", timing=self.settings.link_timing,
+                   now_s=now_s, raise_cond=new > 0, clear_cond=new <= 0, value=new, threshold=0,
+                   message=f"receiver {source}: {mac_fail} MAC failures, {replayed} replays, "
                    f"{restarts} node seq restarts in total")
         return self._log(ev)
 
@@ -549,16 +399,17 @@ class AlarmEngine:
             self._down_since.setdefault(name, now_s)
         down_s = now_s - self._down_since.get(name, now_s)
         ev: list[AlarmEvent] = []
-        self._step(ev, f"receiver_down:{name}", "receiver_down", None, None, s.receiver_timing, now_s,
-                   not connected and down_s > s.receiver_down_s, connected, round(down_s, 1), s.receiver_down_s,
-                   f"receiver {name} ({url}) down for {down_s:.0f} s: {why or 'not open'}")
+        self._step(ev, f"receiver_down:{name}", "receiver_down", timing=s.receiver_timing, now_s=now_s,
+                   raise_cond=not connected and down_s > s.receiver_down_s, clear_cond=connected,
+                   value=round(down_s, 1), threshold=s.receiver_down_s,
+                   message=f"receiver {name} ({url}) down for {down_s:.0f} s: {why or 'not open'}")
         return self._log(ev)
 
     def update_fault(self, source: str, active: bool, message: str, now_s: float) -> list[AlarmEvent]:
         """A part of the station failing (`source`, e.g. the log) or working again."""
         ev: list[AlarmEvent] = []
-        self._step(ev, f"station_fault:{source}", "station_fault", None, None, self.settings.receiver_timing, now_s,
-                   active, not active, None, None, message)
+        self._step(ev, f"station_fault:{source}", "station_fault", timing=self.settings.receiver_timing,
+                   now_s=now_s, raise_cond=active, clear_cond=not active, message=message)
         return self._log(ev)
 
     def ack(self, name_or_id: str, now_s: float, by: str | None = None) -> list[AlarmEvent]:
@@ -714,7 +565,13 @@ class AlarmEngine:
                                          Timing(q.equalize_raise_s, q.equalize_clear_s, q.equalize_min_frames),
                                          Timing(q.oil_raise_s, q.oil_clear_s, q.oil_min_frames), Timing(0.0, 0.0, 1))
         strokes = stroke_check(frame, q, xs)
-        timing = timings[1]
+        self._check_stroke(ev, node, strokes, now_s, q, timings[1])
+        self._check_equalizing(ev, frame, xs, strokes, now_s, q, timings[2])
+        self._check_oil(ev, frame, xs, now_s, q, timings[3])
+        self._check_rope_adjust(ev, frame, xs, now_s, q, timings[4])
+
+    def _check_stroke(self, ev, node: int, strokes, now_s: float, q: EqualizerSettings, timing: Timing) -> None:
+        """stroke_limit per rope: its piston within the stroke margin of an end (`stroke_check`)."""
         for i, sr in enumerate(strokes):
             if sr is None:
                 continue
@@ -739,13 +596,18 @@ class AlarmEngine:
             msg = (f"rope {i + 1} piston at its {sr.end} end: {pos_mm:+.1f} mm from mid-stroke{where}: the "
                    f"equalizer no longer equalizes this rope, its deviation can no longer be ruled out; {todo}"
                    if sr.end else f"rope {i + 1} piston at {pos_mm:+.1f} mm from mid-stroke: {todo}")
-            self._step(ev, aid, "stroke_limit", node, i, timing, now_s, sr.end is not None, sr.clear,
-                       round(pos_mm, 1), thr, msg)
+            self._step(ev, aid, "stroke_limit", node=node, rope=i, timing=timing, now_s=now_s,
+                       raise_cond=sr.end is not None, clear_cond=sr.clear, value=round(pos_mm, 1), threshold=thr,
+                       message=msg)
+
+    def _check_equalizing(self, ev, frame: Frame, xs, strokes, now_s: float, q: EqualizerSettings,
+                          timing: Timing) -> None:
+        """not_equalizing per rope (`EqualizingTracker`); a rope whose piston is at an end is not judged."""
+        node = frame.node
         tr = self._equalizing.get(node)
         if tr is None:
             tr = self._equalizing[node] = EqualizingTracker(q)
         skip = [sr is not None and sr.end is not None for sr in strokes]
-        timing = timings[2]
         alarms = self._alarms
         pts = tr.update(frame, now_s, skip, xs)
         aids = self._equalizing_ids.get(node, ())
@@ -765,8 +627,12 @@ class AlarmEngine:
             else:
                 msg = (f"rope {i + 1} piston moved {pt.own_m * 1e3:+.2f} mm with the others' {pt.others_m * 1e3:+.2f} mm"
                        + (": equalizing again" if pt.follows else ""))
-            self._step(ev, aid, "not_equalizing", node, i, timing, now_s, pt.lags, pt.follows, share,
-                       q.lag_ratio, msg)
+            self._step(ev, aid, "not_equalizing", node=node, rope=i, timing=timing, now_s=now_s,
+                       raise_cond=pt.lags, clear_cond=pt.follows, value=share, threshold=q.lag_ratio, message=msg)
+
+    def _check_oil(self, ev, frame: Frame, xs, now_s: float, q: EqualizerSettings, timing: Timing) -> None:
+        """oil_loss: the trapped oil's balance drifting beyond what compression and temperature explain."""
+        node = frame.node
         oil = self._oil.get(node)
         if oil is None:
             oil = self._oil[node] = OilTracker(q)
@@ -775,20 +641,23 @@ class AlarmEngine:
             aid = f"oil_loss:n{node}"
             bad = st.lost_m3 > st.band_m3
             if bad or aid in self._alarms:
-                timing = timings[3]
-                self._step(ev, aid, "oil_loss", node, None, timing, now_s, bad, st.lost_m3 < st.band_m3 / 2,
-                           round(st.lost_m3 * 1e3, 3), round(st.band_m3 * 1e3, 3),
-                           f"oil loss: {st.lost_m3 * 1e3:.2f} L in the last {st.window_s:.0f} s "
+                self._step(ev, aid, "oil_loss", node=node, timing=timing, now_s=now_s, raise_cond=bad,
+                           clear_cond=st.lost_m3 < st.band_m3 / 2, value=round(st.lost_m3 * 1e3, 3),
+                           threshold=round(st.band_m3 * 1e3, 3),
+                           message=f"oil loss: {st.lost_m3 * 1e3:.2f} L in the last {st.window_s:.0f} s "
                            f"({st.rate_m3_s * 6e4:.2f} L/min), beyond the {st.band_m3 * 1e3:.2f} L the compression and "
                            "temperature explain: the equalizer is losing oil (a leak at a cylinder, hose or the "
                            "connecting assembly); stop winding people at the next landing, find the leak and refill "
                            "before the pistons reach their ends")
+
+    def _check_rope_adjust(self, ev, frame: Frame, xs, now_s: float, q: EqualizerSettings, timing: Timing) -> None:
+        """rope_adjust (an advisory) per rope: its piston's rest positions trend towards an end from wind to wind."""
+        node = frame.node
         rests = self._rests.get(node)
         if rests is None:
             rests = self._rests[node] = RestTracker(q)
         if rests.update(frame, now_s, xs):
             fc = self._forecast[node] = rests.forecast()
-            timing = timings[4]
             for i, f in enumerate(fc):
                 aid = f"rope_adjust:n{node}:r{i}"
                 left = None if f is None else f.winds_left
@@ -802,16 +671,16 @@ class AlarmEngine:
                        f"{'+' if f.end == 'extended' else '-'}{limit:.0f} mm): {left:.0f} winds left; adjust the rope "
                        "lengths (re-balance the cylinders) at the next maintenance stop"
                        if f is not None and left is not None else f"rope {i + 1}: no trend towards an end")
-                self._step(ev, aid, "rope_adjust", node, i, timing, now_s, due,
-                           left is None or left > q.adjust_clear_winds, None if left is None else round(left, 1),
-                           q.adjust_winds, msg)
+                self._step(ev, aid, "rope_adjust", node=node, rope=i, timing=timing, now_s=now_s, raise_cond=due,
+                           clear_cond=left is None or left > q.adjust_clear_winds,
+                           value=None if left is None else round(left, 1), threshold=q.adjust_winds, message=msg)
 
 
     def _check_stuck(self, ev, node: int, ropes, now_s: float, stuck_s: float) -> None:
         s = self.settings
         tr = self._stuck.get(node)
         if tr is None:
-            tr = self._stuck[node] = _StuckTracker(median=s.equalizer is not None)
+            tr = self._stuck[node] = StuckTracker(median=s.equalizer is not None)
         raw = [r.raw_kpa for r in ropes]
         present = tuple(k != L.RAW_KPA_ABSENT for k in raw)
         tr.update(raw, present, now_s, s.stuck_deadband_kpa)
@@ -826,9 +695,9 @@ class AlarmEngine:
             aid = f"sensor_stuck:n{node}:r{i}"
             if not stuck and aid not in self._alarms:
                 continue  # the usual case, as _step would: skip formatting a message per rope and frame
-            self._step(ev, aid, "sensor_stuck", node, i, s.timing, now_s, stuck, still_s < s.stuck_moving_s,
-                       round(still_s, 1), stuck_s,
-                       f"rope {i + 1} pressure {kpa} kPa unchanged (+-{s.stuck_deadband_kpa} kPa) for "
+            self._step(ev, aid, "sensor_stuck", node=node, rope=i, timing=s.timing, now_s=now_s, raise_cond=stuck,
+                       clear_cond=still_s < s.stuck_moving_s, value=round(still_s, 1), threshold=stuck_s,
+                       message=f"rope {i + 1} pressure {kpa} kPa unchanged (+-{s.stuck_deadband_kpa} kPa) for "
                        f"{still_s:.1f} s while the other ropes moved {moved:.0f} kPa: transmitter stuck")
 
     def _check_possible(self, ev, node: int, iv: list[RopeInterval], now_s: float,
@@ -846,8 +715,9 @@ class AlarmEngine:
             for i in range(len(iv)):
                 aid = f"deviation_possible:n{node}:r{i}"
                 if aid in self._alarms:
-                    self._step(ev, aid, "deviation_possible", node, i, s.timing, now_s, False, True,
-                               0.0, thr, f"rope {i + 1}: ropes unloaded, no check")
+                    self._step(ev, aid, "deviation_possible", node=node, rope=i, timing=s.timing, now_s=now_s,
+                               raise_cond=False, clear_cond=True, value=0.0, threshold=thr,
+                               message=f"rope {i + 1}: ropes unloaded, no check")
             return
         anchoring = s.band is not None and s.band.anchor
         blind = [k + 1 for k, r in enumerate(iv) if not r.vouched] if anchoring else []
@@ -868,14 +738,18 @@ class AlarmEngine:
                 why = f" (rope{'s' if len(blind) > 1 else ''} {','.join(map(str, blind))} not vouched for)"
             else:
                 why = ""
-            self._step(ev, aid, "deviation_possible", node, i, s.timing, now_s,
-                       reach >= thr and not certain_on, reach < thr - s.deviation_hysteresis_frac or certain_on,
-                       round(b.dev, 4), thr,
-                       f"rope {i + 1} {b.dev:+.1%} +-{b.band:.1%} from the mean, may reach {reach:.1%} "
+            self._step(ev, aid, "deviation_possible", node=node, rope=i, timing=s.timing, now_s=now_s,
+                       raise_cond=reach >= thr and not certain_on,
+                       clear_cond=reach < thr - s.deviation_hysteresis_frac or certain_on,
+                       value=round(b.dev, 4), threshold=thr,
+                       message=f"rope {i + 1} {b.dev:+.1%} +-{b.band:.1%} from the mean, may reach {reach:.1%} "
                        f"(limit {thr:.0%}){why}: check the rope tensions at the next landing", band=round(b.band, 4))
 
-    def _step(self, ev, aid, kind, node, rope, timing: Timing, now_s, raise_cond, clear_cond,
-              value, threshold, message, band: float | None = None) -> None:
+    def _step(self, ev: list[AlarmEvent], aid: str, kind: str, *, node: int | None = None, rope: int | None = None,
+              timing: Timing, now_s: float, raise_cond: bool, clear_cond: bool, value: float | None = None,
+              threshold: float | None = None, message: str, band: float | None = None) -> None:
+        """One evaluation of alarm `aid` (created at its condition's first appearance): its debounce
+        stepped, a raise or clear appended to `ev`."""
         a = self._alarms.get(aid)
         if a is None:
             if not raise_cond:
