@@ -309,7 +309,8 @@ def test_positions_and_the_stroke_mask_are_logged_and_exported(tmp_path):
 def _event(t, action, alarm="deviation:n1:r2", kind="deviation", node=1, rope=1, message="rope 2 deviates",
            operator=None):
     from ropemon.station.alarms import AlarmEvent
-    return AlarmEvent(t, action, alarm, kind, node, rope, 0.2, 0.1, message, 0.25, operator)
+    return AlarmEvent(time_s=t, action=action, alarm=alarm, kind=kind, node=node, rope=rope, value=0.2,
+                      threshold=0.1, message=message, worst=0.25, operator=operator)
 
 
 def _drop_event_columns(path):

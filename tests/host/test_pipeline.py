@@ -46,7 +46,8 @@ class Echo(Listener):
     name = "echo"
 
     def on_frame(self, item, now_s):
-        self.publish(AlarmEvent(now_s, "raise", f"echo:{item.frame.seq}", "echo", 1, None, None, None, "echo"))
+        self.publish(AlarmEvent(time_s=now_s, action="raise", alarm=f"echo:{item.frame.seq}", kind="echo", node=1,
+                                message="echo"))
 
 
 def test_messages_reach_every_listener_in_order_and_published_ones_follow():

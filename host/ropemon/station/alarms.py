@@ -6,7 +6,7 @@ condition has held for `raise_after_s` over at least `min_frames` consecutive
 evaluations, and clears only after the clear condition (threshold minus
 hysteresis) has held for `clear_after_s` likewise; so one noisy frame neither
 raises nor clears. A raised alarm latches until acknowledged. Every raise, clear
-and acknowledgement is returned as an `AlarmEvent` with time and values (the
+and acknowledgement is returned as an `AlarmEvent` (`ropemon.station.events`) with time and values (the
 caller logs them, e.g. `Store.add_event`).
 
 Kinds: deviation (a rope vs the mean of the ropes), deviation_possible (only with
@@ -51,6 +51,7 @@ from dataclasses import dataclass
 from ropemon.station.alarmstate import Debounce, Timing, _Alarm, _worse
 from ropemon.station.equalizer import (AdjustForecast, EqualizerSettings, EqualizingTracker, OilTracker,
                                        RestTracker, has_positions, positions, stroke_check)
+from ropemon.station.events import AlarmEvent
 from ropemon.station.protocol import DAN_TO_N, L, Frame
 from ropemon.station.stuck import StuckTracker
 from ropemon.station.uncertainty import (BandParams, DeviationBand, RopeInterval, SealBandTracker, deviation_bounds,
@@ -116,25 +117,6 @@ class AlarmSettings:
             raise ValueError("rated_load_dan, empty_load_dan and n_ropes must be positive")
         slack = round(slack_frac_of_empty * empty_load_dan / n_ropes)
         return cls(rated_load_dan=rated_load_dan, slack_dan=slack, **kw)
-
-
-@dataclass(frozen=True)
-class AlarmEvent:
-    time_s: float
-    action: str          # raise, clear, ack, shelve, unshelve, out_of_service, in_service; station: accept, ...
-    alarm: str           # id, e.g. "deviation:n1:r2"
-    kind: str
-    node: int | None
-    rope: int | None     # from 0 (the screen, the CSV and JSON number ropes from 1)
-    value: float | None
-    threshold: float | None
-    message: str
-    worst: float | None = None      # the worst value since the alarm was raised
-    operator: str | None = None     # who acted (ack, shelve, ...), None for the engine's own
-    annunciated: bool = True        # False: raised while shelved, out of service or suppressed
-
-    def to_dict(self) -> dict:
-        return dict(self.__dict__)
 
 
 @dataclass(frozen=True)
@@ -779,8 +761,9 @@ class AlarmEngine:
     @staticmethod
     def _event(a: _Alarm, now_s: float, action: str, message: str | None = None,
                operator: str | None = None) -> AlarmEvent:
-        return AlarmEvent(now_s, action, a.id, a.kind, a.node, a.rope, a.value, a.threshold,
-                          message if message is not None else a.message, a.worst, operator, not a.hidden)
+        return AlarmEvent(time_s=now_s, action=action, alarm=a.id, kind=a.kind, node=a.node, rope=a.rope,
+                          value=a.value, threshold=a.threshold, message=message if message is not None else a.message,
+                          worst=a.worst, operator=operator, annunciated=not a.hidden)
 
     def _log(self, ev: list[AlarmEvent]) -> list[AlarmEvent]:
         self.events.extend(ev)

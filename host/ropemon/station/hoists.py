@@ -15,7 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from ropemon.station.pipeline import AlarmListener, Command, Listener, Station, StoreListener
+from ropemon.station.commands import Command, Ticket
+from ropemon.station.pipeline import AlarmListener, Listener, Station, StoreListener
 from ropemon.station.protocol import load_node_keys
 from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.stationfile import HoistFile, StationFile
@@ -129,9 +130,10 @@ class StationSet:
         self._stop.set()
         self._wake.set()
 
-    def submit(self, hoist_id: str, command: Command) -> None:
-        """An operator command for one hoist, from any thread (KeyError: no such hoist)."""
-        self.hoists[hoist_id].station.submit(command)
+    def submit(self, hoist_id: str, command: Command) -> Ticket:
+        """An operator command for one hoist, from any thread (KeyError: no such hoist); the
+        future its station settles with the command's outcome (`Station.submit`)."""
+        return self.hoists[hoist_id].station.submit(command)
 
     def close(self) -> None:
         """Stop the ports, let every listener finish, close the logs."""

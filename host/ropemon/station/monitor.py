@@ -619,9 +619,10 @@ class JsonAlarmLines(Listener):
 
     def on_event(self, e: AlarmEvent) -> None:
         t = datetime.datetime.fromtimestamp(e.time_s, datetime.timezone.utc)
+        value, threshold = e.columns()     # a station event's numbers as the log has them
         line = {"event": e.action, "alarm": e.kind, "id": e.alarm, "node": e.node,
-                "rope": None if e.rope is None else e.rope + 1, "value": e.value, "worst": e.worst,
-                "threshold": e.threshold, "t": t.isoformat(timespec="milliseconds").replace("+00:00", "Z"),
+                "rope": None if e.rope is None else e.rope + 1, "value": value, "worst": e.worst,
+                "threshold": threshold, "t": t.isoformat(timespec="milliseconds").replace("+00:00", "Z"),
                 "operator": e.operator, "annunciated": e.annunciated, "message": e.message}
         self.out.write(json.dumps(line, allow_nan=False, default=str) + "\n")
         self.out.flush()

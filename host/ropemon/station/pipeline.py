@@ -14,7 +14,8 @@ current one (in the order the listeners were added):
                                 decision; a rebase; a receiver's or listener's error
     on_status(StationStatus)    each `tick`: receivers, merge figures, refused nodes
     on_alarms(AlarmState)       the active alarms and deviation bands (the alarm listener's)
-    on_command(Command, now_s)  an operator action
+    on_command(Command, now_s)  an operator action; the listener that carries it out returns
+                                its `CommandOutcome` (`ropemon.station.commands`)
     on_stop(StationStatus)      the station closes: log and commit what is pending
 
 Every listener method runs on the station's thread (the one calling `pump`,
@@ -22,7 +23,9 @@ Every listener method runs on the station's thread (the one calling `pump`,
 copies what it needs. Operator actions come in through `submit`, from any
 thread, and run at the next `pump`: acknowledging goes to the listeners (the
 alarm listener acts on it); accepting a rewound node goes to the hub, which
-leaves it in each receiver's inbox for that receiver's own thread.
+leaves it in each receiver's inbox for that receiver's own thread. `submit`
+returns a future the station settles with the command's outcome (carried out,
+or refused and why): the face that sent it knows its own result by that alone.
 
 A listener that raises does not stop the others: the station counts it, and
 publishes one `listener_error` event per listener and tick while it keeps failing.
@@ -41,6 +44,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
 from ropemon.station.alarms import ActiveAlarm, AlarmEngine, AlarmEvent, AlarmSettings
+from ropemon.station.commands import (AcceptRewound, Acknowledge, Command, CommandOutcome,  # noqa: F401
+                                      RemoveFromService, ReturnToService, Shelve, Ticket, Unshelve, settle)
 from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, StreamDecoder
 from ropemon.station.link import FrameHub, Received, ReceiverStatus, SerialReceiver
 from ropemon.station.uncertainty import DeviationBand
@@ -77,54 +82,6 @@ class AlarmState:
     hoist: dict[int, Any] = field(default_factory=dict)   # node -> HoistStatus (hidden_frac, text, ...)
 
 
-@dataclass(frozen=True)
-class Command:
-    """An operator action; `operator` says who, `via` where from (terminal, web, OPC UA)."""
-
-    operator: str
-    via: str
-
-
-@dataclass(frozen=True)
-class Acknowledge(Command):
-    alarm: str = "*"          # an alarm id, a kind, or "*" for all
-
-
-@dataclass(frozen=True)
-class Shelve(Command):
-    """Shelve one alarm for `minutes` with a reason (it returns by itself)."""
-
-    alarm: str = ""
-    minutes: float = 0.0
-    reason: str = ""
-
-
-@dataclass(frozen=True)
-class Unshelve(Command):
-    alarm: str = ""
-
-
-@dataclass(frozen=True)
-class RemoveFromService(Command):
-    """Take one alarm out of service (maintenance) with a reason, until returned."""
-
-    alarm: str = ""
-    reason: str = ""
-
-
-@dataclass(frozen=True)
-class ReturnToService(Command):
-    alarm: str = ""
-
-
-@dataclass(frozen=True)
-class AcceptRewound(Command):
-    """Trust `node` although its boot counter went back (flash wiped or replaced)."""
-
-    node: int = 0
-    how: str = "interactively"
-
-
 class Listener:
     """Base of the station's listeners: override the messages you need (module docstring)."""
 
@@ -143,8 +100,9 @@ class Listener:
     def on_alarms(self, state: AlarmState) -> None:
         pass
 
-    def on_command(self, command: Command, now_s: float) -> None:
-        pass
+    def on_command(self, command: Command, now_s: float) -> CommandOutcome | None:
+        """An operator action: the listener that carries it out returns its outcome."""
+        return None
 
     def on_stop(self, status: StationStatus) -> None:
         pass
@@ -175,7 +133,9 @@ class Station:
         self.listeners: list[Listener] = []
         self.listener_errors: dict[str, tuple[int, str]] = {}
         self.resumed: dict[int, int] = {}               # node -> last seq logged, resumed from the store
-        self._commands: "queue.SimpleQueue[Command]" = queue.SimpleQueue()
+        self._commands: "queue.SimpleQueue[tuple[Command, Ticket]]" = queue.SimpleQueue()
+        self._asked: Command | None = None               # the command being handed to the listeners
+        self._answer: CommandOutcome | None = None       # ... and the first outcome a listener returned
         self._pending: deque[Any] = deque()
         self._dispatching = False
         self._rebase_logged: dict[int, int] = {}        # node -> seq of the last baseline published
@@ -210,11 +170,14 @@ class Station:
         self.hub.feeder(receiver)(data)
         self.pump()
 
-    def submit(self, command: Command) -> None:
-        """An operator action, from any thread; carried out at the next `pump`."""
-        self._commands.put(command)
+    def submit(self, command: Command) -> Ticket:
+        """An operator action, from any thread; carried out at the next `pump`. Returns a
+        future settled with its `CommandOutcome` then (on the station's thread)."""
+        ticket: Ticket = Ticket()
+        self._commands.put((command, ticket))
         if self.hub.wake is not None:
             self.hub.wake.set()
+        return ticket
 
     def resumed_text(self) -> str | None:
         """One line saying where the replay protection resumed from (None: nothing logged before)."""
@@ -232,10 +195,10 @@ class Station:
         the listeners; return how many frames were taken from the queue."""
         while True:
             try:
-                cmd = self._commands.get_nowait()
+                cmd, ticket = self._commands.get_nowait()
             except queue.Empty:
                 break
-            self._command(cmd)
+            self._command(cmd, ticket)
         n = 0
         while True:
             item = self.hub.get(timeout=0)
@@ -296,15 +259,17 @@ class Station:
                 else:
                     method, args = _METHOD[type(msg)], (msg,)
                 for listener in self.listeners:
-                    self._call(listener, method, *args)
+                    got = self._call(listener, method, *args)
+                    if msg is self._asked and self._answer is None and isinstance(got, CommandOutcome):
+                        self._answer = got
         finally:
             self._dispatching = False
 
     # -- internals ---------------------------------------------------------------------
 
-    def _call(self, listener: Listener, method: str, *args: Any) -> None:
+    def _call(self, listener: Listener, method: str, *args: Any) -> Any:
         try:
-            getattr(listener, method)(*args)
+            return getattr(listener, method)(*args)
         except Exception as e:  # one failing listener must not stop the alarms or the others
             name = listener.name
             n = self.listener_errors.get(name, (0, ""))[0] + 1
@@ -312,15 +277,24 @@ class Station:
             self.listener_errors[name] = (n, text)
             if name not in self._listener_errors_published:
                 self._listener_errors_published.add(name)
-                self.publish(AlarmEvent(time.time(), "error", f"listener_error:{name}", "listener_error",
-                                        None, None, n, None, f"{name} failed on {method}: {text}"))
+                self.publish(AlarmEvent(time_s=time.time(), action="error", alarm=f"listener_error:{name}",
+                                        kind="listener_error", count=n, message=f"{name} failed on {method}: {text}"))
+            return None
 
-    def _command(self, cmd: Command) -> None:
-        self.publish(cmd)
+    def _command(self, cmd: Command, ticket: Ticket) -> None:
+        """Hand `cmd` to the listeners (the first outcome one returns is its outcome), or carry
+        it out here (AcceptRewound); settle `ticket` with the outcome."""
+        self._asked, self._answer = cmd, None
+        try:
+            self.publish(cmd)
+            answer = self._answer
+        finally:
+            self._asked, self._answer = None, None
         if isinstance(cmd, AcceptRewound):
-            self._accept_rewound(cmd)
+            answer = self._accept_rewound(cmd)
+        settle(ticket, answer or CommandOutcome.refused(cmd, "nothing in the station carried it out"))
 
-    def _accept_rewound(self, cmd: AcceptRewound) -> None:
+    def _accept_rewound(self, cmd: AcceptRewound) -> CommandOutcome:
         """Every receiver takes `cmd.node`'s next authenticated frame as its new baseline. Logged
         (who, when, which node) as an `accept` event: it decides whether frames are trusted."""
         node = cmd.node
@@ -329,9 +303,10 @@ class Station:
         wall = time.time()
         when = datetime.datetime.fromtimestamp(wall, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
         was = f" (boot counter went back {refused[0]} -> {refused[1]})" if refused else ""
-        self.publish(AlarmEvent(wall, "accept", f"rewound:n{node}", "rewound", node, None,
-                                refused[0] if refused else None, refused[1] if refused else None,
-                                f"operator {cmd.operator} accepted node {node}{was} {cmd.how} at {when}"))
+        self.publish(AlarmEvent(time_s=wall, action="accept", alarm=f"rewound:n{node}", kind="rewound", node=node,
+                                newest_boot=refused[0] if refused else None, frame_boot=refused[1] if refused else None,
+                                message=f"operator {cmd.operator} accepted node {node}{was} {cmd.how} at {when}"))
+        return CommandOutcome.done(cmd)
 
     def _rebase(self, item: Received) -> None:
         """A receiver took an accepted node's frame of an older boot as its new baseline: a
@@ -344,8 +319,8 @@ class Station:
         self._rebase_logged[f.node] = f.seq
         mask = (1 << SEQ_COUNT_BITS) - 1
         self.publish(AlarmEvent(
-            time.time(), "rebase", f"rewound:n{f.node}", "rewound", f.node, None, f.seq, prev,
-            f"node {f.node}: boot {f.seq >> SEQ_COUNT_BITS} count {f.seq & mask} taken as its new baseline "
+            time_s=time.time(), action="rebase", alarm=f"rewound:n{f.node}", kind="rewound", node=f.node,
+            seq=f.seq, prev_seq=prev, message=f"node {f.node}: boot {f.seq >> SEQ_COUNT_BITS} count {f.seq & mask} taken as its new baseline "
             f"(was boot {prev >> SEQ_COUNT_BITS} count {prev & mask}; receiver {item.receiver})"))
 
     def _publish_link_errors(self, status: StationStatus) -> None:
@@ -354,9 +329,9 @@ class Station:
             if r.callback_errors > self._errors_published.get(name, 0):
                 self._errors_published[name] = r.callback_errors
                 self.publish(AlarmEvent(
-                    time.time(), "error", f"link_error:{name}", "link_error", None, None, r.callback_errors, None,
-                    f"receiver {name}: {r.callback_errors} decoder/consumer errors (bytes lost), "
-                    f"last: {r.last_callback_error}"))
+                    time_s=time.time(), action="error", alarm=f"link_error:{name}", kind="link_error",
+                    count=r.callback_errors, message=f"receiver {name}: {r.callback_errors} decoder/consumer errors "
+                    f"(bytes lost), last: {r.last_callback_error}"))
 
 
 _METHOD = {AlarmEvent: "on_event", StationStatus: "on_status", AlarmState: "on_alarms"}
@@ -394,7 +369,9 @@ class AlarmListener(Listener):
             self._publish(e.update_fault(source, why is not None, why or f"{source} works again", now))
         self._publish_state(now)
 
-    def on_command(self, command: Command, now_s: float) -> None:
+    def on_command(self, command: Command, now_s: float) -> CommandOutcome | None:
+        """An alarm command carried out by the engine: its outcome, a refusal also published as a
+        `refused` event (the log's and every face's); None for a command not the engine's."""
         e, who = self.engine, f"{command.operator} ({command.via})"
         try:
             if isinstance(command, Acknowledge):
@@ -408,14 +385,15 @@ class AlarmListener(Listener):
             elif isinstance(command, ReturnToService):
                 events = e.return_to_service(command.alarm, now_s, who)
             else:
-                return
+                return None
         except (KeyError, ValueError) as err:
-            why = f"no alarm {command.alarm!r}" if isinstance(err, KeyError) else str(err)
-            self.publish(AlarmEvent(now_s, "refused", getattr(command, "alarm", ""), "command", None, None, None,
-                                    None, f"{type(command).__name__} by {who} refused: {why}", operator=who))
-            return
+            why = f"no alarm {command.target!r}" if isinstance(err, KeyError) else str(err)
+            self.publish(AlarmEvent(time_s=now_s, action="refused", alarm=command.target, kind="command",
+                                    message=f"{type(command).__name__} by {who} refused: {why}", operator=who))
+            return CommandOutcome.refused(command, why)
         if self._publish(events):
             self._publish_state(now_s)
+        return CommandOutcome.done(command)
 
     def _publish(self, events: list[AlarmEvent]) -> int:
         for e in events:

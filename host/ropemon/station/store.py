@@ -350,10 +350,12 @@ class Store:
                 del d.rest_since[node]
 
     def add_event(self, event) -> None:
-        """Log an AlarmEvent and commit at once (with any pending frames): alarms are rare and must not wait."""
+        """Log an AlarmEvent and commit at once (with any pending frames): alarms are rare and must not wait.
+        A station event's numbers go in the value and threshold columns (`AlarmEvent.row`)."""
         self._begin()
+        row = event.row()
         self.db.execute(f"INSERT INTO events ({','.join(_EVENT_COLS)}) VALUES ({','.join('?' * len(_EVENT_COLS))})",
-                        tuple(getattr(event, c) for c in _EVENT_COLS))
+                        tuple(row[c] for c in _EVENT_COLS))
         self.commit()
 
     def add_link_stats(self, time_s: float, receiver: str, counts: dict | None = None,
@@ -586,7 +588,7 @@ class Store:
         at most `limit`. Filters: since <= time_s <= until, the action, the kind, the node;
         `text` found in the message, the alarm id or the operator; `operator_only`: what a person
         did (an operator is named, or an acceptance or a baseline; in a file without the
-        operator column: the operator actions)."""
+        operator column: the operator actions). `AlarmEvent.from_row` makes an event of a row."""
         where: list[str] = []
         args: list[Any] = []
         operator = "operator" in self._event_cols

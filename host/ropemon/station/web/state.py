@@ -167,9 +167,11 @@ def hoist_view(st: Any) -> dict:
 
 
 def event_view(e: AlarmEvent) -> dict:
+    """An event as the page lists it: value and threshold as the log has them (`AlarmEvent.columns`)."""
+    value, threshold = e.columns()
     return {"time_s": e.time_s, "action": e.action, "alarm": e.alarm, "kind": e.kind, "node": e.node,
-            "rope": None if e.rope is None else e.rope + 1, "value": _r(e.value, 4),
-            "threshold": _r(e.threshold, 4), "worst": _r(e.worst, 4), "message": e.message,
+            "rope": None if e.rope is None else e.rope + 1, "value": _r(value, 4),
+            "threshold": _r(threshold, 4), "worst": _r(e.worst, 4), "message": e.message,
             "operator": e.operator, "annunciated": e.annunciated}
 
 
