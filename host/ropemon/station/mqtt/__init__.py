@@ -16,16 +16,20 @@
     buffer_max_frames = 2000000
     primary_host_id = "scada"   # optional: births only while spBv1.0/STATE/scada says online
 
+The table is checked by `settings.Settings`; what Sparkplug B asks of an edge node (births,
+deaths, seq, bdSeq, rebirth, the primary host's STATE, the DDATA in flight) is
+`session.Session`, which does no I/O: this module feeds it events and publishes what it returns.
+
 Threads: one `SparkplugValues` listener per hoist on the station's thread turns each frame
 (and each change of the alarm bits) into a record and puts it on a queue, never waiting;
 it also says when the station stops hearing the hoist (the device's death: no frame from
 any of its nodes for silent_s, or every receiver of the hoist down) and when it hears it
-again (a frame: the device's birth). The publisher thread owns everything else: the outbox
-(`outbox.Outbox`, SQLite in the data_dir, deaths and births in order among the data), the
-paho-mqtt client (a new one per connection, its NDEATH will carrying that connection's
-bdSeq; its network loop run by this thread, not a paho thread: a publish is written to the
-socket at once, acknowledgements and commands are read every POLL_S), the primary host's STATE, NBIRTH/DBIRTH/DDEATH, seq, and sending the outbox in
-order. Each record is committed to the outbox before it is published (the durability point)
+again (a frame: the device's birth). The publisher thread (`MqttFace`) owns everything else:
+the outbox (`outbox.Outbox`, SQLite in the data_dir, deaths and births in order among the
+data), the session, and the paho-mqtt client (a new one per connection, its NDEATH will
+carrying that connection's bdSeq; its network loop run by this thread, not a paho thread: a
+publish is written to the socket at once, acknowledgements and commands are read every
+POLL_S). Each record is committed to the outbox before it is published (the durability point)
 and kept in memory too: records newer than what has been published go out from memory, older
 ones (a backlog, a previous run's) are read back from the outbox. A row leaves the outbox when
 the broker acknowledges it (QoS 1): acknowledged rows are deleted together, every
@@ -35,30 +39,26 @@ a rebirth asked by a host (NCMD) within the session does not move that line.
 """
 from __future__ import annotations
 
-import json
 import logging
 import queue
-import re
 import ssl
 import threading
 import time
 from collections import deque
 from itertools import islice
-from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as paho
 
-from ropemon.station.tomlfields import Table
 from ropemon.station.mqtt import sparkplug as sp
 from ropemon.station.mqtt.outbox import Outbox
+from ropemon.station.mqtt.session import DEVICE, Message, Session
+from ropemon.station.mqtt.settings import DEADBANDS, SPARKPLUG_ID, Settings
 from ropemon.station.scadavalues import HoistValues, NodeValues
-from ropemon.station.stationfile import StationFileError
+
+__all__ = ["DEADBANDS", "DEVICE", "SPARKPLUG_ID", "MqttFace", "Settings", "SparkplugValues", "start"]
 
 log = logging.getLogger(__name__)
-SPARKPLUG_ID = re.compile(r"^[^/+#]{1,64}$")
-DEADBANDS = {"kN": 0.5, "%": 0.1, "m": 0.1, "mm": 0.5, "m/s": 0.05, "V": 0.05, "degC": 0.5}
-DEVICE = "$device"     # a record {DEVICE: "death" | "birth"}: the hoist lost or heard again
 MAX_INFLIGHT = 200     # DDATA published and not yet acknowledged
 BATCH = 200            # outbox rows read at a time
 FRESH_MAX = 5000       # records kept in memory to publish (older ones are read from the outbox)
@@ -67,57 +67,6 @@ DELETE_S = 0.1         # ... or after this long
 RETRY_S = (0.5, 5.0)   # reconnect back-off, first and longest
 STANDING_EVERY_S = 10.0   # a node's standing_status text (it follows the rope tension) sent at most this often
 POLL_S = 0.005         # the connection's incoming packets (acknowledgements, commands) read this often at most
-
-
-class Settings:
-    def __init__(self, table: dict, base: Path, station_name: str) -> None:
-        t = Table(table, "mqtt", StationFileError)
-        self.host = t.string("host", "127.0.0.1")
-        self.port = t.integer("port", 1883, lo=1, hi=65535)
-        self.group_id = t.string("group_id")
-        self.edge_node_id = t.string("edge_node_id")
-        for key in ("group_id", "edge_node_id"):
-            if not SPARKPLUG_ID.match(getattr(self, key)):
-                raise StationFileError(f"mqtt.{key}: 1-64 characters, none of '/', '+', '#'")
-        self.client_id = t.string("client_id", f"ropemon-{self.edge_node_id}")
-        self.report = t.string("report", "frame", choices=("frame", "exception"))
-        db = t.table("deadband", {})
-        self.deadband = dict(DEADBANDS)
-        for unit in list(db.data):
-            if unit not in DEADBANDS:
-                raise StationFileError(f"{db.field(unit)}: a unit of the metrics: {', '.join(DEADBANDS)}")
-            self.deadband[unit] = db.number(unit, ge=0.0)
-        db.finish()
-        self.qos = t.integer("qos", 1, lo=0, hi=1)
-        self.keepalive_s = t.integer("keepalive_s", 10, lo=2, hi=600)
-        self.username = t.string("username", "") or None
-        pw = t.string("password_file", "")
-        self.password_file = _path(base, pw) if pw else None
-        if self.password_file is not None and self.username is None:
-            raise StationFileError("mqtt.password_file: needs mqtt.username")
-        self.tls = t.boolean("tls", False)
-        self.tls_ca = _path(base, t.string("tls_ca")) if t.has("tls_ca") else None
-        self.tls_cert = _path(base, t.string("tls_cert")) if t.has("tls_cert") else None
-        self.tls_key = _path(base, t.string("tls_key")) if t.has("tls_key") else None
-        if (self.tls_cert is None) != (self.tls_key is None):
-            raise StationFileError("mqtt.tls_cert, mqtt.tls_key: give both or neither")
-        self.buffer_max_frames = t.integer("buffer_max_frames", 2_000_000, lo=1000, hi=100_000_000)
-        self.primary_host_id = t.string("primary_host_id", "") or None
-        if self.primary_host_id is not None and not SPARKPLUG_ID.match(self.primary_host_id):
-            raise StationFileError("mqtt.primary_host_id: 1-64 characters, none of '/', '+', '#'")
-        t.finish()
-
-    def password(self) -> str | None:
-        if self.password_file is None:
-            return None
-        from ropemon.station import files
-        return files.read_text(self.password_file, "MQTT password file", files.MAX_KEY_FILE,
-                               StationFileError).strip()
-
-
-def _path(base: Path, text: str) -> Path:
-    p = Path(text)
-    return p if p.is_absolute() else base / p
 
 
 class SparkplugValues(HoistValues):
@@ -206,36 +155,29 @@ class SparkplugValues(HoistValues):
 
 
 class MqttFace:
-    """The publisher thread (module docstring)."""
+    """The publisher thread (module docstring): the queue, the outbox and paho around a `Session`."""
 
     def __init__(self, stations: Any, settings: Settings) -> None:
         self.settings = settings
         self.queue: "queue.SimpleQueue[tuple[str, int, dict]]" = queue.SimpleQueue()
         self.devices = {h.id: sp.hoist_metrics(sorted(h.keys)) for h in stations.hoists.values()}
-        self.datatype = {d: {n: t for n, t, _ in m} for d, m in self.devices.items()}
-        self.alias = sp.aliases(self.devices)
+        self.session = Session(settings.group_id, settings.edge_node_id, self.devices, qos=settings.qos,
+                               primary_host_id=settings.primary_host_id)
+        self.alias = self.session.alias
         data_dir = stations.file.data_dir
         if data_dir is not None:
             data_dir.mkdir(parents=True, exist_ok=True)
         self.outbox_path = data_dir / "mqtt-outbox.db" if data_dir is not None else None
         self.error: str | None = None            # the outbox cannot be written
         self.connected = False
-        self.bdseq = -1
-        self.sessions = 0                        # connections that reached their births
         self.sent = 0                            # DDATA acknowledged (or sent, QoS 0)
         self.last_error: str | None = None       # why the last connection failed or ended
         self._said: str | None = None            # the failure last logged (said once, not at each retry)
-        self.alive = {d: True for d in self.devices}    # the hoist heard, as of the newest record taken
-        self.born = {d: False for d in self.devices}    # DBIRTH sent in this session, no DDEATH since
-        self.host_online = False                 # the primary host's newest STATE (primary_host_id)
-        self._host_ts = -1                       # that STATE's timestamp: an older one is ignored
         self._host_offline = threading.Event()
-        self.births = False                      # this connection's NBIRTH is out
         self._stop = threading.Event()
         self._client: paho.Client | None = None
         self._lost = threading.Event()
-        self._acked: deque[int] = deque()
-        self._inflight: dict[int, int] = {}
+        self._acked: deque[int] = deque()        # message ids paho says are acknowledged (or written, QoS 0)
         self._fresh: deque[tuple[int, str, int, dict]] = deque()   # (row id, device, ts, values) just queued
         self._done: list[int] = []                 # rows acknowledged (or not to send), to delete
         self._done_since = 0.0
@@ -243,6 +185,41 @@ class MqttFace:
         self._rebirth = threading.Event()
         self._thread = threading.Thread(target=self._run, name="mqtt", daemon=True)
         self._ready = threading.Event()
+
+    # the session's state, read (and set by a connection) as the face's
+    @property
+    def bdseq(self) -> int:
+        return self.session.bdseq
+
+    @bdseq.setter
+    def bdseq(self, value: int) -> None:
+        self.session.bdseq = value
+
+    @property
+    def births(self) -> bool:
+        """This connection's NBIRTH is out."""
+        return self.session.births
+
+    @births.setter
+    def births(self, value: bool) -> None:
+        self.session.births = value
+
+    @property
+    def seq(self) -> int:
+        return self.session.seq
+
+    @seq.setter
+    def seq(self, value: int) -> None:
+        self.session.seq = value
+
+    @property
+    def sessions(self) -> int:
+        """Connections that reached their births."""
+        return self.session.sessions
+
+    @property
+    def _inflight(self) -> dict[int, int]:
+        return self.session.inflight
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -276,25 +253,20 @@ class MqttFace:
             self.error = f"cannot open the outbox {self.outbox_path}: {e}"
             self._ready.set()
             return
-        self.bdseq = self.outbox.meta("bdseq", -1)
+        self.session.bdseq = self.outbox.meta("bdseq", -1)
         self._ready.set()
-        self.last: dict[str, dict[str, tuple[int, Any]]] = {d: {} for d in self.devices}   # for DBIRTH
+        session = self.session
         retry_at, delay = 0.0, RETRY_S[0]
-        cursor = 0                    # the newest outbox row published in this session
-        live_from = 1 << 62           # rows from this id on were queued after this session's births
-        self._dead_after: list[str] = []   # born for their stored data, dead at the live rows: DDEATH once it is out
-        inflight = self._inflight      # mid -> outbox row id
         try:
             while not self._stop.is_set():
                 self._take(timeout=0.02)
                 self._poll()
                 if self._client is not None and self._host_offline.is_set():
                     self._host_offline.clear()     # the primary host went offline: NDEATH, disconnect, start over
-                    if self.births:
+                    if session.births:
                         log.warning("MQTT: the primary host %s is offline: NDEATH, reconnecting to wait for it",
                                     self.settings.primary_host_id)
                         self._close(keep_outbox=True)
-                        inflight.clear()
                         self._acked.clear()
                         retry_at = 0.0
                         continue
@@ -302,7 +274,7 @@ class MqttFace:
                     self._drop_client()
                     self._take_acks()               # those that came: their rows are not sent again
                     self._flush(force=True)
-                    inflight.clear()
+                    session.disconnected()          # the others stay in the outbox, to send again
                     self._acked.clear()
                 if self._client is None:
                     if time.monotonic() >= retry_at:
@@ -312,44 +284,43 @@ class MqttFace:
                             retry_at = time.monotonic() + delay
                             delay = min(delay * 2, RETRY_S[1])
                     continue
-                if not self.births:
-                    if self.settings.primary_host_id and not self.host_online:
+                if not session.births:
+                    if not session.may_be_born():
                         continue                   # store and forward: the outbox grows meanwhile
-                    live_from = self.outbox.last_id() + 1
-                    cursor = 0
-                    self._births(live_from)
+                    self._send(session.begin(sp.now_ms(), self.outbox))
                 if self._rebirth.is_set():       # asked by a host (NCMD): the same session, born again;
                     self._rebirth.clear()        # what was queued in it since its births stays live
-                    self._births(live_from, cursor, rebirth=True)
+                    self._send(session.rebirth(sp.now_ms(), self.outbox))
                 self._take_acks()
                 self._flush()
-                if len(inflight) < MAX_INFLIGHT:
-                    rows = self._rows_after(cursor, min(BATCH, MAX_INFLIGHT - len(inflight)))
-                    for row_id, device, ts, values in rows:
-                        if row_id >= live_from and self._dead_after:
-                            self._deaths()
-                        mid: int | None
-                        if DEVICE in values:
-                            mid = self._device_state(device, values[DEVICE]) if row_id >= live_from else 0
-                        else:
-                            mid = self._data(device, ts, values, historical=row_id < live_from)
-                        if mid is None:
-                            break
-                        cursor = row_id
-                        if mid == 0:
-                            self._finished(row_id)
-                        else:
-                            inflight[mid] = row_id
-                    if not rows:                   # nothing after the cursor: none to read until a newer row
-                        cursor = max(cursor, self.outbox.next_id - 1)
-                        if self._dead_after and self._client is not None:
-                            self._deaths()
+                self._publish_rows()
         except Exception as e:  # noqa: BLE001 - the station alarms on it (health)
             log.exception("mqtt publisher failed")
             self.error = f"the publisher stopped: {type(e).__name__}: {e}"
         finally:
             self._take(timeout=0)
             self._close()
+
+    def _publish_rows(self) -> None:
+        """The next rows after the session's cursor, as many as MAX_INFLIGHT leaves room for; a
+        row without a DDATA in flight is done at once."""
+        session = self.session
+        if len(session.inflight) >= MAX_INFLIGHT:
+            return
+        rows = self._rows_after(session.cursor, min(BATCH, MAX_INFLIGHT - len(session.inflight)))
+        for row_id, device, ts, values in rows:
+            mid: int | None = None
+            for m in session.row(row_id, device, ts, values, sp.now_ms()):
+                got = self._publish(m)
+                if m.row is not None:
+                    if got is None:
+                        return                 # the connection is lost: the row is sent again later
+                    mid = got
+            session.published(row_id, mid)
+            if mid is None:
+                self._finished(row_id)
+        if not rows:                   # nothing after the cursor: none to read until a newer row
+            self._send(session.caught_up(self.outbox.next_id, sp.now_ms()))
 
     def _poll(self, timeout: float = 0.0, force: bool = False) -> None:
         """paho's network loop, run by this thread (no network thread: a publish writes to the
@@ -378,7 +349,7 @@ class MqttFace:
 
     def _take_acks(self) -> None:
         while self._acked:
-            row = self._inflight.pop(self._acked.popleft(), None)
+            row = self.session.puback(self._acked.popleft())
             if row is not None:
                 self._finished(row)
                 self.sent += 1
@@ -397,7 +368,7 @@ class MqttFace:
             self.outbox.delete(done)
 
     def _take(self, timeout: float) -> None:
-        """Queued records into the outbox, in one transaction (committed), and into memory."""
+        """Queued records into the session, the outbox, in one transaction (committed), and memory."""
         records = []
         try:
             records.append(self.queue.get(timeout=timeout) if timeout else self.queue.get_nowait())
@@ -408,13 +379,7 @@ class MqttFace:
         if not records:
             return
         for device, ts, values in records:
-            if DEVICE in values:
-                if device in self.alive:
-                    self.alive[device] = values[DEVICE] == "birth"
-                continue
-            last = self.last[device]
-            for k, v in values.items():
-                last[k] = (ts, v)
+            self.session.taken(device, ts, values)
         try:
             dropped = self.outbox.dropped
             first = self.outbox.add(records)
@@ -433,13 +398,11 @@ class MqttFace:
 
     def _connect(self) -> bool:
         s = self.settings
-        self.bdseq = (self.bdseq + 1) % 256
-        self.outbox.set_meta("bdseq", self.bdseq)
+        will = self.session.connecting(sp.now_ms())
+        self.outbox.set_meta("bdseq", self.session.bdseq)
         c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=s.client_id, clean_session=True,
                         protocol=paho.MQTTv311)
-        death = sp.payload(None)
-        sp.add_metric(death, "bdSeq", sp.INT64, self.bdseq, death.timestamp)
-        c.will_set(sp.topic(s.group_id, "NDEATH", s.edge_node_id), death.SerializeToString(), qos=1, retain=False)
+        c.will_set(will.topic, will.payload, qos=will.qos, retain=False)
         if s.username:
             c.username_pw_set(s.username, s.password())
         if s.tls:
@@ -491,14 +454,12 @@ class MqttFace:
         if self._said is not None:
             log.warning("MQTT: connected to %s:%s", s.host, s.port)
             self._said = None
-        c.subscribe(sp.topic(s.group_id, "NCMD", s.edge_node_id), qos=1)
-        self.host_online = False
+        c.subscribe(self.session.topic("NCMD"), qos=1)
+        self.session.connected()
         if s.primary_host_id:                  # the retained STATE arrives at once if the host is there
             c.subscribe(f"{sp.NAMESPACE}/STATE/{s.primary_host_id}", qos=1)
         self._client = c
         self.connected = True
-        self.births = False
-        self.seq = 0
         return True
 
     def _failed(self, why: str) -> None:
@@ -512,142 +473,51 @@ class MqttFace:
     def _drop_client(self) -> None:
         c, self._client = self._client, None
         self.connected = False
-        self.births = False
+        self.session.births = False
         sock = c.socket() if c is not None else None
         if sock is not None:         # closed, not DISCONNECTed: the broker sends the will
             sock.close()
 
     def _on_command(self, client, userdata, msg) -> None:
+        """An NCMD (a rebirth, asked by a host) or the primary host's STATE."""
         if msg.topic.startswith(f"{sp.NAMESPACE}/STATE/"):
-            self._on_state(msg.payload)
+            try:
+                offline = self.session.host_state(msg.payload)
+            except ValueError as e:
+                log.warning("MQTT: the primary host's STATE is not Sparkplug's "
+                            '{"online": bool, "timestamp": ms} (%s): ignored', e)
+                return
+            if offline:
+                self._host_offline.set()
             return
-        try:
-            p = sp.decode(msg.payload)
-        except Exception:  # noqa: BLE001 - not a Sparkplug payload: ignored
-            return
-        for m in p.metrics:
-            if m.name == "Node Control/Rebirth" and sp.metric_value(m):
-                self._rebirth.set()
+        if self.session.command(msg.payload):
+            self._rebirth.set()
 
-    def _on_state(self, data: bytes) -> None:
-        """The primary host's STATE: {"online": bool, "timestamp": ms}; one older than the newest
-        taken is ignored (a stale retained message)."""
-        try:
-            state = json.loads(data)
-            online, ts = state["online"], state["timestamp"]
-            if not isinstance(online, bool) or not isinstance(ts, int) or isinstance(ts, bool):
-                raise ValueError("online must be a boolean and timestamp an integer")
-        except (ValueError, KeyError, TypeError) as e:
-            log.warning("MQTT: the primary host's STATE is not Sparkplug's "
-                        '{"online": bool, "timestamp": ms} (%s): ignored', e)
-            return
-        if ts < self._host_ts:
-            return
-        self._host_ts = ts
-        self.host_online = online
-        if not online:
-            self._host_offline.set()
-
-    def _publish(self, topic: str, p: Any, qos: int) -> int | None:
+    def _publish(self, m: Message) -> int | None:
+        """One of the session's messages, never retained: its message id (None: the connection is lost)."""
         assert self._client is not None
-        info = self._client.publish(topic, p.SerializeToString(), qos=qos, retain=False)
+        info = self._client.publish(m.topic, m.payload, qos=m.qos, retain=False)
         if info.rc != paho.MQTT_ERR_SUCCESS:
             self._lost.set()
             return None
         return info.mid
 
-    def _next_seq(self) -> int:
-        self.seq = (self.seq + 1) % 256
-        return self.seq
-
-    def _births(self, live_from: int, cursor: int = 0, rebirth: bool = False) -> None:
-        """NBIRTH (seq 0, bdSeq) and the DBIRTH of each hoist heard where publishing stands (the
-        rows after `cursor` are still to send) or with stored data still to send, with every
-        metric's name, alias, unit and newest value. Where publishing stands, a hoist is as its
-        first live death or birth row still to send says it was before it (a death: heard), or as
-        of now without one: its rows still to send then replay its deaths and births in order. A
-        hoist born only for its stored data is declared dead (DDEATH) once that data is out
-        (`_deaths`). `rebirth`: asked by a host (NCMD) within the session, not a new session
-        (`sessions` counts connections)."""
-        s = self.settings
-        self.seq = 0
-        nb = sp.payload(0)
-        sp.add_metric(nb, "bdSeq", sp.INT64, self.bdseq, nb.timestamp)
-        sp.add_metric(nb, "Node Control/Rebirth", sp.BOOLEAN, False, nb.timestamp)
-        self._publish(sp.topic(s.group_id, "NBIRTH", s.edge_node_id), nb, 0)
-        start = max(cursor + 1, live_from)         # the first live row still to send
-        first = self.outbox.first_states(start) if start < self.outbox.next_id else {}
-        alive = {d: first[d] == "death" if d in first else self.alive[d] for d in self.devices}
-        stored = (self.outbox.devices_between(cursor, live_from)
-                  if cursor + 1 < live_from and not all(alive.values()) else set())
-        self.born = {d: False for d in self.devices}
-        for device in self.devices:
-            if alive[device] or device in stored:
-                self._dbirth(device)
-        self._dead_after = [d for d in self.devices if self.born[d] and not alive[d]]
-        self.births = True
-        if not rebirth:
-            self.sessions += 1
-
-    def _dbirth(self, device: str) -> None:
-        s = self.settings
-        p = sp.payload(self._next_seq())
-        last, alias = self.last[device], self.alias[device]
-        for name, datatype, unit in self.devices[device]:
-            ts, value = last.get(name, (p.timestamp, None))
-            sp.add_metric(p, name, datatype, value, ts, unit=unit, alias=alias[name])
-        self._publish(sp.topic(s.group_id, "DBIRTH", s.edge_node_id, device), p, 0)
-        self.born[device] = True
-
-    def _ddeath(self, device: str) -> None:
-        s = self.settings
-        self._publish(sp.topic(s.group_id, "DDEATH", s.edge_node_id, device), sp.payload(self._next_seq()), 0)
-        self.born[device] = False
-
-    def _deaths(self) -> None:
-        for device in self._dead_after:
-            if self.born[device]:
-                self._ddeath(device)
-        self._dead_after = []
-
-    def _device_state(self, device: str, what: str) -> int:
-        """A live death or birth row: DDEATH or DBIRTH (QoS 0, as the specification asks)."""
-        if device not in self.devices:
-            return 0
-        if what == "death" and self.born[device]:
-            self._ddeath(device)
-        elif what == "birth" and not self.born[device]:
-            self._dbirth(device)
-        return 0
-
-    def _data(self, device: str, ts: int, values: dict[str, Any], historical: bool) -> int | None:
-        s = self.settings
-        types = self.datatype.get(device)
-        if types is None or not self.born[device]:
-            # a hoist no longer in the station file, or dead: its rows are dropped (a dead hoist's
-            # alarm bits go out with its next DBIRTH, which carries the newest values)
-            return 0
-        p = sp.payload(self._next_seq())
-        alias = self.alias[device]
-        for name, value in values.items():
-            if name in types:
-                sp.add_metric(p, None, types[name], value, ts, historical=historical, alias=alias[name])
-        return self._publish(sp.topic(s.group_id, "DDATA", s.edge_node_id, device), p, s.qos)
+    def _send(self, messages: list[Message]) -> None:
+        for m in messages:
+            self._publish(m)
 
     def _close(self, keep_outbox: bool = False) -> None:
         """NDEATH before a clean disconnect; what is not acknowledged stays in the outbox."""
         c = self._client
         if c is not None and not self._lost.is_set():
-            s = self.settings
-            death = sp.payload(None)
-            sp.add_metric(death, "bdSeq", sp.INT64, self.bdseq, death.timestamp)
+            death = self.session.ndeath(sp.now_ms())
             end = time.monotonic() + 3.0
-            while self._inflight and time.monotonic() < end and not self._lost.is_set():
+            while self.session.inflight and time.monotonic() < end and not self._lost.is_set():
                 self._take_acks()     # the DDATA in flight: acknowledged rows leave the outbox
                 self._poll(0.01, force=True)
             self._take_acks()
             try:
-                info = c.publish(sp.topic(s.group_id, "NDEATH", s.edge_node_id), death.SerializeToString(), qos=1)
+                info = c.publish(death.topic, death.payload, qos=death.qos)
                 end = time.monotonic() + 2.0
                 while not info.is_published() and time.monotonic() < end and not self._lost.is_set():
                     self._poll(0.05, force=True)
@@ -656,7 +526,7 @@ class MqttFace:
             c.disconnect()
         self._client = None
         self.connected = False
-        self.births = False
+        self.session.disconnected()
         if hasattr(self, "outbox"):
             self._flush(force=True)
             if not keep_outbox:
