@@ -114,6 +114,16 @@ async def connect(rig, client_cert, **kw) -> Client:
     return c
 
 
+async def pumped(rig, call):
+    """A method call that reaches the station, awaited while the station's thread (the test's)
+    pumps: the face answers with its command's outcome once the station has carried it out."""
+    task = asyncio.ensure_future(call)
+    while not task.done():
+        rig["stations"].hoists["north"].station.pump()
+        await asyncio.sleep(0.01)
+    return task.result()
+
+
 async def until(pred, timeout=10.0):
     t_end = time.monotonic() + timeout
     while time.monotonic() < t_end:
@@ -209,9 +219,10 @@ def test_deviation_alarm_condition_and_acknowledge_lands_in_the_log_with_the_use
                         ua.Variant(ev.EventId, ua.VariantType.ByteString), ua.LocalizedText("no"))
             finally:
                 await v.disconnect()
-            await cond.call_method(ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
-                                   ua.Variant(ev.EventId, ua.VariantType.ByteString), ua.LocalizedText("seen"))
-            feed(rig, [5000, 6500, 5000, 5000])               # the station carries it out at its next pump
+            await pumped(rig, cond.call_method(ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
+                                               ua.Variant(ev.EventId, ua.VariantType.ByteString),
+                                               ua.LocalizedText("seen")))
+            feed(rig, [5000, 6500, 5000, 5000])               # carried out at the station's pump: the next event
 
             async def acked():
                 return [e for e in events if e.ConditionName == "deviation:n1:r1" and getattr(e, "AckedState/Id")
@@ -341,8 +352,8 @@ def test_shelving_methods_become_the_stations_shelve_and_unshelve_with_the_user(
                 await shelving.call_method(SHELVE, ua.Variant(0.0, ua.VariantType.Double))
             with pytest.raises(ua.UaStatusCodeError, match="BadConditionNotShelved"):
                 await shelving.call_method(UNSHELVE)
-            await shelving.call_method(SHELVE2, ua.Variant(600_000.0, ua.VariantType.Double),
-                                       ua.LocalizedText("rope 2 being re-tensioned"))
+            await pumped(rig, shelving.call_method(SHELVE2, ua.Variant(600_000.0, ua.VariantType.Double),
+                                                   ua.LocalizedText("rope 2 being re-tensioned")))
             feed(rig, [5000, 6500, 5000, 5000])
 
             async def shelved():
@@ -354,7 +365,7 @@ def test_shelving_methods_become_the_stations_shelve_and_unshelve_with_the_user(
             assert 0 < getattr(sh, "ShelvingState/UnshelveTime") <= 600_000.0
             with pytest.raises(ua.UaStatusCodeError, match="BadConditionAlreadyShelved"):
                 await shelving.call_method(SHELVE, ua.Variant(60_000.0, ua.VariantType.Double))
-            await shelving.call_method(UNSHELVE)
+            await pumped(rig, shelving.call_method(UNSHELVE))
             feed(rig, [5000, 6500, 5000, 5000])
 
             async def unshelved():
@@ -362,7 +373,7 @@ def test_shelving_methods_become_the_stations_shelve_and_unshelve_with_the_user(
                         and getattr(e, "ShelvingState/CurrentState").Text == "Unshelved"]
             await until(unshelved)
             # OneShotShelve: shelved until the alarm returns to normal, then unshelved by the face
-            await shelving.call_method(ONE_SHOT)
+            await pumped(rig, shelving.call_method(ONE_SHOT))
             feed(rig, [5000, 6500, 5000, 5000])
 
             async def one_shot():
@@ -383,6 +394,55 @@ def test_shelving_methods_become_the_stations_shelve_and_unshelve_with_the_user(
     assert "rope 2 being re-tensioned" in shelves[-2]["message"]
     assert "OneShotShelve" in shelves[-1]["message"]
     assert [e["operator"] for e in _log_events(rig, "unshelve", aid)] == ["alice (opcua)", "alice (opcua one-shot)"]
+
+
+def test_a_refused_command_is_its_callers_method_result_and_no_other_faces(rig, client_cert, caplog, monkeypatch):
+    """The station refuses a shelve (here its engine refuses every one): the OPC UA caller's
+    TimedShelve fails with BadInvalidState and the face logs its own refusal; another face's
+    refused command (the web's) is not taken for the OPC UA face's: the face logs nothing of it."""
+    import logging
+    from ropemon.station.pipeline import Shelve
+    aid = "deviation:n1:r1"
+    h = rig["stations"].hoists["north"]
+
+    def refuse(*args, **kw):
+        raise ValueError("shelving refused by the test")
+    monkeypatch.setattr(h.alarms.engine, "shelve", refuse)
+    caplog.set_level(logging.WARNING, logger="ropemon.station.opcua")
+
+    async def go():
+        c = await connect(rig, client_cert)
+        try:
+            events = []
+
+            class Handler:
+                def event_notification(self, event):
+                    events.append(event)
+            sub = await c.create_subscription(50, Handler())
+            await sub.subscribe_alarms_and_conditions(c.nodes.server, ua.ObjectIds.AlarmConditionType)
+            feed(rig, [5000, 6500, 5000, 5000], n=10)
+            await c.get_node(ua.NodeId(ua.ObjectIds.ConditionType)).call_method(
+                ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                ua.Variant(sub.subscription_id, ua.VariantType.UInt32))
+
+            async def present():
+                return [e for e in events if e.ConditionName == aid and getattr(e, "ActiveState/Id")]
+            ev = (await until(present))[-1]
+            shelving = await c.get_node(ev.NodeId).get_child("2:ShelvingState")
+            with pytest.raises(ua.UaStatusCodeError, match="BadInvalidState"):
+                await pumped(rig, shelving.call_method(SHELVE, ua.Variant(60_000.0, ua.VariantType.Double)))
+            web = rig["stations"].submit("north", Shelve("olga", "web", alarm=aid, minutes=5, reason="rope change"))
+            await pumped(rig, asyncio.wrap_future(web))
+            out = web.result()
+            assert not out.ok and out.reason == "shelving refused by the test" and out.command.via == "web"
+            await sub.delete()
+        finally:
+            await c.disconnect()
+    asyncio.run(go())
+    said = [r.getMessage() for r in caplog.records if r.name == "ropemon.station.opcua"]
+    assert len(said) == 1 and "alice" in said[0] and "shelving refused by the test" in said[0], said
+    refused = [e["operator"] for e in _log_events(rig, "refused", aid)]
+    assert refused[-2:] == ["alice (opcua)", "olga (web)"]
 
 
 def test_event_history_reads_the_logs_alarm_events(rig, client_cert):

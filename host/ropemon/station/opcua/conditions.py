@@ -1,5 +1,6 @@
 """The OPC UA face's alarm conditions: the station's alarm state as AlarmConditionType events,
-Acknowledge and the ShelvedStateMachine's methods as the station's commands (docs/integration.md).
+Acknowledge and the ShelvedStateMachine's methods as the station's commands (docs/integration.md),
+the method's result the command's outcome (`_carry_out`).
 
 `_Conditions` is a part of `OpcuaFace` (face.py): its methods run on the face, with the face's
 attributes and its `_object`, `_nid` and `_write`.
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import contextvars
 import datetime
+import logging
 import math
 import time
 import uuid
@@ -15,12 +17,15 @@ from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
 from ropemon.station.alarms import PRIORITY, ActiveAlarm
+from ropemon.station.commands import Command, CommandOutcome, Ticket, outcome_within
 from ropemon.station.opcua.history import _utc
 from ropemon.station.pipeline import Acknowledge, AlarmState, Shelve, Unshelve
 from ropemon.station.scadavalues import standing_of
 
 if TYPE_CHECKING:
     from ropemon.station.opcua.face import _Hoist
+
+log = logging.getLogger("ropemon.station.opcua")
 
 #: OPC UA Severity (1..1000) of each station alarm priority (1 highest).
 SEVERITY = {1: 800, 2: 500, 3: 300}
@@ -114,7 +119,7 @@ class _Conditions:
                 entry[1] = True
             elif seen:
                 del h.one_shot[aid]
-                self.stations.submit(h.id, Unshelve(user, "opcua one-shot", alarm=aid))
+                _log_refusal(h.id, self.stations.submit(h.id, Unshelve(user, "opcua one-shot", alarm=aid)))
 
     async def _condition(self, h: _Hoist, aid: str) -> Any:
         from asyncua import ua
@@ -268,8 +273,7 @@ class _Conditions:
         key = h.alarms.get(aid)
         if key is None or not key[2]:
             return ua.StatusCode(ua.StatusCodes.BadConditionBranchAlreadyAcked)
-        self.stations.submit(hoist, Acknowledge(u.name, "opcua", alarm=aid))
-        return ua.StatusCode()
+        return await self._carry_out(hoist, Acknowledge(u.name, "opcua", alarm=aid))
 
     def _shelving(self, how: str) -> Any:
         async def call(parent: Any, *args: Any) -> Any:
@@ -302,8 +306,7 @@ class _Conditions:
             if not shelved:
                 return ua.StatusCode(ua.StatusCodes.BadConditionNotShelved)
             h.one_shot.pop(aid, None)
-            self.stations.submit(hoist, Unshelve(u.name, "opcua", alarm=aid))
-            return ua.StatusCode()
+            return await self._carry_out(hoist, Unshelve(u.name, "opcua", alarm=aid))
         if how == "timed":
             if not args:
                 return ua.StatusCode(ua.StatusCodes.BadArgumentsMissing)
@@ -316,13 +319,44 @@ class _Conditions:
             if shelved and aid not in h.one_shot:
                 return ua.StatusCode(ua.StatusCodes.BadConditionAlreadyShelved)
             h.one_shot.pop(aid, None)
-            self.stations.submit(hoist, Shelve(u.name, "opcua", alarm=aid, minutes=ms / 60_000.0,
-                                               reason=comment or "TimedShelve over OPC UA"))
-            return ua.StatusCode()
+            return await self._carry_out(hoist, Shelve(u.name, "opcua", alarm=aid, minutes=ms / 60_000.0,
+                                                       reason=comment or "TimedShelve over OPC UA"))
         if shelved and aid in h.one_shot:
             return ua.StatusCode(ua.StatusCodes.BadConditionAlreadyShelved)
         view = h.views.get(aid)
         h.one_shot[aid] = [u.name, bool(view is not None and view.present), False]
-        self.stations.submit(hoist, Shelve(u.name, "opcua", alarm=aid, minutes=MAX_SHELVE_MIN,
-                                           reason=comment or "OneShotShelve over OPC UA: until it returns to normal"))
+        code = await self._carry_out(hoist, Shelve(u.name, "opcua", alarm=aid, minutes=MAX_SHELVE_MIN,
+                                                   reason=comment or "OneShotShelve over OPC UA: until it returns "
+                                                   "to normal"))
+        if not code.is_good():
+            h.one_shot.pop(aid, None)
+        return code
+
+    async def _carry_out(self, hoist: str, command: Command) -> Any:
+        """Hand `command` to the hoist's station and wait for its outcome (`OUTCOME_WAIT_S` at
+        most): Good when carried out, BadInvalidState when the station refused it (logged). Good
+        too when the station has not answered in time: it carries the command out later, a
+        refusal then only logged."""
+        from asyncua import ua
+        ticket = self.stations.submit(hoist, command)
+        out = await outcome_within(ticket)
+        if out is None:
+            _log_refusal(hoist, ticket)
+            return ua.StatusCode()
+        if not out.ok:
+            _log_refused(hoist, out)
+            return ua.StatusCode(ua.StatusCodes.BadInvalidState)
         return ua.StatusCode()
+
+
+def _log_refused(hoist: str, out: CommandOutcome) -> None:
+    who = out.command.operator if out.command is not None else "?"
+    log.warning("hoist %s: %s %s by %s refused: %s", hoist, out.action, out.alarm, who, out.reason)
+
+
+def _log_refusal(hoist: str, ticket: Ticket) -> None:
+    """Log the face's own command if the station refuses it (whenever it carries it out)."""
+    def done(t: Ticket) -> None:
+        if not t.cancelled() and t.exception() is None and not t.result().ok:
+            _log_refused(hoist, t.result())
+    ticket.add_done_callback(done)

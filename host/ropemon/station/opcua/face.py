@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ropemon.station.alarms import ActiveAlarm, AlarmEvent
+from ropemon.station.alarms import ActiveAlarm
 from ropemon.station.link import Received
 from ropemon.station.opcua.certs import (CERT_FILE, TrustList, _certificate_check, _UserManager, certificate_uri,
                                          ensure_certificate)
@@ -65,10 +65,6 @@ class OpcuaListener(Listener):
 
     def on_status(self, status: StationStatus) -> None:
         self.face.post(self.hoist, "status", status)
-
-    def on_event(self, event: AlarmEvent) -> None:
-        if event.action == "refused" and event.operator and event.operator.endswith("(opcua)"):
-            log.warning("hoist %s: %s", self.hoist, event.message)
 
     def health(self) -> str | None:
         return self.face.health()
