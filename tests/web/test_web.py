@@ -5,6 +5,7 @@ The station's thread is the test's: frames are fed and `step()` pumps and ticks,
 """
 from __future__ import annotations
 
+import concurrent.futures
 import json
 import os
 import re
@@ -99,11 +100,27 @@ class Site:
         assert r.status_code == 303, r.text
         return csrf_of(self.client.get("/hoist/north").text)
 
+    def act(self, path: str, data: dict, client=None, **kw):
+        """POST an action that reaches the station (`pumped`)."""
+        return pumped(self, lambda: (client or self.client).post(path, data=data, **kw))
+
     def close(self) -> None:
         self.client.close()
         for r in self.attached.ctx.readers.values():
             r.close()
         self.stations.close()
+
+
+def pumped(site: Site, send):
+    """`send()` (a request whose action reaches the station) made from another thread while the
+    station's thread (the test's) pumps: the face answers once the station has carried it out."""
+    with concurrent.futures.ThreadPoolExecutor(1) as ex:
+        fut = ex.submit(send)
+        while not fut.done():
+            for h in site.stations.hoists.values():
+                h.station.pump()
+            time.sleep(0.005)
+        return fut.result()
 
 
 def csrf_of(html: str) -> str:
@@ -285,9 +302,9 @@ def test_an_operator_acknowledges_and_the_log_says_who(site, tmp_path):
     page = site.client.get("/hoist/north").text
     assert f'data-alarm-id="{aid}"' in page and 'class="ack"' in page and 'id="ack-all"' in page
     assert 'id="ack-all-form">' in page                  # shown while an alarm awaits acknowledgement
-    r = site.client.post("/hoist/north/ack", data={"csrf": token, "alarm": aid}, headers={"X-Requested-With": "fetch"})
-    assert r.status_code == 200 and r.json()["ok"], r.text
-    site.stations.step()                                  # the station's thread carries it out
+    r = site.act("/hoist/north/ack", {"csrf": token, "alarm": aid}, headers={"X-Requested-With": "fetch"})
+    assert r.status_code == 200 and r.json() == {"ok": True, "done": f"acknowledged {aid}"}, r.text
+    site.stations.step()                                  # carried out on the station's thread (above)
     (alarm,) = [a for a in site.stations.hoists["north"].alarms.engine.active() if a.id == aid]
     assert not alarm.latched and alarm.acked_by == "olga (web)"
     with Store(tmp_path / "data" / "north.db", readonly=True) as st:
@@ -300,7 +317,7 @@ def test_an_operator_acknowledges_and_the_log_says_who(site, tmp_path):
 def test_a_form_post_acknowledges_all_and_redirects_back(site):
     raise_deviation(site)
     token = site.login("olga")
-    r = site.client.post("/hoist/north/ack", data={"csrf": token, "alarm": "*"}, follow_redirects=False)
+    r = site.act("/hoist/north/ack", {"csrf": token, "alarm": "*"}, follow_redirects=False)
     assert r.status_code == 303 and r.headers["location"] == "/hoist/north"
     site.stations.step()
     assert not [a for a in site.stations.hoists["north"].alarms.engine.active() if a.latched]
@@ -341,8 +358,8 @@ def test_shelve_with_reason_and_minutes(site):
                       ({"alarm": "<script>", "minutes": "30", "reason": "rope change"}, "alarm")):
         r = post("/hoist/north/shelve", data={"csrf": token, **data}, headers=h)
         assert r.status_code == 400 and r.json()["field"] == fld, (data, r.text)
-    r = post("/hoist/north/shelve", data={"csrf": token, "alarm": aid, "minutes": "30", "reason": "rope change"},
-             headers=h)
+    r = site.act("/hoist/north/shelve", {"csrf": token, "alarm": aid, "minutes": "30", "reason": "rope change"},
+                 headers=h)
     assert r.status_code == 200 and r.json()["ok"]
     site.stations.step()
     eng = site.stations.hoists["north"].alarms.engine
@@ -351,7 +368,7 @@ def test_shelve_with_reason_and_minutes(site):
     assert hidden.shelved_until == pytest.approx(site.now + 30 * 60, abs=1.0)
     page = site.client.get("/hoist/north").text
     assert f'class="hidden-alarm" data-alarm-id="{aid}"' in page
-    r = post("/hoist/north/unshelve", data={"csrf": token, "alarm": aid}, headers=h)
+    r = site.act("/hoist/north/unshelve", {"csrf": token, "alarm": aid}, headers=h)
     assert r.status_code == 200
     site.stations.step()
     assert aid in [a.id for a in eng.active()]
@@ -365,11 +382,52 @@ def test_out_of_service_needs_an_engineer(site):
     assert r.status_code == 403
     site.client.post("/logout", data={"csrf": token})
     token = site.login("erin")
-    r = site.client.post("/hoist/north/remove", data={"csrf": token, "alarm": aid, "reason": "transmitter swap"},
-                         headers={"X-Requested-With": "fetch"})
+    r = site.act("/hoist/north/remove", {"csrf": token, "alarm": aid, "reason": "transmitter swap"},
+                 headers={"X-Requested-With": "fetch"})
     assert r.status_code == 200, r.text
     site.stations.step()
     assert [a.state for a in site.stations.hoists["north"].alarms.engine.hidden()] == ["out_of_service"]
+
+
+def test_a_refused_command_is_its_senders_response_and_not_another_faces(site, monkeypatch):
+    """The station refuses a shelve (here its engine refuses every one): the web's response says
+    so (409, the reason; a form post's flash); another face's refused command (OPC UA's) is not
+    taken for the web's: the web's next action is answered as carried out."""
+    from ropemon.station.pipeline import Shelve
+    aid = raise_deviation(site)
+    token = site.login("olga")
+    h = {"X-Requested-With": "fetch"}
+
+    def refuse(*args, **kw):
+        raise ValueError("shelving refused by the test")
+    monkeypatch.setattr(site.stations.hoists["north"].alarms.engine, "shelve", refuse)
+    shelve = {"csrf": token, "alarm": aid, "minutes": "30", "reason": "rope change"}
+    r = site.act("/hoist/north/shelve", shelve, headers=h)
+    assert r.status_code == 409 and r.json() == {"ok": False, "refused": True, "error": "shelving refused by the test"}
+    r = site.act("/hoist/north/shelve", shelve, follow_redirects=False)
+    assert r.status_code == 303
+    assert "refused: shelving refused by the test" in site.client.get("/hoist/north").text
+    other = site.stations.submit("north", Shelve("alice", "opcua", alarm=aid, minutes=5, reason="rope change"))
+    site.stations.step()
+    assert not other.result(timeout=0).ok
+    r = site.act("/hoist/north/ack", {"csrf": token, "alarm": aid}, headers=h)
+    assert r.status_code == 200 and r.json() == {"ok": True, "done": f"acknowledged {aid}"}
+    site.stations.hoists["north"].store.commit()
+    with Store(site.stations.hoists["north"].db_path, readonly=True) as st:
+        refused = [e["operator"] for e in st.events() if e["action"] == "refused"]
+    assert refused == ["olga (web)", "olga (web)", "alice (opcua)"]
+
+
+def test_an_action_the_station_does_not_answer_in_time_is_sent_as_pending(site, monkeypatch):
+    from ropemon.station import commands
+    aid = raise_deviation(site)
+    token = site.login("olga")
+    monkeypatch.setattr(commands, "OUTCOME_WAIT_S", 0.05)
+    r = site.client.post("/hoist/north/ack", data={"csrf": token, "alarm": aid}, headers={"X-Requested-With": "fetch"})
+    assert r.status_code == 200 and r.json()["pending"] is True and "not answered yet" in r.json()["done"]
+    site.stations.step()                                  # carried out at the station's next pump all the same
+    (alarm,) = [a for a in site.stations.hoists["north"].alarms.engine.active() if a.id == aid]
+    assert not alarm.latched
 
 
 def test_accept_rewound_only_for_a_refused_node(site):

@@ -36,16 +36,16 @@ def _copy(site: Site, client=("testclient", 50000)):
     return other
 
 
-def _ack(client, token: str, alarm: str) -> int:
-    return client.post("/hoist/north/ack", data={"csrf": token, "alarm": alarm},
-                       headers={"X-Requested-With": "fetch"}).status_code
+def _ack(site: Site, client, token: str, alarm: str) -> int:
+    return site.act("/hoist/north/ack", {"csrf": token, "alarm": alarm}, client=client,
+                    headers={"X-Requested-With": "fetch"}).status_code
 
 
 def test_a_copied_cookie_is_refused_after_logout(site):
     aid = raise_deviation(site)
     token = site.login("olga")
     thief = _copy(site)
-    assert _ack(thief, token, aid) == 200                  # the copy works while the session lives
+    assert _ack(site, thief, token, aid) == 200                 # the copy works while the session lives
     second = _copy(site)                                   # another screen logged in as olga too
     second.cookies.clear()
     t2 = csrf_of(second.get("/login").text)
@@ -53,8 +53,8 @@ def test_a_copied_cookie_is_refused_after_logout(site):
                        follow_redirects=False).status_code == 303
     t2 = csrf_of(second.get("/hoist/north").text)
     site.client.post("/logout", data={"csrf": token}, follow_redirects=False)
-    assert _ack(thief, token, aid) == 401
-    assert _ack(second, t2, aid) == 401                    # logout ends every session of the user
+    assert _ack(site, thief, token, aid) == 401
+    assert _ack(site, second, t2, aid) == 401                   # logout ends every session of the user
     page = thief.get("/hoist/north").text
     assert 'data-user=""' in page and 'id="logout"' not in page
     thief.close()
@@ -65,14 +65,14 @@ def test_a_copied_cookie_is_refused_after_a_password_change_by_ropemon_user_pass
     aid = raise_deviation(site)
     token = site.login("olga")
     thief = _copy(site)
-    assert _ack(thief, token, aid) == 200
+    assert _ack(site, thief, token, aid) == 200
     r = subprocess.run([sys.executable, "-m", "ropemon.cli", "user", "passwd", str(tmp_path / "users.toml"), "olga",
                         "--password-stdin"], input="olga's new long secret\n", capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0, r.stderr
     assert accounts.load_users(tmp_path / "users.toml")["olga"].role == "operator"      # the role kept
-    assert _ack(thief, token, aid) == 401
-    assert _ack(site.client, token, aid) == 401            # the session it was copied from too
+    assert _ack(site, thief, token, aid) == 401
+    assert _ack(site, site.client, token, aid) == 401           # the session it was copied from too
     r = subprocess.run([sys.executable, "-m", "ropemon.cli", "user", "passwd", str(tmp_path / "users.toml"), "kim",
                         "--password-stdin"], input="a long password\n", capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and "no user 'kim'" in r.stderr
@@ -89,10 +89,10 @@ def test_a_copied_cookie_is_refused_after_a_role_change(site, tmp_path):
     aid = raise_deviation(site)
     token = site.login("olga")
     thief = _copy(site)
-    assert _ack(thief, token, aid) == 200
+    assert _ack(site, thief, token, aid) == 200
     accounts.add_user(tmp_path / "users.toml", "olga", "engineer", PASSWORDS["olga"], CHEAP)   # up, not down
-    assert _ack(thief, token, aid) == 401
-    assert _ack(site.client, token, aid) == 401
+    assert _ack(site, thief, token, aid) == 401
+    assert _ack(site, site.client, token, aid) == 401
     thief.close()
 
 
@@ -107,12 +107,12 @@ def test_an_idle_session_ends_and_use_keeps_it(tmp_path):
         now[0] += 100
         assert s.client.get("/hoist/north").status_code == 200          # a page: the session is used
         now[0] += 100
-        assert _ack(s.client, token, aid) == 200                        # 200 s since login, 100 s idle
+        assert _ack(s, s.client, token, aid) == 200             # 200 s since login, 100 s idle
         now[0] += 110
         assert s.client.get("/hoist/north/snapshot.json").status_code == 200   # the page's own data: not use
         now[0] += 11
-        assert _ack(s.client, token, aid) == 401                        # 121 s idle
-        assert _ack(s.client, token, aid) == 401
+        assert _ack(s, s.client, token, aid) == 401             # 121 s idle
+        assert _ack(s, s.client, token, aid) == 401
     finally:
         s.close()
 

@@ -113,10 +113,11 @@ def settle(ticket: Ticket, outcome: CommandOutcome) -> None:
         pass
 
 
-async def outcome_within(ticket: Ticket, wait_s: float = OUTCOME_WAIT_S) -> CommandOutcome | None:
-    """The outcome of a submitted command, awaited in an asyncio loop for at most `wait_s`;
-    None: the station has not carried it out yet (it still will)."""
+async def outcome_within(ticket: Ticket, wait_s: float | None = None) -> CommandOutcome | None:
+    """The outcome of a submitted command, awaited in an asyncio loop for at most `wait_s`
+    (default `OUTCOME_WAIT_S`); None: the station has not carried it out yet (it still will)."""
     try:
-        return await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(ticket)), wait_s)
+        return await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(ticket)),
+                                      OUTCOME_WAIT_S if wait_s is None else wait_s)
     except asyncio.TimeoutError:
         return None

@@ -12,7 +12,9 @@
     POST /hoist/{id}/ack | shelve | unshelve | remove | return | accept-rewound   (login + CSRF)
 
 An action becomes the station's command (`stations.submit(hoist, Acknowledge(user, "web"))`),
-carried out on the station's thread; the web never touches a listener or the alarm engine.
+carried out on the station's thread; the web never touches a listener or the alarm engine. The
+response waits for the command's outcome (`commands.OUTCOME_WAIT_S` at most): refused by the
+station 409 with its reason; not answered in time 200 with `pending` (it is carried out later).
 Every refused input names its field and the reason (400); without a login 401 (a form is sent
 to the login page), without the CSRF token 403, without the role for it 403; a login while the
 hashing pool is full 429 (users.HashPool).
@@ -47,6 +49,7 @@ from starlette.staticfiles import StaticFiles
 from starlette.templating import Jinja2Templates
 
 import ropemon
+from ropemon.station.commands import outcome_within
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, RemoveFromService, ReturnToService, Shelve,
                                       Unshelve)
 from ropemon.station.store import StoreError
@@ -611,9 +614,16 @@ def _act(action: str) -> Any:
                 return JSONResponse({"ok": False, "field": e.field, "error": e.reason}, e.status)
             request.session["flash"] = f"refused: {e.field}: {e.reason}"
             return RedirectResponse(f"/hoist/{lst.hoist_id}", status_code=303)
-        c.stations.submit(lst.hoist_id, cmd)
+        out = await outcome_within(c.stations.submit(lst.hoist_id, cmd))
+        if out is not None and not out.ok:
+            if as_json:
+                return JSONResponse({"ok": False, "refused": True, "error": out.reason}, 409)
+            request.session["flash"] = f"refused: {out.reason}"
+            return RedirectResponse(f"/hoist/{lst.hoist_id}", status_code=303)
+        if out is None:
+            done += " (the station has not answered yet)"
         if as_json:
-            return JSONResponse({"ok": True, "done": done})
+            return JSONResponse({"ok": True, "done": done, **({"pending": True} if out is None else {})})
         request.session["flash"] = done
         return RedirectResponse(f"/hoist/{lst.hoist_id}", status_code=303)
 
