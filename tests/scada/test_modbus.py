@@ -136,6 +136,24 @@ def test_the_ack_coil_acknowledges_the_hoists_alarms_through_the_station(served)
     assert acks and acks[0].operator.startswith("modbus 127.0.0.1:") and acks[0].operator.endswith("(modbus)")
 
 
+def test_a_refused_coil_acknowledgement_is_logged_by_the_face_from_its_outcome(served, caplog, monkeypatch):
+    """The station refuses the acknowledgement (here its engine refuses every one): the face
+    logs its own command's refusal; another face's refused acknowledgement it does not log."""
+    import logging
+    from ropemon.station.pipeline import Acknowledge
+    rig, face, client = served(1, "ack_coil = true\n")
+
+    def refuse(*args, **kw):
+        raise ValueError("acknowledging refused by the test")
+    monkeypatch.setattr(rig.stations.hoists["h0"].alarms.engine, "ack", refuse)
+    caplog.set_level(logging.WARNING, logger="ropemon.station.modbus")
+    assert not client.write_coil(0, True).isError()          # answered at once
+    rig.stations.submit("h0", Acknowledge("olga", "web"))
+    rig.step()
+    said = [r.getMessage() for r in caplog.records if r.name == "ropemon.station.modbus"]
+    assert len(said) == 1 and "modbus 127.0.0.1:" in said[0] and "refused by the test" in said[0], said
+
+
 def test_a_bad_modbus_table_is_refused_with_the_field(tmp_path):
     rig = Rig(tmp_path, 1, "[modbus]\nport = 70000\n")
     try:

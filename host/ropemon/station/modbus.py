@@ -23,7 +23,8 @@ The listener (`ModbusValues`, one per hoist, on the station's thread) builds the
 block and swaps in a new tuple; the server (pymodbus, its own asyncio loop in its own
 thread) reads whichever tuple is current. The station never waits for the server.
 A coil write (with ack_coil) goes through the station's command path
-(`StationSet.submit(hoist, Acknowledge("modbus <peer>", "modbus"))`).
+(`StationSet.submit(hoist, Acknowledge("modbus <peer>", "modbus"))`); the write is answered at
+once, and the face logs a refusal from the command's outcome when the station carries it out.
 """
 from __future__ import annotations
 
@@ -186,6 +187,14 @@ class ModbusValues(HoistValues):
         w[base + N_VERSION] = v.version & 0xFFFF
 
 
+def _log_refused(hoist: str, ticket: Any) -> None:
+    """The station refused the face's acknowledgement (its outcome, on the station's thread)."""
+    out = None if ticket.cancelled() or ticket.exception() is not None else ticket.result()
+    if out is not None and not out.ok:
+        who = out.command.operator if out.command is not None else "?"
+        log.warning("hoist %s: acknowledge by %s refused: %s", hoist, who, out.reason)
+
+
 class _Context(ModbusServerContext):
     """The register map as pymodbus's datastore: reads from the current tuples, coil writes
     as acknowledgements. Runs on the server's loop."""
@@ -316,7 +325,9 @@ class ModbusFace:
 
     def acknowledge(self, index: int, peer: str) -> None:
         self.acks += 1
-        self.stations.submit(self.hoist_ids[index], Acknowledge(f"modbus {peer}", "modbus"))
+        hoist = self.hoist_ids[index]
+        ticket = self.stations.submit(hoist, Acknowledge(f"modbus {peer}", "modbus"))
+        ticket.add_done_callback(lambda t: _log_refused(hoist, t))
 
     # -- the server's thread -----------------------------------------------------------------
 
