@@ -50,6 +50,17 @@ def test_a_station_events_numbers_have_names_and_keep_the_logs_and_the_faces_for
     assert AlarmEvent.from_row(row) == event
 
 
+def test_the_headless_json_lines_show_a_station_events_numbers_where_they_always_were():
+    import io
+    import json
+    from ropemon.station.monitor import JsonAlarmLines
+    out = io.StringIO()
+    JsonAlarmLines(out).on_event(AlarmEvent(time_s=5.0, action="rebase", alarm="rewound:n1", kind="rewound", node=1,
+                                            seq=9, prev_seq=4, message="baseline"))
+    line = json.loads(out.getvalue())
+    assert (line["event"], line["value"], line["threshold"]) == ("rebase", 9, 4)
+
+
 def _old_rows(path) -> None:
     """Events as the station logged them before the named fields: the numbers in value/threshold."""
     db = sqlite3.connect(path)
