@@ -70,9 +70,7 @@ class Site:
         (tmp_path / "station.toml").write_text(station_text)
         self.sf = load_station_file(tmp_path / "station.toml")
         self.now = time.time()
-        self.stations = StationSet(self.sf, clock=lambda: self.now)
-        for h in self.stations.hoists.values():
-            h.station.hub.clock = lambda: self.now          # rx times on the same clock (trips)
+        self.stations = StationSet(self.sf, clock=lambda: self.now, wall=lambda: self.now)  # rx times too (trips)
         web_users = Users(self.sf.web.users, ph=CHEAP) if self.sf.web.users else Users(None, ph=CHEAP)
         self.attached = attach(self.stations, self.sf.web, users=web_users)
         self.client = starlette_testclient.TestClient(self.attached.app)

@@ -9,8 +9,8 @@ regression-tests the algorithms against field recordings, and it is the first
 link of `ropemon demo`.
 
 With `--db` the frames then go through the hoist-room station's own data path
-(`ropemon.station.pipeline.Station`: decode with the node's key, merge, alarm
-engine, SQLite store), on a clock that is the node's frame time, so alarm
+(the station `ropemon.station.assembly.build_hoist` builds: decode with the node's
+key, merge, alarm engine, SQLite store), on a clock that is the node's frame time, so alarm
 debounces and trips are those of the recording; `ropemon report` and
 `ropemon export` read the database as they read a live log.
 """
@@ -24,10 +24,14 @@ import tempfile
 import time
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ropemon.firmware import FIRMWARE_DIR, micropython_command
 from ropemon.commission.reference import RS, RSENS_HEADER
 from ropemon.station import files
+
+if TYPE_CHECKING:
+    from ropemon.station.assembly import HoistSpec
 
 DEFAULT_CONFIG = FIRMWARE_DIR / "node.json"
 RECEIVER = "replay"   # the receiver name of the replayed frames in the database
@@ -135,12 +139,16 @@ def frame_time_s(body: bytes) -> float | None:
         return None
 
 
-def station_config(config: str | Path) -> tuple[dict[int, bytes], object]:
-    """(keys, AlarmSettings) from a node.json, as `ropemon monitor --config` takes them. Raises ReplayError."""
+def replay_spec(config: str | Path) -> "HoistSpec":
+    """The replay's one hoist (`assembly.HoistSpec`): figures, key and alarm settings from a
+    node.json, as `ropemon monitor --config` takes them. Raises ReplayError."""
+    from ropemon.station.assembly import HoistSpec
     from ropemon.station.sitefigures import SiteFigures, alarm_settings
     from ropemon.station.protocol import load_node_keys
     try:
-        return load_node_keys(config), alarm_settings(SiteFigures.from_node_json(config))
+        keys = load_node_keys(config)
+        site = SiteFigures.from_node_json(config)
+        return HoistSpec(RECEIVER, site, keys, alarm_settings(site))
     except ValueError as e:
         raise ReplayError(str(e)) from None
 
@@ -151,15 +159,16 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
     The frames are decoded with the node's key from `config`, merged, run through the
     alarm engine with the thresholds `ropemon monitor --config` would use, and logged,
     one receiver (`replay`), on a clock that is the frames' node time (s since the node
-    started; it is kept from going back if the node restarted within the recording).
+    started; it is kept from going back if the node restarted within the recording): the
+    alarms' timing, the events' and link statistics' times and the frames' rx times.
     Returns figures: frames, trips, decode counts and `alarms` {kind: {"raise": n, "clear": n}}.
     Raises ReplayError (config unreadable, database exists or unusable).
     """
-    from ropemon.station.pipeline import AlarmListener, Station, StoreListener
+    from ropemon.station.assembly import build_hoist
     from ropemon.station.store import Store, StoreError
 
     frames_bin, db = Path(frames_bin), Path(db)
-    keys, settings = station_config(config)
+    spec = replay_spec(config)
     if db.exists():
         raise ReplayError(f"{db}: exists; --db writes a new log (remove it or name another file)")
     db.parent.mkdir(parents=True, exist_ok=True)
@@ -168,9 +177,8 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
     except StoreError as e:
         raise ReplayError(str(e)) from None
     clock = NodeClock()
-    alarm_listener = AlarmListener(settings)
-    session = Station(keys, [alarm_listener, StoreListener(store)], clock)
-    session.hub.clock = clock          # frames.rx_time and the trips: node time too
+    hoist = build_hoist(spec, clock, wall=clock, store=store, db_path=db)
+    session = hoist.station
     offset = 0.0                       # added after a restart of the node's clock
     last = next_tick = None
     try:
@@ -196,7 +204,7 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
                 alarms.setdefault(ev["kind"], Counter())[ev["action"]] += 1
         fig = {"frames": store.committed_frames, "trips": len(store.trips()), "decode": counts,
                "alarms": {k: {"raise": c["raise"], "clear": c["clear"]} for k, c in sorted(alarms.items())},
-               "still_raised": sorted(a.id for a in alarm_listener.engine.active() if a.present)}
+               "still_raised": sorted(a.id for a in hoist.alarms.engine.active() if a.present)}
     finally:
         session.hub.stop()
         store.close()
@@ -237,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
         out = args.out or str(Path(tmp) / "frames.bin")
         try:
             if args.db:
-                station_config(args.config)   # refuse a config the station cannot use before the firmware runs
+                replay_spec(args.config)      # refuse a config the station cannot use before the firmware runs
             fig = replay(args.sensors, out, args.config, args.interpreter)
             print(f"{args.sensors}: {fig['samples']} samples ({fig['stream_s']:.1f} s of node time) -> "
                   f"{fig['frames']} frames, {fig['bytes']} bytes" + (f" in {args.out}" if args.out else "")

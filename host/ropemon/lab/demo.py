@@ -24,15 +24,18 @@ from typing import Any, Callable
 import numpy as np
 
 from ropemon.lab import radio
-from ropemon.lab.localnet import free_port
 from ropemon.firmware import FIRMWARE_DIR
 from ropemon.station.alarms import AlarmSettings
+from ropemon.station.assembly import HoistSpec, build_hoist, run_loop
 from ropemon.station.link import Received
-from ropemon.station.pipeline import AlarmListener, Listener, Station, StoreListener
+from ropemon.station.pipeline import AlarmListener, Listener, Station
 from ropemon.station.protocol import DAN_TO_N, Frame, FrameError, L, decode_raw, decode_wire, load_node_keys
 from ropemon.station.report import REST_AVG_S, SETTLE_S
+from ropemon.station.sitefigures import SiteFigures
 
 DEFAULT_OUT = "out/demo"
+DEMO_HOIST = "demo"
+DEMO_OPERATOR = "demo"
 
 
 class DemoClock:
@@ -199,14 +202,13 @@ class DemoHost:
 
 
 def demo_host(keys: dict[int, bytes] | None, settings: AlarmSettings | None, clock: Callable[[], float],
-              store: Any = None, view: Any = None) -> DemoHost:
-    """The hoist room's station (alarms, the log, the view) and a frame keeper, on the demo's
-    clock (rx times too)."""
-    alarms, kept = AlarmListener(settings), FrameKeeper()
-    listeners: list[Listener] = [alarms] + ([StoreListener(store)] if store is not None else []) + [kept]
-    station = Station(keys, listeners + ([view] if view is not None else []), clock)
-    station.hub.clock = clock
-    return DemoHost(station, alarms, kept, store, view)
+              store: Any = None, view: Any = None, site: Any = None) -> DemoHost:
+    """The hoist room's station (`assembly.build_hoist`: alarms, the log, a frame keeper, the
+    view), everything on the demo's clock: alarm timing, events, rx times."""
+    kept = FrameKeeper()
+    spec = HoistSpec(DEMO_HOIST, site or SiteFigures(), keys or {}, settings)
+    hoist = build_hoist(spec, clock, wall=clock, store=store, views=[kept] + ([view] if view is not None else []))
+    return DemoHost(hoist.station, hoist.alarms, kept, store, view)
 
 
 def simulate(scenario: str, sim_dir: Path, seed: int) -> None:
@@ -217,46 +219,64 @@ def simulate(scenario: str, sim_dir: Path, seed: int) -> None:
         raise RuntimeError(f"simulate {scenario} failed (exit {r.returncode}):\n{r.stdout[-2000:]}")
 
 
+def start_players(ports: dict, deliveries: dict[str, list[radio.Delivery]], speed: float, station: Station,
+                  who: str, players: list, drain_s: float = 1.0) -> Callable[[], bool]:
+    """Once every receiver port of `station` is open (pyserial flushes the input when it opens a
+    port: writing sooner would throw the first frames away), start a `Player` per pty into
+    `players`, all measured from the same first time so that the lines stay in step. Returns
+    done(): the players ended and the station read every byte, or `drain_s` passed since."""
+    from ropemon.lab.vserial import Player
+
+    readers = list(station.hub.receivers.values())
+    deadline = time.monotonic() + 10.0
+    while not all(r.connected for r in readers):
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the {who} could not open the virtual ports: "
+                               + "; ".join(r.last_error or r.name for r in readers if not r.connected))
+        time.sleep(0.01)
+    first = min((d[0].t_s for d in deliveries.values() if d), default=0.0)
+    t0 = time.monotonic()
+    for name, vp in ports.items():
+        p = Player(vp, [(first, b"")] + [(d.t_s, d.data) for d in deliveries[name]], speed, t0=t0)
+        p.start()
+        players.append(p)
+    total = sum(len(d.data) for v in deliveries.values() for d in v)
+    quiet_since: list[float] = []   # when the players ended with bytes still unread
+
+    def done() -> bool:
+        if any(p.is_alive() for p in players):
+            return False
+        if sum(r.bytes_read for r in readers) >= total:
+            return True
+        if not quiet_since:
+            quiet_since.append(time.monotonic())
+        return time.monotonic() - quiet_since[0] > drain_s
+    return done
+
+
+def stop_players(players: list) -> dict[str, int]:
+    """Stop the players; bytes written per receiver (RuntimeError if one failed)."""
+    for p in players:
+        p.stop()
+        p.join(2.0)
+        if p.error is not None:
+            raise RuntimeError(f"playing receiver {p.port.name} failed: {p.error}")
+    return {p.port.name: p.written for p in players}
+
+
 def play_to_host(deliveries: dict[str, list[radio.Delivery]], host: DemoHost, speed: float, clock: DemoClock,
                  view_console=None, refresh_hz: float = 4.0, drain_s: float = 1.0) -> dict[str, int]:
     """Write each receiver's deliveries into its own pty, paced; the host reads the ptys
     with pyserial. Returns bytes written per receiver."""
-    from ropemon.lab.vserial import Player, VirtualPort
+    from ropemon.lab.vserial import VirtualPort
 
     ports = {name: VirtualPort(name) for name in deliveries}
-    players = []
+    players: list = []
     try:
-        first = min((d[0].t_s for d in deliveries.values() if d), default=0.0)
         session = host.station
-        readers = [session.add_port(vp.port, name).start() for name, vp in ports.items()]
-        # pyserial flushes the input when it opens a port: start writing only once
-        # every reader has its port open, or the first frames would be thrown away.
-        deadline = time.monotonic() + 10.0
-        while not all(r.connected for r in readers):
-            if time.monotonic() > deadline:
-                raise RuntimeError("the host could not open the virtual ports: "
-                                   + "; ".join(r.last_error or r.name for r in readers if not r.connected))
-            time.sleep(0.01)
-        t0 = time.monotonic()
         for name, vp in ports.items():
-            # every player measures from the same first time, so the two lines stay in step
-            events = [(first, b"")] + [(d.t_s, d.data) for d in deliveries[name]]
-            p = Player(vp, events, speed, t0=t0)
-            p.start()
-            players.append(p)
-        total = sum(len(d.data) for v in deliveries.values() for d in v)
-
-        quiet_since: list[float] = []   # when the players ended with bytes still unread
-
-        def done() -> bool:
-            if any(p.is_alive() for p in players):
-                return False
-            if sum(r.bytes_read for r in session.hub.receivers.values()) >= total:
-                return True
-            if not quiet_since:
-                quiet_since.append(time.monotonic())
-            return time.monotonic() - quiet_since[0] > drain_s
-
+            session.add_port(vp.port, name).start()
+        done = start_players(ports, deliveries, speed, session, "host", players, drain_s)
         if view_console is not None:
             from ropemon.station.monitor import live_loop
             live_loop(session, host.view, view_console, refresh_hz, done)
@@ -265,237 +285,16 @@ def play_to_host(deliveries: dict[str, list[radio.Delivery]], host: DemoHost, sp
                     p.stop()
             session.tick()
             view_console.print(host.view.render(session.clock()))  # the last screen stays visible
-        while not done():
-            session.pump()
-            session.tick()
-            time.sleep(0.05)
-        for p in players:
-            p.stop()
-            p.join(2.0)
-            if p.error is not None:
-                raise RuntimeError(f"playing receiver {p.port.name} failed: {p.error}")
+        run_loop([session], 0.05, done)
+        written = stop_players(players)
         session.close()
-        return {p.port.name: p.written for p in players}
+        return written
     finally:
         for p in players:
             p.stop()
         host.station.hub.stop()
         for vp in ports.values():
             vp.close()
-
-
-# -- the demo through a station file (`--station`, `--serve`): the hoist room's StationSet and its faces --
-
-
-DEMO_HOIST = "demo"
-DEMO_OPERATOR = "demo"
-
-
-def write_demo_station(out: Path, node_json: Path, shaft_m: float, port: int | None) -> tuple[Path, str]:
-    """OUT/station.toml: one hoist (the simulated one), its log in OUT, the web face on localhost,
-    and OUT/users.toml with one operator whose password is new each run (returned)."""
-    import secrets
-
-    try:
-        from ropemon.station.users import add_user
-    except ImportError as e:
-        raise RuntimeError(f"--serve needs the web face's libraries: pip install 'ropemon[web]' ({e})") from None
-    users = out / "users.toml"
-    users.unlink(missing_ok=True)
-    password = secrets.token_urlsafe(9)
-    add_user(users, DEMO_OPERATOR, "operator", password)
-    path = out / "station.toml"
-    path.write_text(f"""# written by ropemon demo: the simulated hoist as a station (docs/web.md)
-[station]
-name = "ropemon demo"
-data_dir = "."
-
-[[hoist]]
-id = "{DEMO_HOIST}"
-name = "Simulated hoist"
-configs = ["{node_json.resolve().relative_to(out.resolve()).as_posix()}"]
-receivers = {{ pithead = "set by ropemon demo" }}
-shaft_m = {max(shaft_m, 1.0):.1f}
-
-[web]
-bind = "127.0.0.1"
-port = {port or free_port()}
-view_without_login = true
-users = "users.toml"
-secret = "web-secret"
-""")
-    return path, password
-
-
-class _AllHoists:
-    """What `monitor.live_loop` drives: every hoist of the StationSet; keys act on the first."""
-
-    def __init__(self, stations: Any, hoist: str) -> None:
-        self.stations, self.hoist = stations, hoist
-
-    def pump(self) -> int:
-        self.stations.step()
-        return 0
-
-    def tick(self) -> None:
-        pass
-
-    def clock(self) -> float:
-        return self.stations.clock()
-
-    def submit(self, command: Any) -> None:
-        self.stations.submit(self.hoist, command)
-
-
-def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: Any, shaft_m: float,
-                    deliveries: dict[str, list[radio.Delivery]], speed: float, clock: DemoClock, headless: bool,
-                    step: Callable[[str], float], wind_s: float):
-    """The wind through a station file's StationSet (the demo's own, or --station's first hoist),
-    with its faces when serving. Returns (DemoHost, bytes written per receiver, the first hoist's
-    log or None, finish) where finish() keeps serving until Ctrl-C (--serve in a terminal, unless
-    the operator quit) and then closes everything; None after a refusal it printed."""
-    import dataclasses
-    import signal
-    import threading
-
-    from rich.console import Console, Group
-    from rich.text import Text
-
-    from ropemon.lab.vserial import Player, VirtualPort
-    from ropemon.station.faces import FaceError, start_faces
-    from ropemon.station.hoists import StationSet
-    from ropemon.station.monitor import MonitorView, live_loop
-    from ropemon.station.stationfile import load_station_file
-
-    password = None
-    if args.station:
-        sf = load_station_file(args.station)
-    else:
-        path, password = write_demo_station(out, node_json, shaft_m, args.port)
-        sf = load_station_file(path)
-    first = sf.hoists[0]
-    demo_keys = load_node_keys(node_json)
-    have: dict[int, bytes] = {}
-    for c in first.configs:
-        have.update(load_node_keys(c))
-    if any(have.get(n) != k for n, k in demo_keys.items()):
-        step(f"  hoist {first.id}: its node configs do not hold the simulated node's key: it uses {node_json}")
-        sf = dataclasses.replace(sf, hoists=(dataclasses.replace(first, configs=(node_json,)),) + sf.hoists[1:])
-    db = sf.data_dir / f"{first.id}.db" if sf.data_dir is not None else None
-    if db is not None and not args.station:          # the demo's own log: a new one each run
-        for p in (db, Path(str(db) + "-wal"), Path(str(db) + "-shm")):
-            p.unlink(missing_ok=True)
-    elif db is not None and db.exists():
-        from ropemon.station.store import Store
-        with Store(db, readonly=True) as st:
-            logged = set(st.last_seqs()) & set(demo_keys)
-        if logged:
-            print(f"ropemon demo: {db} already holds frames of node {sorted(logged)[0]}: the demo's frames would be "
-                  "refused as replays; remove that log or give the station another data_dir", file=sys.stderr)
-            return None
-    ports = {name: VirtualPort(name) for name in deliveries}
-    stations: Any = None
-    faces: list = []
-    players: list = []
-
-    def close() -> None:
-        for p in players:
-            p.stop()
-        for f in faces:
-            f.stop()
-        if stations is not None:
-            stations.close()
-        for vp in ports.values():
-            vp.close()
-
-    try:
-        stations = StationSet(sf, clock=clock, receivers={first.id: [(n, vp.port) for n, vp in ports.items()]})
-        for h in stations.hoists.values():
-            h.station.hub.clock = clock               # rx times on the demo's clock too
-        h0 = stations.hoists[first.id]
-        kept = FrameKeeper()
-        view = None if headless else MonitorView(site)
-        stations.add_listeners(lambda h: kept if h.id == first.id else None)
-        if view is not None:
-            stations.add_listeners(lambda h: view if h.id == first.id else None)
-        if args.serve:
-            try:
-                faces = start_faces(stations, sf)
-            except FaceError as e:
-                raise RuntimeError(str(e)) from None
-        urls = [u for u in (getattr(f, "url", None) for f in faces) if u]
-        for f in faces:
-            step(f"  {f.describe()}")
-        if password is not None and urls:
-            step(f"  web: log in as {DEMO_OPERATOR} / {password} to acknowledge and shelve (a new password each run)")
-        stations.start()
-        session = h0.station
-        readers = list(session.hub.receivers.values())
-        deadline = time.monotonic() + 10.0
-        while not all(r.connected for r in readers):   # pyserial flushes input on open: write only after
-            if time.monotonic() > deadline:
-                raise RuntimeError("the station could not open the virtual ports: "
-                                   + "; ".join(r.last_error or r.name for r in readers if not r.connected))
-            time.sleep(0.01)
-        first_t = min((d[0].t_s for d in deliveries.values() if d), default=0.0)
-        t_play = time.monotonic()
-        for name, vp in ports.items():
-            p = Player(vp, [(first_t, b"")] + [(d.t_s, d.data) for d in deliveries[name]], speed, t0=t_play)
-            p.start()
-            players.append(p)
-        total = sum(len(d.data) for v in deliveries.values() for d in v)
-        step(f"  playing {wind_s:.0f} s of frames at {speed:g}x real time (about {wind_s / speed:.0f} s)"
-             + (f"; the web page: {urls[0]}" if urls else ""))
-        quiet_since: list[float] = []
-
-        def done() -> bool:
-            if any(p.is_alive() for p in players):
-                return False
-            if sum(r.bytes_read for r in session.hub.receivers.values()) >= total:
-                return True
-            if not quiet_since:
-                quiet_since.append(time.monotonic())
-            return time.monotonic() - quiet_since[0] > 1.0
-
-        quit_early = False
-        if view is not None:
-            base_render = view.render
-            head = Text(f" web: {urls[0]}  (the station keeps serving after the wind until Ctrl-C)" if urls else "",
-                        style="bold cyan")
-            view.render = lambda now: Group(head, base_render(now)) if urls else base_render(now)  # type: ignore
-            console = Console()
-            live_loop(_AllHoists(stations, first.id), view, console, 4.0, done)
-            quit_early = not done()
-            console.print(view.render(stations.clock()))
-        while not quit_early and not done():
-            stations.step()
-            time.sleep(1.0 / sf.tick_hz)
-        for p in players:
-            p.stop()
-            p.join(2.0)
-            if p.error is not None:
-                raise RuntimeError(f"playing receiver {p.port.name} failed: {p.error}")
-        stations.step()
-        if h0.store is not None:
-            h0.store.commit()
-        written = {p.port.name: p.written for p in players}
-        host = DemoHost(session, h0.alarms, kept, h0.store, view)
-    except BaseException:
-        close()
-        raise
-
-    def finish() -> None:
-        try:
-            if args.serve and faces and not headless and not quit_early:
-                stop = threading.Event()
-                for sig in (signal.SIGTERM, signal.SIGINT):
-                    signal.signal(sig, lambda *_: stop.set())
-                print(f"[demo] the station keeps serving {urls[0] if urls else ''} until Ctrl-C", flush=True)
-                stations.run(stop.is_set)
-        finally:
-            close()
-
-    return host, written, db, finish
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -574,6 +373,7 @@ def run(args: argparse.Namespace) -> int:
     wind_s = t_frames[-1] - t_frames[0] if len(t_frames) else 0.0
     clock = DemoClock(speed)
     if station_mode:
+        from ropemon.lab.demo_station import play_to_station
         try:
             played = play_to_station(args, out, node_json, site, shaft_m, result.deliveries, speed, clock,
                                      headless, step, wind_s)
@@ -590,7 +390,7 @@ def run(args: argparse.Namespace) -> int:
             p.unlink(missing_ok=True)
         store = Store(db)
         view = None if headless else MonitorView(site)
-        host = demo_host(keys, alarm_settings(site), clock, store, view)
+        host = demo_host(keys, alarm_settings(site), clock, store, view, site)
         t = step(f"  playing {wind_s:.0f} s of frames at {speed:g}x real time (about {wind_s / speed:.0f} s)")
         try:
             written = play_to_host(result.deliveries, host, speed, clock,

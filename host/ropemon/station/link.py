@@ -182,11 +182,12 @@ class FrameHub:
     talk to the hub through its methods: `accept_rewound` leaves the decision in each
     decoder's inbox, applied by its own thread before its next bytes; `rewound`,
     `counts` and `status` return copies taken under the hub's lock after each chunk.
+    `clock` stamps each frame's rx time; `wake`, when given, is set whenever frames are queued.
     """
 
     def __init__(self, keys: dict[int, bytes] | None = None, merger: Merger | None = None,
                  clock: Callable[[], float] = time.time, maxsize: int = 100000,
-                 accept_rewound: Iterable[int] = ()):
+                 accept_rewound: Iterable[int] = (), wake: threading.Event | None = None):
         self.keys = keys
         self._accept_rewound = set(accept_rewound)  # operator decisions, for receivers added later
         self.merger = merger or Merger()
@@ -200,7 +201,7 @@ class FrameHub:
         self._rewound: dict[str, dict[int, tuple[int, int]]] = {}
         self._counts: dict[str, DecodeCounts] = {}
         self._top: dict[int, int] = {}                   # node -> newest seq taken from any receiver
-        self.wake: threading.Event | None = None         # set when frames are queued (the consumer waits on it)
+        self.wake = wake                                 # set when frames are queued (the consumer waits on it)
         self._seed: tuple[dict[int, int], dict[int, list[Frame]]] = ({}, {})
 
     def seed(self, last: Mapping[int, int], recent: Mapping[int, Iterable[Frame]] | None = None) -> None:

@@ -28,7 +28,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import IO, Any, Callable, Iterable
+from typing import IO, Any, Callable, Iterable, Sequence
 
 from rich import box
 from rich.console import Console, Group, RenderableType
@@ -36,10 +36,11 @@ from rich.table import Table
 from rich.text import Text
 
 from ropemon.station.alarms import ActiveAlarm, AlarmEvent
+from ropemon.station.assembly import HoistSpec, build_hoist, run_loop
 from ropemon.station.decode_cli import add_key_arguments, node_id
 from ropemon.station.link import DEFAULT_BAUDRATE, Received
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Shelve, Station,
-                                      StationStatus, Unshelve, station_listeners)
+                                      StationStatus, Unshelve)
 from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
 from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.uncertainty import DeviationBand
@@ -580,23 +581,30 @@ def ask(station: Station, view: MonitorView, key: str, operator: str) -> None:
 
 
 def live_loop(station: Station, view: MonitorView, console: Console, refresh_hz: float,
-              done: Callable[[], bool] = lambda: False) -> None:
-    """Run the station and draw the view until `q` or `done()`; `a` acknowledges, `r` `y`
-    accepts a refused node; bell on new alarms."""
+              done: Callable[[], bool] = lambda: False, stations: Sequence[Station] | None = None) -> None:
+    """Run the station (or `stations`, all pumped and ticked; keys act on `station`) and draw
+    the view until `q` or `done()`, on `assembly.run_loop`: a tick and a new screen each
+    1/refresh_hz s and at once after a key; `a` acknowledges, `r` `y` accepts a refused node;
+    bell on new alarms."""
     from rich.live import Live
 
     keys = KeyReader()
     operator = operator_name()
     last_bell = 0.0
+    quit_ = False
+
+    def read_keys(timeout_s: float) -> bool:
+        nonlocal quit_
+        k = keys.read(timeout_s)
+        if k and not handle_keys(station, view, k, operator):
+            quit_ = True
+        return bool(k)
+
     try:
         with Live(view.render(station.clock()), console=console, screen=console.is_terminal,
                   auto_refresh=False, transient=False) as live:
-            while not done():
-                k = keys.read(1.0 / refresh_hz)
-                if k and not handle_keys(station, view, k, operator):
-                    break
-                station.pump()
-                station.tick()
+            def draw() -> None:
+                nonlocal last_bell
                 now = station.clock()
                 unacked = any(not acked for _, acked in view.alarm_rows)
                 ring = view.new_raises > 0 or (unacked and now - last_bell > BELL_REPEAT_S)
@@ -605,6 +613,10 @@ def live_loop(station: Station, view: MonitorView, console: Console, refresh_hz:
                 if ring and (unacked or last_bell == 0.0):
                     console.bell()
                     last_bell = now
+
+            period = 1.0 / refresh_hz
+            run_loop(stations or [station], period, lambda: quit_ or done(), wait=read_keys, on_tick=draw,
+                     first_tick_s=period)
     finally:
         keys.close()
 
@@ -628,21 +640,19 @@ class JsonAlarmLines(Listener):
         self.out.flush()
 
 
-def headless_loop(station: Station, ticks_hz: float, done: Callable[[], bool] = lambda: False) -> None:
-    """Run the station with no screen until SIGTERM, SIGINT or `done()`."""
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
-    while not stop.is_set() and not done():
-        station.pump()
-        station.tick()
-        stop.wait(1.0 / ticks_hz)
+def spec_from_args(args: argparse.Namespace) -> HoistSpec:
+    """The one hoist `ropemon monitor` watches, from its command line. ValueError says why not."""
+    keys = keys_from_options(args.key_file, args.config, args.accept_rewound)
+    site = site_from_configs(args.config)
+    # The nodes it has keys for are the nodes it must hear: silent until heard.
+    settings = dataclasses.replace(alarm_settings(site, args.silent_s), nodes=tuple(sorted(keys or ())))
+    return HoistSpec("monitor", site, keys, settings, receivers=tuple(receiver_names(args.port)), baud=args.baud,
+                     rs485=args.rs485, accept_rewound=tuple(args.accept_rewound))
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        keys = keys_from_options(args.key_file, args.config, args.accept_rewound)
-        site = site_from_configs(args.config)
+        spec = spec_from_args(args)
     except ValueError as e:
         print(f"ropemon monitor: {e}", file=sys.stderr)
         return 2
@@ -656,13 +666,11 @@ def run(args: argparse.Namespace) -> int:
         except StoreError as e:
             print(f"ropemon monitor: {e}", file=sys.stderr)
             return 2
-    view: Listener = JsonAlarmLines(sys.stdout) if args.headless else MonitorView(site)
+    view: Listener = JsonAlarmLines(sys.stdout) if args.headless else MonitorView(spec.site)
     # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
-    # The nodes it has keys for are the nodes it must hear: silent until heard.
-    settings = dataclasses.replace(alarm_settings(site, args.silent_s), nodes=tuple(sorted(keys or ())))
-    station = Station(keys or None, station_listeners(settings, store, view),
-                      clock=time.time, accept_rewound=args.accept_rewound, resume_from=store)
+    hoist = build_hoist(spec, time.time, store=store, views=[view])
+    station = hoist.station
     resumed = station.resumed_text()
     if resumed is not None:
         print(f"ropemon monitor: {resumed}", file=sys.stderr)
@@ -670,12 +678,14 @@ def run(args: argparse.Namespace) -> int:
     for node in args.accept_rewound:
         station.submit(AcceptRewound(operator, "command line", node=node, how="with --accept-rewound"))
     try:
-        for name, url in receiver_names(args.port):
-            station.add_port(url, name, baudrate=args.baud, rs485=args.rs485).start()
+        hoist.start()
         if isinstance(view, MonitorView):
             live_loop(station, view, Console(), args.refresh_hz)
-        else:
-            headless_loop(station, args.refresh_hz)
+        else:     # no screen: until SIGTERM or SIGINT
+            stop = threading.Event()
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                signal.signal(sig, lambda *_: stop.set())
+            run_loop([station], 1.0 / args.refresh_hz, stop.is_set, wait=stop.wait)
     finally:
         station.close()
         if store is not None:

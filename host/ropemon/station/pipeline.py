@@ -38,6 +38,7 @@ from __future__ import annotations
 import datetime
 import queue
 import sqlite3
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -118,6 +119,10 @@ class Listener:
 class Station:
     """Receivers -> `FrameHub` -> listeners, on one consumer thread (module docstring).
 
+    `clock` is the listeners' time (alarm timing, status); `wall` stamps the station's own
+    events and, through the hub, the frames' rx times; `wake` is set whenever the hub queues
+    a frame or a command is submitted (a run loop waits on it).
+
     With keys and `resume_from` (a `Store` that already holds frames), the replay
     protection resumes from the log before any receiver is read (`resumed`): a
     frame at or below the last one logged for its node is a replay (or a duplicate
@@ -126,10 +131,12 @@ class Station:
 
     def __init__(self, keys: dict[int, bytes] | None = None, listeners: Iterable[Listener] = (),
                  clock: Callable[[], float] = time.monotonic, accept_rewound: Iterable[int] = (),
-                 resume_from: Any = None) -> None:
+                 resume_from: Any = None, wall: Callable[[], float] = time.time,
+                 wake: threading.Event | None = None) -> None:
         self.keys = keys or None
-        self.hub = FrameHub(self.keys, accept_rewound=accept_rewound)
+        self.hub = FrameHub(self.keys, clock=wall, accept_rewound=accept_rewound, wake=wake)
         self.clock = clock
+        self.wall = wall          # the time the station's own events and the frames' rx times carry
         self.listeners: list[Listener] = []
         self.listener_errors: dict[str, tuple[int, str]] = {}
         self.resumed: dict[int, int] = {}               # node -> last seq logged, resumed from the store
@@ -277,7 +284,7 @@ class Station:
             self.listener_errors[name] = (n, text)
             if name not in self._listener_errors_published:
                 self._listener_errors_published.add(name)
-                self.publish(AlarmEvent(time_s=time.time(), action="error", alarm=f"listener_error:{name}",
+                self.publish(AlarmEvent(time_s=self.wall(), action="error", alarm=f"listener_error:{name}",
                                         kind="listener_error", count=n, message=f"{name} failed on {method}: {text}"))
             return None
 
@@ -300,7 +307,7 @@ class Station:
         node = cmd.node
         refused = self.hub.rewound().get(node)
         self.hub.accept_rewound(node)
-        wall = time.time()
+        wall = self.wall()
         when = datetime.datetime.fromtimestamp(wall, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
         was = f" (boot counter went back {refused[0]} -> {refused[1]})" if refused else ""
         self.publish(AlarmEvent(time_s=wall, action="accept", alarm=f"rewound:n{node}", kind="rewound", node=node,
@@ -319,7 +326,7 @@ class Station:
         self._rebase_logged[f.node] = f.seq
         mask = (1 << SEQ_COUNT_BITS) - 1
         self.publish(AlarmEvent(
-            time_s=time.time(), action="rebase", alarm=f"rewound:n{f.node}", kind="rewound", node=f.node,
+            time_s=self.wall(), action="rebase", alarm=f"rewound:n{f.node}", kind="rewound", node=f.node,
             seq=f.seq, prev_seq=prev, message=f"node {f.node}: boot {f.seq >> SEQ_COUNT_BITS} count {f.seq & mask} taken as its new baseline "
             f"(was boot {prev >> SEQ_COUNT_BITS} count {prev & mask}; receiver {item.receiver})"))
 
@@ -329,7 +336,7 @@ class Station:
             if r.callback_errors > self._errors_published.get(name, 0):
                 self._errors_published[name] = r.callback_errors
                 self.publish(AlarmEvent(
-                    time_s=time.time(), action="error", alarm=f"link_error:{name}", kind="link_error",
+                    time_s=self.wall(), action="error", alarm=f"link_error:{name}", kind="link_error",
                     count=r.callback_errors, message=f"receiver {name}: {r.callback_errors} decoder/consumer errors "
                     f"(bytes lost), last: {r.last_callback_error}"))
 
@@ -426,9 +433,11 @@ class StoreListener(Listener):
     RETRY_S = 5.0       # a failing log is tried again this often
     MAX_HELD = 200_000  # items held while the log fails (about 5 h of frames at 10 frames/s)
 
-    def __init__(self, store: Any, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, store: Any, clock: Callable[[], float] = time.monotonic,
+                 wall: Callable[[], float] = time.time) -> None:
         self.store = store
-        self.clock = clock
+        self.clock = clock        # when to retry a failing log
+        self.wall = wall          # the time of the link statistics' rows
         self._link_logged_s: float | None = None
         self._held: deque[tuple[str, tuple]] = deque()   # writes not yet committed, oldest first
         self.error: str | None = None                     # the last write error while failing
@@ -466,7 +475,7 @@ class StoreListener(Listener):
 
     def log_link_stats(self, status: StationStatus) -> None:
         """Decoder counts and merge shares of every receiver (`link_stats` table)."""
-        t = time.time()
+        t = self.wall()
         for name, r in status.receivers.items():
             self._write("add_link_stats", (t, name, r.counts.as_dict()))
             for node, st in status.merge.items():
@@ -535,10 +544,10 @@ class StoreListener(Listener):
 
 
 def station_listeners(settings: AlarmSettings | None = None, store: Any = None,
-                      *views: Listener) -> list[Listener]:
+                      *views: Listener, wall: Callable[[], float] = time.time) -> list[Listener]:
     """The hoist room's listeners in their order: the alarm engine, the log (when `store` is
-    given), then the views."""
+    given; its link statistics stamped by `wall`), then the views."""
     out: list[Listener] = [AlarmListener(settings)]
     if store is not None:
-        out.append(StoreListener(store))
+        out.append(StoreListener(store, wall=wall))
     return out + list(views)
