@@ -164,7 +164,7 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
     Returns figures: frames, trips, decode counts and `alarms` {kind: {"raise": n, "clear": n}}.
     Raises ReplayError (config unreadable, database exists or unusable).
     """
-    from ropemon.station.assembly import build_hoist
+    from ropemon.station import assembly
     from ropemon.station.store import Store, StoreError
 
     frames_bin, db = Path(frames_bin), Path(db)
@@ -177,7 +177,7 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
     except StoreError as e:
         raise ReplayError(str(e)) from None
     clock = NodeClock()
-    hoist = build_hoist(spec, clock, wall=clock, store=store, db_path=db)
+    hoist = assembly.build_hoist(spec, clock, wall=clock, store=store, db_path=db)
     session = hoist.station
     offset = 0.0                       # added after a restart of the node's clock
     last = next_tick = None

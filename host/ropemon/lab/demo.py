@@ -26,7 +26,8 @@ import numpy as np
 from ropemon.lab import radio
 from ropemon.firmware import FIRMWARE_DIR
 from ropemon.station.alarms import AlarmSettings
-from ropemon.station.assembly import HoistSpec, build_hoist, run_loop
+from ropemon.station import assembly
+from ropemon.station.assembly import HoistSpec, run_loop
 from ropemon.station.link import Received
 from ropemon.station.pipeline import AlarmListener, Listener, Station
 from ropemon.station.protocol import DAN_TO_N, Frame, FrameError, L, decode_raw, decode_wire, load_node_keys
@@ -207,7 +208,8 @@ def demo_host(keys: dict[int, bytes] | None, settings: AlarmSettings | None, clo
     view), everything on the demo's clock: alarm timing, events, rx times."""
     kept = FrameKeeper()
     spec = HoistSpec(DEMO_HOIST, site or SiteFigures(), keys or {}, settings)
-    hoist = build_hoist(spec, clock, wall=clock, store=store, views=[kept] + ([view] if view is not None else []))
+    views = [kept] + ([view] if view is not None else [])
+    hoist = assembly.build_hoist(spec, clock, wall=clock, store=store, views=views)
     return DemoHost(hoist.station, hoist.alarms, kept, store, view)
 
 

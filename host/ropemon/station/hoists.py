@@ -14,7 +14,8 @@ import threading
 import time
 from typing import Callable
 
-from ropemon.station.assembly import Hoist, build_hoist, run_loop, spec_from_file, step
+from ropemon.station import assembly
+from ropemon.station.assembly import Hoist, run_loop, spec_from_file, step
 from ropemon.station.commands import Command, Ticket
 from ropemon.station.pipeline import Listener
 from ropemon.station.stationfile import HoistFile, StationFile
@@ -60,7 +61,7 @@ class StationSet:
             self.file.data_dir.mkdir(parents=True, exist_ok=True)
             db_path = self.file.data_dir / f"{h.id}.db"
             store = Store(db_path)
-        return build_hoist(spec, self.clock, wall=self.wall, store=store, db_path=db_path, wake=self._wake)
+        return assembly.build_hoist(spec, self.clock, wall=self.wall, store=store, db_path=db_path, wake=self._wake)
 
     def add_listeners(self, factory: Callable[[Hoist], Listener | None]) -> None:
         """Add `factory(hoist)`'s listener to every hoist (call before `start`)."""

@@ -36,7 +36,8 @@ from rich.table import Table
 from rich.text import Text
 
 from ropemon.station.alarms import ActiveAlarm, AlarmEvent
-from ropemon.station.assembly import HoistSpec, build_hoist, run_loop
+from ropemon.station import assembly
+from ropemon.station.assembly import HoistSpec, run_loop
 from ropemon.station.decode_cli import add_key_arguments, node_id
 from ropemon.station.link import DEFAULT_BAUDRATE, Received
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Shelve, Station,
@@ -669,7 +670,7 @@ def run(args: argparse.Namespace) -> int:
     view: Listener = JsonAlarmLines(sys.stdout) if args.headless else MonitorView(spec.site)
     # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
-    hoist = build_hoist(spec, time.time, store=store, views=[view])
+    hoist = assembly.build_hoist(spec, time.time, store=store, views=[view])
     station = hoist.station
     resumed = station.resumed_text()
     if resumed is not None:
