@@ -34,12 +34,12 @@ rated_rope_tension_n 1 524288
 imbalance_permille 0 1000
 battery_low_mv 0 65535
 battery_mv_mul 0 16384
-battery_mv_shift 0 30
+battery_mv_shift 0 29
 p_kpa_max 1 100000
 velocity.alpha_q14 1 16384
 velocity.dx_max_q8um 1 268435
 friction.sigma0_mul 0 2048
-friction.sigma0_shift 0 30
+friction.sigma0_shift 0 29
 friction.c1_mul 0 524287
 friction.c1_shift 10 30
 friction.sigma2_shift 9 30
@@ -60,6 +60,7 @@ friction.noise_ref_q6 0 262144
 friction.noise_shift 0 16
 friction.slide_lo_q8um 0 16777216
 friction.slide_span_q8um 0 1048576
+friction.hold_play_q8um 0 16777216
 step_recover 1 65535
 temperature.fitted 0 1
 temperature.counts_at_0c 0 65535
@@ -330,6 +331,9 @@ def parse_node(nd):
     if c.window * TENSION_MAX_N >= _I30:
         raise ConfigError("node.frame_hz", "window of %d samples too long for the tension sums" % c.window)
     _range("node.temperature.fault_hi_counts", c.fault_hi_counts, c.fault_lo_counts, 65535)
+    # battery mV = (mean counts * mul + half) >> shift: the mean of 16-bit counts, rounded
+    if 65535 * c.battery_mv_mul + ((1 << c.battery_mv_shift) >> 1) >= _I30:
+        raise ConfigError("node.battery_mv_mul", "times 65535 counts, rounded, beyond 2**30")
     c.pressure = _channels(nd, "pressure", n, _table(_PRESSURE))
     c.displacement = _channels(nd, "displacement", n, _table(_DISPLACEMENT))
     pc = c.pressure
@@ -368,12 +372,18 @@ def parse_node(nd):
     fr = _get(nd, "friction", "node")
     if (c.dx_max_q8um * c.sigma0_mul) >> c.sigma0_shift >= 1 << 19:
         raise ConfigError(FP + ".sigma0_mul", "sigma0 * dx_max beyond 2**19 (32 kN)")
+    if c.hold_play_q8um > c.dx_max_q8um:  # a play wider than the largest step: a typo
+        raise ConfigError(FP + ".hold_play_q8um", "wider than dx_max_q8um")
+    if c.dx_max_q8um * c.sigma0_mul + (1 << c.sigma0_shift) >= _I30:  # a step and its remainder
+        raise ConfigError(FP + ".sigma0_mul", "times dx_max, with the remainder, beyond 2**30")
     for key, lo, hi, lo_p in _table(_LINEAR):
         f = FP + "." + key
         d = _get(fr, key, FP)
         at0 = _int(d, "at_0", f, lo, hi)
         mul = _int(d, "slope_mul", f, -(1 << 15), 1 << 15)
         sh = _int(d, "slope_shift", f, 0, 30)
+        if c.p_kpa_max * (mul if mul > 0 else -mul) >= _I30:  # p * mul, the node's product
+            raise ConfigError(f + ".slope_mul", "times p_kpa_max beyond 2**30")
         setattr(c, key, (at0, mul, sh))
         # linear in pressure: in range at both ends means in range throughout
         for p in (0, c.p_kpa_max):

@@ -96,7 +96,8 @@ _NSH = const(60)     # its low-pass gain is 2**-NSH
 _SLO = const(61)     # slide following: |e| from which e's take-over is seal travel, um/256
 _SSPAN = const(62)   # and over which its share rises to all of it, um/256 (0: off)
 _PREC = const(63)    # samples of plausible steps after an implausible pressure step before the channel is good
-_AREA = const(64)    # cylinder area per rope over the ropes' mean, Q8
+_HPLAY = const(64)   # do no harm: the play of the measured seal state, um/256 (0: off)
+_AREA = const(65)    # cylinder area per rope over the ropes' mean, Q8
 _KQ = const(_AREA + ROPES_MAX)  # hydraulic compliance per rope, (um/256 per kPa) * 2**KSH
 _PLAYS = const(_KQ + ROPES_MAX)  # LuGre play half-width, um/256, with 1..n healthy pressure channels
 _RPLAYS = const(_PLAYS + ROPES_MAX)  # the play while quiet, um/256, with 1..n healthy channels
@@ -194,7 +195,12 @@ _XCNT = const(215)     # per rope: the window's samples with a healthy displacem
 _WSTROKE = const(219)  # the window's stroke mask (OR over its samples)
 OUT_POS = const(220)   # the closed window, per rope: mean position, 0.1 mm, or POS_ABSENT
 OUT_STROKE = const(224)  # its stroke mask: bit i at the low (retracted) end, 4+i at the high
-_S_LEN = const(225)
+ZM = const(225)        # per rope: do no harm: the seal state the piston's own travel gives, N/16
+_XPM = const(229)      # its play output of x_f, um/256
+_WREMM = const(233)    # its elastic step's error-feedback remainder
+_WHELD = const(237)    # the window's held-back mask (OR over its samples): bit i rope i
+OUT_HELD = const(238)  # the closed window's held-back mask
+_S_LEN = const(239)
 
 FLAG_IMBALANCE = const(1)    # a rope's mean deviates from the ropes' mean beyond _IMB
 FLAG_BATTERY_LOW = const(2)
@@ -220,7 +226,7 @@ def pack(c):
         c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16,
         c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (
         c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift, c.slide_lo_q8um,
-        c.slide_span_q8um, c.step_recover)
+        c.slide_span_q8um, c.step_recover, c.hold_play_q8um)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS),
@@ -368,6 +374,10 @@ def step(S, P, rec, n):
     pmax = P[_PMAX]
     s0m = P[_S0M]
     s0s = P[_S0S]
+    s0h = 0  # half of 2**s0s, for rounding (2**30 itself is no small int)
+    if s0s > 0:
+        s0h = 1 << (s0s - 1)
+    hp = P[_HPLAY]
     c1m = P[_C1M]
     c1s10 = P[_C1S10]
     c1half = (1 << c1s10) >> 1
@@ -567,6 +577,8 @@ def step(S, P, rec, n):
                 S[_XBREM + i] = 0
                 S[_WARM + i] = 0
                 S[_E + i] = 0
+                S[_XPM + i] = x
+                S[_WREMM + i] = 0
                 S[_STARTED] |= 1 << i
                 allw = 0
             pl = S[_PL_Q8 + i]
@@ -591,6 +603,10 @@ def step(S, P, rec, n):
     mode = S[_SMODE]
     if allw == 0:
         mode = 0
+    # the hoist at rest: no shaft pulse in this window so far nor in the last (do no harm)
+    rest = 0
+    if S[WIN_PULSES] == 0 and S[LAST_WIN_PULSES] == 0:
+        rest = 1
     for i in range(n):
         # velocity: x_f += alpha (x - x_f), increment clamped to +-dx_max
         dx = 0
@@ -748,7 +764,7 @@ def step(S, P, rec, n):
         zn = z + w  # |zn| < 2**20: |z| <= g < 2**19, |w| < 2**19 (config.py)
         if dxp < 0:
             dxp = -dxp
-        aw = (dxp * s0m + ((1 << s0s) >> 1)) >> s0s  # <= sigma0 dx_max < 2**19
+        aw = (dxp * s0m + s0h) >> s0s  # <= sigma0 dx_max < 2**19
         if aw != 0 and zn != 0:
             ea = zn
             if zn < 0:
@@ -779,11 +795,77 @@ def step(S, P, rec, n):
         # sigma2 v: |v| < 2**20 and s2 < 2**18, so v is split at 9 bits
         f += ((v >> 9) * s2 + (((v & 511) * s2) >> 9) + s2half) >> s2s9
         S[FRIC_Q4 + i] = f
+        # do no harm (docs/model.md): the seal state zm the piston's own travel gives (x_f
+        # through a play of half-width hp, the same LuGre steps as zf); at rest the tension
+        # carries of F only what zm holds the same way, and the cut shows in the frame
+        if hp != 0 and (good >> i) & 1:
+            xf = S[XF_Q8UM + i]
+            e = S[_XPM + i]
+            t = 0
+            if xf > e + hp:
+                t = xf - hp - e
+            elif xf < e - hp:
+                t = xf + hp - e
+            S[_XPM + i] = e + t
+            wf = dx * s0m + S[_WREMM + i]
+            w = wf >> s0s
+            S[_WREMM + i] = wf - (w << s0s)
+            z = S[ZM + i]
+            zm = z + w  # |zm| < 2**20, as zn
+            if t < 0:
+                t = -t
+            aw = (t * s0m + s0h) >> s0s  # t <= |dx| <= dx_max: < 2**19
+            if aw != 0 and zm != 0:
+                ea = zm
+                if zm < 0:
+                    ea = -zm
+                dd = g + aw
+                q = ea * (aw >> 10)
+                q1 = q // dd
+                q = (q - q1 * dd) << 10
+                q2 = q // dd
+                r2 = q - q2 * dd
+                q = ea * (aw & 1023)
+                q3 = q // dd
+                r3 = q - q3 * dd
+                q = (q1 << 10) + q2 + q3 + (r2 + r3 + (dd >> 1)) // dd
+                if zm > 0:
+                    zm -= q
+                else:
+                    zm += q
+            if zm > g:
+                zm = g
+            elif zm < -g:
+                zm = -g
+            S[ZM + i] = zm
+            if rest != 0:
+                e = 0
+                if f > 0:
+                    w = zm
+                    if w < 0:
+                        w = 0
+                    if f > w:
+                        e = f - w
+                        f = w
+                elif f < 0:
+                    w = zm
+                    if w > 0:
+                        w = 0
+                    if f < w:
+                        e = w - f
+                        f = w
+                if e > (g >> 3):
+                    S[_WHELD] |= 1 << i
         fn = (f + 8) >> 4
         S[FRIC_N + i] = fn
 
-        # tension and window statistics
+        # tension and window statistics: |T| < 2**19 (config.TENSION_MAX_N, which the host's
+        # builder proves; held here too, so the window sums stay small ints on any config)
         t = S[RAW_N + i] + f0 + fn
+        if t > 524287:
+            t = 524287
+        elif t < -524287:
+            t = -524287
         S[TENSION_N + i] = t
         if (good >> i) & 1:
             S[SUM_N + i] += t
@@ -1066,6 +1148,8 @@ def step(S, P, rec, n):
     S[WFAULTS] = 0
     S[OUT_STROKE] = S[_WSTROKE]
     S[_WSTROKE] = 0
+    S[OUT_HELD] = S[_WHELD]
+    S[_WHELD] = 0
     S[OUT_TEMP_CC] = S[TEMP_CC]
     S[OUT_SEC] = S[SEC]
     S[OUT_SUB] = S[SUB]

@@ -71,7 +71,8 @@ _NSH = const(60)
 _SLO = const(61)
 _SSPAN = const(62)
 _PREC = const(63)
-_AREA = const(64)
+_HPLAY = const(64)
+_AREA = const(65)
 _KQ = const(_AREA + ROPES_MAX)
 _PLAYS = const(_KQ + ROPES_MAX)
 _RPLAYS = const(_PLAYS + ROPES_MAX)
@@ -166,7 +167,12 @@ _XCNT = const(215)
 _WSTROKE = const(219)
 OUT_POS = const(220)
 OUT_STROKE = const(224)
-_S_LEN = const(225)
+ZM = const(225)
+_XPM = const(229)
+_WREMM = const(233)
+_WHELD = const(237)
+OUT_HELD = const(238)
+_S_LEN = const(239)
 FLAG_IMBALANCE = const(1)
 FLAG_BATTERY_LOW = const(2)
 FLAG_SPEED_FAULT = const(4)
@@ -181,7 +187,7 @@ def pack(c):
     nt = c.loss_nt
     nm = len(c.marks_mm)
     p = array.array('i', bytes(4 * (_VBP + n * nv + n * nt * nv + nm)))
-    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift, c.slide_lo_q8um, c.slide_span_q8um, c.step_recover)
+    head = (c.alpha_q14, c.dx_max_q8um, c.sample_hz) + c.fs_n + c.fc_n + c.vs_um_s + c.sigma2_q + (c.sigma2_shift - 9, c.sigma0_mul, c.sigma0_shift, c.c1_mul, c.c1_shift - 10, c.p_kpa_max, nv, nt, c.fitted, c.counts_at_0c, c.cc_mul, c.cc_shift, c.fault_lo_counts, c.fault_hi_counts, c.assumed_cc, c.mm_per_pulse_q16, c.max_pulses_per_sample, c.snap_mm, nm, c.window, c.imbalance_permille, c.battery_mv_mul, c.battery_mv_shift, c.battery_low_mv, c.frame_hz, _VBP + n * nv, _VBP + n * nv + n * nt * nv) + (c.alpha_z_q14, c.tracker_a1_q14, c.compliance_shift, c.warmup_samples, c.alpha_e_q14, c.stroke_q8um, c.stroke_vmin_q16, c.stroke_settle, c.alpha_l_q14, c.alpha_a_q14, c.tracker_a2_q14) + tuple(c.tracker_k_q14) + (c.tracker_v_shift, c.tracker_b_shift, c.noise_ref_q6, c.noise_shift, c.slide_lo_q8um, c.slide_span_q8um, c.step_recover, c.hold_play_q8um)
     for j in range(len(head)):
         p[j] = head[j]
     for src, off in ((c.area_q8, _AREA), (c.compliance_q, _KQ), (c.play_q8um, _PLAYS), (c.rest_play_q8um, _RPLAYS), (c.rest_q16um, _RTH), (c.pressure, _PCAL), (c.gexp_q14, _GEXP), (c.temps_cc, _TEMPS), (c.v_um_s, _VBP), (c.force_n, p[_OFORCE]), (c.marks_mm, p[_OMARKS])):
@@ -312,6 +318,10 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
     pmax = (P[_PMAX] ^ s31) - s31
     s0m = (P[_S0M] ^ s31) - s31
     s0s = (P[_S0S] ^ s31) - s31
+    s0h = 0
+    if s0s > 0:
+        s0h = 1 << s0s - 1
+    hp = (P[_HPLAY] ^ s31) - s31
     c1m = (P[_C1M] ^ s31) - s31
     c1s10 = (P[_C1S10] ^ s31) - s31
     c1half = 1 << c1s10 >> 1
@@ -488,6 +498,8 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
                 S[_XBREM + i] = 0
                 S[_WARM + i] = 0
                 S[_E + i] = 0
+                S[_XPM + i] = x
+                S[_WREMM + i] = 0
                 S[_STARTED] |= 1 << i
                 allw = 0
             pl = (S[_PL_Q8 + i] ^ s31) - s31
@@ -510,6 +522,9 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
     mode = (S[_SMODE] ^ s31) - s31
     if allw == 0:
         mode = 0
+    rest = 0
+    if (S[WIN_PULSES] ^ s31) - s31 == 0 and (S[LAST_WIN_PULSES] ^ s31) - s31 == 0:
+        rest = 1
     for i in range(n):
         dx = 0
         v = 0
@@ -646,7 +661,7 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
         zn = z + w
         if dxp < 0:
             dxp = -dxp
-        aw = dxp * s0m + (1 << s0s >> 1) >> s0s
+        aw = dxp * s0m + s0h >> s0s
         if aw != 0 and zn != 0:
             ea = zn
             if zn < 0:
@@ -674,9 +689,71 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
         f = zn + ((d >> 10) * c1m + ((d & 1023) * c1m >> 10) + c1half >> c1s10)
         f += (v >> 9) * s2 + ((v & 511) * s2 >> 9) + s2half >> s2s9
         S[FRIC_Q4 + i] = f
+        if hp != 0 and good >> i & 1:
+            xf = (S[XF_Q8UM + i] ^ s31) - s31
+            e = (S[_XPM + i] ^ s31) - s31
+            t = 0
+            if xf > e + hp:
+                t = xf - hp - e
+            elif xf < e - hp:
+                t = xf + hp - e
+            S[_XPM + i] = e + t
+            wf = dx * s0m + ((S[_WREMM + i] ^ s31) - s31)
+            w = wf >> s0s
+            S[_WREMM + i] = wf - (w << s0s)
+            z = (S[ZM + i] ^ s31) - s31
+            zm = z + w
+            if t < 0:
+                t = -t
+            aw = t * s0m + s0h >> s0s
+            if aw != 0 and zm != 0:
+                ea = zm
+                if zm < 0:
+                    ea = -zm
+                dd = g + aw
+                q = ea * (aw >> 10)
+                q1 = q // dd
+                q = q - q1 * dd << 10
+                q2 = q // dd
+                r2 = q - q2 * dd
+                q = ea * (aw & 1023)
+                q3 = q // dd
+                r3 = q - q3 * dd
+                q = (q1 << 10) + q2 + q3 + (r2 + r3 + (dd >> 1)) // dd
+                if zm > 0:
+                    zm -= q
+                else:
+                    zm += q
+            if zm > g:
+                zm = g
+            elif zm < -g:
+                zm = -g
+            S[ZM + i] = zm
+            if rest != 0:
+                e = 0
+                if f > 0:
+                    w = zm
+                    if w < 0:
+                        w = 0
+                    if f > w:
+                        e = f - w
+                        f = w
+                elif f < 0:
+                    w = zm
+                    if w > 0:
+                        w = 0
+                    if f < w:
+                        e = w - f
+                        f = w
+                if e > g >> 3:
+                    S[_WHELD] |= 1 << i
         fn = f + 8 >> 4
         S[FRIC_N + i] = fn
         t = (S[RAW_N + i] ^ s31) - s31 + f0 + fn
+        if t > 524287:
+            t = 524287
+        elif t < -524287:
+            t = -524287
         S[TENSION_N + i] = t
         if good >> i & 1:
             S[SUM_N + i] += t
@@ -918,6 +995,8 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
     S[WFAULTS] = 0
     S[OUT_STROKE] = (S[_WSTROKE] ^ s31) - s31
     S[_WSTROKE] = 0
+    S[OUT_HELD] = (S[_WHELD] ^ s31) - s31
+    S[_WHELD] = 0
     S[OUT_TEMP_CC] = (S[TEMP_CC] ^ s31) - s31
     S[OUT_SEC] = (S[SEC] ^ s31) - s31
     S[OUT_SUB] = (S[SUB] ^ s31) - s31

@@ -67,6 +67,9 @@ ST_SPEED_FAULT = const(0x0040)        # counter glitch (jump beyond max pulses/s
 ST_TEMP_ABSENT = const(0x0080)        # no oil temperature input: assumed temperature used
 ST_OVERRUN = const(0x0100)            # samples were missed (processing slower than the timer)
 ST_STROKE_LIMIT = const(0x0400)       # a piston came within the stroke margin of an end (see stroke_mask)
+# bits 11-14: rope i's compensation held back at rest in the window (do no harm, docs/model.md)
+ST_HELD_BACK_SHIFT = const(11)
+ST_HELD_BACK_MASK = const(0x7800)
 ST_NOISE_CHANGED = const(0x0200)      # the pressure channels' noise moved beyond NOISE_TOL_Q10 of the commissioned
 # noise following (docs/model.md): the node flags a ratio of its measured pressure noise to
 # the commissioned one beyond 1 +- this/1024 (the host's fit-compliance re-check tolerance)
@@ -84,6 +87,7 @@ STATUS_BITS = (
     ("overrun", ST_OVERRUN),
     ("noise_changed", ST_NOISE_CHANGED),
     ("stroke_limit", ST_STROKE_LIMIT),
+    ("held_back", ST_HELD_BACK_MASK),
 )
 
 OIL_TEMP_ABSENT = const(-32768)  # oil_temp_cc value when no temperature input is fitted

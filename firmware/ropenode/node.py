@@ -141,6 +141,7 @@ class Node:
                 status |= layout.ST_TEMP_ABSENT
             if stroke:
                 status |= layout.ST_STROKE_LIMIT
+            status |= (S[K.OUT_HELD] & 0x0F) << layout.ST_HELD_BACK_SHIFT
             r = S[K.NOISE_Q10] - 1024
             if self.follows_noise and (r > layout.NOISE_TOL_Q10 or r < -layout.NOISE_TOL_Q10):
                 status |= layout.ST_NOISE_CHANGED

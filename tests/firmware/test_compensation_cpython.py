@@ -767,3 +767,54 @@ def test_one_noisier_transmitter_at_commissioning_is_no_noise_change():
     assert ratio == pytest.approx(1.0, abs=0.03) and not flags.any()
     ratio, flags = ratio_and_flags(max(noise))
     assert ratio < 0.74 and flags[600:].all() and not flags[:300].any()
+
+
+def test_do_no_harm_holds_back_a_friction_the_pistons_travel_contradicts():
+    """Do no harm, on a hand-built stream (`slide_stream`, slide following off): as the pressure
+    rises 1 MPa, rope 2's piston goes in by 200 um against its compression (25 um/s against
+    15 um/s) while the model, which re-anchors that motion without seal travel, moves its seal
+    out with the compression: +3.3 kN at 24 s, where the true seal (sigma0 2e7 N/m) went in
+    and holds -2.8 kN. The hoist is at rest throughout (no shaft pulses). Without the limit
+    the node reads rope 2 about 6 kN off, worse than raw p A (3 kN off); with it the node
+    keeps of its friction only what the seal state from the piston's own travel holds (none:
+    that one holds inwards), reads no worse than raw, flags rope 2 held back in its frames,
+    and the station's band covers the truth."""
+    from ropemon.station import uncertainty
+
+    k_m = 3e-10
+    ph = example_physical()
+    ph["hydraulic_compliance_m_per_Pa"] = [k_m] * 4
+    for key in COMPLIANCE_DEFAULTS:
+        ph.pop(key, None)
+    ph["slide_follow"] = False
+    fs = int(ph["sample_hz"])
+    recs, x, p_pa = slide_stream(ph, k_m, 41, slide_um_s=25.0)
+    truth = _true_friction(ph, x, p_pa)
+    end = slice(24 * fs, 26 * fs)   # the last 2 s of the pressure rise: the pistons still parting
+    errs, held = {}, {}
+    for sigmas in (3.0, 0.0):
+        doc = make_node_json(dict(ph, hold_play_sigmas=sigmas))
+        assert (doc["node"]["friction"]["hold_play_q8um"] > 0) == (sigmas > 0)
+        ref = reference.compensate(doc["physical"], recs)
+        ten, good, frames = run_node(Node(config.parse(doc)), recs)
+        assert good[fs:].all()
+        assert np.abs(ten - ref.tension_n)[good].max() <= _tolerance_n(doc)
+        raw = ref.raw_tension_n
+        errs[sigmas] = (np.abs(ten - (raw + truth))[end, 1].mean(), np.abs(truth[end, 1]).mean())
+        decoded = [protocol.decode_raw(protocol.decode_wire(b[:-1])) for b in frames]
+        held[sigmas] = [f.held_back for f in decoded]
+        if sigmas > 0:
+            band = uncertainty.SealBandTracker(uncertainty.BandParams.from_physical(doc["physical"]))
+            for f, j in zip(decoded, range(len(decoded))):
+                band.update(f)
+                if 24 * 10 <= j < 26 * 10:   # frames of the same 2 s (10 frames a second)
+                    r = band.intervals()[1]
+                    t_true = np.mean((raw + truth)[j * fs // 10:(j + 1) * fs // 10, 1])
+                    assert r.lo <= t_true <= r.hi, (j, r, t_true)
+    node_off, raw_err = errs[0.0]
+    node_on, _ = errs[3.0]
+    assert truth[end, 1].max() < -2000 and raw_err > 2000               # the seal really went in
+    assert node_off > raw_err + 2000, errs                              # the harm without the limit
+    assert node_on <= raw_err + 200, errs                               # none with it
+    assert any(1 in h for h in held[3.0][24 * 10:26 * 10]) and not any(h for h in held[0.0])
+    assert all(1 not in h for h in held[3.0][: 6 * 10])                  # before the pistons part: not held

@@ -713,10 +713,11 @@ class FitCheck:
 
 
 def _totals(ph: dict, records: np.ndarray, spans) -> tuple[list[float], list[float]]:
-    """The node's compensated total and raw p x A (N) over each span, by the float reference."""
+    """The node's compensated total and raw p x A (N) over each span, by the float reference,
+    without the do-no-harm limit: at a rest that limit would hide what the fit does to the model."""
     from ropemon.commission.reference import compensate
 
-    c = compensate(ph, records)
+    c = compensate(dict(ph, hold_play_sigmas=0.0), records)
     with np.errstate(all="ignore"):
         comp = [float(np.nanmean(c.tension_n[a:b].sum(axis=1))) for a, b, _ in spans]
         raw = [float(np.mean(c.raw_tension_n[a:b].sum(axis=1))) for a, b, _ in spans]

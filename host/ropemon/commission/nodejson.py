@@ -319,9 +319,14 @@ def physical_params(ph: dict | Physical) -> dict:
         if slide_on and hi_s > lo_s:
             slide_lo_m = round(lo_s * e_noise * 256e6) / 256e6
             slide_span_m = max(1, round((hi_s - lo_s) * e_noise * 256e6)) / 256e6
+    # do no harm: the play of the measured seal state, in x_f's rms noise (the displacement's
+    # through the velocity low-pass), in the node's um/256
+    xf_noise = math.hypot(noise_m, abs(q_m) / math.sqrt(12)) * math.sqrt(alpha / (2 - alpha))
+    hold_play_m = round(p.setting("hold_play_sigmas") * xf_noise * 256e6) / 256e6
     return {
         "ropes": n,
         "alpha": alpha,
+        "hold_play_m": hold_play_m,  # do no harm: the measured seal state's play (0: off)
         "alpha_z": alpha_z,
         "tracker": tracker,          # the pressure tracker (None without a compliance)
         "alpha_e": alpha_e,
@@ -487,7 +492,8 @@ def _velocity_section(pp: dict, fs: int) -> dict[str, int]:
 
 
 def _stroke_fields(pp: dict) -> dict[str, int]:
-    """friction's stroke threshold and slide following's lo and span, in the node's um/256."""
+    """friction's stroke threshold, slide following's lo and span and the do-no-harm play, in
+    the node's um/256."""
     stroke_q8um = round(pp["stroke_m"] * 256e6)
     _check("physical.stroke_sigmas (stroke threshold, um/256)", stroke_q8um, (1 << 15) + 1)
     slide_lo_q8um = round(pp["slide_lo_m"] * 256e6)
@@ -495,7 +501,10 @@ def _stroke_fields(pp: dict) -> dict[str, int]:
     _check("physical.slide_follow_lo_sigmas (slide following's lo, um/256)", slide_lo_q8um, (1 << 24) + 1)
     _check("physical.slide_follow_hi_sigmas (slide following's span hi - lo, um/256)",
            slide_span_q8um, (1 << 20) + 1)
-    return {"stroke_q8um": stroke_q8um, "slide_lo_q8um": slide_lo_q8um, "slide_span_q8um": slide_span_q8um}
+    hold_play_q8um = round(pp["hold_play_m"] * 256e6)
+    _check("physical.hold_play_sigmas (the measured seal state's play, um/256)", hold_play_q8um, (1 << 24) + 1)
+    return {"stroke_q8um": stroke_q8um, "slide_lo_q8um": slide_lo_q8um, "slide_span_q8um": slide_span_q8um,
+            "hold_play_q8um": hold_play_q8um}
 
 
 def _play_fields(pp: dict) -> dict[str, Any]:
@@ -618,6 +627,7 @@ def _friction_section(p: Physical, pp: dict, dx_max: int, v_max_um_s: int,
                "stroke_vmin_q16": round(pp["stroke_vmin"] * 65536e6),
                "stroke_settle": min(pp["stroke_settle"], 65535),
                "slide_lo_q8um": stroke["slide_lo_q8um"], "slide_span_q8um": stroke["slide_span_q8um"],
+               "hold_play_q8um": stroke["hold_play_q8um"],
                **lines, "gexp_q14": gexp}
     return section, f_max
 

@@ -41,6 +41,7 @@ class Compensated:
     v_m_s: np.ndarray            # filtered piston velocity
     good: np.ndarray             # bool: both loops healthy (and read once)
     fault_mask: np.ndarray       # int: bit i pressure, bit 4+i displacement
+    held_n: np.ndarray | None = None  # the do-no-harm cut of F at rest (N), 0 where none
 
 
 @dataclass
@@ -138,7 +139,7 @@ def _loss_force(ph: dict, i: int, area: float, v: np.ndarray, temp_c: np.ndarray
 
 
 def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray, vq: np.ndarray,
-                   fs: float) -> np.ndarray:
+                   fs: float, limit: tuple | None = None) -> np.ndarray:
     """LuGre friction F (N) of one rope over samples, from the `friction` section `fr`.
 
     `p_pa` the pressure the parameter lines take (already held at the fit's top), `dxs`
@@ -146,7 +147,8 @@ def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray,
     play (dissipation), `vq` the velocity of the viscous term; the seal starts unloaded.
     In zf = sigma0 z: elastic step, implicit-Euler dissipation, |zf| <= g;
     F = zf + sigma1 dz/dt + sigma2 v (docs/model.md); the lines and g(v) are
-    ropemon.commission.seal's."""
+    ropemon.commission.seal's. `limit` (dx, rest, good per sample, play): the do-no-harm limit
+    (`do_no_harm`): F is returned with F limited and the held-back cut [sample] (N)."""
     sigma0, sigma1 = float(fr["sigma0"]), float(fr["sigma1"])
     h = 1.0 / fs
     c1 = sigma1 / (sigma0 * h)
@@ -162,7 +164,67 @@ def lugre_friction(fr: dict, p_pa: np.ndarray, dxs: np.ndarray, dxp: np.ndarray,
         z = gj if z > gj else (-gj if z < -gj else z)
         zn[j] = z
     zprev = np.concatenate(([0.0], zn[:-1]))
-    return zn + c1 * (zn - zprev) + sigma2 * vq
+    f = zn + c1 * (zn - zprev) + sigma2 * vq
+    if limit is None:
+        return f
+    return (f, *do_no_harm(f, gv, *limit, sigma0=sigma0))
+
+
+def do_no_harm(f: np.ndarray, gv: np.ndarray, dx: np.ndarray, rest: np.ndarray, good: np.ndarray,
+               play: float, sigma0: float) -> tuple:
+    """The node's do-no-harm limit (docs/model.md, "Do no harm") on one rope's friction F (N):
+    zm, the seal state the piston's own travel gives (the velocity filter's x_f through a play
+    of half-width `play`, in the LuGre steps of zf with the same g; kept across a loop fault,
+    its play re-anchored at each start), and at rest F keeps only what zm holds the same way.
+    Returns (F limited, the cut per sample, N); `play` 0: no limit."""
+    out = np.array(f, dtype=float)
+    cut = np.zeros(len(out))
+    if play <= 0:
+        return out, cut
+    zm = xm = xp = 0.0
+    started = False
+    for j, (fj, gj, xj, rj, okj) in enumerate(zip(f.tolist(), gv.tolist(), dx.tolist(), rest.tolist(),
+                                                  good.tolist())):
+        if not okj:
+            started = False
+            continue
+        if not started:
+            xm = xp = 0.0
+            started = True
+        xm += xj
+        dp = xm - play - xp if xm > xp + play else (xm + play - xp if xm < xp - play else 0.0)
+        xp += dp
+        zm = (zm + sigma0 * xj) * gj / (gj + sigma0 * abs(dp))
+        zm = min(max(zm, -gj), gj)
+        if rj:
+            lim = max(zm, 0.0) if fj > 0 else min(zm, 0.0)
+            if (fj > 0 and fj > lim) or (fj < 0 and fj < lim):
+                cut[j] = abs(fj - lim)
+                out[j] = lim
+    return out, cut
+
+
+def hoist_at_rest(ph: dict, records: np.ndarray, n: int) -> np.ndarray:
+    """Per sample, as the node decides it before the sample's counter word: no shaft pulse in
+    the frame window so far nor in the window before (a jump beyond the most pulses per
+    sample is a counter glitch, not travel)."""
+    p = as_physical(ph)
+    fs = int(p.sample_hz)
+    win = fs // int(p.frame_hz)
+    maxp = math.ceil(p.setting("hoist_speed_max_m_s") / p.speed_m_per_pulse / fs) + 1
+    c = records[:, 2 * n + 2].astype(np.int64)
+    d = np.zeros(len(c), np.int64)
+    d[1:] = (c[1:] - c[:-1]) & 0xFFFF
+    d[d >= 0x8000] -= 0x10000
+    pulses = np.where(np.abs(d) <= maxp, np.abs(d), 0)
+    rest = np.zeros(len(c), bool)
+    this = last = 0
+    for j, q in enumerate(pulses.tolist()):
+        rest[j] = this == 0 and last == 0
+        this += q
+        if (j + 1) % win == 0:
+            this, last = 0, this
+    return rest
 
 
 @dataclass
@@ -288,6 +350,8 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
                                          follow)
     if increments is not None:
         increments.update(dxs=DXS, dxp=DXP, noise_ratio=NR, e=EV, cl=CL)
+    rest = hoist_at_rest(ph, records, n)
+    held_n = np.zeros(shape)
     for i in range(n):
         p = P[:, i]
         dx, dxs, dxp = DX[:, i], DXS[:, i], DXP[:, i]
@@ -297,18 +361,19 @@ def compensate(ph: dict, records: np.ndarray, strokes: list | None = None,
         vq = dxs * fs if pp["compliance"][i] else v
         # the friction's pressure in whole kPa, as the node takes it (and clamps it)
         p_kpa = np.clip(np.floor(PQ[:, i] / 1000.0), 0.0, math.ceil(p_max / 1000.0))
-        fric = lugre_friction(fr, p_kpa * 1000.0, dxs, dxp, vq, fs)
+        fric, shown, held_n[:, i] = lugre_friction(fr, p_kpa * 1000.0, dxs, dxp, vq, fs,
+                                                   (dx, rest, OK[:, i], pp["hold_play_m"]))
         loss = _loss_force(ph, i, areas[i], vq, temp_c)
         raw = p * areas[i]
         ok = good[:, i]
-        out["tension"][:, i] = np.where(ok, raw + loss + fric, np.nan)
+        out["tension"][:, i] = np.where(ok, raw + loss + shown, np.nan)
         out["raw"][:, i] = raw
         out["fric"][:, i] = fric
         out["loss"][:, i] = loss
         out["p"][:, i] = p
         out["v"][:, i] = v
     return Compensated(out["tension"], out["raw"], out["fric"], out["loss"], out["p"],
-                       out["v"], good, fault)
+                       out["v"], good, fault, held_n)
 
 
 

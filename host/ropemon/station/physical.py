@@ -87,6 +87,10 @@ NODE_DEFAULTS: dict[str, Any] = {
     "slide_follow": True,
     "slide_follow_lo_sigmas": 3.0,
     "slide_follow_hi_sigmas": 5.0,
+    # do no harm (docs/model.md): at rest the tension keeps of the seal friction only what
+    # the seal state from the piston's own travel (x_f through a play of this many times
+    # x_f's rms noise) holds the same way (0: off; 3 chosen on the tuning seeds)
+    "hold_play_sigmas": 3.0,
     # rest hold (docs/model.md), with a compliance: a rope is quiet while the low-pass of
     # |x_s - x_l| (x_l: a slower low-pass of x_s) stays below rest_sigmas times the
     # position noise; then b stands and the play widens to rest_play_sigmas, so the noise
@@ -145,6 +149,7 @@ SETTING_RANGES: dict[str, tuple[float, float | str]] = {
     "stroke_settle_s": (0.0, 300.0),
     "slide_follow_lo_sigmas": (0.0, 100.0),
     "slide_follow_hi_sigmas": (0.0, 100.0),
+    "hold_play_sigmas": (0.0, 100.0),
     "pressure_step_recover_s": (0.0, 10.0),
 }
 # the pressure tracker's settings: its defaults are checked only where it runs (a compliance)
@@ -308,6 +313,7 @@ class Physical:
     slide_follow: bool | None = None
     slide_follow_lo_sigmas: float | None = None
     slide_follow_hi_sigmas: float | None = None
+    hold_play_sigmas: float | None = None
     friction_p_max_MPa: float | None = None
     pressure_step_max_Pa: float | None = None
     pressure_step_recover_s: float | None = None
