@@ -248,3 +248,19 @@ def test_the_rope_adjustment_advisory_is_a_warning_in_yellow():
     v.alarm_rows.insert(0, ("STROKE LIMIT rope 3: rope 3 piston at its retracted end", False))
     spans = {sp.style for sp in v._alarms().spans}
     assert "bold red reverse" in spans and "bold red" in spans and "bold yellow" in spans
+
+
+def test_a_held_back_rope_is_marked_and_explained_within_80x24():
+    """Status bits 11-14 (the node held a rope's compensation back at rest): the rope's
+    tension carries a `*` and one line under the table names the ropes and why; the node's
+    flags line does not repeat it. Without the bits, neither."""
+    v = MonitorView(SITE)
+    v.show_frame(frame(1, status=(0b0110 << L.ST_HELD_BACK_SHIFT)), 9.9)
+    text = draw(v)
+    r = rows(text)
+    assert r["2"][1] == "46.0*" and r["3"][1] == "46.0*" and r["1"][1] == "46.0" and r["4"][1] == "46.0"
+    assert "* rope 2, 3: held back at rest (piston travel)" in text
+    assert "held_back" not in text
+    v.show_frame(frame(2), 10.0)
+    text = draw(v)
+    assert "*" not in text and "held back" not in text

@@ -713,3 +713,22 @@ def test_the_hoist_status_goes_out_at_once_when_it_comes_then_at_most_once_a_sec
     assert 7 <= len(hoist) <= 9
     assert lst.snapshot()["alarms"]["hoist"] == hoist[-1][1]
     assert hoist[-1][1]["1"]["hidden_frac"] == 0.03
+
+
+def test_frame_view_marks_the_held_back_ropes_with_the_reason():
+    """The web's frame view: each rope's `held_back` from status bits 11-14, the ropes listed
+    and the reason once; the bits are not shown again among the node's flags."""
+    from ropemon.station.protocol import L as layout
+    from ropemon.station.protocol import Rope, decode_raw, encode_frame
+    from ropemon.station.views import HELD_BACK_WHY
+    from ropemon.station.web.state import frame_view
+
+    rs = [Rope(4600, 4500, 4700, 1300, 0)] * 4
+    raw, _ = encode_frame(node=1, seq=1, ropes=rs, status=(1 << layout.ST_HELD_BACK_SHIFT) | layout.ST_BATTERY_LOW)
+    v = frame_view(decode_raw(raw), 1.0, [0.03] * 4, 320_000.0, None)
+    assert [r["held_back"] for r in v["ropes"]] == [True, False, False, False]
+    assert v["held_back"] == [1] and v["held_why"] == HELD_BACK_WHY
+    assert "held_back" not in v["flags"] and "battery_low" in v["flags"]
+    raw, _ = encode_frame(node=1, seq=2, ropes=rs)
+    v = frame_view(decode_raw(raw), 1.0, [0.03] * 4, 320_000.0, None)
+    assert v["held_back"] == [] and v["held_why"] == "" and not any(r["held_back"] for r in v["ropes"])

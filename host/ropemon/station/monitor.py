@@ -202,6 +202,10 @@ class MonitorView(Listener):
     # -- drawing ------------------------------------------------------------
     def render(self, now_s: float) -> RenderableType:
         parts: list[RenderableType] = [self._header(now_s), self._ropes(now_s)]
+        held = self.last.held_back if self.last is not None else ()
+        if held:  # the node held these ropes' compensation back at rest (docs/operator.md)
+            parts.append(Text(f" * rope {', '.join(str(i + 1) for i in held)}: held back at rest (piston travel)",
+                              style="cyan"))
         status = self._hoist_status()
         if status is not None:
             parts.append(status)
@@ -260,7 +264,7 @@ class MonitorView(Listener):
         temp = f.oil_temp_c
         t.append(f"  oil {temp:.1f} C" if temp is not None else "  oil -- C")
         t.append(f"  last frame {age:4.1f} s ago", style="bold red reverse" if age > STALE_S else "")
-        flags = " ".join(n for n in f.status_flags if n != "temp_absent")
+        flags = " ".join(n for n in f.status_flags if n not in ("temp_absent", "held_back"))
         if flags:      # beside the figures where they fit, else on one line of their own
             room = 79 - len(t.plain.split("\n")[-1]) - 2
             t.append(("  " + flags) if len(flags) <= room else ("\n " + (flags if len(flags) <= 78 else
@@ -310,6 +314,7 @@ class MonitorView(Listener):
         min_span = 0.01 * (self.site.rated_rope_tension_n or max(comp) or 1.0)
         raw_sum = 0.0
         raw_ok = True
+        held = f.held_back
         for i, r in enumerate(f.ropes):
             if not ok[i]:
                 table.add_row(str(i + 1), Text("FAULT", style="bold red reverse"), "-", "-",
@@ -329,7 +334,8 @@ class MonitorView(Listener):
             else:
                 raw_sum += raw
                 raw_txt = f"{raw / 1000:.1f}"
-            table.add_row(str(i + 1), f"{comp[i] / 1000:.1f}", raw_txt, Text(dev_txt, style="dim" if stale else style),
+            comp_txt = Text(f"{comp[i] / 1000:.1f}" + ("*" if i in held else ""), style="cyan" if i in held else "")
+            table.add_row(str(i + 1), comp_txt, raw_txt, Text(dev_txt, style="dim" if stale else style),
                           self._gauge(f, i) if gauge else
                           f"{r.min_dan * DAN_TO_N / 1000:.1f}..{r.max_dan * DAN_TO_N / 1000:.1f}",
                           self._spark(i, min_span), style="dim" if stale else None)

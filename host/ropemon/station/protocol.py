@@ -147,6 +147,14 @@ class Frame:
         return [name for name, bit in L.STATUS_BITS if self.status & bit]
 
     @property
+    def held_back(self) -> tuple[int, ...]:
+        """The ropes (from 0) whose compensation the node held back at rest in the window: the
+        piston's own travel did not support the seal friction its model held (docs/model.md,
+        "Do no harm"); their tension is nearer p A. Empty in frames of nodes without it."""
+        bits = (self.status & L.ST_HELD_BACK_MASK) >> L.ST_HELD_BACK_SHIFT
+        return tuple(i for i in range(len(self.ropes)) if bits >> i & 1)
+
+    @property
     def tensions_n(self) -> list[int | None]:
         """Compensated mean tension of each rope in N; None for an absent rope."""
         return [r.mean_n for r in self.ropes]

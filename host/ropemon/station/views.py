@@ -94,3 +94,9 @@ def alarm_text(a: ActiveAlarm) -> str:
         what = a.message
     state = "" if a.present else " (cleared, not acknowledged)"
     return f"{a.kind.upper().replace('_', ' ')}{rope}: {what}{state}"
+
+
+#: Why a rope's reading is marked held back (`Frame.held_back`), where a view explains it.
+HELD_BACK_WHY = ("compensation held back at rest: the piston's own travel does not support the seal "
+                 "friction the model holds, so the reading is nearer p A (the band still covers it)")
+

@@ -28,7 +28,8 @@ from typing import Any
 
 from ropemon.station.alarms import ActiveAlarm, AlarmEvent
 from ropemon.station.link import Received
-from ropemon.station.views import STALE_S, alarm_text, has_positions, link_figures, merge_figures, piston
+from ropemon.station.views import (HELD_BACK_WHY, STALE_S, alarm_text, has_positions, link_figures, merge_figures,
+                                   piston)
 from ropemon.station.pipeline import AlarmState, Listener, StationStatus
 from ropemon.station.protocol import DAN_TO_N, Frame, L
 
@@ -104,6 +105,7 @@ def frame_view(f: Frame, at_s: float, area_m2: list[float], rated_load_n: float 
     used = [c for c in comp if c is not None]
     mean = sum(used) / len(used) if used else 0.0
     raw_sum: float | None = 0.0
+    held = f.held_back
     for i, r in enumerate(f.ropes):
         raw_n = None
         if r.raw_kpa != L.RAW_KPA_ABSENT and i < len(area_m2):
@@ -128,6 +130,7 @@ def frame_view(f: Frame, at_s: float, area_m2: list[float], rated_load_n: float 
             "pos_fault": pos_fault,                  # the displacement channel failed
             "near_lo": bool(mask >> (L.STROKE_LOW_SHIFT + i) & 1),    # the node saw the piston within the
             "near_hi": bool(mask >> (L.STROKE_HIGH_SHIFT + i) & 1),   # margin of the retracted / extended end
+            "held_back": i in held,                  # the node held its compensation back at rest
         })
     total = sum(used)
     missing = [i + 1 for i, ok in enumerate(present) if not ok]
@@ -138,7 +141,9 @@ def frame_view(f: Frame, at_s: float, area_m2: list[float], rated_load_n: float 
         "battery_v": _r(bat_v), "battery_low": bool(battery_low_v is not None and bat_v < battery_low_v)
         or "battery_low" in f.status_flags,
         "oil_c": _r(f.oil_temp_c, 1),
-        "flags": [n for n in f.status_flags if n != "temp_absent"],
+        "flags": [n for n in f.status_flags if n not in ("temp_absent", "held_back")],
+        "held_back": [i + 1 for i in held],
+        "held_why": HELD_BACK_WHY if held else "",
         "ropes": ropes,
         "status_only": not f.ropes,
         "positions": has_positions(f),

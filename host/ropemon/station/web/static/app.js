@@ -264,7 +264,9 @@
     v.ropes.forEach((r, i) => {
       const row = ensureRope(panel, r.rope);
       row.classList.toggle("fault", !!r.fault);
-      setText(field(row, "comp"), r.fault ? "FAULT" : num(r.comp_kN, 1));
+      setText(field(row, "comp"), r.fault ? "FAULT" : num(r.comp_kN, 1) + (r.held_back ? " *" : ""));
+      row.classList.toggle("held", !!r.held_back);
+      field(row, "comp").title = r.held_back ? v.held_why : "";
       setText(field(row, "raw"), r.raw_kN !== null ? num(r.raw_kN, 1) : (r.raw_kpa !== null ? r.raw_kpa + " kPa" : "–"));
       const band = bands[i];
       setText(field(row, "dev"), fin(r.dev) ? signed(r.dev * 100, 1) + " %" + (band && fin(band.band) ? " ±" + num(band.band * 100, 1) : "") : "");
@@ -273,6 +275,9 @@
       if (v.positions) cylinder(row, r, strokes[i], live.site.margin_mm);
     });
     $$("tr.rope", field(panel, "ropes")).forEach((row) => { if (parseInt(row.dataset.rope, 10) > v.ropes.length) row.remove(); });
+    const held = field(panel, "held");
+    setText(held, v.held_back && v.held_back.length ? "* rope " + v.held_back.join(", ") + ": " + v.held_why : "");
+    held.hidden = !(v.held_back && v.held_back.length);
     setText(field(panel, "sum-label"), v.partial ? "part" : "sum");
     setText(field(panel, "sum"), v.status_only ? "–" : num(v.sum_kN, 1));
     setText(field(panel, "raw-sum"), v.raw_sum_kN !== null ? num(v.raw_sum_kN, 1) : "");
