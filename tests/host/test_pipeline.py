@@ -232,15 +232,18 @@ def test_no_frame_from_any_node_is_an_alarm_without_a_configured_node_and_clears
     assert active_ids(alarms) == []
 
 
-def test_the_nodes_own_imbalance_bit_is_alarmed():
+def test_the_nodes_own_imbalance_bit_is_alarmed_only_where_asked():
+    """By default the node's imbalance bit raises nothing (DEVIATION alarms on the same means);
+    with `node_imbalance` (the evaluation's legacy station) it raises NODE IMBALANCE."""
     from ropemon.station.protocol import L
-    clk = [0.0]
-    alarms = AlarmListener(AlarmSettings())
-    s = Station(None, [alarms], clock=lambda: clk[0])
-    for k in range(5):
-        clk[0] = k * 0.1
-        s.feed("pithead", encode_frame(node=1, seq=k, status=L.ST_IMBALANCE, ropes=[(500, 500, 500, 0)] * 4)[1])
-    assert active_ids(alarms) == ["node_imbalance:n1"]
+    for on, want in ((True, ["node_imbalance:n1"]), (False, [])):
+        clk = [0.0]
+        alarms = AlarmListener(AlarmSettings(node_imbalance=on))
+        s = Station(None, [alarms], clock=lambda: clk[0])
+        for k in range(5):
+            clk[0] = k * 0.1
+            s.feed("pithead", encode_frame(node=1, seq=k, status=L.ST_IMBALANCE, ropes=[(500, 500, 500, 0)] * 4)[1])
+        assert active_ids(alarms) == want
 
 
 def test_an_old_frame_replayed_into_the_other_receiver_is_refused_and_counted():

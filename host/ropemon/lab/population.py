@@ -677,7 +677,7 @@ def station_settings(physical: dict) -> dict:
 
     s = alarm_settings(SiteFigures.from_physical(Physical.from_dict(physical)))
     names = {fl.name for fl in dataclasses.fields(s)}
-    legacy = {"legacy_deviation_possible": True, "equalizer": None}
+    legacy = {"legacy_deviation_possible": True, "equalizer": None, "node_imbalance": True}
     return {"station": s, "legacy": dataclasses.replace(s, **{k: v for k, v in legacy.items() if k in names}),
             "legacy_distinct": set(legacy) <= names}
 

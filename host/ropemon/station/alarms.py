@@ -105,6 +105,10 @@ class AlarmSettings:
     # the station before it watched the equalizer (the evaluation's baseline): deviation_possible
     # raised whenever the band reaches the limit (with the seals' friction: on every rope, always)
     legacy_deviation_possible: bool = False
+    # NODE IMBALANCE on the node's own imbalance bit: the same window means and limit as
+    # DEVIATION without its minimum duration, hysteresis or rope, so a duplicate of it (ISA-18.2);
+    # off, the bit shows in the node's flags. The evaluation's legacy station has it on.
+    node_imbalance: bool = False
     # the equalizer's alarms from the piston positions (ropemon.station.equalizer); None: none
     equalizer: EqualizerSettings | None = EqualizerSettings()
 
@@ -307,7 +311,7 @@ class AlarmEngine:
             lo, hi = bit, not bit
         self._step(ev, f"battery_low:n{node}", "battery_low", node=node, timing=s.timing, now_s=now_s,
                    raise_cond=lo, clear_cond=hi, value=mv, threshold=s.battery_low_mv, message=f"battery {mv} mV low")
-        imb = bool(frame.status & L.ST_IMBALANCE)
+        imb = bool(frame.status & L.ST_IMBALANCE) and s.node_imbalance
         self._step(ev, f"node_imbalance:n{node}", "node_imbalance", node=node, timing=s.fault_timing, now_s=now_s,
                    raise_cond=imb, clear_cond=not imb,
                    message="the node reports a rope beyond its own imbalance limit")
