@@ -6,7 +6,8 @@
 
 `step` does, for n ropes: NAMUR and pressure-step checks and calibration (channels), the
 positions' travel check and stroke margins, filtered
-velocity, pipe-loss table, noise-robust LuGre friction, tension, window
+velocity, pipe-loss table, noise-robust LuGre friction (held back at rest where the seal state
+the piston's own travel gives does not support it: do no harm), tension, window
 statistics; then oil temperature, depth/speed from the pulse counter and Hall
 marks, node time, and at the end of a frame window the frame's fields (OUT_*).
 Every int stays within +-2**30, nothing is allocated, and `step` is one call
