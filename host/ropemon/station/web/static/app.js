@@ -276,8 +276,10 @@
     });
     $$("tr.rope", field(panel, "ropes")).forEach((row) => { if (parseInt(row.dataset.rope, 10) > v.ropes.length) row.remove(); });
     const held = field(panel, "held");
-    setText(held, v.held_back && v.held_back.length ? "* rope " + v.held_back.join(", ") + ": " + v.held_why : "");
-    held.hidden = !(v.held_back && v.held_back.length);
+    if (held) {
+      setText(held, v.held_back && v.held_back.length ? "* rope " + v.held_back.join(", ") + ": " + v.held_why : "");
+      held.hidden = !(v.held_back && v.held_back.length);
+    }
     setText(field(panel, "sum-label"), v.partial ? "part" : "sum");
     setText(field(panel, "sum"), v.status_only ? "–" : num(v.sum_kN, 1));
     setText(field(panel, "raw-sum"), v.raw_sum_kN !== null ? num(v.raw_sum_kN, 1) : "");
