@@ -148,8 +148,9 @@ def _ca_pem() -> bytes:
 
 
 def test_ropemon_serve_starts_every_face_on_a_copy_of_the_example(tmp_path):
-    """The example with its site's files made (node configs, users, the broker's password and CA),
-    on this machine's loopback: every hoist and every face starts, SIGTERM stops it cleanly."""
+    """The example edited as a site would (its own node configs, users, the broker's login over TLS
+    with its CA), on free ports of this machine's loopback: every hoist and every face starts,
+    SIGTERM stops it cleanly."""
     for lib in ("starlette", "uvicorn", "asyncua", "pymodbus", "paho.mqtt", "cryptography"):
         pytest.importorskip(lib)
     from ropemon.commission.nodejson import example_physical, make_node_json
@@ -157,12 +158,16 @@ def test_ropemon_serve_starts_every_face_on_a_copy_of_the_example(tmp_path):
 
     text = EXAMPLE.read_text()
     ports = {k: _free_port() for k in ("web", "opcua", "modbus", "mqtt", "gateway")}
-    for old, new in [('"opc.tcp://10.20.0.5:4840/ropemon"', f'"opc.tcp://127.0.0.1:{ports["opcua"]}/ropemon"'),
-                     ('bind = "10.20.0.5"', 'bind = "127.0.0.1"'),
-                     ("port = 8080", f"port = {ports['web']}"), ("port = 502", f"port = {ports['modbus']}"),
-                     ('host = "broker.mine.local"', 'host = "127.0.0.1"'), ("port = 8883", f"port = {ports['mqtt']}"),
-                     ("socket://10.20.0.31:4001", f"socket://127.0.0.1:{ports['gateway']}")]:
-        assert old in text, old
+    for old, new in [('"opc.tcp://127.0.0.1:4840/ropemon"', f'"opc.tcp://127.0.0.1:{ports["opcua"]}/ropemon"'),
+                     ("port = 8080 ", f"port = {ports['web']} "), ("port = 5020 ", f"port = {ports['modbus']} "),
+                     ("port = 1883 ", f"port = {ports['mqtt']} "),
+                     ("socket://127.0.0.1:4001", f"socket://127.0.0.1:{ports['gateway']}"),
+                     ('configs = ["../firmware/node.json"]  # node.json of each cage node',
+                      'configs = ["north-skip-a.json", "north-skip-b.json"]  # node.json of each cage node'),
+                     ('configs = ["../firmware/node.json"]  # one cage node', 'configs = ["south-cage.json"]  # one'),
+                     ('username = ""', 'username = "shaft-2"'), ('password_file = ""', 'password_file = "mqtt-password"'),
+                     ("tls = false", "tls = true")]:
+        assert text.count(old) == 1, old
         text = text.replace(old, new)
     station = tmp_path / "station.toml"
     station.write_text(text)

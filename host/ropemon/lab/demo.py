@@ -315,7 +315,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "it until Ctrl-C (a headless run stops at the end)")
     p.add_argument("--station", metavar="STATION.toml",
                    help="play the wind through this station file's first hoist: its receivers become the "
-                        "demo's virtual ports (and its node config the simulated node's, if it is another)")
+                        "demo's virtual ports (and its node config the simulated node's, if it is another: then the "
+                        "logs in OUT/data); with --serve, a users file it names that is missing is the demo's")
     p.add_argument("--port", type=int, default=None,
                    help="the web face's port of the station the demo writes (default 8080, or a free one)")
 

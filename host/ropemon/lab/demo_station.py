@@ -2,7 +2,11 @@
 
 The station file is the demo's own (`write_demo_station`: one hoist, its log and the web face
 in the demo's folder) or the one given; its first hoist's receivers become the demo's virtual
-ports. The station is `ropemon serve`'s: the same `StationSet`, the same faces.
+ports. The station is `ropemon serve`'s: the same `StationSet`, the same faces. Of a given
+file, the demo changes only what the simulated node cannot do without, in memory: the first
+hoist's node configs when they lack the simulated node's key, and then the station's logs
+(OUT/data: the simulated node's frames never go into the file's own); when serving, a users
+file it names that does not exist (the demo's own, OUT/users.toml, with its operator).
 """
 from __future__ import annotations
 
@@ -21,9 +25,8 @@ from ropemon.station.assembly import run_loop
 from ropemon.station.protocol import load_node_keys
 
 
-def write_demo_station(out: Path, node_json: Path, shaft_m: float, port: int | None) -> tuple[Path, str]:
-    """OUT/station.toml: one hoist (the simulated one), its log in OUT, the web face on localhost,
-    and OUT/users.toml with one operator whose password is new each run (returned)."""
+def demo_users(out: Path) -> tuple[Path, str]:
+    """OUT/users.toml with one operator, the demo's, whose password is new each run: (path, password)."""
     import secrets
 
     try:
@@ -34,6 +37,36 @@ def write_demo_station(out: Path, node_json: Path, shaft_m: float, port: int | N
     users.unlink(missing_ok=True)
     password = secrets.token_urlsafe(9)
     add_user(users, DEMO_OPERATOR, "operator", password)
+    return users, password
+
+
+def with_demo_users(sf: Any, out: Path, step: Callable[[str], float]) -> tuple[Any, str | None]:
+    """The station file with the demo's users file (`demo_users`) in place of every users file it
+    names ([web], [opcua]) that does not exist, and the demo operator's password (None: none missing)."""
+    web = sf.web.users if sf.web is not None else None
+    opcua = sf.sections.get("opcua", {}).get("users")
+    opcua_path = None
+    if isinstance(opcua, str) and opcua:
+        opcua_path = Path(opcua) if Path(opcua).is_absolute() else sf.path.parent / opcua
+    missing = [p for p in dict.fromkeys((web, opcua_path)) if p is not None and not p.exists()]
+    if not missing:
+        return sf, None
+    users, password = demo_users(out)
+    for p in missing:
+        step(f"  {p}: no such users file: the demo's {users} instead (its operator {DEMO_OPERATOR}, "
+             "a new password each run)")
+    if web in missing:
+        sf = dataclasses.replace(sf, web=dataclasses.replace(sf.web, users=users))
+    if opcua_path in missing:
+        sf = dataclasses.replace(sf, sections={**sf.sections,
+                                               "opcua": {**sf.sections["opcua"], "users": str(users.resolve())}})
+    return sf, password
+
+
+def write_demo_station(out: Path, node_json: Path, shaft_m: float, port: int | None) -> tuple[Path, str]:
+    """OUT/station.toml: one hoist (the simulated one), its log in OUT, the web face on localhost,
+    and OUT/users.toml with one operator whose password is new each run (returned)."""
+    users, password = demo_users(out)
     path = out / "station.toml"
     path.write_text(f"""# written by ropemon demo: the simulated hoist as a station (docs/web.md)
 [station]
@@ -60,13 +93,17 @@ secret = "web-secret"
 def demo_station_file(args: argparse.Namespace, out: Path, node_json: Path, shaft_m: float,
                       step: Callable[[str], float]) -> tuple[Any, str | None, Path | None] | None:
     """(station file, the demo operator's password or None, the first hoist's log or None): the
-    first hoist with the simulated node's config if its own lack its key, the demo's own log
-    new each run; None after printing why a given station's log cannot take the demo's frames."""
+    first hoist with the simulated node's config if its own lack its key, and then the logs in
+    OUT/data; the missing users files the demo's (`with_demo_users`, when serving); the demo's
+    own log new each run; None after printing why a given station's log cannot take the demo's
+    frames."""
     from ropemon.station.stationfile import load_station_file
 
     password = None
     if args.station:
         sf = load_station_file(args.station)
+        if args.serve:
+            sf, password = with_demo_users(sf, out, step)
     else:
         path, password = write_demo_station(out, node_json, shaft_m, args.port)
         sf = load_station_file(path)
@@ -75,11 +112,16 @@ def demo_station_file(args: argparse.Namespace, out: Path, node_json: Path, shaf
     have: dict[int, bytes] = {}
     for c in first.configs:
         have.update(load_node_keys(c))
+    own_log = not args.station
     if any(have.get(n) != k for n, k in demo_keys.items()):
         step(f"  hoist {first.id}: its node configs do not hold the simulated node's key: it uses {node_json}")
         sf = dataclasses.replace(sf, hoists=(dataclasses.replace(first, configs=(node_json,)),) + sf.hoists[1:])
+        if sf.data_dir is not None:                   # another node's frames: not into the file's logs
+            sf = dataclasses.replace(sf, data_dir=out / "data")
+            own_log = True
+            step(f"  the station's logs in {sf.data_dir} (the simulated node's frames stay out of the file's own)")
     db = sf.data_dir / f"{first.id}.db" if sf.data_dir is not None else None
-    if db is not None and not args.station:          # the demo's own log: a new one each run
+    if db is not None and own_log:                   # the demo's own log: a new one each run
         for p in (db, Path(str(db) + "-wal"), Path(str(db) + "-shm")):
             p.unlink(missing_ok=True)
     elif db is not None and db.exists():
