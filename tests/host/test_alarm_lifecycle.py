@@ -6,7 +6,7 @@ import pytest
 
 from ropemon.station.alarms import AlarmEngine, AlarmSettings, FLOOD_RAISES
 from ropemon.station.protocol import L
-from test_host_alarms import DT, dev_row, frame, run
+from test_alarms import DT, dev_row, frame, run
 
 
 def state(eng: AlarmEngine, aid: str) -> str:

@@ -1,7 +1,7 @@
 """Batch decoder for capture and log files: numpy over all frames at once, columns out.
 
 Same rules and same counts as `StreamDecoder` fed the whole file then `finish()`
-(tests/host/test_host_batch.py checks it): bodies between 0x00 delimiters are
+(tests/host/test_batch.py checks it): bodies between 0x00 delimiters are
 grouped by length; for each valid frame length (of layout version 2 or 3: their
 lengths never coincide) the COBS code chain, the CRC-32 and the field parse run as
 array operations over every body of that length, and a frame whose version byte is
