@@ -3,10 +3,10 @@ from __future__ import annotations
 
 from ropemon.lab.demo import FrameKeeper
 from ropemon.station.monitor import MonitorView
-from ropemon.station.pipeline import Acknowledge, AlarmListener, Station
+from ropemon.station.pipeline import Acknowledge, AlarmListener, HoistPipeline
 
 
-class Rig(Station):
+class Rig(HoistPipeline):
     def __init__(self, keys, settings=None, site=None, clock=None, store=None):
         from ropemon.station.pipeline import StoreListener
         self.alarm_listener = AlarmListener(settings)

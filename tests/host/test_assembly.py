@@ -69,7 +69,7 @@ def test_serve_builds_each_hoist_through_build_hoist(tmp_path, built):
         spec, _, kw = calls[0]
         assert spec.keys == {1: KEY} and spec.settings.nodes == (1,) and spec.receivers == (("pithead", "loop://"),)
         assert kw["store"] is s.hoists["north"].store and kw["wake"] is s._wake
-        assert s.hoists["north"].station.hub.wake is s._wake          # given by constructor, not set from outside
+        assert s.hoists["north"].pipeline.hub.wake is s._wake          # given by constructor, not set from outside
     finally:
         s.close()
 
@@ -117,16 +117,16 @@ def test_the_demo_builds_its_station_through_build_hoist(built):
     clock = DemoClock(10.0, start_s=1000.0)
     host = demo_host({1: KEY}, None, clock)
     (spec, got_clock, kw), = calls
-    assert got_clock is clock and kw["wall"] is clock and host.station.hub.clock is clock
+    assert got_clock is clock and kw["wall"] is clock and host.pipeline.hub.clock is clock
     assert [type(v).__name__ for v in kw["views"]] == ["FrameKeeper"]
 
 
 def test_no_entry_point_wires_a_station_itself():
-    """The listeners and the Station are made in assembly.py only (tests aside)."""
+    """The listeners and the HoistPipeline are made in assembly.py only (tests aside)."""
     for rel in ("station/monitor.py", "station/hoists.py", "commission/replay.py", "lab/demo.py",
                 "lab/demo_station.py"):
         text = (HOST / rel).read_text()
-        for made in ("Station(", "AlarmListener(", "StoreListener(", "station_listeners(", ".hub.clock =",
+        for made in ("HoistPipeline(", "AlarmListener(", "StoreListener(", "station_listeners(", ".hub.clock =",
                      ".hub.wake ="):
             assert made not in text, (rel, made)
 
@@ -142,7 +142,7 @@ def test_a_station_on_an_injected_clock_stamps_its_own_events_and_rx_times_on_it
     t = [500.0]
     hoist = build_hoist(HoistSpec("x", SiteFigures(), {1: KEY}), lambda: t[0], wall=lambda: t[0] + 0.5,
                         views=[Failing()])
-    s = hoist.station
+    s = hoist.pipeline
     seen = []
     s.add(type("Events", (Listener,), {"on_event": lambda self, e: seen.append(e)})())
     s.feed("pithead", wire(1, 1000))

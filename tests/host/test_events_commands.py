@@ -13,7 +13,7 @@ from ropemon.station.commands import CommandOutcome
 from ropemon.station.decoder import SEQ_COUNT_BITS
 from ropemon.station.events import AlarmEvent
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmListener, Listener, RemoveFromService, Shelve,
-                                      Station, Unshelve)
+                                      HoistPipeline, Unshelve)
 from ropemon.station.protocol import encode_frame
 from ropemon.station.store import Store
 
@@ -117,7 +117,7 @@ class Events(Listener):
 def _deviating_station():
     clk = [0.0]
     alarms, seen = AlarmListener(AlarmSettings()), Events()
-    s = Station(KEYS, [alarms, seen], clock=lambda: clk[0])
+    s = HoistPipeline(KEYS, [alarms, seen], clock=lambda: clk[0])
     for k in range(12):
         clk[0] = k * 0.1
         s.feed("pithead", _frame(k))
@@ -156,7 +156,7 @@ def test_a_shelve_carried_out_and_an_accept_rewound_have_their_outcomes():
 
 
 def test_a_command_nothing_carries_out_is_refused_to_its_sender():
-    s = Station(KEYS, [Events()])                 # no alarm engine
+    s = HoistPipeline(KEYS, [Events()])                 # no alarm engine
     t = s.submit(Acknowledge("olga", "web"))
     s.pump()
     out = t.result(timeout=0)

@@ -9,7 +9,7 @@ from rich.console import Console
 from host_rig import KEYS
 from ropemon.station.decoder import SEQ_COUNT_BITS
 from ropemon.station.monitor import MonitorView, handle_keys, operator_name
-from ropemon.station.pipeline import AcceptRewound, Station, station_listeners
+from ropemon.station.pipeline import AcceptRewound, HoistPipeline, station_listeners
 from ropemon.station.protocol import encode_frame
 from ropemon.station.store import Store
 
@@ -27,7 +27,7 @@ def screen(view: MonitorView) -> str:
 def test_refused_node_is_shown_and_accepted_with_r_then_y(tmp_path):
     with Store(tmp_path / "hoist.db") as store:
         view = MonitorView()
-        s = Station(KEYS, station_listeners(None, store, view), resume_from=store)
+        s = HoistPipeline(KEYS, station_listeners(None, store, view), resume_from=store)
         s.feed("pithead", w(7, 0) + w(7, 1))
         s.feed("mid-shaft", w(7, 1))
         s.feed("pithead", w(0, 0))            # the node's flash was wiped
@@ -62,7 +62,7 @@ def test_refused_node_is_shown_and_accepted_with_r_then_y(tmp_path):
 
 def test_r_does_nothing_without_a_refused_node_and_q_quits():
     view = MonitorView()
-    s = Station(KEYS, [view])
+    s = HoistPipeline(KEYS, [view])
     s.feed("pithead", w(1, 0))
     s.tick()
     assert handle_keys(s, view, "r", "bob") and view.confirm_accept is None
@@ -72,7 +72,7 @@ def test_r_does_nothing_without_a_refused_node_and_q_quits():
 def test_accept_up_front_is_logged_and_reaches_the_decoders(tmp_path):
     with Store(tmp_path / "hoist.db") as store:
         view = MonitorView()
-        s = Station(KEYS, station_listeners(None, store, view), accept_rewound=[1], resume_from=store)
+        s = HoistPipeline(KEYS, station_listeners(None, store, view), accept_rewound=[1], resume_from=store)
         s.submit(AcceptRewound(operator_name(), "command line", node=1, how="with --accept-rewound"))
         s.pump()
         ev = store.events()[0]

@@ -204,7 +204,7 @@ def test_a_decoder_error_is_shown_on_the_link_line_and_logged_once(tmp_path):
     the link line shows the count and the last error, the log gets one event per new error."""
     from ropemon.station.monitor import MonitorView
     from ropemon.station.sitefigures import SiteFigures
-    from ropemon.station.pipeline import Station, station_listeners
+    from ropemon.station.pipeline import HoistPipeline, station_listeners
     from ropemon.station.store import Store
 
     def decoder_bug(data: bytes) -> None:
@@ -212,7 +212,7 @@ def test_a_decoder_error_is_shown_on_the_link_line_and_logged_once(tmp_path):
 
     with Store(tmp_path / "log.db") as store:
         view = MonitorView(SiteFigures())
-        session = Station(None, station_listeners(None, store, view))
+        session = HoistPipeline(None, station_listeners(None, store, view))
         rx = session.add_port("loop://", "pithead")
         session.tick()
         assert "ERRORS" not in "".join(fig for _, fig in view.link_rows)  # none: nothing shown

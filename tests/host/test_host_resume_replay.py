@@ -17,7 +17,7 @@ import pytest
 from host_rig import KEYS
 from ropemon.station.decoder import DUPLICATE_MEMORY, SEQ_COUNT_BITS, ReplayGuard, StreamDecoder, frame_bytes
 from ropemon.station.monitor import MonitorView
-from ropemon.station.pipeline import AcceptRewound, Station, station_listeners
+from ropemon.station.pipeline import AcceptRewound, HoistPipeline, station_listeners
 from ropemon.station.protocol import decode_raw, encode_frame
 from ropemon.station.store import Store
 from ropemon.lab.vserial import VirtualPort
@@ -38,17 +38,17 @@ def stream(node: int, b: int, counts) -> bytes:
     return b"".join(w(node, boot(b, k)) for k in counts)
 
 
-def counts(s: Station) -> dict[str, tuple[int, int, int, int]]:
+def counts(s: HoistPipeline) -> dict[str, tuple[int, int, int, int]]:
     return {n: (d.counts.frames_ok, d.counts.duplicate, d.counts.replayed, d.counts.rewound)
             for n, d in s.decoders.items()}
 
 
 def station(keys, store):
     view = MonitorView()
-    return Station(keys, station_listeners(None, store, view), resume_from=store), view
+    return HoistPipeline(keys, station_listeners(None, store, view), resume_from=store), view
 
 
-def accept(s: Station, node: int, operator: str) -> None:
+def accept(s: HoistPipeline, node: int, operator: str) -> None:
     s.submit(AcceptRewound(operator, "test", node=node))
     s.pump()
 

@@ -9,7 +9,7 @@ from rich.console import Console
 
 from host_rig import KEYS
 from ropemon.station.monitor import SHELVE_REASONS, MonitorView, handle_keys
-from ropemon.station.pipeline import Station, station_listeners
+from ropemon.station.pipeline import HoistPipeline, station_listeners
 from ropemon.station.protocol import encode_frame
 from ropemon.station.store import Store
 
@@ -32,7 +32,7 @@ def station(tmp_path, high: int = 6000):
     store = Store(tmp_path / "hoist.db")
     view = MonitorView()
     clock = [1.8e9]
-    s = Station(KEYS, station_listeners(None, store, view), clock=lambda: clock[0], resume_from=store)
+    s = HoistPipeline(KEYS, station_listeners(None, store, view), clock=lambda: clock[0], resume_from=store)
     for k in range(30):
         s.feed("pithead", frames(k, 1, high))
         s.tick()

@@ -7,7 +7,7 @@ import threading
 from host_rig import KEYS
 from ropemon.station.alarms import AlarmEvent, AlarmSettings
 from ropemon.station.decoder import SEQ_COUNT_BITS
-from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmListener, AlarmState, Listener, Station,
+from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmListener, AlarmState, Listener, HoistPipeline,
                                       StationStatus)
 from ropemon.station.protocol import encode_frame
 
@@ -52,7 +52,7 @@ class Echo(Listener):
 
 def test_messages_reach_every_listener_in_order_and_published_ones_follow():
     log: list = []
-    s = Station(KEYS, [Recorder("a", log), Echo(), Recorder("b", log)], clock=lambda: 1.0)
+    s = HoistPipeline(KEYS, [Recorder("a", log), Echo(), Recorder("b", log)], clock=lambda: 1.0)
     s.feed("pithead", w(0) + w(1))
     s.feed("mid-shaft", w(1))                     # a duplicate: no listener sees it
     assert log == [("a", "frame", 0), ("b", "frame", 0), ("a", "event", "echo:0"), ("b", "event", "echo:0"),
@@ -71,7 +71,7 @@ def test_the_alarm_listener_publishes_events_and_state_and_takes_the_operators_a
     log: list = []
     clk = [0.0]
     alarms = AlarmListener(AlarmSettings())
-    s = Station(KEYS, [alarms, Recorder("view", log)], clock=lambda: clk[0])
+    s = HoistPipeline(KEYS, [alarms, Recorder("view", log)], clock=lambda: clk[0])
     for k in range(12):                           # rope 4 at +~27 % of the mean
         clk[0] = k * 0.1
         s.feed("pithead", encode_frame(node=1, seq=k, time_ms=k * 100, key=KEYS[1],
@@ -96,7 +96,7 @@ class Broken(Listener):
 
 def test_a_failing_listener_does_not_stop_the_others_and_is_reported():
     log: list = []
-    s = Station(None, [Broken(), Recorder("view", log)], clock=lambda: 2.0)
+    s = HoistPipeline(None, [Broken(), Recorder("view", log)], clock=lambda: 2.0)
     s.feed("pithead", w(0) + w(1))
     assert [e for e in log if e[1] == "frame"] == [("view", "frame", 0), ("view", "frame", 1)]
     errors = [e for e in log if e[1] == "event"]
@@ -109,7 +109,7 @@ def test_a_failing_listener_does_not_stop_the_others_and_is_reported():
 
 def test_accepting_a_rewound_node_from_another_thread_reaches_each_decoder_through_its_own_thread():
     log: list = []
-    s = Station(KEYS, [Recorder("view", log)])
+    s = HoistPipeline(KEYS, [Recorder("view", log)])
     pit = s.hub.feeder("pithead")
     pit(w(0, boot=7) + w(0, boot=0))              # the node's flash was wiped: refused
     s.pump()
@@ -140,7 +140,7 @@ def test_alarm_state_carries_bands_only_with_the_seal_lines():
         def on_alarms(self, state):
             states.append(state)
 
-    s = Station(None, [AlarmListener(), Keep()], clock=lambda: 0.0)
+    s = HoistPipeline(None, [AlarmListener(), Keep()], clock=lambda: 0.0)
     s.feed("pithead", w(0))
     s.tick()
     assert states[-1].active == () and states[-1].bands == {1: []}
@@ -159,7 +159,7 @@ def test_a_full_disk_keeps_the_station_alarming_and_loses_no_frame_once_space_re
     store.db.execute(f"PRAGMA max_page_count = {pages + 2}")
     log: list = []
     alarms = AlarmListener(AlarmSettings(silent_s=60.0))
-    s = Station(KEYS, [alarms, StoreListener(store, clock=lambda: clk[0]), Recorder("view", log)],
+    s = HoistPipeline(KEYS, [alarms, StoreListener(store, clock=lambda: clk[0]), Recorder("view", log)],
                 clock=lambda: clk[0])
     seqs = []
     for k in range(400):
@@ -200,7 +200,7 @@ def test_a_dead_receiver_and_a_configured_node_never_heard_raise_alarms_within_t
     device and the reason) after receiver_down_s, and the configured node SILENT after silent_s."""
     clk = [0.0]
     alarms = AlarmListener(AlarmSettings(silent_s=5.0, receiver_down_s=2.0, nodes=(1,)))
-    s = Station(KEYS, [alarms], clock=lambda: clk[0])
+    s = HoistPipeline(KEYS, [alarms], clock=lambda: clk[0])
     s.add_port("/dev/ropemon-no-such-port", "pithead", backoff_s=0.01).start()
     try:
         for k in range(9):                     # 0 .. 2 s
@@ -220,7 +220,7 @@ def test_a_dead_receiver_and_a_configured_node_never_heard_raise_alarms_within_t
 def test_no_frame_from_any_node_is_an_alarm_without_a_configured_node_and_clears_on_a_frame():
     clk = [0.0]
     alarms = AlarmListener(AlarmSettings(silent_s=5.0))
-    s = Station(None, [alarms], clock=lambda: clk[0])
+    s = HoistPipeline(None, [alarms], clock=lambda: clk[0])
     for k in range(30):
         clk[0] = k * 0.25
         s.tick()
@@ -239,7 +239,7 @@ def test_the_nodes_own_imbalance_bit_is_alarmed_only_where_asked():
     for on, want in ((True, ["node_imbalance:n1"]), (False, [])):
         clk = [0.0]
         alarms = AlarmListener(AlarmSettings(node_imbalance=on))
-        s = Station(None, [alarms], clock=lambda: clk[0])
+        s = HoistPipeline(None, [alarms], clock=lambda: clk[0])
         for k in range(5):
             clk[0] = k * 0.1
             s.feed("pithead", encode_frame(node=1, seq=k, status=L.ST_IMBALANCE, ropes=[(500, 500, 500, 0)] * 4)[1])
@@ -252,7 +252,7 @@ def test_an_old_frame_replayed_into_the_other_receiver_is_refused_and_counted():
     log: list = []
     clk = [0.0]
     alarms = AlarmListener(AlarmSettings())
-    s = Station(KEYS, [alarms, Recorder("view", log)], clock=lambda: clk[0])
+    s = HoistPipeline(KEYS, [alarms, Recorder("view", log)], clock=lambda: clk[0])
     s.feed("pithead", b"".join(w(k) for k in range(100)))
     s.feed("mid-shaft", b"".join(w(k) for k in range(100, 6001)))
     log.clear()
@@ -273,7 +273,7 @@ def test_shelving_goes_through_the_command_path_and_a_bad_command_is_refused_and
     log: list = []
     clk = [0.0]
     alarms = AlarmListener(AlarmSettings())
-    s = Station(None, [alarms, Recorder("view", log)], clock=lambda: clk[0])
+    s = HoistPipeline(None, [alarms, Recorder("view", log)], clock=lambda: clk[0])
     for k in range(12):
         clk[0] = k * 0.1
         s.feed("pithead", encode_frame(node=1, seq=k, ropes=[(500, 500, 500, 0)] * 3 + [(700, 700, 700, 0)])[1])

@@ -58,12 +58,12 @@ def test_a_station_of_two_hoists_each_with_its_own_station_alarms_and_log(tmp_pa
     try:
         s.step()                                      # the station starts looking
         north, south = s.hoists["north"], s.hoists["south"]
-        north.station.feed("pithead", encode_frame(node=1, seq=5, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
-        south.station.feed("pithead", encode_frame(node=1, seq=5, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
-        assert north.station.decoders["pithead"].counts.frames_ok == 1
-        assert south.station.decoders["pithead"].counts.mac_fail == 1   # north's key is not south's
+        north.pipeline.feed("pithead", encode_frame(node=1, seq=5, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
+        south.pipeline.feed("pithead", encode_frame(node=1, seq=5, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
+        assert north.pipeline.decoders["pithead"].counts.frames_ok == 1
+        assert south.pipeline.decoders["pithead"].counts.mac_fail == 1   # north's key is not south's
         clk[0] = 110.0
-        north.station.feed("pithead", encode_frame(node=1, seq=6, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
+        north.pipeline.feed("pithead", encode_frame(node=1, seq=6, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
         s.step()
         assert [a.id for a in south.alarms.engine.active() if a.present] == ["link_integrity:pithead",
                                                                                "silent:n1"]
@@ -137,7 +137,7 @@ def test_ropemon_serve_says_where_each_hoists_replay_protection_resumed(tmp_path
     s = StationSet(load_station_file(station))
     try:                                              # the first run: north logs boot 3, counts 1..5
         for k in range(1, 6):
-            s.hoists["north"].station.feed("pithead", encode_frame(
+            s.hoists["north"].pipeline.feed("pithead", encode_frame(
                 node=1, seq=3 << SEQ_COUNT_BITS | k, key=KEY_N, ropes=[(500, 500, 500, 0)] * 4, battery_mv=12_000)[1])
     finally:
         s.close()
@@ -170,7 +170,7 @@ def test_a_station_set_takes_other_receivers_for_a_hoist(tmp_path):
         assert s.hoists["south"].spec.receivers == (("radio", "loop://"),)
         assert s.hoists["north"].spec.receivers == sf.hoists[0].receivers
         s.start()
-        assert sorted(s.hoists["south"].station.hub.receivers) == ["radio"]
+        assert sorted(s.hoists["south"].pipeline.hub.receivers) == ["radio"]
     finally:
         s.close()
     with pytest.raises(ValueError, match="west"):

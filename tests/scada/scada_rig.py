@@ -54,7 +54,7 @@ class Rig:
         kw.setdefault("battery_mv", 12_000)
         kw.setdefault("time_ms", self.seq[hoist] * 100)
         wire = encode_frame(node=1, seq=self.seq[hoist], key=key_of(i), ropes=ropes, **kw)[1]
-        self.stations.hoists[hoist].station.feed("pithead", wire)
+        self.stations.hoists[hoist].pipeline.feed("pithead", wire)
         return self.seq[hoist]
 
     def step(self, dt: float = 0.25) -> None:

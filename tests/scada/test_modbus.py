@@ -121,7 +121,7 @@ def test_read_only_unless_ack_coil(served):
 def test_the_ack_coil_acknowledges_the_hoists_alarms_through_the_station(served):
     rig, face, client = served(2, "ack_coil = true\n")
     events = []
-    rig.stations.hoists["h1"].station.add(_Events(events))
+    rig.stations.hoists["h1"].pipeline.add(_Events(events))
     for _ in range(12):                         # 3 s: no frame, both hoists' nodes silent
         rig.step()
     silent_bit = 1 << ALARM_KINDS.index("silent")
@@ -187,7 +187,7 @@ V1_NODE = tuple(range(0, 22))
 
 
 def _listener(rig, hoist):
-    return next(x for x in rig.stations.hoists[hoist].station.listeners if isinstance(x, M.ModbusValues))
+    return next(x for x in rig.stations.hoists[hoist].pipeline.listeners if isinstance(x, M.ModbusValues))
 
 
 def test_version_2_reads_the_positions_back_and_keeps_version_1s_registers(tmp_path):

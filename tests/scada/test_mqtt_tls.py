@@ -137,7 +137,7 @@ def test_a_wrong_password_is_refused_and_said_without_a_station_fault(tmp_path, 
         assert why in face.describe()
         assert face.error is None                        # not a station fault: the hoist does not depend on it
         hoist = rig.stations.hoists["h0"]
-        mqtt_listener = next(x for x in hoist.station.listeners if getattr(x, "name", "") == "mqtt")
+        mqtt_listener = next(x for x in hoist.pipeline.listeners if getattr(x, "name", "") == "mqtt")
         assert mqtt_listener.health() is None
         time.sleep(1.5)                                  # retried, said once
         assert caplog.text.count("the broker refused the connection") == 1

@@ -80,7 +80,7 @@ users = "users.toml"
 def feed(rig, tensions_dan, n=1, dt=0.1, positions=None, **kw):
     """`n` frames of node 1 with these rope tensions (and piston positions, 0.1 mm, None: absent;
     `version`, `stroke_mask` in kw), the station clock `dt` apart; then a tick."""
-    st = rig["stations"].hoists["north"].station
+    st = rig["stations"].hoists["north"].pipeline
     for _ in range(n):
         rig["seq"][0] += 1
         rig["clock"][0] += dt
@@ -119,7 +119,7 @@ async def pumped(rig, call):
     pumps: the face answers with its command's outcome once the station has carried it out."""
     task = asyncio.ensure_future(call)
     while not task.done():
-        rig["stations"].hoists["north"].station.pump()
+        rig["stations"].hoists["north"].pipeline.pump()
         await asyncio.sleep(0.01)
     return task.result()
 

@@ -85,7 +85,7 @@ class Site:
         wire = encode_frame(node=1, seq=self.seq[hoist], key=key, time_ms=self.seq[hoist] * 100, ropes=list(ropes),
                             battery_mv=12_000, depth_mm=kw.pop("depth_mm", 250_000), speed_mm_s=kw.pop("speed_mm_s", 0),
                             **kw)[1]
-        self.stations.hoists[hoist].station.feed("pithead", wire)
+        self.stations.hoists[hoist].pipeline.feed("pithead", wire)
         if step:
             self.stations.step()
 
@@ -116,7 +116,7 @@ def pumped(site: Site, send):
         fut = ex.submit(send)
         while not fut.done():
             for h in site.stations.hoists.values():
-                h.station.pump()
+                h.pipeline.pump()
             time.sleep(0.005)
         return fut.result()
 
@@ -236,7 +236,7 @@ def test_the_stream_sends_a_snapshot_then_a_delta_for_a_new_frame(site):
         assert ev == "snapshot" and snap["hoist"] == "north" and snap["nodes"]["1"]["seq"] == 1
         assert "active" in snap["alarms"] and snap["site"]["imbalance_frac"] == pytest.approx(0.10)
         site.frame(ropes=DEVIATING, step=False)        # the station's thread: pump only (no tick)
-        site.stations.hoists["north"].station.pump()
+        site.stations.hoists["north"].pipeline.pump()
         for ev, data in events:
             if ev == "frame":
                 break

@@ -178,7 +178,7 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
         raise ReplayError(str(e)) from None
     clock = NodeClock()
     hoist = assembly.build_hoist(spec, clock, wall=clock, store=store, db_path=db)
-    session = hoist.station
+    session = hoist.pipeline
     offset = 0.0                       # added after a restart of the node's clock
     last = next_tick = None
     try:

@@ -29,7 +29,7 @@ from ropemon.station.alarms import AlarmSettings
 from ropemon.station import assembly
 from ropemon.station.assembly import HoistSpec, run_loop
 from ropemon.station.link import Received
-from ropemon.station.pipeline import AlarmListener, Listener, Station
+from ropemon.station.pipeline import AlarmListener, Listener, HoistPipeline
 from ropemon.station.protocol import DAN_TO_N, Frame, FrameError, L, decode_raw, decode_wire, load_node_keys
 from ropemon.station.report import REST_AVG_S, SETTLE_S
 from ropemon.station.sitefigures import SiteFigures
@@ -195,7 +195,7 @@ class FrameKeeper(Listener):
 class DemoHost:
     """The station as the demo runs it, and the listeners it reads back."""
 
-    station: Station
+    pipeline: HoistPipeline
     alarms: AlarmListener
     kept: FrameKeeper
     store: Any = None
@@ -210,7 +210,7 @@ def demo_host(keys: dict[int, bytes] | None, settings: AlarmSettings | None, clo
     spec = HoistSpec(DEMO_HOIST, site or SiteFigures(), keys or {}, settings)
     views = [kept] + ([view] if view is not None else [])
     hoist = assembly.build_hoist(spec, clock, wall=clock, store=store, views=views)
-    return DemoHost(hoist.station, hoist.alarms, kept, store, view)
+    return DemoHost(hoist.pipeline, hoist.alarms, kept, store, view)
 
 
 def simulate(scenario: str, sim_dir: Path, seed: int) -> None:
@@ -221,7 +221,7 @@ def simulate(scenario: str, sim_dir: Path, seed: int) -> None:
         raise RuntimeError(f"simulate {scenario} failed (exit {r.returncode}):\n{r.stdout[-2000:]}")
 
 
-def start_players(ports: dict, deliveries: dict[str, list[radio.Delivery]], speed: float, station: Station,
+def start_players(ports: dict, deliveries: dict[str, list[radio.Delivery]], speed: float, station: HoistPipeline,
                   who: str, players: list, drain_s: float = 1.0) -> Callable[[], bool]:
     """Once every receiver port of `station` is open (pyserial flushes the input when it opens a
     port: writing sooner would throw the first frames away), start a `Player` per pty into
@@ -275,7 +275,7 @@ def play_to_host(deliveries: dict[str, list[radio.Delivery]], host: DemoHost, sp
     ports = {name: VirtualPort(name) for name in deliveries}
     players: list = []
     try:
-        session = host.station
+        session = host.pipeline
         for name, vp in ports.items():
             session.add_port(vp.port, name).start()
         done = start_players(ports, deliveries, speed, session, "host", players, drain_s)
@@ -294,7 +294,7 @@ def play_to_host(deliveries: dict[str, list[radio.Delivery]], host: DemoHost, sp
     finally:
         for p in players:
             p.stop()
-        host.station.hub.stop()
+        host.pipeline.hub.stop()
         for vp in ports.values():
             vp.close()
 
@@ -482,7 +482,7 @@ def summarize(sent: Sent, result: radio.RadioResult, host: DemoHost, acc: dict, 
     """Frames sent/received/lost, per-receiver link quality, pistons, the hoist's standing status,
     alarms, accuracy: plain JSON."""
     by_seq = {(f.node, f.seq): f for f in sent.frames}
-    session = host.station
+    session = host.pipeline
     frames, events = host.kept.frames, host.alarms.engine.events
     foreign = sum(1 for f in frames
                   if (f.node, f.seq) not in by_seq or not f.same_payload(by_seq[(f.node, f.seq)]))

@@ -176,7 +176,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
     try:
         stations = StationSet(sf, clock=clock, wall=clock,       # events and rx times on the demo's clock too
                               receivers={first.id: [(n, vp.port) for n, vp in ports.items()]})
-        every = [h.station for h in stations.hoists.values()]
+        every = [h.pipeline for h in stations.hoists.values()]
         h0 = stations.hoists[first.id]
         kept = FrameKeeper()
         view = None if headless else MonitorView(site)
@@ -194,7 +194,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
         if password is not None and urls:
             step(f"  web: log in as {DEMO_OPERATOR} / {password} to acknowledge and shelve (a new password each run)")
         stations.start()
-        done = start_players(ports, deliveries, speed, h0.station, "station", players)
+        done = start_players(ports, deliveries, speed, h0.pipeline, "station", players)
         step(f"  playing {wind_s:.0f} s of frames at {speed:g}x real time (about {wind_s / speed:.0f} s)"
              + (f"; the web page: {urls[0]}" if urls else ""))
         quit_early = False
@@ -204,7 +204,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
                         style="bold cyan")
             view.render = lambda now: Group(head, base_render(now)) if urls else base_render(now)  # type: ignore
             console = Console()
-            live_loop(h0.station, view, console, 4.0, done, stations=every)   # keys act on the first hoist
+            live_loop(h0.pipeline, view, console, 4.0, done, stations=every)   # keys act on the first hoist
             quit_early = not done()
             console.print(view.render(stations.clock()))
         if not quit_early:
@@ -213,7 +213,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
         stations.step()
         if h0.store is not None:
             h0.store.commit()
-        host = DemoHost(h0.station, h0.alarms, kept, h0.store, view)
+        host = DemoHost(h0.pipeline, h0.alarms, kept, h0.store, view)
     except BaseException:
         close()
         raise

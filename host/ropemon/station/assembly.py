@@ -3,7 +3,7 @@
 `HoistSpec` is what a hoist's station is built from: its figures, node keys, alarm settings
 and receivers. `spec_from_file` makes one from a station file's hoist (`ropemon serve`,
 through `StationSet`); `ropemon monitor` makes one from its command line, `ropemon replay
---db` and the demo from a node.json. `build_hoist(spec, clock)` builds the `Station` with
+--db` and the demo from a node.json. `build_hoist(spec, clock)` builds the `HoistPipeline` with
 its hub, keys and listeners (alarm engine, the log when given, then the views), its replay
 protection resumed from the log.
 
@@ -22,7 +22,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 from ropemon.station.alarms import AlarmSettings
 from ropemon.station.link import DEFAULT_BAUDRATE
-from ropemon.station.pipeline import AlarmListener, Listener, Station, station_listeners
+from ropemon.station.pipeline import AlarmListener, Listener, HoistPipeline, station_listeners
 from ropemon.station.protocol import load_node_keys
 from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
 from ropemon.station.stationfile import HoistFile
@@ -46,13 +46,13 @@ class HoistSpec:
 
 @dataclass
 class Hoist:
-    """One hoist's station as built: its figures, its station and the listeners it was built with."""
+    """One hoist as built: its figures, its pipeline and the listeners it was built with."""
 
     id: str
     name: str
     site: SiteFigures
     keys: dict[int, bytes]
-    station: Station
+    pipeline: HoistPipeline
     alarms: AlarmListener
     store: Any = None                 # ropemon.station.store.Store, or None without a log
     db_path: Path | None = None
@@ -65,7 +65,7 @@ class Hoist:
         if spec is None:
             return
         for name, url in spec.receivers:
-            self.station.add_port(url, name, baudrate=spec.baud, rs485=spec.rs485).start()
+            self.pipeline.add_port(url, name, baudrate=spec.baud, rs485=spec.rs485).start()
 
 
 def spec_from_file(h: HoistFile, silent_s: float) -> HoistSpec:
@@ -97,20 +97,20 @@ def build_hoist(spec: HoistSpec, clock: Callable[[], float], *, wall: Callable[[
     listeners = station_listeners(spec.settings, store, *views, wall=wall)
     alarms = listeners[0]
     assert isinstance(alarms, AlarmListener)
-    station = Station(spec.keys or None, listeners, clock=clock, accept_rewound=spec.accept_rewound,
-                      resume_from=store, wall=wall, wake=wake)
-    return Hoist(spec.id, spec.name or spec.id, spec.site, spec.keys, station, alarms, store, db_path,
+    pipeline = HoistPipeline(spec.keys or None, listeners, clock=clock, accept_rewound=spec.accept_rewound,
+                             resume_from=store, wall=wall, wake=wake)
+    return Hoist(spec.id, spec.name or spec.id, spec.site, spec.keys, pipeline, alarms, store, db_path,
                  spec.file, spec)
 
 
-def step(stations: Iterable[Station]) -> None:
+def step(stations: Iterable[HoistPipeline]) -> None:
     """One pump and tick of every station, in order."""
     for s in stations:
         s.pump()
         s.tick()
 
 
-def run_loop(stations: Sequence[Station], period_s: float, done: Callable[[], bool] = lambda: False, *,
+def run_loop(stations: Sequence[HoistPipeline], period_s: float, done: Callable[[], bool] = lambda: False, *,
              wake: threading.Event | None = None, wait: Callable[[float], Any] | None = None,
              on_tick: Callable[[], None] | None = None, first_tick_s: float = 0.0) -> None:
     """Until `done()`: every `period_s` pump and tick every station (then `on_tick()`, e.g. a

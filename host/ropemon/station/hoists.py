@@ -1,4 +1,4 @@
-"""Several hoists in one station: one `Station` per hoist, run on one thread.
+"""Several hoists in one station: one `HoistPipeline` per hoist, run on one thread.
 
 A station file (`ropemon.station.stationfile`) names the hoists, each with its node configs
 and receivers. `StationSet` builds each hoist's station with `assembly.build_hoist`, as
@@ -24,7 +24,7 @@ __all__ = ["Hoist", "StationSet"]
 
 
 class StationSet:
-    """The hoists of a station file, each with its own `Station` (module docstring)."""
+    """The hoists of a station file, each with its own `HoistPipeline` (module docstring)."""
 
     def __init__(self, sf: StationFile, clock: Callable[[], float] = time.time, open_stores: bool = True,
                  receivers: dict[str, list[tuple[str, str]]] | None = None,
@@ -68,7 +68,7 @@ class StationSet:
         for h in self.hoists.values():
             listener = factory(h)
             if listener is not None:
-                h.station.add(listener)
+                h.pipeline.add(listener)
 
     def start(self) -> None:
         """Open every hoist's receiver ports (each in its own reader thread)."""
@@ -77,12 +77,12 @@ class StationSet:
 
     def step(self) -> None:
         """One pump and tick of every hoist's station."""
-        step(h.station for h in self.hoists.values())
+        step(h.pipeline for h in self.hoists.values())
 
     def run(self, done: Callable[[], bool] = lambda: False) -> None:
         """Until `stop()` or `done()`: hand frames and commands on as soon as a receiver or a
         face queues them, and tick every hoist every 1/tick_hz s (alarm timing, status)."""
-        run_loop([h.station for h in self.hoists.values()], 1.0 / self.file.tick_hz,
+        run_loop([h.pipeline for h in self.hoists.values()], 1.0 / self.file.tick_hz,
                  lambda: self._stop.is_set() or done(), wake=self._wake)
 
     def stop(self) -> None:
@@ -91,12 +91,12 @@ class StationSet:
 
     def submit(self, hoist_id: str, command: Command) -> Ticket:
         """An operator command for one hoist, from any thread (KeyError: no such hoist); the
-        future its station settles with the command's outcome (`Station.submit`)."""
-        return self.hoists[hoist_id].station.submit(command)
+        future its station settles with the command's outcome (`HoistPipeline.submit`)."""
+        return self.hoists[hoist_id].pipeline.submit(command)
 
     def close(self) -> None:
         """Stop the ports, let every listener finish, close the logs."""
         for h in self.hoists.values():
-            h.station.close()
+            h.pipeline.close()
             if h.store is not None:
                 h.store.close()

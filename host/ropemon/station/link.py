@@ -10,7 +10,7 @@ bytes that arrived during the connect; the decoder resynchronises after them.
 
 `FrameHub` wires receivers to one StreamDecoder each and one shared Merger, and
 puts (receiver, frame, rx_time, is_new) on a queue for a single consumer thread
-(`ropemon.station.pipeline.Station`: alarms, store and views belong to that thread).
+(`ropemon.station.pipeline.HoistPipeline`: alarms, store and views belong to that thread).
 `FrameHub.seed` gives every decoder, also of receivers added later, the replay
 state a restarted host resumes from (the log).
 """

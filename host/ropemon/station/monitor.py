@@ -40,7 +40,7 @@ from ropemon.station import assembly
 from ropemon.station.assembly import HoistSpec, run_loop
 from ropemon.station.decode_cli import add_key_arguments, node_id
 from ropemon.station.link import DEFAULT_BAUDRATE, Received
-from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Shelve, Station,
+from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Shelve, HoistPipeline,
                                       StationStatus, Unshelve)
 from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
 from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
@@ -536,7 +536,7 @@ def operator_name() -> str:
     return f"{who} (ssh from {ssh[0]})" if ssh else who
 
 
-def handle_keys(station: Station, view: MonitorView, k: str, operator: str) -> bool:
+def handle_keys(station: HoistPipeline, view: MonitorView, k: str, operator: str) -> bool:
     """Act on key presses; False when the operator quits. `a` and `y` become the station's
     commands (carried out at its next pump); `r` asks to accept the first refused node,
     `y` confirms it, any other key cancels the question; `s` and `u` ask which alarm to
@@ -565,7 +565,7 @@ def handle_keys(station: Station, view: MonitorView, k: str, operator: str) -> b
     return True
 
 
-def ask(station: Station, view: MonitorView, key: str, operator: str) -> None:
+def ask(station: HoistPipeline, view: MonitorView, key: str, operator: str) -> None:
     """One step of the shelve or unshelve question: a digit among those offered moves it on
     (the last becomes the station's command), any other key cancels it."""
     q = view.question
@@ -587,8 +587,8 @@ def ask(station: Station, view: MonitorView, key: str, operator: str) -> None:
         view.question = None
 
 
-def live_loop(station: Station, view: MonitorView, console: Console, refresh_hz: float,
-              done: Callable[[], bool] = lambda: False, stations: Sequence[Station] | None = None) -> None:
+def live_loop(station: HoistPipeline, view: MonitorView, console: Console, refresh_hz: float,
+              done: Callable[[], bool] = lambda: False, stations: Sequence[HoistPipeline] | None = None) -> None:
     """Run the station (or `stations`, all pumped and ticked; keys act on `station`) and draw
     the view until `q` or `done()`, on `assembly.run_loop`: a tick and a new screen each
     1/refresh_hz s and at once after a key; `a` acknowledges, `r` `y` accepts a refused node;
@@ -677,7 +677,7 @@ def run(args: argparse.Namespace) -> int:
     # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
     hoist = assembly.build_hoist(spec, time.time, store=store, views=[view])
-    station = hoist.station
+    station = hoist.pipeline
     resumed = station.resumed_text()
     if resumed is not None:
         print(f"ropemon monitor: {resumed}", file=sys.stderr)

@@ -2,7 +2,7 @@
 
     receivers          one reader thread per port (`link.SerialReceiver`)       transport
       -> FrameHub      a decoder per receiver, one merger, a queue (`link`)     protocol
-      -> Station       one consumer thread: `pump` and `tick`                   spine
+      -> HoistPipeline one consumer thread: `pump` and `tick`                   spine
       -> listeners     alarm engine, store, terminal view, ...                  fan-out
 
 A listener knows none of the others: it receives messages from the station and
@@ -87,7 +87,7 @@ class Listener:
     """Base of the station's listeners: override the messages you need (module docstring)."""
 
     name = "listener"
-    publish: Callable[[Any], None] = staticmethod(lambda message: None)  # set by Station.add
+    publish: Callable[[Any], None] = staticmethod(lambda message: None)  # set by HoistPipeline.add
 
     def on_frame(self, item: Received, now_s: float) -> None:
         pass
@@ -116,7 +116,7 @@ class Listener:
 # -- the spine ---------------------------------------------------------------------
 
 
-class Station:
+class HoistPipeline:
     """Receivers -> `FrameHub` -> listeners, on one consumer thread (module docstring).
 
     `clock` is the listeners' time (alarm timing, status); `wall` stamps the station's own

@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     # repeated ones summarised (a flood of bad traffic is a few lines a minute)
     logsummary.install(sys.stderr, "ropemon serve")
     for h in stations.hoists.values():
-        resumed = h.station.resumed_text()
+        resumed = h.pipeline.resumed_text()
         if resumed is not None:
             print(f"ropemon serve: hoist {h.id}: {resumed}", file=sys.stderr)
     faces = []

@@ -13,7 +13,7 @@ the process CPU time of the benchmark's own process over the run (the station th
 OPC UA server's thread and its history thread; the clients run elsewhere).
 
 Two setups, same address space, security, clients and values:
-- station: the real path: each frame's bytes fed to the hoist's `Station` (decode with MAC,
+- station: the real path: each frame's bytes fed to the hoist's `HoistPipeline` (decode with MAC,
   merge, alarm engine, SQLite log), its listener handing the frame to the server's loop;
   the station steps at tick_hz as `ropemon serve` does;
 - baseline: the asyncua server of the same face, written the same values with no station
@@ -190,7 +190,7 @@ def _run(mode: str, d: Path, client_cert: tuple[str, str], seconds: float, rep: 
             h = hoists[k]
             sent[(h, _tension(i))] = time.monotonic()
             if mode == "station":
-                stations.hoists[h].station.feed("pithead", wire[i])
+                stations.hoists[h].pipeline.feed("pithead", wire[i])
             else:
                 face.post(h, "frame", Received("pithead", decoded[i], time.time(), True))
         wall = time.monotonic() - t0

@@ -69,7 +69,7 @@ def run_station(faces: str, seconds: float, ready: Any = None) -> dict[str, floa
                         wire = encode_frame(node=1, seq=seq[h], key=_key(i), time_ms=seq[h] * 100,
                                             ropes=[(base + 10 * r, base - 50, base + 50, 8000) for r in range(4)],
                                             depth_mm=seq[h] * 10, speed_mm_s=1000, battery_mv=12_000)[1]
-                        stations.hoists[h].station.feed("pithead", wire)
+                        stations.hoists[h].pipeline.feed("pithead", wire)
                         frames += 1
                     next_frame += 1.0 / FRAME_HZ
                 if now >= next_tick:
