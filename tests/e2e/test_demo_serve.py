@@ -1,4 +1,4 @@
-"""`ropemon demo --serve`: the simulated wind through a station (StationSet) with its web face.
+"""`ropemon demo --serve`: the simulated wind through a station (Station) with its web face.
 
 Headless (stdout not a terminal) the demo serves while the wind plays and stops at the end;
 the station it writes (OUT/station.toml, OUT/users.toml with a new operator password) and

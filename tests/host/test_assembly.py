@@ -53,7 +53,7 @@ def built(monkeypatch):
 
 
 def test_serve_builds_each_hoist_through_build_hoist(tmp_path, built):
-    from ropemon.station.hoists import StationSet
+    from ropemon.station.hoists import Station
     from ropemon.station.stationfile import load_station_file
 
     calls, _ = built
@@ -63,7 +63,7 @@ def test_serve_builds_each_hoist_through_build_hoist(tmp_path, built):
         '[station]\ndata_dir = "data"\n\n[[hoist]]\nid = "north"\nconfigs = ["north.json"]\n'
         'receivers = { pithead = "loop://" }\n\n[[hoist]]\nid = "south"\nconfigs = ["south.json"]\n'
         'receivers = { pithead = "loop://" }\n')
-    s = StationSet(load_station_file(tmp_path / "station.toml"))
+    s = Station(load_station_file(tmp_path / "station.toml"))
     try:
         assert [c[0].id for c in calls] == ["north", "south"]
         spec, _, kw = calls[0]

@@ -6,7 +6,7 @@ import json
 import pytest
 
 from ropemon.commission.nodejson import example_physical, make_node_json
-from ropemon.station.hoists import StationSet
+from ropemon.station.hoists import Station
 from ropemon.station.protocol import encode_frame
 from ropemon.station.stationfile import StationFileError, load_station_file
 
@@ -54,7 +54,7 @@ def test_a_station_of_two_hoists_each_with_its_own_station_alarms_and_log(tmp_pa
     assert sf.hoists[0].receivers == (("pithead", "loop://"), ("mid-shaft", "loop://"))
     assert sf.web is not None and sf.web.port == 8099 and sf.web.bind == "127.0.0.1"
     clk = [100.0]
-    s = StationSet(sf, clock=lambda: clk[0])
+    s = Station(sf, clock=lambda: clk[0])
     try:
         s.step()                                      # the station starts looking
         north, south = s.hoists["north"], s.hoists["south"]
@@ -134,7 +134,7 @@ def test_ropemon_serve_says_where_each_hoists_replay_protection_resumed(tmp_path
     node_json(tmp_path, "north.json", 1, KEY_N)
     node_json(tmp_path, "south.json", 1, KEY_S)
     station = write(tmp_path, GOOD.replace("silent_s = 3", "silent_s = 1").replace("[web]\nport = 8099\n", ""))
-    s = StationSet(load_station_file(station))
+    s = Station(load_station_file(station))
     try:                                              # the first run: north logs boot 3, counts 1..5
         for k in range(1, 6):
             s.hoists["north"].pipeline.feed("pithead", encode_frame(
@@ -165,7 +165,7 @@ def test_a_station_set_takes_other_receivers_for_a_hoist(tmp_path):
     sf = load_station_file(write(tmp_path, GOOD.replace('data_dir = "data"\n', "").replace(
         'id = "south"', 'id = "south"\nshaft_m = 806')))
     assert sf.hoist("south").shaft_m == 806.0 and sf.hoist("north").shaft_m is None
-    s = StationSet(sf, receivers={"south": [("radio", "loop://")]})
+    s = Station(sf, receivers={"south": [("radio", "loop://")]})
     try:
         assert s.hoists["south"].spec.receivers == (("radio", "loop://"),)
         assert s.hoists["north"].spec.receivers == sf.hoists[0].receivers
@@ -174,7 +174,7 @@ def test_a_station_set_takes_other_receivers_for_a_hoist(tmp_path):
     finally:
         s.close()
     with pytest.raises(ValueError, match="west"):
-        StationSet(sf, receivers={"west": [("radio", "loop://")]})
+        Station(sf, receivers={"west": [("radio", "loop://")]})
 
 
 def test_ropemon_serve_on_a_taken_port_says_which_face_and_exits_2(tmp_path):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ropemon.lab.localnet import free_port  # noqa: F401  (the SCADA tests' ports)
 from ropemon.commission.nodejson import example_physical, make_node_json
-from ropemon.station.hoists import StationSet
+from ropemon.station.hoists import Station
 from ropemon.station.protocol import encode_frame
 from ropemon.station.stationfile import load_station_file
 
@@ -38,7 +38,7 @@ class Rig:
     def __init__(self, tmp: Path, n_hoists: int, faces: str = "", data_dir: bool = True, now: float = 1_000.0):
         self.now = now
         self.file = load_station_file(write_station(tmp, n_hoists, faces, data_dir))
-        self.stations = StationSet(self.file, clock=lambda: self.now)
+        self.stations = Station(self.file, clock=lambda: self.now)
         self.seq = {h: 0 for h in self.stations.hoists}
         self.ids = list(self.stations.hoists)
 

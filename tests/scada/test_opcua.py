@@ -21,7 +21,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID  # noqa: E402
 from ropemon.lab.localnet import free_port
 from ropemon.commission.nodejson import example_physical, make_node_json  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
-from ropemon.station.hoists import StationSet  # noqa: E402
+from ropemon.station.hoists import Station  # noqa: E402
 from ropemon.station.opcua import parse_table  # noqa: E402
 from ropemon.station.protocol import encode_frame  # noqa: E402
 from ropemon.station.stationfile import StationFileError, load_station_file  # noqa: E402
@@ -67,7 +67,7 @@ users = "users.toml"
 """)
     sf = load_station_file(d / "station.toml")
     clock = [time.time()]
-    stations = StationSet(sf, clock=lambda: clock[0])
+    stations = Station(sf, clock=lambda: clock[0])
     faces = start_faces(stations, sf)
     rig = {"dir": d, "url": f"opc.tcp://127.0.0.1:{port}/ropemon", "stations": stations, "clock": clock,
            "seq": [100], "face": faces[0]}

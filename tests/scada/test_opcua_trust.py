@@ -22,7 +22,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID  # noqa: E402
 from ropemon.commission.nodejson import example_physical, make_node_json  # noqa: E402
 from ropemon.lab.localnet import free_port  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
-from ropemon.station.hoists import StationSet  # noqa: E402
+from ropemon.station.hoists import Station  # noqa: E402
 from ropemon.station.opcua import parse_table  # noqa: E402
 from ropemon.station.stationfile import load_station_file  # noqa: E402
 from ropemon.station.users import add_user  # noqa: E402
@@ -68,7 +68,7 @@ trusted_clients = "pki/trusted"
     (d / "pki" / "trusted").mkdir(parents=True)
     shutil.copy(certs["scada"][0], d / "pki" / "trusted" / "scada.der")
     sf = load_station_file(d / "station.toml")
-    stations = StationSet(sf, clock=time.time)
+    stations = Station(sf, clock=time.time)
     faces = start_faces(stations, sf)
     yield {"dir": d, "url": f"opc.tcp://127.0.0.1:{port}/ropemon", "face": faces[0]}
     for f in faces:

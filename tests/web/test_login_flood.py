@@ -27,7 +27,7 @@ pytest.importorskip("uvicorn")
 from argon2 import PasswordHasher  # noqa: E402
 
 from ropemon.commission.nodejson import example_physical, make_node_json  # noqa: E402
-from ropemon.station.hoists import StationSet  # noqa: E402
+from ropemon.station.hoists import Station  # noqa: E402
 from ropemon.station.pipeline import Listener  # noqa: E402
 from ropemon.station.protocol import L, encode_frame  # noqa: E402
 from ropemon.station.stationfile import load_station_file  # noqa: E402
@@ -185,7 +185,7 @@ async def _flood(port: int, cookie: str, csrf: str) -> tuple[list[int], list[flo
     return list(codes), lat, took
 
 
-def _station(tmp_path: Path, port: int) -> StationSet:
+def _station(tmp_path: Path, port: int) -> Station:
     (tmp_path / "north.json").write_text(json.dumps(make_node_json(example_physical(), node_id=1, key=KEY)))
     accounts.add_user(tmp_path / "users.toml", "olga", "operator", "olga's long secret")     # the real cost
     (tmp_path / "station.toml").write_text(f"""
@@ -198,7 +198,7 @@ receivers = {{ pithead = "loop://" }}
 port = {port}
 users = "users.toml"
 """)
-    return StationSet(load_station_file(tmp_path / "station.toml"))
+    return Station(load_station_file(tmp_path / "station.toml"))
 
 
 def test_a_login_flood_is_bounded_in_hashes_at_once_memory_and_latency(tmp_path):

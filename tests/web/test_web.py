@@ -1,7 +1,7 @@
-"""The web face (ropemon.station.web) through Starlette's TestClient, on a StationSet fed frames.
+"""The web face (ropemon.station.web) through Starlette's TestClient, on a Station fed frames.
 
 The station's thread is the test's: frames are fed and `step()` pumps and ticks, as
-`StationSet.run` would; the app runs in the TestClient's own thread and loop.
+`Station.run` would; the app runs in the TestClient's own thread and loop.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import pytest
 from argon2 import PasswordHasher
 
 from ropemon.commission.nodejson import example_physical, make_node_json
-from ropemon.station.hoists import StationSet
+from ropemon.station.hoists import Station
 from ropemon.station.protocol import L, encode_frame
 from ropemon.station.stationfile import load_station_file
 from ropemon.station.store import Store
@@ -70,7 +70,7 @@ class Site:
         (tmp_path / "station.toml").write_text(station_text)
         self.sf = load_station_file(tmp_path / "station.toml")
         self.now = time.time()
-        self.stations = StationSet(self.sf, clock=lambda: self.now, wall=lambda: self.now)  # rx times too (trips)
+        self.stations = Station(self.sf, clock=lambda: self.now, wall=lambda: self.now)  # rx times too (trips)
         web_users = Users(self.sf.web.users, ph=CHEAP) if self.sf.web.users else Users(None, ph=CHEAP)
         self.attached = attach(self.stations, self.sf.web, users=web_users)
         self.client = starlette_testclient.TestClient(self.attached.app)
@@ -537,7 +537,7 @@ def test_a_users_file_readable_by_others_is_refused(tmp_path):
     (tmp_path / "south.json").write_text(json.dumps(make_node_json(example_physical(), node_id=1, key=KEY_S)))
     (tmp_path / "station.toml").write_text(sf_text)
     sf = load_station_file(tmp_path / "station.toml")
-    stations = StationSet(sf)
+    stations = Station(sf)
     try:
         with pytest.raises(WebError, match="users.toml"):
             attach(stations, sf.web)
@@ -664,7 +664,7 @@ def test_the_face_serves_over_http_and_says_where_and_refuses_a_busy_port(tmp_pa
     node_json(tmp_path, "south.json", 1, KEY_S)
     (tmp_path / "station.toml").write_text(STATION.replace('users = "users.toml"\n', "") + f"port = {port}\n")
     sf = load_station_file(tmp_path / "station.toml")
-    stations = StationSet(sf)
+    stations = Station(sf)
     face = server.start(stations, sf.web)
     try:
         assert face.describe().startswith(f"web: http://127.0.0.1:{port}/ (2 hoists; view without login; no users")
@@ -674,7 +674,7 @@ def test_the_face_serves_over_http_and_says_where_and_refuses_a_busy_port(tmp_pa
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/hoist/north/stream", timeout=10) as r:
             assert r.headers["content-type"].startswith("text/event-stream")
             assert r.readline() == b"retry: 2000\n" and r.readline() == b"event: snapshot\n"
-        other = StationSet(sf)
+        other = Station(sf)
         try:
             with pytest.raises(WebError, match=f"cannot listen on 127.0.0.1:{port}"):
                 server.start(other, dataclasses.replace(sf.web, secret=None))

@@ -1,8 +1,8 @@
-"""`ropemon demo --station FILE` / `--serve`: the demo's wind through a station file's `StationSet`.
+"""`ropemon demo --station FILE` / `--serve`: the demo's wind through a station file's `Station`.
 
 The station file is the demo's own (`write_demo_station`: one hoist, its log and the web face
 in the demo's folder) or the one given; its first hoist's receivers become the demo's virtual
-ports. The station is `ropemon serve`'s: the same `StationSet`, the same faces. Of a given
+ports. The station is `ropemon serve`'s: the same `Station`, the same faces. Of a given
 file, the demo changes only what the simulated node cannot do without, in memory: the first
 hoist's node configs when they lack the simulated node's key, and then the station's logs
 (OUT/data: the simulated node's frames never go into the file's own); when serving, a users
@@ -138,7 +138,7 @@ def demo_station_file(args: argparse.Namespace, out: Path, node_json: Path, shaf
 def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: Any, shaft_m: float,
                     deliveries: dict[str, list[radio.Delivery]], speed: float, clock: DemoClock, headless: bool,
                     step: Callable[[str], float], wind_s: float):
-    """The wind through a station file's StationSet (the demo's own, or --station's first hoist),
+    """The wind through a station file's Station (the demo's own, or --station's first hoist),
     with its faces when serving. Returns (DemoHost, bytes written per receiver, the first hoist's
     log or None, finish) where finish() keeps serving until Ctrl-C (--serve in a terminal, unless
     the operator quit) and then closes everything; None after a refusal it printed."""
@@ -150,7 +150,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
 
     from ropemon.lab.vserial import VirtualPort
     from ropemon.station.faces import FaceError, start_faces
-    from ropemon.station.hoists import StationSet
+    from ropemon.station.hoists import Station
     from ropemon.station.monitor import MonitorView, live_loop
 
     got = demo_station_file(args, out, node_json, shaft_m, step)
@@ -159,7 +159,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
     sf, password, db = got
     first = sf.hoists[0]
     ports = {name: VirtualPort(name) for name in deliveries}
-    stations: Any = None
+    station: Any = None
     faces: list = []
     players: list = []
 
@@ -168,24 +168,24 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
             p.stop()
         for f in faces:
             f.stop()
-        if stations is not None:
-            stations.close()
+        if station is not None:
+            station.close()
         for vp in ports.values():
             vp.close()
 
     try:
-        stations = StationSet(sf, clock=clock, wall=clock,       # events and rx times on the demo's clock too
+        station = Station(sf, clock=clock, wall=clock,       # events and rx times on the demo's clock too
                               receivers={first.id: [(n, vp.port) for n, vp in ports.items()]})
-        every = [h.pipeline for h in stations.hoists.values()]
-        h0 = stations.hoists[first.id]
+        every = [h.pipeline for h in station.hoists.values()]
+        h0 = station.hoists[first.id]
         kept = FrameKeeper()
         view = None if headless else MonitorView(site)
-        stations.add_listeners(lambda h: kept if h.id == first.id else None)
+        station.add_listeners(lambda h: kept if h.id == first.id else None)
         if view is not None:
-            stations.add_listeners(lambda h: view if h.id == first.id else None)
+            station.add_listeners(lambda h: view if h.id == first.id else None)
         if args.serve:
             try:
-                faces = start_faces(stations, sf)
+                faces = start_faces(station, sf)
             except FaceError as e:
                 raise RuntimeError(str(e)) from None
         urls = [u for u in (getattr(f, "url", None) for f in faces) if u]
@@ -193,7 +193,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
             step(f"  {f.describe()}")
         if password is not None and urls:
             step(f"  web: log in as {DEMO_OPERATOR} / {password} to acknowledge and shelve (a new password each run)")
-        stations.start()
+        station.start()
         done = start_players(ports, deliveries, speed, h0.pipeline, "station", players)
         step(f"  playing {wind_s:.0f} s of frames at {speed:g}x real time (about {wind_s / speed:.0f} s)"
              + (f"; the web page: {urls[0]}" if urls else ""))
@@ -204,13 +204,13 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
                         style="bold cyan")
             view.render = lambda now: Group(head, base_render(now)) if urls else base_render(now)  # type: ignore
             console = Console()
-            live_loop(h0.pipeline, view, console, 4.0, done, stations=every)   # keys act on the first hoist
+            live_loop(h0.pipeline, view, console, 4.0, done, pipelines=every)   # keys act on the first hoist
             quit_early = not done()
-            console.print(view.render(stations.clock()))
+            console.print(view.render(station.clock()))
         if not quit_early:
             run_loop(every, 1.0 / sf.tick_hz, done)
         written = stop_players(players)
-        stations.step()
+        station.step()
         if h0.store is not None:
             h0.store.commit()
         host = DemoHost(h0.pipeline, h0.alarms, kept, h0.store, view)
@@ -225,7 +225,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
                 for sig in (signal.SIGTERM, signal.SIGINT):
                     signal.signal(sig, lambda *_: stop.set())
                 print(f"[demo] the station keeps serving {urls[0] if urls else ''} until Ctrl-C", flush=True)
-                stations.run(stop.is_set)
+                station.run(stop.is_set)
         finally:
             close()
 

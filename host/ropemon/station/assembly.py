@@ -2,12 +2,12 @@
 
 `HoistSpec` is what a hoist's station is built from: its figures, node keys, alarm settings
 and receivers. `spec_from_file` makes one from a station file's hoist (`ropemon serve`,
-through `StationSet`); `ropemon monitor` makes one from its command line, `ropemon replay
+through `Station`); `ropemon monitor` makes one from its command line, `ropemon replay
 --db` and the demo from a node.json. `build_hoist(spec, clock)` builds the `HoistPipeline` with
 its hub, keys and listeners (alarm engine, the log when given, then the views), its replay
 protection resumed from the log.
 
-`run_loop` pumps stations and ticks them on a period until told to stop: `StationSet.run`
+`run_loop` pumps stations and ticks them on a period until told to stop: `Station.run`
 (`ropemon serve`, the demo through a station file), `ropemon monitor` with its screen
 (`monitor.live_loop`) or headless, and the demo's own station run on it.
 """
@@ -103,14 +103,14 @@ def build_hoist(spec: HoistSpec, clock: Callable[[], float], *, wall: Callable[[
                  spec.file, spec)
 
 
-def step(stations: Iterable[HoistPipeline]) -> None:
+def step(pipelines: Iterable[HoistPipeline]) -> None:
     """One pump and tick of every station, in order."""
-    for s in stations:
-        s.pump()
-        s.tick()
+    for p in pipelines:
+        p.pump()
+        p.tick()
 
 
-def run_loop(stations: Sequence[HoistPipeline], period_s: float, done: Callable[[], bool] = lambda: False, *,
+def run_loop(pipelines: Sequence[HoistPipeline], period_s: float, done: Callable[[], bool] = lambda: False, *,
              wake: threading.Event | None = None, wait: Callable[[float], Any] | None = None,
              on_tick: Callable[[], None] | None = None, first_tick_s: float = 0.0) -> None:
     """Until `done()`: every `period_s` pump and tick every station (then `on_tick()`, e.g. a
@@ -131,12 +131,12 @@ def run_loop(stations: Sequence[HoistPipeline], period_s: float, done: Callable[
         if wake is not None:
             wake.clear()
         if time.monotonic() >= next_tick:
-            step(stations)
+            step(pipelines)
             next_tick = max(next_tick + period_s, time.monotonic() - period_s)
             if on_tick is not None:
                 on_tick()
         else:
-            for s in stations:
-                s.pump()
+            for p in pipelines:
+                p.pump()
         if wait_for(max(0.0, next_tick - time.monotonic())) is True:
             next_tick = time.monotonic()

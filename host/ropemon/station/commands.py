@@ -1,6 +1,6 @@
 """Operator commands into the station, and what became of each (`CommandOutcome`).
 
-A face hands a command to `HoistPipeline.submit` (or `StationSet.submit`) from any thread; the
+A face hands a command to `HoistPipeline.submit` (or `Station.submit`) from any thread; the
 station carries it out at its next pump and settles the `concurrent.futures.Future` that
 `submit` returned with the command's `CommandOutcome`: carried out, or refused and why. The
 face that sent a command learns its outcome from that future (`outcome_within` in an asyncio

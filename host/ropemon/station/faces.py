@@ -2,11 +2,11 @@
 
 Each face is a module with
 
-    def start(stations: StationSet, config) -> Face
+    def start(station: Station, config) -> Face
 
 where `config` is the station file's table for it (`StationFile.web`, or the raw table in
 `StationFile.sections[name]`, which the face checks itself and refuses with the field
-named). `start` adds the face's listener to every hoist (`StationSet.add_listeners`,
+named). `start` adds the face's listener to every hoist (`Station.add_listeners`,
 before the receivers open) and runs its server in its own thread(s); the returned object
 has `stop()` and `describe()` (one line: where it listens). A face's heavy libraries are
 an extra (`pip install 'ropemon[web]'`), imported only when its table is present.
@@ -47,7 +47,7 @@ def configured(sf: StationFile) -> dict[str, Any]:
     return out
 
 
-def start_faces(stations: Any, sf: StationFile) -> list[Face]:
+def start_faces(station: Any, sf: StationFile) -> list[Face]:
     """Start every face the station file asks for; on a failure stop those started, raise FaceError."""
     started: list[Face] = []
     try:
@@ -59,7 +59,7 @@ def start_faces(stations: Any, sf: StationFile) -> list[Face]:
                 raise FaceError(f"[{name}]: the {name} face needs its libraries: pip install 'ropemon[{extra}]' "
                                 f"({e})") from None
             try:
-                started.append(mod.start(stations, config))
+                started.append(mod.start(station, config))
             except OSError as e:               # its port taken, a certificate unreadable: the face's own words
                 raise FaceError(f"[{name}]: cannot start: {e}") from None
     except Exception:

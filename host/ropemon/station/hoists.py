@@ -1,7 +1,7 @@
 """Several hoists in one station: one `HoistPipeline` per hoist, run on one thread.
 
 A station file (`ropemon.station.stationfile`) names the hoists, each with its node configs
-and receivers. `StationSet` builds each hoist's station with `assembly.build_hoist`, as
+and receivers. `Station` builds each hoist's station with `assembly.build_hoist`, as
 `ropemon monitor` builds its one (receivers, alarms, the hoist's log), and lets a face add its
 own listener to every hoist (`add_listeners`) before the ports open. `run` pumps and ticks
 every hoist's station on `assembly.run_loop` until stopped; `submit` hands an operator's
@@ -20,10 +20,10 @@ from ropemon.station.commands import Command, Ticket
 from ropemon.station.pipeline import Listener
 from ropemon.station.stationfile import HoistFile, StationFile
 
-__all__ = ["Hoist", "StationSet"]
+__all__ = ["Hoist", "Station"]
 
 
-class StationSet:
+class Station:
     """The hoists of a station file, each with its own `HoistPipeline` (module docstring)."""
 
     def __init__(self, sf: StationFile, clock: Callable[[], float] = time.time, open_stores: bool = True,

@@ -23,7 +23,7 @@ The listener (`ModbusValues`, one per hoist, on the station's thread) builds the
 block and swaps in a new tuple; the server (pymodbus, its own asyncio loop in its own
 thread) reads whichever tuple is current. The station never waits for the server.
 A coil write (with ack_coil) goes through the station's command path
-(`StationSet.submit(hoist, Acknowledge("modbus <peer>", "modbus"))`); the write is answered at
+(`Station.submit(hoist, Acknowledge("modbus <peer>", "modbus"))`); the write is answered at
 once, and the face logs a refusal from the command's outcome when the station carries it out.
 """
 from __future__ import annotations
@@ -303,9 +303,9 @@ class _Server(ModbusTcpServer):
 class ModbusFace:
     """The server thread and the map's blocks (module docstring)."""
 
-    def __init__(self, stations: Any, bind: str, port: int, ack_coil: bool) -> None:
-        self.stations = stations
-        self.hoist_ids = list(stations.hoists)
+    def __init__(self, station: Any, bind: str, port: int, ack_coil: bool) -> None:
+        self.station = station
+        self.hoist_ids = list(station.hoists)
         self.bind, self.port, self.ack_coil = bind, port, ack_coil
         self.blocks: list[tuple[int, ...]] = [(0,) * HOIST_STRIDE for _ in self.hoist_ids]
         self.header = (MAP_VERSION, len(self.hoist_ids), HOIST_BASE, HOIST_STRIDE, MAX_NODES, ROPES,
@@ -326,7 +326,7 @@ class ModbusFace:
     def acknowledge(self, index: int, peer: str) -> None:
         self.acks += 1
         hoist = self.hoist_ids[index]
-        ticket = self.stations.submit(hoist, Acknowledge(f"modbus {peer}", "modbus"))
+        ticket = self.station.submit(hoist, Acknowledge(f"modbus {peer}", "modbus"))
         ticket.add_done_callback(lambda t: _log_refused(hoist, t))
 
     # -- the server's thread -----------------------------------------------------------------
@@ -391,19 +391,19 @@ def parse(table: dict) -> tuple[str, int, bool]:
     return out
 
 
-def start(stations: Any, table: dict) -> ModbusFace:
+def start(station: Any, table: dict) -> ModbusFace:
     """Check the [modbus] table, add one `ModbusValues` per hoist, start the server."""
     bind, port, ack_coil = parse(table)
-    if len(stations.hoists) > MAX_HOISTS:
+    if len(station.hoists) > MAX_HOISTS:
         raise StationFileError(f"modbus: the map holds {MAX_HOISTS} hoists, the station file has "
-                               f"{len(stations.hoists)}")
-    face = ModbusFace(stations, bind, port, ack_coil)
-    for i, h in enumerate(stations.hoists.values()):
+                               f"{len(station.hoists)}")
+    face = ModbusFace(station, bind, port, ack_coil)
+    for i, h in enumerate(station.hoists.values()):
         nodes = sorted(h.keys)
         if len(nodes) > MAX_NODES:
             raise StationFileError(f"modbus: hoist {h.id} has {len(nodes)} nodes; the map holds {MAX_NODES} per hoist")
     index = {hid: i for i, hid in enumerate(face.hoist_ids)}
-    stations.add_listeners(lambda h: ModbusValues(face, index[h.id], h.id, sorted(h.keys),
+    station.add_listeners(lambda h: ModbusValues(face, index[h.id], h.id, sorted(h.keys),
                                                   list(getattr(h.site, "stroke_m", None) or ()),
                                                   getattr(h.site, "stroke_margin_m", None)))
     face.start()

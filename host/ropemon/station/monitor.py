@@ -536,24 +536,24 @@ def operator_name() -> str:
     return f"{who} (ssh from {ssh[0]})" if ssh else who
 
 
-def handle_keys(station: HoistPipeline, view: MonitorView, k: str, operator: str) -> bool:
+def handle_keys(pipeline: HoistPipeline, view: MonitorView, k: str, operator: str) -> bool:
     """Act on key presses; False when the operator quits. `a` and `y` become the station's
     commands (carried out at its next pump); `r` asks to accept the first refused node,
     `y` confirms it, any other key cancels the question; `s` and `u` ask which alarm to
     shelve or unshelve (`ask`)."""
     k = k.lower()
     if view.question is not None:
-        ask(station, view, k[:1], operator)
+        ask(pipeline, view, k[:1], operator)
         return True
     if "q" in k:
         return False
     if view.confirm_accept is not None:
         node, view.confirm_accept = view.confirm_accept, None
         if "y" in k:
-            station.submit(AcceptRewound(operator, "terminal", node=node))
+            pipeline.submit(AcceptRewound(operator, "terminal", node=node))
         return True
     if "a" in k:
-        station.submit(Acknowledge(operator, "terminal"))
+        pipeline.submit(Acknowledge(operator, "terminal"))
     if "n" in k:
         view.next_node()
     if "r" in k and view.refused:
@@ -565,7 +565,7 @@ def handle_keys(station: HoistPipeline, view: MonitorView, k: str, operator: str
     return True
 
 
-def ask(station: HoistPipeline, view: MonitorView, key: str, operator: str) -> None:
+def ask(pipeline: HoistPipeline, view: MonitorView, key: str, operator: str) -> None:
     """One step of the shelve or unshelve question: a digit among those offered moves it on
     (the last becomes the station's command), any other key cancels it."""
     q = view.question
@@ -576,20 +576,20 @@ def ask(station: HoistPipeline, view: MonitorView, key: str, operator: str) -> N
         return
     i = int(key) - 1
     if q.step == "which" and q.action == "unshelve":
-        station.submit(Unshelve(operator, "terminal", alarm=q.choices[i].id))
+        pipeline.submit(Unshelve(operator, "terminal", alarm=q.choices[i].id))
         view.question = None
     elif q.step == "which":
         q.alarm, q.step = q.choices[i].id, "minutes"
     elif q.step == "minutes":
         q.minutes, q.step = SHELVE_MINUTES[i], "reason"
     else:
-        station.submit(Shelve(operator, "terminal", alarm=q.alarm, minutes=q.minutes, reason=SHELVE_REASONS[i]))
+        pipeline.submit(Shelve(operator, "terminal", alarm=q.alarm, minutes=q.minutes, reason=SHELVE_REASONS[i]))
         view.question = None
 
 
-def live_loop(station: HoistPipeline, view: MonitorView, console: Console, refresh_hz: float,
-              done: Callable[[], bool] = lambda: False, stations: Sequence[HoistPipeline] | None = None) -> None:
-    """Run the station (or `stations`, all pumped and ticked; keys act on `station`) and draw
+def live_loop(pipeline: HoistPipeline, view: MonitorView, console: Console, refresh_hz: float,
+              done: Callable[[], bool] = lambda: False, pipelines: Sequence[HoistPipeline] | None = None) -> None:
+    """Run the pipeline (or `pipelines`, all pumped and ticked; keys act on `pipeline`) and draw
     the view until `q` or `done()`, on `assembly.run_loop`: a tick and a new screen each
     1/refresh_hz s and at once after a key; `a` acknowledges, `r` `y` accepts a refused node;
     bell on new alarms."""
@@ -603,16 +603,16 @@ def live_loop(station: HoistPipeline, view: MonitorView, console: Console, refre
     def read_keys(timeout_s: float) -> bool:
         nonlocal quit_
         k = keys.read(timeout_s)
-        if k and not handle_keys(station, view, k, operator):
+        if k and not handle_keys(pipeline, view, k, operator):
             quit_ = True
         return bool(k)
 
     try:
-        with Live(view.render(station.clock()), console=console, screen=console.is_terminal,
+        with Live(view.render(pipeline.clock()), console=console, screen=console.is_terminal,
                   auto_refresh=False, transient=False) as live:
             def draw() -> None:
                 nonlocal last_bell
-                now = station.clock()
+                now = pipeline.clock()
                 unacked = any(not acked for _, acked in view.alarm_rows)
                 ring = view.new_raises > 0 or (unacked and now - last_bell > BELL_REPEAT_S)
                 view.new_raises = 0
@@ -622,7 +622,7 @@ def live_loop(station: HoistPipeline, view: MonitorView, console: Console, refre
                     last_bell = now
 
             period = 1.0 / refresh_hz
-            run_loop(stations or [station], period, lambda: quit_ or done(), wait=read_keys, on_tick=draw,
+            run_loop(pipelines or [pipeline], period, lambda: quit_ or done(), wait=read_keys, on_tick=draw,
                      first_tick_s=period)
     finally:
         keys.close()
@@ -677,24 +677,24 @@ def run(args: argparse.Namespace) -> int:
     # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
     hoist = assembly.build_hoist(spec, time.time, store=store, views=[view])
-    station = hoist.pipeline
-    resumed = station.resumed_text()
+    pipeline = hoist.pipeline
+    resumed = pipeline.resumed_text()
     if resumed is not None:
         print(f"ropemon monitor: {resumed}", file=sys.stderr)
     operator = operator_name()
     for node in args.accept_rewound:
-        station.submit(AcceptRewound(operator, "command line", node=node, how="with --accept-rewound"))
+        pipeline.submit(AcceptRewound(operator, "command line", node=node, how="with --accept-rewound"))
     try:
         hoist.start()
         if isinstance(view, MonitorView):
-            live_loop(station, view, Console(), args.refresh_hz)
+            live_loop(pipeline, view, Console(), args.refresh_hz)
         else:     # no screen: until SIGTERM or SIGINT
             stop = threading.Event()
             for sig in (signal.SIGTERM, signal.SIGINT):
                 signal.signal(sig, lambda *_: stop.set())
-            run_loop([station], 1.0 / args.refresh_hz, stop.is_set, wait=stop.wait)
+            run_loop([pipeline], 1.0 / args.refresh_hz, stop.is_set, wait=stop.wait)
     finally:
-        station.close()
+        pipeline.close()
         if store is not None:
             store.close()
     return 0

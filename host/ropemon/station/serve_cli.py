@@ -55,41 +55,41 @@ class _Prefix:
 
 def run(args: argparse.Namespace) -> int:
     from ropemon.station.faces import FaceError, start_faces
-    from ropemon.station.hoists import StationSet
+    from ropemon.station.hoists import Station
     from ropemon.station.stationfile import StationFileError, load_station_file
     from ropemon.station.store import StoreError
 
     try:
         sf = load_station_file(args.station)
-        stations = StationSet(sf)
+        station = Station(sf)
     except (StationFileError, StoreError, ValueError, OSError) as e:
         print(f"ropemon serve: {e}", file=sys.stderr)
         return 2
     # the faces' messages, the web's logins and pymodbus's and asyncua's warnings, on stderr,
     # repeated ones summarised (a flood of bad traffic is a few lines a minute)
     logsummary.install(sys.stderr, "ropemon serve")
-    for h in stations.hoists.values():
+    for h in station.hoists.values():
         resumed = h.pipeline.resumed_text()
         if resumed is not None:
             print(f"ropemon serve: hoist {h.id}: {resumed}", file=sys.stderr)
     faces = []
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: (stop.set(), stations.stop()))
+        signal.signal(sig, lambda *_: (stop.set(), station.stop()))
     try:
         if not args.quiet:
-            stations.add_listeners(lambda h: HoistJsonLines(h.id, sys.stdout))
+            station.add_listeners(lambda h: HoistJsonLines(h.id, sys.stdout))
         try:
-            faces = start_faces(stations, sf)
+            faces = start_faces(station, sf)
         except (FaceError, ValueError) as e:
             print(f"ropemon serve: {e}", file=sys.stderr)
             return 2
         for f in faces:
             print(f"ropemon serve: {f.describe()}", file=sys.stderr)
-        stations.start()
-        stations.run(stop.is_set)
+        station.start()
+        station.run(stop.is_set)
     finally:
         for f in faces:
             f.stop()
-        stations.close()
+        station.close()
     return 0

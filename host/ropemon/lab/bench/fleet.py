@@ -111,10 +111,10 @@ def _publisher(mode: str, port: int, edges: list[str], per_edge: int, data_dir: 
         tmpl = _template()
         for e in edges:
             d = Path(data_dir) / e
-            stations = SimpleNamespace(file=SimpleNamespace(data_dir=d),
+            station = SimpleNamespace(file=SimpleNamespace(data_dir=d),
                                        hoists={h: SimpleNamespace(id=h, keys={1: b""}) for h in hoists})
             table = {"port": port, "group_id": GROUP, "edge_node_id": e, "report": "frame", "qos": 1}
-            face = MqttFace(stations, Settings(table, d, e))
+            face = MqttFace(station, Settings(table, d, e))
             face.start()
             faces.append(face)
             for h in hoists:

@@ -130,7 +130,7 @@ def _frame_bytes(i: int) -> bytes:
 def _run(mode: str, d: Path, client_cert: tuple[str, str], seconds: float, rep: int) -> dict:
     from ropemon.station.decoder import StreamDecoder
     from ropemon.station.faces import start_faces
-    from ropemon.station.hoists import StationSet
+    from ropemon.station.hoists import Station
     from ropemon.station.link import Received
     from ropemon.station.opcua.certs import CERT_FILE
     from ropemon.station.stationfile import load_station_file
@@ -143,10 +143,10 @@ def _run(mode: str, d: Path, client_cert: tuple[str, str], seconds: float, rep: 
             (run_dir / f).write_bytes((d / f).read_bytes())
             os.chmod(run_dir / f, 0o600)
     sf = load_station_file(_write_station(run_dir, port))
-    stations = StationSet(sf)
-    faces = start_faces(stations, sf)
+    station = Station(sf)
+    faces = start_faces(station, sf)
     face = faces[0]
-    hoists = list(stations.hoists)
+    hoists = list(station.hoists)
     n_frames = int(seconds * RATE_HZ) + 1
     wire = [_frame_bytes(i) for i in range(n_frames)]
     decoded = []
@@ -183,14 +183,14 @@ def _run(mode: str, d: Path, client_cert: tuple[str, str], seconds: float, rep: 
                 if now >= due:
                     break
                 if mode == "station" and now >= next_tick:
-                    stations.step()
+                    station.step()
                     next_tick += tick
                     continue
                 time.sleep(min(due - now, 0.005))
             h = hoists[k]
             sent[(h, _tension(i))] = time.monotonic()
             if mode == "station":
-                stations.hoists[h].pipeline.feed("pithead", wire[i])
+                station.hoists[h].pipeline.feed("pithead", wire[i])
             else:
                 face.post(h, "frame", Received("pithead", decoded[i], time.time(), True))
         wall = time.monotonic() - t0
@@ -206,7 +206,7 @@ def _run(mode: str, d: Path, client_cert: tuple[str, str], seconds: float, rep: 
                 p.terminate()
         for f in faces:
             f.stop()
-        stations.close()
+        station.close()
     lat = [1000 * (t - sent[(h, v)]) for r in results for h, v, t in r if (h, v) in sent]
     return {"latencies_ms": lat, "cpu_percent": 100 * cpu / wall, "notifications": len(lat),
             "expected": len(sent) * CLIENTS, "dropped_by_face": face.dropped}

@@ -40,19 +40,19 @@ def station_file(tmp: Path, faces: str) -> Path:
 def run_station(faces: str, seconds: float, ready: Any = None) -> dict[str, float]:
     """Run the load; `ready()` is called once the faces are up (to start the clients)."""
     from ropemon.station.faces import start_faces
-    from ropemon.station.hoists import StationSet
+    from ropemon.station.hoists import Station
     from ropemon.station.protocol import encode_frame
     from ropemon.station.stationfile import load_station_file
 
     with tempfile.TemporaryDirectory(prefix="ropemon-bench-") as d:
         tmp = Path(d)
         sf = load_station_file(station_file(tmp, faces))
-        stations = StationSet(sf)
-        started = start_faces(stations, sf)
+        station = Station(sf)
+        started = start_faces(station, sf)
         try:
             if ready is not None:
                 ready(started)
-            ids = list(stations.hoists)
+            ids = list(station.hoists)
             seq = dict.fromkeys(ids, 0)
             t0 = time.monotonic()
             c0 = os.times()
@@ -69,11 +69,11 @@ def run_station(faces: str, seconds: float, ready: Any = None) -> dict[str, floa
                         wire = encode_frame(node=1, seq=seq[h], key=_key(i), time_ms=seq[h] * 100,
                                             ropes=[(base + 10 * r, base - 50, base + 50, 8000) for r in range(4)],
                                             depth_mm=seq[h] * 10, speed_mm_s=1000, battery_mv=12_000)[1]
-                        stations.hoists[h].pipeline.feed("pithead", wire)
+                        station.hoists[h].pipeline.feed("pithead", wire)
                         frames += 1
                     next_frame += 1.0 / FRAME_HZ
                 if now >= next_tick:
-                    stations.step()
+                    station.step()
                     next_tick += 1.0 / TICK_HZ
                 time.sleep(max(0.0, min(next_frame, next_tick) - time.monotonic()))
             c1 = os.times()
@@ -81,7 +81,7 @@ def run_station(faces: str, seconds: float, ready: Any = None) -> dict[str, floa
         finally:
             for f in started:
                 f.stop()
-            stations.close()
+            station.close()
     cpu = (c1.user - c0.user) + (c1.system - c0.system)
     return {"cpu_pct": 100.0 * cpu / wall, "frames": frames, "wall_s": wall}
 

@@ -157,14 +157,14 @@ class SparkplugValues(HoistValues):
 class MqttFace:
     """The publisher thread (module docstring): the queue, the outbox and paho around a `Session`."""
 
-    def __init__(self, stations: Any, settings: Settings) -> None:
+    def __init__(self, station: Any, settings: Settings) -> None:
         self.settings = settings
         self.queue: "queue.SimpleQueue[tuple[str, int, dict]]" = queue.SimpleQueue()
-        self.devices = {h.id: sp.hoist_metrics(sorted(h.keys)) for h in stations.hoists.values()}
+        self.devices = {h.id: sp.hoist_metrics(sorted(h.keys)) for h in station.hoists.values()}
         self.session = Session(settings.group_id, settings.edge_node_id, self.devices, qos=settings.qos,
                                primary_host_id=settings.primary_host_id)
         self.alias = self.session.alias
-        data_dir = stations.file.data_dir
+        data_dir = station.file.data_dir
         if data_dir is not None:
             data_dir.mkdir(parents=True, exist_ok=True)
         self.outbox_path = data_dir / "mqtt-outbox.db" if data_dir is not None else None
@@ -533,10 +533,10 @@ class MqttFace:
                 self.outbox.close()
 
 
-def start(stations: Any, table: dict) -> MqttFace:
+def start(station: Any, table: dict) -> MqttFace:
     """Check the [mqtt] table, add one `SparkplugValues` per hoist, start the publisher."""
-    settings = Settings(table, stations.file.path.parent, stations.file.name)
-    face = MqttFace(stations, settings)
-    stations.add_listeners(lambda h: SparkplugValues(face, h.id, sorted(h.keys), stations.file.silent_s))
+    settings = Settings(table, station.file.path.parent, station.file.name)
+    face = MqttFace(station, settings)
+    station.add_listeners(lambda h: SparkplugValues(face, h.id, sorted(h.keys), station.file.silent_s))
     face.start()
     return face

@@ -9,7 +9,7 @@
     trusted_clients = "opcua-pki/trusted"   # optional: only these client certificates (refused ones go to
                                             # opcua-pki/rejected for an engineer to move in)
 
-`start(stations, table)` checks the table (refusing it with the field named), adds an
+`start(station, table)` checks the table (refusing it with the field named), adds an
 `OpcuaListener` to every hoist and runs an asyncua server in its own thread with its own
 asyncio loop. The listener runs on the station's thread and only hands each message to
 that loop (`loop.call_soon_threadsafe`, onto a bounded queue): it never waits for the
@@ -49,14 +49,14 @@ __all__ = ["CERT_DAYS", "CERT_FILE", "DEFAULT_ENDPOINT", "EVENT_COLUMNS", "HISTO
 # -- the face's entry point ------------------------------------------------------------
 
 
-def start(stations: Any, table: Any) -> OpcuaFace:
+def start(station: Any, table: Any) -> OpcuaFace:
     """Check the [opcua] table, add the listener to every hoist, start the server (faces.py)."""
     import importlib.util
 
     from ropemon.station.faces import FaceError
     if importlib.util.find_spec("asyncua") is None:
         raise FaceError("[opcua]: the opcua face needs its libraries: pip install 'ropemon[opcua]'")
-    cfg = parse_table(table, stations.file.path.parent)
+    cfg = parse_table(table, station.file.path.parent)
     users = None
     if cfg.users is not None:
         from ropemon.station.users import Users, UsersError
@@ -64,10 +64,10 @@ def start(stations: Any, table: Any) -> OpcuaFace:
             users = Users(cfg.users)
         except (UsersError, OSError) as e:
             raise StationFileError(f"opcua.users: {e}") from None
-    face = OpcuaFace(stations, cfg, users)
+    face = OpcuaFace(station, cfg, users)
     try:
         face.start()
     except RuntimeError as e:
         raise FaceError(str(e)) from None
-    stations.add_listeners(lambda h: OpcuaListener(face, h.id))
+    station.add_listeners(lambda h: OpcuaListener(face, h.id))
     return face

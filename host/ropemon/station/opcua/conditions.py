@@ -55,7 +55,7 @@ def _arg(x: Any) -> Any:
 class _Conditions:
     """The alarm conditions of `OpcuaFace` (which this class is a base of)."""
 
-    stations: Any
+    station: Any
     users: Any
     server: Any
     hoists: dict[str, _Hoist]
@@ -119,7 +119,7 @@ class _Conditions:
                 entry[1] = True
             elif seen:
                 del h.one_shot[aid]
-                _log_refusal(h.id, self.stations.submit(h.id, Unshelve(user, "opcua one-shot", alarm=aid)))
+                _log_refusal(h.id, self.station.submit(h.id, Unshelve(user, "opcua one-shot", alarm=aid)))
 
     async def _condition(self, h: _Hoist, aid: str) -> Any:
         from asyncua import ua
@@ -338,7 +338,7 @@ class _Conditions:
         too when the station has not answered in time: it carries the command out later, a
         refusal then only logged."""
         from asyncua import ua
-        ticket = self.stations.submit(hoist, command)
+        ticket = self.station.submit(hoist, command)
         out = await outcome_within(ticket)
         if out is None:
             _log_refusal(hoist, ticket)

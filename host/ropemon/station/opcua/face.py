@@ -125,8 +125,8 @@ class _Hoist:
 class OpcuaFace(_Conditions):
     """The asyncua server in its own thread and loop, fed by one `OpcuaListener` per hoist."""
 
-    def __init__(self, stations: Any, cfg: OpcuaFile, users: Any = None) -> None:
-        self.stations, self.cfg, self.users = stations, cfg, users
+    def __init__(self, station: Any, cfg: OpcuaFile, users: Any = None) -> None:
+        self.station, self.cfg, self.users = station, cfg, users
         self.loop = asyncio.new_event_loop()
         self.queue: asyncio.Queue | None = None
         self.dropped = 0
@@ -223,7 +223,7 @@ class OpcuaFace(_Conditions):
         server.iserver.history_manager.set_storage(self.history)
         await server.init()
         server.set_endpoint(self.cfg.endpoint)
-        server.set_server_name(f"ropemon station {self.stations.file.name}")
+        server.set_server_name(f"ropemon station {self.station.file.name}")
         await server.set_application_uri(self.app_uri)
         server.product_uri = "urn:ropemon"
         server.manufacturer_name = "ropemon"
@@ -348,8 +348,8 @@ class OpcuaFace(_Conditions):
     async def _build(self, server: Any) -> None:
         from asyncua import ua
         root = await self._object(ua.NodeId(ua.ObjectIds.ObjectsFolder), "ropemon", "Ropemon",
-                                  f"ropemon: {self.stations.file.name}", folder=True)
-        for h in self.stations.hoists.values():
+                                  f"ropemon: {self.station.file.name}", folder=True)
+        for h in self.station.hoists.values():
             ranges = _ranges(h)
             hid = h.id
             hobj = await self._object(root, hid, hid, h.name)

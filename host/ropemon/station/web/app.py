@@ -11,7 +11,7 @@
     GET  /overview/stream               every hoist's summary as server-sent events
     POST /hoist/{id}/ack | shelve | unshelve | remove | return | accept-rewound   (login + CSRF)
 
-An action becomes the station's command (`stations.submit(hoist, Acknowledge(user, "web"))`),
+An action becomes the station's command (`station.submit(hoist, Acknowledge(user, "web"))`),
 carried out on the station's thread; the web never touches a listener or the alarm engine. The
 response waits for the command's outcome (`commands.OUTCOME_WAIT_S` at most): refused by the
 station 409 with its reason; not answered in time 200 with `pending` (it is carried out later).
@@ -74,7 +74,7 @@ HISTORY_MAX_S = 31 * 24 * 3600
 class Context:
     """What the routes need: the hoists, their listeners and log readers, the users."""
 
-    stations: Any                        # hoists.StationSet
+    station: Any                         # hoists.Station
     web: Any                             # stationfile.WebFile
     listeners: dict[str, WebListener]
     readers: dict[str, logread.LogReader]
@@ -163,8 +163,8 @@ def _page(request: Request, name: str, ctx: dict, status: int = 200) -> Response
     c = _ctx(request)
     user = _user(request)
     base = {
-        "user": user, "csrf": csrf_token(request.session), "station_name": c.stations.file.name,
-        "hoists": [{"id": h.id, "name": h.name} for h in c.stations.hoists.values()],
+        "user": user, "csrf": csrf_token(request.session), "station_name": c.station.file.name,
+        "hoists": [{"id": h.id, "name": h.name} for h in c.station.hoists.values()],
         "hoist": None, "stale_s": STALE_S, "flash": request.session.pop("flash", None),
         "may": (lambda action: bool(user and user.may(action))),
         "view_without_login": c.web.view_without_login, "path": request.url.path,
@@ -442,7 +442,7 @@ async def _trip(request: Request) -> tuple[WebListener, dict]:
     if not re.fullmatch(r"\d{1,12}", text):
         raise Refused("trip", f"a trip number, got {text[:20]!r}")
     c = _ctx(request)
-    h = c.stations.hoists[lst.hoist_id]
+    h = c.station.hoists[lst.hoist_id]
     spec = getattr(h, "spec", None)
     try:
         detail = await c.readers[lst.hoist_id].call(logread.trip_detail, int(text), h.site.cylinder_area_m2,
@@ -614,7 +614,7 @@ def _act(action: str) -> Any:
                 return JSONResponse({"ok": False, "field": e.field, "error": e.reason}, e.status)
             request.session["flash"] = f"refused: {e.field}: {e.reason}"
             return RedirectResponse(f"/hoist/{lst.hoist_id}", status_code=303)
-        out = await outcome_within(c.stations.submit(lst.hoist_id, cmd))
+        out = await outcome_within(c.station.submit(lst.hoist_id, cmd))
         if out is not None and not out.ok:
             if as_json:
                 return JSONResponse({"ok": False, "refused": True, "error": out.reason}, 409)

@@ -1,11 +1,11 @@
-"""The web face (`ropemon serve` with a [web] table): `start(stations, web_file) -> WebFace`.
+"""The web face (`ropemon serve` with a [web] table): `start(station, web_file) -> WebFace`.
 
 `attach` adds a `WebListener` to every hoist's station (before its receivers open) and builds
 the Starlette app (`ropemon.station.web.app`) on them; `start` also runs uvicorn on it in a
 daemon thread with its own asyncio loop, bound to web.bind:web.port (localhost unless told
 otherwise), with TLS when web.tls_cert and web.tls_key are given. The station's thread only
 ever hands copies and messages to the web's loop (`state.Subscriber`); the web only submits
-commands (`StationSet.submit`).
+commands (`Station.submit`).
 """
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ class Attached:
     ctx: Context
 
 
-def attach(stations: Any, web: Any, users: Users | None = None, secret: str | None = None) -> Attached:
+def attach(station: Any, web: Any, users: Users | None = None, secret: str | None = None) -> Attached:
     """A WebListener on every hoist and the app on them (no server: `start` runs one)."""
     try:
         users = users if users is not None else Users(web.users)
@@ -50,9 +50,9 @@ def attach(stations: Any, web: Any, users: Users | None = None, secret: str | No
         listeners[h.id] = WebListener(h)
         return listeners[h.id]
 
-    stations.add_listeners(factory)
-    readers = {hid: logread.LogReader(h.db_path) for hid, h in stations.hoists.items()}
-    ctx = Context(stations, web, listeners, readers, users)
+    station.add_listeners(factory)
+    readers = {hid: logread.LogReader(h.db_path) for hid, h in station.hoists.items()}
+    ctx = Context(station, web, listeners, readers, users)
     return Attached(build_app(ctx, secret, https_only=web.tls_cert is not None), ctx)
 
 
@@ -127,8 +127,8 @@ class WebFace:
             r.close()
 
 
-def start(stations: Any, web: Any) -> WebFace:
+def start(station: Any, web: Any) -> WebFace:
     """The faces contract (`ropemon.station.faces`): the web face, serving."""
     if sys.version_info < (3, 11):  # pragma: no cover
         raise WebError("web: needs Python 3.11")
-    return WebFace(attach(stations, web), web).start()
+    return WebFace(attach(station, web), web).start()

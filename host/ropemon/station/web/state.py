@@ -1,6 +1,6 @@
 """The web face's picture of one hoist: kept on the station's thread, read and pushed to the web's.
 
-`WebListener(hoist)` is one more listener of the hoist's station (`StationSet.add_listeners`):
+`WebListener(hoist)` is one more listener of the hoist's station (`Station.add_listeners`):
 every method of it runs on the station's thread. It keeps, under its own lock,
 
 - the last frame of each cage node, with the figures the page shows (compensated and raw
