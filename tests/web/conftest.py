@@ -1,4 +1,4 @@
-"""Tests of the station's web face: through Starlette's TestClient (test_web*.py, no browser), and
+"""Tests of the station's web face: through Starlette's TestClient (test_web.py, test_web_sessions.py; no browser), and
 in a real browser (Debian's chromium, driven by Selenium; only a test that asks for `browser` starts one).
 
 Fixtures:
