@@ -107,3 +107,24 @@ def test_diagnostics_include_the_node_without_stroke_tracking(short_run):
     sc = doc["scenarios"]["short-test"]
     d = sc["diagnostics"][f"{E.FULL_COMPENSATION}, {ev.NO_STROKES_DIAGNOSTIC}"]
     assert abs(d["rope_rms_pct"] - sc["estimators"][E.FULL_COMPENSATION]["rope_rms_pct"]) < 0.05
+
+
+def test_scenarios_run_in_parallel_give_the_serial_results_in_order(tmp_path):
+    # two scenarios with one seal: the second process waits for the first's friction fit (its cache)
+    src = ev.scenario_path("short-test")
+    import shutil
+    shutil.copytree(src.parent, tmp_path / "scenarios")     # with the site and compliance files it names
+    twin = tmp_path / "scenarios" / "short-twin.toml"
+    twin.write_text(src.read_text())
+    names = [str(twin), "short-test"]
+    par = ev.evaluate(names, tmp_path / "par", firmware=False, bed=ev.BED_QUICK, jobs=2)
+    ser = ev.evaluate(names[:1], tmp_path / "ser", firmware=False, bed=ev.BED_QUICK, jobs=1)
+    assert list(par["scenarios"]) == ["short-twin", "short-test"]
+    fits = sorted(p.name for p in (tmp_path / "par").glob("friction-*.json"))
+    assert len(fits) == 1, fits
+    a, b, c = par["scenarios"]["short-twin"], par["scenarios"]["short-test"], ser["scenarios"]["short-twin"]
+    for r in (a, b, c):
+        assert "error" not in r, r.get("error")
+    for name in E.ESTIMATORS:
+        assert a["estimators"][name]["rope_rms_pct"] == b["estimators"][name]["rope_rms_pct"] \
+            == c["estimators"][name]["rope_rms_pct"], name

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import tempfile
 import time
@@ -616,6 +617,7 @@ def fit_plant_seal(plant_friction: dict, work: Path, seed: int, bed: dict | None
     """Fit friction as a site would: the scenario's (hidden) seal on the simulated test bed
     of `python -m ropemon.lab.testbed --scenario` (reversals stretched to the seal's vs), noisy
     records to CSV, `ropemon fit-friction`'s fit. Cached in `work` per seal, seed and bed."""
+    import fcntl
     import hashlib
 
     from ropemon.commission import calibrate
@@ -629,23 +631,30 @@ def fit_plant_seal(plant_friction: dict, work: Path, seed: int, bed: dict | None
             for m in (calibrate, testbed, plant_friction_module)]
     key = json.dumps([plant_friction, seed, bed, code], sort_keys=True)
     cache = work / f"friction-{hashlib.sha256(key.encode()).hexdigest()[:12]}.json"
-    if cache.exists():
-        return json.loads(cache.read_text())
-    seal = write_seal(plant_friction, cache.with_suffix(".seal.toml"))
-    try:
-        params, law_factory = testbed.scenario_seal(seal)
-    except ScenarioError as e:
-        raise EvaluationError(f"test bed: {e}") from None
-    period_s = testbed.presliding_period_s(params, pressures_MPa=bed.get("pressures_MPa", testbed.PRESSURES_MPA))
-    data = testbed.run(params, seed=seed, law_factory=law_factory, presliding_period_s=period_s, **bed)
-    csv_path = cache.with_suffix(".csv")
-    testbed.write_csv(csv_path, data)
-    try:
-        doc, _levels, warnings = calibrate.fit(calibrate.read_csv(csv_path), source=str(csv_path))
-    except calibrate.FitError as e:
-        raise EvaluationError(f"fit-friction on the simulated test bed: {e}") from None
-    doc["bed"] = {"presliding_period_s": period_s, "warnings": warnings}
-    cache.write_text(json.dumps(doc, indent=1))
+    work.mkdir(parents=True, exist_ok=True)
+    # scenarios run in parallel processes share a seal (the field trip's variants): the first fits it,
+    # the others wait for its cache
+    with open(cache.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if cache.exists():
+            return json.loads(cache.read_text())
+        seal = write_seal(plant_friction, cache.with_suffix(".seal.toml"))
+        try:
+            params, law_factory = testbed.scenario_seal(seal)
+        except ScenarioError as e:
+            raise EvaluationError(f"test bed: {e}") from None
+        period_s = testbed.presliding_period_s(params, pressures_MPa=bed.get("pressures_MPa", testbed.PRESSURES_MPA))
+        data = testbed.run(params, seed=seed, law_factory=law_factory, presliding_period_s=period_s, **bed)
+        csv_path = cache.with_suffix(".csv")
+        testbed.write_csv(csv_path, data)
+        try:
+            doc, _levels, warnings = calibrate.fit(calibrate.read_csv(csv_path), source=str(csv_path))
+        except calibrate.FitError as e:
+            raise EvaluationError(f"fit-friction on the simulated test bed: {e}") from None
+        doc["bed"] = {"presliding_period_s": period_s, "warnings": warnings}
+        tmp = cache.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(doc, indent=1))
+        os.replace(tmp, cache)
     return doc
 
 
@@ -980,7 +989,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", choices=("scoring", "tuning"), default="scoring",
                    help="population seeds: scoring (101-200, the reported figures: no setting was chosen "
                         "on them) or tuning (1-20, where settings are chosen); default scoring")
-    p.add_argument("--jobs", type=int, default=2, help="population winds run at a time (default 2)")
+    p.add_argument("--jobs", type=int, default=2, help="scenarios or population winds run at a time (processes; default 2)")
     p.add_argument("--faults", action="store_true",
                    help="with --population: also run each hoist with one drawn fault and score the station's "
                         "alarms against the Targets (faults.md, faults.json)")
@@ -1004,23 +1013,30 @@ def default_scenarios() -> list[str]:
     return list(DEFAULT_SCENARIOS)
 
 
+def evaluate_one(name: str, work: Path, seed: int = 1, firmware: bool = True,
+                 plots: Path | None = None, bed: dict | None = None) -> dict:
+    """One scenario's results (`build_case`, `score`, its plots); an error is reported in them."""
+    t0 = time.monotonic()
+    try:
+        case = build_case(name, work / Path(name).stem, seed, firmware, bed)
+        if variant(name) is not None:
+            case.notes.insert(0, f"{FIELD_TRIP} variant: {variant(name)[0]}")
+        res = score(case)
+        if plots is not None:
+            plot(case, plots)
+    except (EvaluationError, OSError, ValueError, KeyError) as e:
+        res = {"error": f"{type(e).__name__}: {e}" if not isinstance(e, EvaluationError) else str(e)}
+    res["wall_s"] = round(time.monotonic() - t0, 1)
+    return res
+
+
 def evaluate(names: list[str], work: Path, seed: int = 1, firmware: bool = True,
-             plots: Path | None = None, log=None, bed: dict | None = None) -> dict:
-    """Evaluate each scenario; one that fails is reported with its error, the others go on."""
+             plots: Path | None = None, log=None, bed: dict | None = None, jobs: int = 1) -> dict:
+    """Evaluate each scenario, `jobs` at a time (processes), the results in the order of `names`;
+    one that fails is reported with its error, the others go on."""
     results: dict = {"scenarios": {}, "seed": seed}
-    for name in names:
-        t0 = time.monotonic()
-        try:
-            case = build_case(name, work / Path(name).stem, seed, firmware, bed)
-            if variant(name) is not None:
-                case.notes.insert(0, f"{FIELD_TRIP} variant: {variant(name)[0]}")
-            res = score(case)
-            if plots is not None:
-                plot(case, plots)
-        except (EvaluationError, OSError, ValueError, KeyError) as e:
-            res = {"error": f"{type(e).__name__}: {e}" if not isinstance(e, EvaluationError) else str(e)}
-        res["wall_s"] = round(time.monotonic() - t0, 1)
-        results["scenarios"][Path(name).stem] = res
+
+    def done(name: str, res: dict) -> None:
         if log:
             c = res.get("commissioning", {})
             status = ("ERROR " + res["error"] if "error" in res else
@@ -1028,6 +1044,22 @@ def evaluate(names: list[str], work: Path, seed: int = 1, firmware: bool = True,
                       if name in commissioning_failed({"scenarios": {name: res}}) else
                       "done (`ropemon config` refuses the seal, as expected)" if c.get("seal_refused") else "done")
             log(f"{name}: {status} ({res['wall_s']} s)")
+
+    by_name: dict[str, dict] = {}
+    if jobs <= 1 or len(names) <= 1:
+        for name in names:
+            by_name[name] = evaluate_one(name, work, seed, firmware, plots, bed)
+            done(name, by_name[name])
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+        with ProcessPoolExecutor(max_workers=jobs) as ex:
+            futs = {ex.submit(evaluate_one, name, work, seed, firmware, plots, bed): name for name in names}
+            for fut in as_completed(futs):
+                name = futs[fut]
+                by_name[name] = fut.result()
+                done(name, by_name[name])
+    for name in names:
+        results["scenarios"][Path(name).stem] = by_name[name]
     return results
 
 
@@ -1171,7 +1203,7 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="ropemon-evaluate-") as tmp:
         work = args.out / "runs" if args.out else Path(tmp)
         results = evaluate(names, work, args.seed, not args.no_firmware, args.out, log,
-                           BED_QUICK if args.quick else None)
+                           BED_QUICK if args.quick else None, args.jobs)
         results["quick"] = bool(args.quick)
     results = jsonable(results)
     md = markdown(results)
