@@ -34,10 +34,10 @@ def parse_faces(sf) -> None:
     unknown keys; a face without a parser here fails the test."""
     from ropemon.station import modbus, mqtt, opcua
     parsers = {
-        "web": lambda table: None,                  # checked by stationfile itself (StationFile.web)
+        "web": lambda table: None,                  # checked by stationfile itself (StationConfig.web)
         "opcua": lambda table: opcua.parse_table(table, sf.path.parent),
-        "modbus": modbus.parse,
-        "mqtt": lambda table: mqtt.Settings(table, sf.path.parent, sf.name),
+        "modbus": modbus.parse_table,
+        "mqtt": lambda table: mqtt.parse_table(table, sf.path.parent),
     }
     assert set(parsers) == set(faces.FACES), "a face without a parser in this test"
     for name, table in faces.configured(sf).items():

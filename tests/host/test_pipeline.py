@@ -160,7 +160,7 @@ def test_a_full_disk_keeps_the_station_alarming_and_loses_no_frame_once_space_re
     log: list = []
     alarms = AlarmListener(AlarmSettings(silent_s=60.0))
     s = HoistPipeline(KEYS, [alarms, StoreListener(store, clock=lambda: clk[0]), Recorder("view", log)],
-                clock=lambda: clk[0])
+                      clock=lambda: clk[0])
     seqs = []
     for k in range(400):
         clk[0] = k * 0.1

@@ -8,7 +8,7 @@ import pytest
 from ropemon.commission.nodejson import example_physical, make_node_json
 from ropemon.station.hoists import Station
 from ropemon.station.protocol import encode_frame
-from ropemon.station.stationfile import StationFileError, load_station_file
+from ropemon.station.stationfile import StationConfigError, load_station_file
 
 KEY_N, KEY_S = bytes(range(16)), bytes(range(1, 17))
 
@@ -85,7 +85,7 @@ def test_a_station_of_two_hoists_each_with_its_own_station_alarms_and_log(tmp_pa
 def test_bad_station_files_are_refused_with_the_field(tmp_path, edit, message):
     bad = GOOD.replace(edit, message, 1)
     assert bad != GOOD
-    with pytest.raises(StationFileError) as e:
+    with pytest.raises(StationConfigError) as e:
         load_station_file(write(tmp_path, bad))
     field = {"North Shaft": "hoist[0].id", "receivers": "hoist[1].receivers", "nan": "station.silent_s",
              '"8099"': "web.port", "webb": "webb", 'id = "north"': "hoist[1].id", "shaft_m": "hoist[1].shaft_m"}
@@ -167,8 +167,8 @@ def test_a_station_set_takes_other_receivers_for_a_hoist(tmp_path):
     assert sf.hoist("south").shaft_m == 806.0 and sf.hoist("north").shaft_m is None
     s = Station(sf, receivers={"south": [("radio", "loop://")]})
     try:
-        assert s.hoists["south"].spec.receivers == (("radio", "loop://"),)
-        assert s.hoists["north"].spec.receivers == sf.hoists[0].receivers
+        assert s.hoists["south"].config.receivers == (("radio", "loop://"),)
+        assert s.hoists["north"].config.receivers == sf.hoists[0].receivers
         s.start()
         assert sorted(s.hoists["south"].pipeline.hub.receivers) == ["radio"]
     finally:

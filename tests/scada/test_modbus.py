@@ -12,7 +12,7 @@ from pymodbus.client import ModbusTcpClient  # noqa: E402
 from ropemon.station import modbus as M  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.scadavalues import ALARM_KINDS, EQUALIZER_KINDS  # noqa: E402
-from ropemon.station.stationfile import StationFileError  # noqa: E402
+from ropemon.station.stationfile import StationConfigError  # noqa: E402
 from scada_rig import Rig, free_port  # noqa: E402
 
 
@@ -157,12 +157,12 @@ def test_a_refused_coil_acknowledgement_is_logged_by_the_face_from_its_outcome(s
 def test_a_bad_modbus_table_is_refused_with_the_field(tmp_path):
     rig = Rig(tmp_path, 1, "[modbus]\nport = 70000\n")
     try:
-        with pytest.raises(StationFileError, match="modbus.port"):
+        with pytest.raises(StationConfigError, match="modbus.port"):
             start_faces(rig.stations, rig.file)
     finally:
         rig.close()
-    with pytest.raises(StationFileError, match="modbus.colour"):
-        M.parse({"colour": "red"})
+    with pytest.raises(StationConfigError, match="modbus.colour"):
+        M.parse_table({"colour": "red"})
 
 
 class _Events:

@@ -15,7 +15,7 @@ import paho.mqtt.client as paho  # noqa: E402
 from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.mqtt import sparkplug as sp  # noqa: E402
 from ropemon.station.mqtt.fleet import Fleet, Historian  # noqa: E402
-from ropemon.station.stationfile import StationFileError  # noqa: E402
+from ropemon.station.stationfile import StationConfigError  # noqa: E402
 from scada_rig import Rig, wait  # noqa: E402
 
 
@@ -130,7 +130,7 @@ def test_report_by_exception_sends_what_moved_beyond_the_deadband(tmp_path, brok
 def test_a_bad_mqtt_table_is_refused_with_the_field(tmp_path):
     rig = Rig(tmp_path, 1, '[mqtt]\ngroup_id = "a/b"\nedge_node_id = "x"\n')
     try:
-        with pytest.raises(StationFileError, match="mqtt.group_id"):
+        with pytest.raises(StationConfigError, match="mqtt.group_id"):
             start_faces(rig.stations, rig.file)
     finally:
         rig.close()

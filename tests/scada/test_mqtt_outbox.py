@@ -125,8 +125,8 @@ def test_a_rebirth_sends_a_quiet_hoists_rows_still_to_publish_before_its_ddeath(
     monkeypatch.setattr(face_mod.MqttFace, "_connect", connect)
     monkeypatch.setattr(face_mod.MqttFace, "_poll", lambda self, timeout=0.0, force=False: None)
     hoists = {h: SimpleNamespace(id=h, keys={1: None}) for h in ("h0", "h1")}
-    stations = SimpleNamespace(hoists=hoists, file=SimpleNamespace(data_dir=None))
-    face = face_mod.MqttFace(stations, face_mod.Settings({"group_id": "g", "edge_node_id": "e"}, tmp_path, "s"))
+    stations = SimpleNamespace(hoists=hoists, config=SimpleNamespace(data_dir=None))
+    face = face_mod.MqttFace(stations, face_mod.parse_table({"group_id": "g", "edge_node_id": "e"}, tmp_path))
     n = 500
     face.start()
     try:

@@ -24,7 +24,7 @@ from ropemon.station.faces import start_faces  # noqa: E402
 from ropemon.station.hoists import Station  # noqa: E402
 from ropemon.station.opcua import parse_table  # noqa: E402
 from ropemon.station.protocol import encode_frame  # noqa: E402
-from ropemon.station.stationfile import StationFileError, load_station_file  # noqa: E402
+from ropemon.station.stationfile import StationConfigError, load_station_file  # noqa: E402
 from ropemon.station.store import Store  # noqa: E402
 from ropemon.station.users import add_user  # noqa: E402
 
@@ -300,7 +300,7 @@ def _utc(t):
     ({}, "opcua.users"),
 ])
 def test_the_table_is_refused_with_the_field_named(table, field):
-    with pytest.raises(StationFileError, match=field.replace("[", r"\[").replace("]", r"\]")):
+    with pytest.raises(StationConfigError, match=field.replace("[", r"\[").replace("]", r"\]")):
         parse_table(table, Path("."))
 
 

@@ -23,7 +23,7 @@ pytest.importorskip("paho.mqtt")
 import paho.mqtt.client as paho  # noqa: E402
 
 from ropemon.station.faces import start_faces  # noqa: E402
-from ropemon.station.stationfile import StationFileError  # noqa: E402
+from ropemon.station.stationfile import StationConfigError  # noqa: E402
 from scada_rig import Rig, wait  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -287,7 +287,7 @@ def test_births_wait_for_the_primary_host_and_end_when_it_goes_offline(tmp_path,
 def test_a_bad_primary_host_id_is_refused_with_the_field(tmp_path):
     rig = Rig(tmp_path, 1, '[mqtt]\ngroup_id = "a"\nedge_node_id = "x"\nprimary_host_id = "scada/1"\n')
     try:
-        with pytest.raises(StationFileError, match="mqtt.primary_host_id"):
+        with pytest.raises(StationConfigError, match="mqtt.primary_host_id"):
             start_faces(rig.stations, rig.file)
     finally:
         rig.close()

@@ -208,7 +208,7 @@ def test_a_login_flood_is_bounded_in_hashes_at_once_memory_and_latency(tmp_path)
     stations = _station(tmp_path, port)
     probe = AlarmProbe()
     stations.add_listeners(lambda h: probe)
-    face = server.start(stations, stations.file.web)
+    face = server.start(stations, stations.config.web)
     users = face.attached.ctx.users
     counting = Counting()
     users.ph = counting                          # the stored hashes (and the dummy) are of the real cost

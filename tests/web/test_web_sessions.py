@@ -18,7 +18,7 @@ from argon2 import PasswordHasher
 starlette_testclient = pytest.importorskip("starlette.testclient")
 from test_web import CHEAP, PASSWORDS, STATION, Site, csrf_of, raise_deviation  # noqa: E402
 
-from ropemon.station.stationfile import StationFileError, load_station_file  # noqa: E402
+from ropemon.station.stationfile import StationConfigError, load_station_file  # noqa: E402
 from ropemon.station import users as accounts  # noqa: E402
 
 
@@ -120,7 +120,7 @@ def test_an_idle_session_ends_and_use_keeps_it(tmp_path):
 @pytest.mark.parametrize("value", ["0", "0.5", "721", '"30"'])
 def test_the_idle_time_is_range_checked(tmp_path, value):
     (tmp_path / "station.toml").write_text(STATION + f"session_idle_min = {value}\n")
-    with pytest.raises(StationFileError, match="web.session_idle_min"):
+    with pytest.raises(StationConfigError, match="web.session_idle_min"):
         load_station_file(tmp_path / "station.toml")
 
 

@@ -175,7 +175,7 @@ def play_to_station(args: argparse.Namespace, out: Path, node_json: Path, site: 
 
     try:
         station = Station(sf, clock=clock, wall=clock,       # events and rx times on the demo's clock too
-                              receivers={first.id: [(n, vp.port) for n, vp in ports.items()]})
+                          receivers={first.id: [(n, vp.port) for n, vp in ports.items()]})
         every = [h.pipeline for h in station.hoists.values()]
         h0 = station.hoists[first.id]
         kept = FrameKeeper()

@@ -33,6 +33,8 @@ import contextvars
 import logging
 import struct
 import threading
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Sequence
 
 from pymodbus.constants import ExcCodes
@@ -44,9 +46,10 @@ from pymodbus.server.requesthandler import ServerRequestHandler
 
 from ropemon.station.tomlfields import Table
 from ropemon.station import logsummary
+from ropemon.station.faces import StationView
 from ropemon.station.pipeline import Acknowledge
 from ropemon.station.scadavalues import ALARM_KINDS, EQUALIZER_KINDS, HoistValues, NodeValues
-from ropemon.station.stationfile import StationFileError
+from ropemon.station.stationfile import StationConfigError
 
 MAP_VERSION = 2
 FUNCTIONS = (1, 3, 4, 5, 15)   # the function codes answered (docs/integration.md); any other: ILLEGAL FUNCTION
@@ -303,13 +306,13 @@ class _Server(ModbusTcpServer):
 class ModbusFace:
     """The server thread and the map's blocks (module docstring)."""
 
-    def __init__(self, station: Any, bind: str, port: int, ack_coil: bool) -> None:
-        self.station = station
-        self.hoist_ids = list(station.hoists)
-        self.bind, self.port, self.ack_coil = bind, port, ack_coil
+    def __init__(self, view: StationView, config: ModbusConfig) -> None:
+        self.station = view
+        self.hoist_ids = list(view.hoists)
+        self.bind, self.port, self.ack_coil = config.bind, config.port, config.ack_coil
         self.blocks: list[tuple[int, ...]] = [(0,) * HOIST_STRIDE for _ in self.hoist_ids]
         self.header = (MAP_VERSION, len(self.hoist_ids), HOIST_BASE, HOIST_STRIDE, MAX_NODES, ROPES,
-                       1 if ack_coil else 0)
+                       1 if self.ack_coil else 0)
         self.size = HOIST_BASE + HOIST_STRIDE * len(self.hoist_ids)
         self.acks = 0
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -384,30 +387,40 @@ class ModbusFace:
                 f"{len(self.hoist_ids)} hoist block(s) at {HOIST_BASE} + {HOIST_STRIDE} h{ack}")
 
 
-def parse(table: dict) -> tuple[str, int, bool]:
-    t = Table(table, "modbus", StationFileError)
-    out = t.string("bind", "127.0.0.1"), t.integer("port", 5020, lo=0, hi=65535), t.boolean("ack_coil", False)
+@dataclass(frozen=True)
+class ModbusConfig:
+    """The [modbus] table, checked (`parse_table`)."""
+
+    bind: str = "127.0.0.1"
+    port: int = 5020          # 0: any free port
+    ack_coil: bool = False
+
+
+def parse_table(table: Any, base: Path | None = None) -> ModbusConfig:
+    """The [modbus] table, checked; StationConfigError names the field (`base`: no paths here)."""
+    t = Table(table, "modbus", StationConfigError)
+    out = ModbusConfig(t.string("bind", "127.0.0.1"), t.integer("port", 5020, lo=0, hi=65535),
+                       t.boolean("ack_coil", False))
     t.finish()
     return out
 
 
-def start(station: Any, table: dict) -> ModbusFace:
-    """Check the [modbus] table, add one `ModbusValues` per hoist, start the server."""
-    bind, port, ack_coil = parse(table)
-    if len(station.hoists) > MAX_HOISTS:
-        raise StationFileError(f"modbus: the map holds {MAX_HOISTS} hoists, the station file has "
-                               f"{len(station.hoists)}")
-    face = ModbusFace(station, bind, port, ack_coil)
-    for i, h in enumerate(station.hoists.values()):
+def start(view: StationView, config: ModbusConfig) -> ModbusFace:
+    """Add one `ModbusValues` per hoist, start the server (the faces contract, `ropemon.station.faces`)."""
+    if len(view.hoists) > MAX_HOISTS:
+        raise StationConfigError(f"modbus: the map holds {MAX_HOISTS} hoists, the station file has "
+                                 f"{len(view.hoists)}")
+    face = ModbusFace(view, config)
+    for h in view.hoists.values():
         nodes = sorted(h.keys)
         if len(nodes) > MAX_NODES:
-            raise StationFileError(f"modbus: hoist {h.id} has {len(nodes)} nodes; the map holds {MAX_NODES} per hoist")
+            raise StationConfigError(f"modbus: hoist {h.id} has {len(nodes)} nodes; the map holds {MAX_NODES} per hoist")
     index = {hid: i for i, hid in enumerate(face.hoist_ids)}
-    station.add_listeners(lambda h: ModbusValues(face, index[h.id], h.id, sorted(h.keys),
-                                                  list(getattr(h.site, "stroke_m", None) or ()),
-                                                  getattr(h.site, "stroke_margin_m", None)))
+    view.add_listeners(lambda h: ModbusValues(face, index[h.id], h.id, sorted(h.keys),
+                                              list(getattr(h.site, "stroke_m", None) or ()),
+                                              getattr(h.site, "stroke_margin_m", None)))
     face.start()
     return face
 
 
-__all__ = ["ALARM_KINDS", "EQUALIZER_KINDS", "MAP_VERSION", "ModbusFace", "start"]
+__all__ = ["ALARM_KINDS", "EQUALIZER_KINDS", "MAP_VERSION", "ModbusConfig", "ModbusFace", "parse_table", "start"]

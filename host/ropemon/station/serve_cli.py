@@ -56,13 +56,13 @@ class _Prefix:
 def run(args: argparse.Namespace) -> int:
     from ropemon.station.faces import FaceError, start_faces
     from ropemon.station.hoists import Station
-    from ropemon.station.stationfile import StationFileError, load_station_file
+    from ropemon.station.stationfile import StationConfigError, load_station_file
     from ropemon.station.store import StoreError
 
     try:
         sf = load_station_file(args.station)
         station = Station(sf)
-    except (StationFileError, StoreError, ValueError, OSError) as e:
+    except (StationConfigError, StoreError, ValueError, OSError) as e:
         print(f"ropemon serve: {e}", file=sys.stderr)
         return 2
     # the faces' messages, the web's logins and pymodbus's and asyncua's warnings, on stderr,

@@ -41,12 +41,12 @@ HOIST_ID = re.compile(r"^[a-z0-9][a-z0-9-]{0,31}$")
 RECEIVER_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,31}$")
 
 
-class StationFileError(ValueError):
+class StationConfigError(ValueError):
     """A station file that cannot be used: the message names the field and the reason."""
 
 
 @dataclass(frozen=True)
-class HoistFile:
+class HoistConfig:
     id: str
     name: str
     configs: tuple[Path, ...]
@@ -57,7 +57,7 @@ class HoistFile:
 
 
 @dataclass(frozen=True)
-class WebFile:
+class WebConfig:
     bind: str = "127.0.0.1"
     port: int = 8080
     view_without_login: bool = True
@@ -69,17 +69,17 @@ class WebFile:
 
 
 @dataclass(frozen=True)
-class StationFile:
+class StationConfig:
     path: Path
     name: str
     data_dir: Path | None
     silent_s: float
     tick_hz: float
-    hoists: tuple[HoistFile, ...]
-    web: WebFile | None = None
+    hoists: tuple[HoistConfig, ...]
+    web: WebConfig | None = None
     sections: dict[str, dict] = field(default_factory=dict)  # further faces' tables, checked by their modules
 
-    def hoist(self, hoist_id: str) -> HoistFile:
+    def hoist(self, hoist_id: str) -> HoistConfig:
         for h in self.hoists:
             if h.id == hoist_id:
                 return h
@@ -90,16 +90,16 @@ class StationFile:
 FACE_TABLES = ("opcua", "modbus", "mqtt")
 
 
-def load_station_file(path: str | Path) -> StationFile:
-    """Read and check a station file; StationFileError names the field and the reason."""
+def load_station_file(path: str | Path) -> StationConfig:
+    """Read and check a station file; StationConfigError names the field and the reason."""
     path = Path(path)
-    doc = tomlfields.load(path, StationFileError, "station file", MAX_STATION_TOML)
+    doc = tomlfields.load(path, StationConfigError, "station file", MAX_STATION_TOML)
     return parse_station(doc, path)
 
 
-def parse_station(doc: dict, path: Path) -> StationFile:
+def parse_station(doc: dict, path: Path) -> StationConfig:
     base = path.parent
-    top = Table(doc, "", StationFileError)
+    top = Table(doc, "", StationConfigError)
     st = top.table("station", {})
     name = st.string("name", path.stem)
     data_dir = _path(base, st.string("data_dir", "")) if st.has("data_dir") else None
@@ -108,12 +108,12 @@ def parse_station(doc: dict, path: Path) -> StationFile:
     st.finish()
     hoists_raw = top.array("hoist")
     if not hoists_raw:
-        raise StationFileError("hoist: at least one [[hoist]] is needed")
-    hoists = tuple(_hoist(Table(h, f"hoist[{i}]", StationFileError), base) for i, h in enumerate(hoists_raw))
+        raise StationConfigError("hoist: at least one [[hoist]] is needed")
+    hoists = tuple(_hoist(Table(h, f"hoist[{i}]", StationConfigError), base) for i, h in enumerate(hoists_raw))
     seen: set[str] = set()
     for i, h in enumerate(hoists):
         if h.id in seen:
-            raise StationFileError(f"hoist[{i}].id: {h.id!r} is used twice")
+            raise StationConfigError(f"hoist[{i}].id: {h.id!r} is used twice")
         seen.add(h.id)
     web = _web(top.table("web"), base) if top.has("web") else None
     sections = {}
@@ -121,7 +121,7 @@ def parse_station(doc: dict, path: Path) -> StationFile:
         if top.has(face):
             sections[face] = top.table(face).data
     top.finish()
-    return StationFile(path, name, data_dir, silent_s, tick_hz, hoists, web, sections)
+    return StationConfig(path, name, data_dir, silent_s, tick_hz, hoists, web, sections)
 
 
 def _path(base: Path, text: str) -> Path:
@@ -129,41 +129,41 @@ def _path(base: Path, text: str) -> Path:
     return p if p.is_absolute() else base / p
 
 
-def _hoist(t: Table, base: Path) -> HoistFile:
+def _hoist(t: Table, base: Path) -> HoistConfig:
     hid = t.string("id")
     if not HOIST_ID.match(hid):
-        raise StationFileError(f"{t.field('id')}: {hid!r} must be 1-32 of a-z, 0-9 and '-', starting with a letter "
-                               "or digit")
+        raise StationConfigError(f"{t.field('id')}: {hid!r} must be 1-32 of a-z, 0-9 and '-', starting with a letter "
+                                 "or digit")
     configs = t.array("configs")
     if not configs or not all(isinstance(c, str) and c for c in configs):
-        raise StationFileError(f"{t.field('configs')}: must be a list of one or more node.json paths")
+        raise StationConfigError(f"{t.field('configs')}: must be a list of one or more node.json paths")
     rx = t.table("receivers")
     receivers = []
     for name, url in rx.data.items():
         if not RECEIVER_NAME.match(name):
-            raise StationFileError(f"{rx.field(name)}: a receiver name is 1-32 letters, digits, '_', '.' or '-'")
+            raise StationConfigError(f"{rx.field(name)}: a receiver name is 1-32 letters, digits, '_', '.' or '-'")
         if not isinstance(url, str) or not url:
-            raise StationFileError(f"{rx.field(name)}: must be a device path or a pyserial URL, got {url!r}")
+            raise StationConfigError(f"{rx.field(name)}: must be a device path or a pyserial URL, got {url!r}")
         receivers.append((name, url))
         rx.used.add(name)
     if not receivers:
-        raise StationFileError(f"{t.field('receivers')}: at least one receiver is needed")
-    h = HoistFile(hid, t.string("name", hid), tuple(_path(base, c) for c in configs), tuple(receivers),
-                  t.integer("baud", 115200, lo=1200, hi=4_000_000), t.boolean("rs485", False),
-                  t.number("shaft_m", gt=0.0, le=5000.0) if t.has("shaft_m") else None)
+        raise StationConfigError(f"{t.field('receivers')}: at least one receiver is needed")
+    h = HoistConfig(hid, t.string("name", hid), tuple(_path(base, c) for c in configs), tuple(receivers),
+                    t.integer("baud", 115200, lo=1200, hi=4_000_000), t.boolean("rs485", False),
+                    t.number("shaft_m", gt=0.0, le=5000.0) if t.has("shaft_m") else None)
     t.finish()
     return h
 
 
-def _web(t: Table, base: Path) -> WebFile:
+def _web(t: Table, base: Path) -> WebConfig:
     def opt_path(key: str) -> Path | None:
         return _path(base, t.string(key)) if t.has(key) else None
 
-    w = WebFile(t.string("bind", "127.0.0.1"), t.integer("port", 8080, lo=1, hi=65535),
-                t.boolean("view_without_login", True), opt_path("users"), opt_path("secret"),
-                opt_path("tls_cert"), opt_path("tls_key"),
-                t.number("session_idle_min", 30.0, ge=1.0, le=720.0))
+    w = WebConfig(t.string("bind", "127.0.0.1"), t.integer("port", 8080, lo=1, hi=65535),
+                  t.boolean("view_without_login", True), opt_path("users"), opt_path("secret"),
+                  opt_path("tls_cert"), opt_path("tls_key"),
+                  t.number("session_idle_min", 30.0, ge=1.0, le=720.0))
     t.finish()
     if (w.tls_cert is None) != (w.tls_key is None):
-        raise StationFileError("web.tls_cert, web.tls_key: give both or neither")
+        raise StationConfigError("web.tls_cert, web.tls_key: give both or neither")
     return w

@@ -107,14 +107,14 @@ def _publisher(mode: str, port: int, edges: list[str], per_edge: int, data_dir: 
     clients: list[Any] = []
     acked = [0]
     if mode == "product":
-        from ropemon.station.mqtt import MqttFace, Settings, SparkplugValues
+        from ropemon.station.mqtt import MqttFace, SparkplugValues, parse_table
         tmpl = _template()
         for e in edges:
             d = Path(data_dir) / e
-            station = SimpleNamespace(file=SimpleNamespace(data_dir=d),
+            station = SimpleNamespace(config=SimpleNamespace(data_dir=d),
                                        hoists={h: SimpleNamespace(id=h, keys={1: b""}) for h in hoists})
             table = {"port": port, "group_id": GROUP, "edge_node_id": e, "report": "frame", "qos": 1}
-            face = MqttFace(station, Settings(table, d, e))
+            face = MqttFace(station, parse_table(table, d))
             face.start()
             faces.append(face)
             for h in hoists:

@@ -16,7 +16,7 @@
     buffer_max_frames = 2000000
     primary_host_id = "scada"   # optional: births only while spBv1.0/STATE/scada says online
 
-The table is checked by `settings.Settings`; what Sparkplug B asks of an edge node (births,
+The table is checked into `config.MqttConfig` (`parse_table`); what Sparkplug B asks of an edge node (births,
 deaths, seq, bdSeq, rebirth, the primary host's STATE, the DDATA in flight) is
 `session.Session`, which does no I/O: this module feeds it events and publishes what it returns.
 
@@ -50,13 +50,14 @@ from typing import Any
 
 import paho.mqtt.client as paho
 
+from ropemon.station.faces import StationView
 from ropemon.station.mqtt import sparkplug as sp
 from ropemon.station.mqtt.outbox import Outbox
 from ropemon.station.mqtt.session import DEVICE, Message, Session
-from ropemon.station.mqtt.settings import DEADBANDS, SPARKPLUG_ID, Settings
+from ropemon.station.mqtt.config import DEADBANDS, SPARKPLUG_ID, MqttConfig, parse_table
 from ropemon.station.scadavalues import HoistValues, NodeValues
 
-__all__ = ["DEADBANDS", "DEVICE", "SPARKPLUG_ID", "MqttFace", "Settings", "SparkplugValues", "start"]
+__all__ = ["DEADBANDS", "DEVICE", "SPARKPLUG_ID", "MqttConfig", "MqttFace", "SparkplugValues", "parse_table", "start"]
 
 log = logging.getLogger(__name__)
 MAX_INFLIGHT = 200     # DDATA published and not yet acknowledged
@@ -116,9 +117,9 @@ class SparkplugValues(HoistValues):
             values = sp.frame_values(v)
             hidden = self.standing[v.node].hidden_frac if v.node in self.standing else None
             values[f"node{v.node}/hidden_imbalance"] = None if hidden is None else round(hidden * 100, 3)
-            if self.face.settings.report == "exception":
+            if self.face.config.report == "exception":
                 values = self._moved(values)
-        if alarms != self._alarms or (self.face.settings.report == "frame" and v is not None):
+        if alarms != self._alarms or (self.face.config.report == "frame" and v is not None):
             self._alarms = alarms
             values.update({"alarms/present": alarms[0], "alarms/unacknowledged": alarms[1], "vouched": alarms[2],
                            "alarms/equalizer_present": alarms[3], "alarms/equalizer_unacknowledged": alarms[4]})
@@ -133,7 +134,7 @@ class SparkplugValues(HoistValues):
 
     def _moved(self, values: dict[str, Any]) -> dict[str, Any]:
         out = {}
-        band = self.face.settings.deadband
+        band = self.face.config.deadband
         for name, x in values.items():
             if name.endswith("/frame_seq"):
                 continue
@@ -157,14 +158,14 @@ class SparkplugValues(HoistValues):
 class MqttFace:
     """The publisher thread (module docstring): the queue, the outbox and paho around a `Session`."""
 
-    def __init__(self, station: Any, settings: Settings) -> None:
-        self.settings = settings
+    def __init__(self, view: StationView, config: MqttConfig) -> None:
+        self.config = config
         self.queue: "queue.SimpleQueue[tuple[str, int, dict]]" = queue.SimpleQueue()
-        self.devices = {h.id: sp.hoist_metrics(sorted(h.keys)) for h in station.hoists.values()}
-        self.session = Session(settings.group_id, settings.edge_node_id, self.devices, qos=settings.qos,
-                               primary_host_id=settings.primary_host_id)
+        self.devices = {h.id: sp.hoist_metrics(sorted(h.keys)) for h in view.hoists.values()}
+        self.session = Session(config.group_id, config.edge_node_id, self.devices, qos=config.qos,
+                               primary_host_id=config.primary_host_id)
         self.alias = self.session.alias
-        data_dir = station.file.data_dir
+        data_dir = view.config.data_dir
         if data_dir is not None:
             data_dir.mkdir(parents=True, exist_ok=True)
         self.outbox_path = data_dir / "mqtt-outbox.db" if data_dir is not None else None
@@ -234,7 +235,7 @@ class MqttFace:
         self._thread.join(15.0)
 
     def describe(self) -> str:
-        s = self.settings
+        s = self.config
         if self.connected and s.primary_host_id and not self.births:
             state = f"connected, waiting for the primary host {s.primary_host_id} to be online"
         else:
@@ -248,7 +249,7 @@ class MqttFace:
 
     def _run(self) -> None:
         try:
-            self.outbox = Outbox(self.outbox_path, self.settings.buffer_max_frames)
+            self.outbox = Outbox(self.outbox_path, self.config.buffer_max_frames)
         except Exception as e:  # noqa: BLE001 - reported by start()
             self.error = f"cannot open the outbox {self.outbox_path}: {e}"
             self._ready.set()
@@ -265,7 +266,7 @@ class MqttFace:
                     self._host_offline.clear()     # the primary host went offline: NDEATH, disconnect, start over
                     if session.births:
                         log.warning("MQTT: the primary host %s is offline: NDEATH, reconnecting to wait for it",
-                                    self.settings.primary_host_id)
+                                    self.config.primary_host_id)
                         self._close(keep_outbox=True)
                         self._acked.clear()
                         retry_at = 0.0
@@ -397,7 +398,7 @@ class MqttFace:
     # -- MQTT ---------------------------------------------------------------------------------
 
     def _connect(self) -> bool:
-        s = self.settings
+        s = self.config
         will = self.session.connecting(sp.now_ms())
         self.outbox.set_meta("bdseq", self.session.bdseq)
         c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=s.client_id, clean_session=True,
@@ -533,10 +534,9 @@ class MqttFace:
                 self.outbox.close()
 
 
-def start(station: Any, table: dict) -> MqttFace:
-    """Check the [mqtt] table, add one `SparkplugValues` per hoist, start the publisher."""
-    settings = Settings(table, station.file.path.parent, station.file.name)
-    face = MqttFace(station, settings)
-    station.add_listeners(lambda h: SparkplugValues(face, h.id, sorted(h.keys), station.file.silent_s))
+def start(view: StationView, config: MqttConfig) -> MqttFace:
+    """Add one `SparkplugValues` per hoist, start the publisher (the faces contract, `ropemon.station.faces`)."""
+    face = MqttFace(view, config)
+    view.add_listeners(lambda h: SparkplugValues(face, h.id, sorted(h.keys), view.config.silent_s))
     face.start()
     return face

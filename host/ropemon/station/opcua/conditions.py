@@ -23,6 +23,7 @@ from ropemon.station.pipeline import Acknowledge, AlarmState, Shelve, Unshelve
 from ropemon.station.scadavalues import standing_of
 
 if TYPE_CHECKING:
+    from ropemon.station.faces import StationView
     from ropemon.station.opcua.face import _Hoist
 
 log = logging.getLogger("ropemon.station.opcua")
@@ -55,7 +56,7 @@ def _arg(x: Any) -> Any:
 class _Conditions:
     """The alarm conditions of `OpcuaFace` (which this class is a base of)."""
 
-    station: Any
+    station: StationView
     users: Any
     server: Any
     hoists: dict[str, _Hoist]

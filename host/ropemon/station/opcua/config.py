@@ -1,4 +1,4 @@
-"""The [opcua] table of the station file, checked into an `OpcuaFile` (docs/integration.md)."""
+"""The [opcua] table of the station file, checked into an `OpcuaConfig` (docs/integration.md)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
-from ropemon.station.stationfile import StationFileError
+from ropemon.station.stationfile import StationConfigError
 from ropemon.station.tomlfields import Table
 
 DEFAULT_ENDPOINT = "opc.tcp://127.0.0.1:4840/ropemon"
@@ -16,7 +16,7 @@ POLICIES = ("Basic256Sha256_SignAndEncrypt", "Basic256Sha256_Sign", "Aes256Sha25
 
 
 @dataclass(frozen=True)
-class OpcuaFile:
+class OpcuaConfig:
     endpoint: str = DEFAULT_ENDPOINT
     certificates: Path = Path("opcua-pki")
     users: Path | None = None
@@ -35,16 +35,16 @@ class OpcuaFile:
         return u.hostname or "", u.port or 4840
 
 
-def parse_table(data: Any, base: Path) -> OpcuaFile:
-    """The [opcua] table, checked; StationFileError names the field."""
-    t = Table(data, "opcua", StationFileError)
+def parse_table(data: Any, base: Path) -> OpcuaConfig:
+    """The [opcua] table, checked; StationConfigError names the field."""
+    t = Table(data, "opcua", StationConfigError)
 
     def path(key: str, default: str | None) -> Path | None:
         text = t.string(key, default) if (t.has(key) or default is not None) else None
         if text is None:
             return None
         if not text:
-            raise StationFileError(f"{t.field(key)}: must not be empty")
+            raise StationConfigError(f"{t.field(key)}: must not be empty")
         p = Path(text)
         return p if p.is_absolute() else base / p
 
@@ -55,7 +55,7 @@ def parse_table(data: Any, base: Path) -> OpcuaFile:
     except ValueError:
         port = -1
     if u.scheme != "opc.tcp" or not u.hostname or (port is not None and not 1 <= port <= 65535):
-        raise StationFileError(f"{t.field('endpoint')}: must be opc.tcp://HOST:PORT/PATH, got {endpoint!r}")
+        raise StationConfigError(f"{t.field('endpoint')}: must be opc.tcp://HOST:PORT/PATH, got {endpoint!r}")
     certs = path("certificates", "opcua-pki")
     users = path("users", None)
     anon = t.boolean("allow_anonymous", False)
@@ -63,10 +63,10 @@ def parse_table(data: Any, base: Path) -> OpcuaFile:
     trusted = path("trusted_clients", None)
     for i, s in enumerate(sec):
         if s not in POLICIES:
-            raise StationFileError(f"{t.field('security')}[{i}]: must be one of {', '.join(POLICIES)}, got {s!r} "
-                                   "(no unencrypted endpoint)")
+            raise StationConfigError(f"{t.field('security')}[{i}]: must be one of {', '.join(POLICIES)}, got {s!r} "
+                                     "(no unencrypted endpoint)")
     t.finish()
     if users is None and not anon:
-        raise StationFileError("opcua.users: needed unless allow_anonymous = true (nobody could log in)")
+        raise StationConfigError("opcua.users: needed unless allow_anonymous = true (nobody could log in)")
     assert certs is not None
-    return OpcuaFile(endpoint, certs, users, anon, tuple(dict.fromkeys(sec)), trusted)
+    return OpcuaConfig(endpoint, certs, users, anon, tuple(dict.fromkeys(sec)), trusted)

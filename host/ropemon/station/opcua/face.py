@@ -17,11 +17,12 @@ from pathlib import Path
 from typing import Any
 
 from ropemon.station.alarms import ActiveAlarm
+from ropemon.station.faces import StationView
 from ropemon.station.link import Received
 from ropemon.station.opcua.certs import (CERT_FILE, TrustList, _certificate_check, _UserManager, certificate_uri,
                                          ensure_certificate)
 from ropemon.station.opcua.conditions import _CALLER, SHELVING_METHODS, _Conditions
-from ropemon.station.opcua.config import OpcuaFile
+from ropemon.station.opcua.config import OpcuaConfig
 from ropemon.station.opcua.history import _History, _utc
 from ropemon.station.pipeline import AlarmState, Listener, StationStatus
 from ropemon.station.protocol import DAN_TO_N, L, Frame
@@ -125,8 +126,8 @@ class _Hoist:
 class OpcuaFace(_Conditions):
     """The asyncua server in its own thread and loop, fed by one `OpcuaListener` per hoist."""
 
-    def __init__(self, station: Any, cfg: OpcuaFile, users: Any = None) -> None:
-        self.station, self.cfg, self.users = station, cfg, users
+    def __init__(self, view: StationView, cfg: OpcuaConfig, users: Any = None) -> None:
+        self.station, self.cfg, self.users = view, cfg, users
         self.loop = asyncio.new_event_loop()
         self.queue: asyncio.Queue | None = None
         self.dropped = 0
@@ -223,7 +224,7 @@ class OpcuaFace(_Conditions):
         server.iserver.history_manager.set_storage(self.history)
         await server.init()
         server.set_endpoint(self.cfg.endpoint)
-        server.set_server_name(f"ropemon station {self.station.file.name}")
+        server.set_server_name(f"ropemon station {self.station.config.name}")
         await server.set_application_uri(self.app_uri)
         server.product_uri = "urn:ropemon"
         server.manufacturer_name = "ropemon"
@@ -348,7 +349,7 @@ class OpcuaFace(_Conditions):
     async def _build(self, server: Any) -> None:
         from asyncua import ua
         root = await self._object(ua.NodeId(ua.ObjectIds.ObjectsFolder), "ropemon", "Ropemon",
-                                  f"ropemon: {self.station.file.name}", folder=True)
+                                  f"ropemon: {self.station.config.name}", folder=True)
         for h in self.station.hoists.values():
             ranges = _ranges(h)
             hid = h.id
@@ -357,7 +358,7 @@ class OpcuaFace(_Conditions):
                                             folder=True)
             receivers = {}
             rx_folder = await self._object(hobj, f"{hid}.Receivers", "Receivers", folder=True)
-            rx_names = [name for name, _ in (h.spec.receivers if h.spec is not None else ())]
+            rx_names = [name for name, _ in (h.config.receivers if h.config is not None else ())]
             for name in rx_names:
                 robj = await self._object(rx_folder, f"{hid}.Receivers.{name}", name)
                 receivers[name] = await self._variable(robj, f"{hid}.Receivers.{name}.Connected", "Connected",
@@ -526,7 +527,7 @@ def _ranges(h: Any) -> list[tuple[float, float]]:
     from ropemon.station.physical import load_node_json
     areas = list(h.site.cylinder_area_m2)
     try:
-        p = load_node_json(h.spec.configs[0])[0]
+        p = load_node_json(h.config.configs[0])[0]
         return [(0.0, round(p.sensor_p_max_Pa * a / 1000.0, 1)) for a in areas]
     except (ValueError, OSError, IndexError, AttributeError):
         pass

@@ -50,9 +50,11 @@ from starlette.templating import Jinja2Templates
 
 import ropemon
 from ropemon.station.commands import outcome_within
+from ropemon.station.faces import StationView
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, RemoveFromService, ReturnToService, Shelve,
                                       Unshelve)
 from ropemon.station.store import StoreError
+from ropemon.station.stationfile import WebConfig
 from ropemon.station.web import logread
 from ropemon.station.users import User, Users
 from ropemon.station.web.auth import DEFAULT_IDLE_MIN, Sessions, csrf_ok, csrf_token
@@ -74,8 +76,8 @@ HISTORY_MAX_S = 31 * 24 * 3600
 class Context:
     """What the routes need: the hoists, their listeners and log readers, the users."""
 
-    station: Any                         # hoists.Station
-    web: Any                             # stationfile.WebFile
+    station: StationView
+    web: WebConfig
     listeners: dict[str, WebListener]
     readers: dict[str, logread.LogReader]
     users: Users
@@ -163,7 +165,7 @@ def _page(request: Request, name: str, ctx: dict, status: int = 200) -> Response
     c = _ctx(request)
     user = _user(request)
     base = {
-        "user": user, "csrf": csrf_token(request.session), "station_name": c.station.file.name,
+        "user": user, "csrf": csrf_token(request.session), "station_name": c.station.config.name,
         "hoists": [{"id": h.id, "name": h.name} for h in c.station.hoists.values()],
         "hoist": None, "stale_s": STALE_S, "flash": request.session.pop("flash", None),
         "may": (lambda action: bool(user and user.may(action))),
@@ -443,10 +445,10 @@ async def _trip(request: Request) -> tuple[WebListener, dict]:
         raise Refused("trip", f"a trip number, got {text[:20]!r}")
     c = _ctx(request)
     h = c.station.hoists[lst.hoist_id]
-    spec = getattr(h, "spec", None)
+    config = getattr(h, "config", None)
     try:
         detail = await c.readers[lst.hoist_id].call(logread.trip_detail, int(text), h.site.cylinder_area_m2,
-                                                    getattr(spec, "shaft_m", None))
+                                                    getattr(config, "shaft_m", None))
     except StoreError as e:
         raise HTTPException(404, str(e)) from None
     if detail is None:

@@ -1,4 +1,4 @@
-"""The web face (`ropemon serve` with a [web] table): `start(station, web_file) -> WebFace`.
+"""The web face (`ropemon serve` with a [web] table): `start(view, web_config) -> WebFace`.
 
 `attach` adds a `WebListener` to every hoist's station (before its receivers open) and builds
 the Starlette app (`ropemon.station.web.app`) on them; `start` also runs uvicorn on it in a
@@ -17,6 +17,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from ropemon.station.faces import StationView
+from ropemon.station.stationfile import WebConfig
 from ropemon.station.web import logread
 from ropemon.station.web.app import Context, build_app
 from ropemon.station.users import Users, UsersError
@@ -37,7 +39,7 @@ class Attached:
     ctx: Context
 
 
-def attach(station: Any, web: Any, users: Users | None = None, secret: str | None = None) -> Attached:
+def attach(view: StationView, web: WebConfig, users: Users | None = None, secret: str | None = None) -> Attached:
     """A WebListener on every hoist and the app on them (no server: `start` runs one)."""
     try:
         users = users if users is not None else Users(web.users)
@@ -50,16 +52,16 @@ def attach(station: Any, web: Any, users: Users | None = None, secret: str | Non
         listeners[h.id] = WebListener(h)
         return listeners[h.id]
 
-    station.add_listeners(factory)
-    readers = {hid: logread.LogReader(h.db_path) for hid, h in station.hoists.items()}
-    ctx = Context(station, web, listeners, readers, users)
+    view.add_listeners(factory)
+    readers = {hid: logread.LogReader(h.db_path) for hid, h in view.hoists.items()}
+    ctx = Context(view, web, listeners, readers, users)
     return Attached(build_app(ctx, secret, https_only=web.tls_cert is not None), ctx)
 
 
 class WebFace:
     """The running web server (the faces contract: `stop()`, `describe()`)."""
 
-    def __init__(self, attached: Attached, web: Any) -> None:
+    def __init__(self, attached: Attached, web: WebConfig) -> None:
         import uvicorn
 
         self.attached = attached
@@ -127,8 +129,8 @@ class WebFace:
             r.close()
 
 
-def start(station: Any, web: Any) -> WebFace:
+def start(view: StationView, web: WebConfig) -> WebFace:
     """The faces contract (`ropemon.station.faces`): the web face, serving."""
     if sys.version_info < (3, 11):  # pragma: no cover
         raise WebError("web: needs Python 3.11")
-    return WebFace(attach(station, web), web).start()
+    return WebFace(attach(view, web), web).start()

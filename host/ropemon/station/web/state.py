@@ -192,13 +192,13 @@ class WebListener(Listener):
         self.area_m2 = list(site.cylinder_area_m2)
         self.rated_load_n: float | None = site.rated_load_n
         self.battery_low_v: float | None = site.battery_low_v
-        spec = getattr(hoist, "spec", None)
+        config = getattr(hoist, "config", None)
         self.site = {
             "rated_load_kN": _r(site.rated_load_n / 1000 if site.rated_load_n else None),
             "rated_rope_kN": _r(site.rated_rope_tension_n / 1000 if site.rated_rope_tension_n else None),
             "imbalance_frac": site.imbalance_frac,
             "battery_low_v": site.battery_low_v,
-            "shaft_m": getattr(spec, "shaft_m", None),
+            "shaft_m": getattr(config, "shaft_m", None),
             "stale_s": STALE_S,
             "ropes": len(site.cylinder_area_m2) or None,
             # each cylinder's stroke (end stops at +-stroke/2 from mid-stroke) and the margin, mm
