@@ -193,7 +193,7 @@ def test_the_hoist_is_declared_dead_when_every_receiver_is_down_and_born_at_its_
     from ropemon.station.mqtt import DEVICE, SparkplugValues
     from ropemon.station.pipeline import AlarmState
 
-    face = SimpleNamespace(queue=queue.SimpleQueue(), settings=SimpleNamespace(report="frame"))
+    face = SimpleNamespace(queue=queue.SimpleQueue(), config=SimpleNamespace(report="frame"))
     v = SparkplugValues(face, "h0", [1], silent_s=5.0)
     status = SimpleNamespace(time_s=100.0, receivers={"pithead": SimpleNamespace(url="/dev/ttyUSB0"),
                                                       "bank": SimpleNamespace(url="/dev/ttyUSB1")})
@@ -394,8 +394,8 @@ def test_report_exception_sends_a_position_once_it_moved_by_the_mm_deadband():
     from ropemon.station.mqtt import DEADBANDS, SparkplugValues
     from ropemon.station.scadavalues import STROKE_HIGH, NodeValues, RopeValue
 
-    face = SimpleNamespace(queue=queue.SimpleQueue(), settings=SimpleNamespace(report="exception",
-                                                                               deadband=dict(DEADBANDS)))
+    face = SimpleNamespace(queue=queue.SimpleQueue(), config=SimpleNamespace(report="exception",
+                                                                             deadband=dict(DEADBANDS)))
     v = SparkplugValues(face, "h0", [1])
     assert DEADBANDS["mm"] == 0.5
 
@@ -419,7 +419,7 @@ def test_the_standing_status_text_goes_out_when_it_changes_at_most_every_10_s():
     from ropemon.station.mqtt import STANDING_EVERY_S, SparkplugValues
     from ropemon.station.pipeline import AlarmState
 
-    face = SimpleNamespace(queue=queue.SimpleQueue(), settings=SimpleNamespace(report="frame"))
+    face = SimpleNamespace(queue=queue.SimpleQueue(), config=SimpleNamespace(report="frame"))
     v = SparkplugValues(face, "h0", [1], silent_s=1e9)
     assert STANDING_EVERY_S == 10.0
 
