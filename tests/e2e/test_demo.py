@@ -78,7 +78,7 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
     equal to what the node sent, and nothing corrupted gets through."""
     from ropemon.lab import radio
     from ropemon.lab.demo import DemoClock, demo_host, play_to_host, read_frames_bin, summarize
-    from ropemon.station.sitefigures import SiteFigures, alarm_settings
+    from ropemon.station.nodefigures import NodeFigures, alarm_settings
     from ropemon.station.protocol import load_node_keys
 
     out, _, _ = demo_run
@@ -94,7 +94,7 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
                    for deliveries in result.deliveries.values() for d in deliveries if d.bit_errors == 0}
     assert len(recoverable) < len(sent.frames)       # the radio really lost some
     clock = DemoClock(speed=40.0)
-    session = demo_host(keys, alarm_settings(SiteFigures.from_node_json(out / "sim" / "node.json")), clock)
+    session = demo_host(keys, alarm_settings(NodeFigures.from_node_json(out / "sim" / "node.json")), clock)
     written = play_to_host(result.deliveries, session, 40.0, clock)
     s = summarize(sent, result, session, {"frames": 0}, written)
     got = [f.seq for f in session.kept.frames]
@@ -108,10 +108,10 @@ def test_firmware_frames_through_two_noisy_receivers_recovered_exactly_once(demo
 def test_demo_runs_with_the_slack_alarm_on_and_no_false_slack(demo_run):
     """The simulator's node.json (built by `ropemon config`'s code) carries the empty cage
     load, so the demo's alarms include SLACK; a normal wind must not raise it."""
-    from ropemon.station.sitefigures import SiteFigures, alarm_settings
+    from ropemon.station.nodefigures import NodeFigures, alarm_settings
 
     out, s, _ = demo_run
-    site = SiteFigures.from_node_json(out / "sim" / "node.json")
+    site = NodeFigures.from_node_json(out / "sim" / "node.json")
     settings = alarm_settings(site)
     assert site.conveyance_weight_n and settings.slack_dan == round(0.6 * site.conveyance_weight_n / 10 / 4)
     db = sqlite3.connect(out / "ropemon.db")

@@ -3,12 +3,12 @@ import io
 
 from rich.console import Console
 
-from ropemon.station.sitefigures import SiteFigures, alarm_settings
+from ropemon.station.nodefigures import NodeFigures, alarm_settings
 from e2e_rig import Rig
 from ropemon.station.protocol import Rope, encode_frame
 
 KEY = bytes(range(16))
-SITE = SiteFigures([0.0314] * 4, 80_000, 320_000, 0.10, 3.4)
+SITE = NodeFigures([0.0314] * 4, 80_000, 320_000, 0.10, 3.4)
 
 
 class Clock:
@@ -141,7 +141,7 @@ def test_slack_rope_raises_through_the_settings_built_from_a_node_json(tmp_path)
     the slack floor: 60 % of each rope's share of the empty conveyance load."""
     path = tmp_path / "node.json"
     write_node_json(path, conveyance_weight_N=185_400, slack_frac=0.60)
-    site = SiteFigures.from_node_json(path)
+    site = NodeFigures.from_node_json(path)
     settings = alarm_settings(site)
     floor = round(0.6 * 18_540 / 4)                       # daN
     assert settings.slack_dan == floor and settings.rated_load_dan == 32_000
@@ -165,10 +165,10 @@ def test_node_json_without_empty_load_leaves_slack_off_and_a_bad_one_is_refused(
 
     path = tmp_path / "node.json"
     write_node_json(path)
-    assert alarm_settings(SiteFigures.from_node_json(path)).slack_dan is None
+    assert alarm_settings(NodeFigures.from_node_json(path)).slack_dan is None
     write_node_json(path, conveyance_weight_N=-1)
     with pytest.raises(ValueError, match="physical.conveyance_weight_N"):
-        SiteFigures.from_node_json(path)
+        NodeFigures.from_node_json(path)
 
 
 def test_overload_threshold_is_the_sites_rated_load_times_its_overload_factor(tmp_path):
@@ -179,10 +179,10 @@ def test_overload_threshold_is_the_sites_rated_load_times_its_overload_factor(tm
     path = tmp_path / "node.json"
     phys = {"conveyance_weight_N": 185_400, "rated_load_N": 263_880, "overload_frac": 1.10}
     write_node_json(path, **phys)
-    settings = alarm_settings(SiteFigures.from_node_json(path))
+    settings = alarm_settings(NodeFigures.from_node_json(path))
     assert settings.rated_load_dan == 26_388 and settings.overload_frac == 1.10
     clk = Clock()
-    s = Rig({1: KEY}, settings, SiteFigures.from_node_json(path), clk)
+    s = Rig({1: KEY}, settings, NodeFigures.from_node_json(path), clk)
     for seq in range(10):                                 # 28,400 daN: above rated, below 110 %
         clk.t = seq * 0.1
         s.feed("pithead", wire(seq, dan=(7100, 7100, 7100, 7100)))
@@ -193,4 +193,4 @@ def test_overload_threshold_is_the_sites_rated_load_times_its_overload_factor(tm
     assert [a.kind for a in s.alarms.active()] == ["overload"]
     write_node_json(path, **dict(phys, overload_frac=0.9))
     with pytest.raises(ValueError, match="physical.overload_frac"):
-        SiteFigures.from_node_json(path)
+        NodeFigures.from_node_json(path)

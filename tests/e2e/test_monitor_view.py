@@ -9,10 +9,10 @@ from rich.console import Console
 from ropemon.station.monitor import MonitorView, sparkline, stroke_gauge
 from ropemon.station.pipeline import AlarmState
 from ropemon.station.protocol import L, Rope, decode_raw, encode_frame
-from ropemon.station.sitefigures import SiteFigures
+from ropemon.station.nodefigures import NodeFigures
 
 AREA = 0.0314
-SITE = SiteFigures([AREA] * 4, rated_rope_tension_n=80_000, rated_load_n=320_000,
+SITE = NodeFigures([AREA] * 4, rated_rope_tension_n=80_000, rated_load_n=320_000,
                    imbalance_frac=0.10, battery_low_v=3.4)
 
 
@@ -193,14 +193,14 @@ def test_band_beside_the_deviation_the_hoist_status_and_legacy_deviation_possibl
     its pressure barely moved reads +6 % but may reach 10 %: no alarm (the seals' reach is the
     hoist's figure, shown as status); only the legacy station (`legacy_deviation_possible`, the
     evaluation's baseline) raises DEVIATION POSSIBLE for it, in the warning colour."""
-    from ropemon.station.sitefigures import alarm_settings
+    from ropemon.station.nodefigures import alarm_settings
     from e2e_rig import Rig
     from ropemon.station.uncertainty import BandParams
 
     phys = {"ropes": 4, "cylinder_area_m2": [0.01] * 4,
             "friction": {"Fs": {"intercept": 0.0, "slope": 600.0}, "Fc": {"intercept": 0.0, "slope": 400.0},
                          "residual": 50.0}, "band_anchor": True, "band_margin": 0.10}
-    site = SiteFigures([0.01] * 4, rated_rope_tension_n=80_000, imbalance_frac=0.10,
+    site = NodeFigures([0.01] * 4, rated_rope_tension_n=80_000, imbalance_frac=0.10,
                        band=BandParams.from_physical(phys))
     clk = [0.0]
     settings = dataclasses.replace(alarm_settings(site), legacy_deviation_possible=legacy)

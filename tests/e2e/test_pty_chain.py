@@ -6,10 +6,10 @@ from ropemon.lab import radio
 from ropemon.lab.demo import DemoClock, Sent, demo_host, play_to_host, summarize
 from ropemon.station.monitor import MonitorView
 from ropemon.station.protocol import Rope, decode_raw, encode_frame
-from ropemon.station.sitefigures import SiteFigures, alarm_settings
+from ropemon.station.nodefigures import NodeFigures, alarm_settings
 
 KEY = bytes(range(32))
-SITE = SiteFigures([0.0314] * 4, 80_000, 320_000, 0.10, 3.4)
+SITE = NodeFigures([0.0314] * 4, 80_000, 320_000, 0.10, 3.4)
 
 
 def node_frames(n=400, shaft_m=810.0):

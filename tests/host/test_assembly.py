@@ -14,7 +14,7 @@ from ropemon.station import assembly
 from ropemon.station.assembly import HoistSpec, build_hoist, run_loop
 from ropemon.station.pipeline import AcceptRewound, Listener
 from ropemon.station.protocol import Rope, encode_frame
-from ropemon.station.sitefigures import SiteFigures
+from ropemon.station.nodefigures import NodeFigures
 
 KEY = bytes(range(16))
 HOST = Path(__file__).resolve().parents[2] / "host" / "ropemon"
@@ -140,7 +140,7 @@ class Failing(Listener):
 
 def test_a_station_on_an_injected_clock_stamps_its_own_events_and_rx_times_on_it():
     t = [500.0]
-    hoist = build_hoist(HoistSpec("x", SiteFigures(), {1: KEY}), lambda: t[0], wall=lambda: t[0] + 0.5,
+    hoist = build_hoist(HoistSpec("x", NodeFigures(), {1: KEY}), lambda: t[0], wall=lambda: t[0] + 0.5,
                         views=[Failing()])
     s = hoist.pipeline
     seen = []

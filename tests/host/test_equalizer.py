@@ -634,8 +634,8 @@ def test_settings_are_checked_and_wired_from_the_site():
         EqualizerSettings(oil_band_m3=-1.0)
     with pytest.raises(ValueError, match="seized_ratio < lag_ratio"):
         EqualizerSettings(lag_ratio=0.9, follow_ratio=0.8)
-    from ropemon.station.sitefigures import SiteFigures, alarm_settings
-    site = SiteFigures(cylinder_area_m2=[AREA] * 4)
+    from ropemon.station.nodefigures import NodeFigures, alarm_settings
+    site = NodeFigures(cylinder_area_m2=[AREA] * 4)
     site.stroke_m, site.stroke_margin_m = [0.2] * 4, 0.012
     eq = alarm_settings(site).equalizer
     assert eq.areas_m2 == (AREA,) * 4 and eq.stroke_m == (0.2,) * 4 and eq.margin_m == 0.012

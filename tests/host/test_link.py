@@ -203,7 +203,7 @@ def test_a_decoder_error_is_shown_on_the_link_line_and_logged_once(tmp_path):
     """SerialReceiver survives an exception of its consumer; the monitor must not hide it:
     the link line shows the count and the last error, the log gets one event per new error."""
     from ropemon.station.monitor import MonitorView
-    from ropemon.station.sitefigures import SiteFigures
+    from ropemon.station.nodefigures import NodeFigures
     from ropemon.station.pipeline import HoistPipeline, station_listeners
     from ropemon.station.store import Store
 
@@ -211,7 +211,7 @@ def test_a_decoder_error_is_shown_on_the_link_line_and_logged_once(tmp_path):
         raise RuntimeError("decoder bug")
 
     with Store(tmp_path / "log.db") as store:
-        view = MonitorView(SiteFigures())
+        view = MonitorView(NodeFigures())
         session = HoistPipeline(None, station_listeners(None, store, view))
         rx = session.add_port("loop://", "pithead")
         session.tick()

@@ -12,7 +12,7 @@ import docedit
 from ropemon.commission.nodejson import seal
 from ropemon.firmware import FIRMWARE_DIR
 from ropemon.station.physical import Physical, PhysicalError, load_node_json
-from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
+from ropemon.station.nodefigures import NodeFigures, alarm_settings, figures_from_configs
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = json.loads((FIRMWARE_DIR / "node.json").read_text())["physical"]
@@ -177,13 +177,13 @@ def test_what_config_writes_for_every_scenario_site_is_what_the_station_reads(tm
         out.write_text(json.dumps(make_node_json(ph)))
         p, doc = load_node_json(out)
         assert p.to_dict() == ph and doc["physical"] == ph
-        assert SiteFigures.from_node_json(out) == SiteFigures.from_physical(p)
+        assert NodeFigures.from_node_json(out) == NodeFigures.from_physical(p)
 
 
 def test_the_shipped_node_json_loads_and_gives_the_station_its_figures():
     p, doc = load_node_json(FIRMWARE_DIR / "node.json")
     assert doc["physical"] == SHIPPED and p == Physical.from_dict(SHIPPED)
-    site = site_from_configs([str(FIRMWARE_DIR / "node.json")])
+    site = figures_from_configs([str(FIRMWARE_DIR / "node.json")])
     assert site.cylinder_area_m2 == SHIPPED["cylinder_area_m2"] and site.rated_load_n == 4 * 100_000.0
     assert site.band is not None and site.overload_frac == 1.0 and site.conveyance_weight_n is None
     settings = alarm_settings(site)
@@ -208,16 +208,16 @@ def test_node_json_reading_refuses_what_is_not_a_node_config(tmp_path):
     nan = tmp_path / "nan.json"   # JSON's NaN extension parses; the section refuses it
     nan.write_text(json.dumps(seal({"physical": dict(SHIPPED, imbalance_frac=math.nan)})))
     with pytest.raises(PhysicalError, match=r"nan\.json: physical\.imbalance_frac: must be finite, got nan"):
-        SiteFigures.from_node_json(nan)
+        NodeFigures.from_node_json(nan)
 
 
 def test_the_monitor_refuses_configs_of_different_hoists(tmp_path):
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     a.write_text(json.dumps(seal({"physical": SHIPPED})))
     b.write_text(json.dumps(seal({"physical": dict(SHIPPED, imbalance_frac=0.2)})))
-    assert site_from_configs([str(a), str(a)]) == SiteFigures.from_node_json(a)
+    assert figures_from_configs([str(a), str(a)]) == NodeFigures.from_node_json(a)
     with pytest.raises(ValueError, match="describe different hoists"):
-        site_from_configs([str(a), str(b)])
+        figures_from_configs([str(a), str(b)])
 
 
 # ---------------------------------------------------------------- the file as `ropemon config` wrote it
@@ -231,7 +231,7 @@ def test_a_physical_section_changed_after_config_wrote_it_is_refused(tmp_path):
     doc = json.loads((FIRMWARE_DIR / "node.json").read_text())
     edited_file = tmp_path / "node.json"
     edited_file.write_text(json.dumps(dict(doc, physical=dict(SHIPPED, imbalance_frac=0.2))))  # still valid
-    for read in (load_node_json, SiteFigures.from_node_json, lambda p: site_from_configs([str(p)]), load_node_keys):
+    for read in (load_node_json, NodeFigures.from_node_json, lambda p: figures_from_configs([str(p)]), load_node_keys):
         with pytest.raises(PhysicalError, match=r"^\S*node\.json: changed after `ropemon config` wrote it "
                                                  r"\(its `sha256` does not match"):
             read(edited_file)
@@ -296,13 +296,13 @@ def test_the_stroke_reaches_the_station_and_defaults():
     p = Physical.from_dict({**SHIPPED, **STROKE})
     assert p.stroke_m == (0.1,) * 4 and (p.stroke_margin, p.travel_tolerance) == (0.01, 0.005)
     assert Physical.from_dict(p.to_dict()) == p
-    f = SiteFigures.from_physical(p)
+    f = NodeFigures.from_physical(p)
     assert f.stroke_m == [0.1] * 4 and f.stroke_margin_m == 0.01
     bare = {k: v for k, v in SHIPPED.items() if k not in STROKE}
     p = Physical.from_dict({**bare, "stroke_m": [0.2, 0.2, 0.3, 0.2]})  # margin and tolerance by default
     assert (p.stroke_margin_m, p.stroke_margin, p.travel_tolerance) == (None, 0.01, 0.005)
     p = Physical.from_dict(bare)  # a node.json written before the stroke was known
     assert p.stroke_m is None and p.stroke_margin is None and p.travel_tolerance is None
-    f = SiteFigures.from_physical(p)
+    f = NodeFigures.from_physical(p)
     assert f.stroke_m == [] and f.stroke_margin_m is None
-    assert SiteFigures().stroke_m == [] and SiteFigures().stroke_margin_m is None
+    assert NodeFigures().stroke_m == [] and NodeFigures().stroke_margin_m is None

@@ -487,7 +487,7 @@ def test_event_history_reads_the_logs_alarm_events(rig, client_cert):
 
 
 def test_piston_positions_in_mm_with_the_stroke_as_eurange_and_the_stroke_limit_state(rig, client_cert):
-    strokes = rig["stations"].hoists["north"].site.stroke_m
+    strokes = rig["stations"].hoists["north"].figures.stroke_m
 
     async def go():
         c = await connect(rig, client_cert)

@@ -690,11 +690,11 @@ def test_the_hoist_status_goes_out_at_once_when_it_comes_then_at_most_once_a_sec
     from types import SimpleNamespace
 
     from ropemon.station.alarms import HoistStatus
-    from ropemon.station.sitefigures import SiteFigures
+    from ropemon.station.nodefigures import NodeFigures
     from ropemon.station.pipeline import AlarmState
     from ropemon.station.web.state import WebListener
 
-    lst = WebListener(SimpleNamespace(id="h", name="H", site=SiteFigures([0.01] * 4)))
+    lst = WebListener(SimpleNamespace(id="h", name="H", figures=NodeFigures([0.01] * 4)))
     sent: list[tuple[float, str, str]] = []
     lst._broadcast = lambda event, data: sent.append((lst.now, event, data))   # type: ignore[method-assign]
 

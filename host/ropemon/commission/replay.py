@@ -143,12 +143,12 @@ def replay_spec(config: str | Path) -> "HoistSpec":
     """The replay's one hoist (`assembly.HoistSpec`): figures, key and alarm settings from a
     node.json, as `ropemon monitor --config` takes them. Raises ReplayError."""
     from ropemon.station.assembly import HoistSpec
-    from ropemon.station.sitefigures import SiteFigures, alarm_settings
+    from ropemon.station.nodefigures import NodeFigures, alarm_settings
     from ropemon.station.protocol import load_node_keys
     try:
         keys = load_node_keys(config)
-        site = SiteFigures.from_node_json(config)
-        return HoistSpec(RECEIVER, site, keys, alarm_settings(site))
+        figures = NodeFigures.from_node_json(config)
+        return HoistSpec(RECEIVER, figures, keys, alarm_settings(figures))
     except ValueError as e:
         raise ReplayError(str(e)) from None
 

@@ -32,7 +32,7 @@ from ropemon.station.link import Received
 from ropemon.station.pipeline import AlarmListener, Listener, HoistPipeline
 from ropemon.station.protocol import DAN_TO_N, Frame, FrameError, L, decode_raw, decode_wire, load_node_keys
 from ropemon.station.report import REST_AVG_S, SETTLE_S
-from ropemon.station.sitefigures import SiteFigures
+from ropemon.station.nodefigures import NodeFigures
 
 DEFAULT_OUT = "out/demo"
 DEMO_HOIST = "demo"
@@ -203,11 +203,11 @@ class DemoHost:
 
 
 def demo_host(keys: dict[int, bytes] | None, settings: AlarmSettings | None, clock: Callable[[], float],
-              store: Any = None, view: Any = None, site: Any = None) -> DemoHost:
+              store: Any = None, view: Any = None, figures: Any = None) -> DemoHost:
     """The hoist room's station (`assembly.build_hoist`: alarms, the log, a frame keeper, the
     view), everything on the demo's clock: alarm timing, events, rx times."""
     kept = FrameKeeper()
-    spec = HoistSpec(DEMO_HOIST, site or SiteFigures(), keys or {}, settings)
+    spec = HoistSpec(DEMO_HOIST, figures or NodeFigures(), keys or {}, settings)
     views = [kept] + ([view] if view is not None else [])
     hoist = assembly.build_hoist(spec, clock, wall=clock, store=store, views=views)
     return DemoHost(hoist.pipeline, hoist.alarms, kept, store, view)
@@ -325,7 +325,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from ropemon.station.monitor import MonitorView
-    from ropemon.station.sitefigures import SiteFigures, alarm_settings
+    from ropemon.station.nodefigures import NodeFigures, alarm_settings
     from ropemon.commission.replay import ReplayError, replay
     from ropemon.station.store import Store
 
@@ -348,7 +348,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"ropemon demo: {e}", file=sys.stderr)
         return 1
     node_json = sim_dir / "node.json"
-    site = SiteFigures.from_node_json(node_json)
+    site = NodeFigures.from_node_json(node_json)
     keys = load_node_keys(node_json)
     t = step(f"  done in {time.monotonic() - t:.1f} s; running the node firmware ({args.interpreter})")
     frames_bin = out / "frames.bin"

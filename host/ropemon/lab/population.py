@@ -669,13 +669,13 @@ def fault_truth(f: FaultDraw, truth, meta: dict, hz: float, stroke_m: float, mar
 
 
 def station_settings(physical: dict) -> dict:
-    """The alarm settings the station takes from this config (`sitefigures.alarm_settings`, as
+    """The alarm settings the station takes from this config (`nodefigures.alarm_settings`, as
     `ropemon monitor` and `ropemon replay --db` do): `station`; and the legacy station before the
     equalizer's alarms, `legacy` (`legacy_deviation_possible=True, equalizer=None`)."""
     from ropemon.station.physical import Physical
-    from ropemon.station.sitefigures import SiteFigures, alarm_settings
+    from ropemon.station.nodefigures import NodeFigures, alarm_settings
 
-    s = alarm_settings(SiteFigures.from_physical(Physical.from_dict(physical)))
+    s = alarm_settings(NodeFigures.from_physical(Physical.from_dict(physical)))
     names = {fl.name for fl in dataclasses.fields(s)}
     legacy = {"legacy_deviation_possible": True, "equalizer": None, "node_imbalance": True}
     return {"station": s, "legacy": dataclasses.replace(s, **{k: v for k, v in legacy.items() if k in names}),
@@ -1354,7 +1354,7 @@ def targets_markdown(out: dict, command: str, ran: str | None = None) -> str:
              f"{t['hoists']} scored hoists of the {out['seeds']} seeds, each run healthy and with one drawn fault"
              + (f"; {n_duty} also through a {DUTY_TRIPS}-wind duty cycle with one rope creeping" if n_duty else "")
              + (f"; scored again in {out['wall_s']} s" if ran else f"; {out['wall_s']} s")
-             + ". *station*: the alarms as shipped (`sitefigures.alarm_settings` of the "
+             + ". *station*: the alarms as shipped (`nodefigures.alarm_settings` of the "
              "commissioned config); *legacy station*: the same with `legacy_deviation_possible=True, "
              "equalizer=None`, the station before the equalizer's alarms. Both on the same node frames "
              "(`population.station_events`, as `ropemon replay --db`)."

@@ -24,7 +24,7 @@ from ropemon.station.alarms import AlarmSettings
 from ropemon.station.link import DEFAULT_BAUDRATE
 from ropemon.station.pipeline import AlarmListener, Listener, HoistPipeline, station_listeners
 from ropemon.station.protocol import load_node_keys
-from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
+from ropemon.station.nodefigures import NodeFigures, alarm_settings, figures_from_configs
 from ropemon.station.stationfile import HoistConfig
 
 
@@ -33,7 +33,7 @@ class HoistSpec:
     """What one hoist's pipeline is built from."""
 
     id: str
-    site: SiteFigures
+    figures: NodeFigures
     keys: dict[int, bytes]                      # node -> key; empty: frames are not authenticated
     settings: AlarmSettings | None = None
     receivers: tuple[tuple[str, str], ...] = ()  # (name, pyserial URL), opened by `Hoist.start`
@@ -50,7 +50,7 @@ class Hoist:
 
     id: str
     name: str
-    site: SiteFigures
+    figures: NodeFigures
     keys: dict[int, bytes]
     pipeline: HoistPipeline
     alarms: AlarmListener
@@ -73,7 +73,7 @@ def spec_from_config(h: HoistConfig, silent_s: float) -> HoistSpec:
     disagree on a node's key are refused), every configured node silent until heard.
     ValueError names the hoist."""
     try:
-        site = site_from_configs([str(c) for c in h.configs])
+        figures = figures_from_configs([str(c) for c in h.configs])
         keys: dict[int, bytes] = {}
         for c in h.configs:
             for node, key in load_node_keys(c).items():
@@ -82,8 +82,8 @@ def spec_from_config(h: HoistConfig, silent_s: float) -> HoistSpec:
                 keys[node] = key
     except ValueError as e:
         raise ValueError(f"hoist {h.id}: {e}") from None
-    settings = dataclasses.replace(alarm_settings(site, silent_s), nodes=tuple(sorted(keys)))
-    return HoistSpec(h.id, site, keys, settings, receivers=h.receivers, baud=h.baud, rs485=h.rs485,
+    settings = dataclasses.replace(alarm_settings(figures, silent_s), nodes=tuple(sorted(keys)))
+    return HoistSpec(h.id, figures, keys, settings, receivers=h.receivers, baud=h.baud, rs485=h.rs485,
                      name=h.name, config=h)
 
 
@@ -99,7 +99,7 @@ def build_hoist(spec: HoistSpec, clock: Callable[[], float], *, wall: Callable[[
     assert isinstance(alarms, AlarmListener)
     pipeline = HoistPipeline(spec.keys or None, listeners, clock=clock, accept_rewound=spec.accept_rewound,
                              resume_from=store, wall=wall, wake=wake)
-    return Hoist(spec.id, spec.name or spec.id, spec.site, spec.keys, pipeline, alarms, store, db_path,
+    return Hoist(spec.id, spec.name or spec.id, spec.figures, spec.keys, pipeline, alarms, store, db_path,
                  spec.config, spec)
 
 

@@ -50,7 +50,7 @@ OIL_EXPANSION_PER_K = 7e-4
 class EqualizerSettings:
     """The equalizer alarms' figures and thresholds (docs/operator.md, "The equalizer").
 
-    Figures from the node config (`ropemon.station.sitefigures.alarm_settings`): empty or None where
+    Figures from the node config (`ropemon.station.nodefigures.alarm_settings`): empty or None where
     unknown, and then what needs them is not judged (a stroke alarm from the node's mask alone,
     no oil balance without the areas)."""
 

@@ -27,7 +27,7 @@ from ropemon.station.stationfile import HoistConfig, StationConfig
 if TYPE_CHECKING:
     from ropemon.station.commands import Command, Ticket
     from ropemon.station.pipeline import Listener
-    from ropemon.station.sitefigures import SiteFigures
+    from ropemon.station.nodefigures import NodeFigures
 
 #: face -> (module, extra that installs its libraries)
 FACES = {
@@ -52,7 +52,7 @@ class HoistView(Protocol):
     def keys(self) -> dict[int, bytes]: ...          # its nodes (their keys are not the faces')
 
     @property
-    def site(self) -> SiteFigures: ...               # areas, strokes, rated loads
+    def figures(self) -> NodeFigures: ...            # from its node configs: areas, strokes, rated loads
 
     @property
     def config(self) -> HoistConfig | None: ...      # receivers, node configs, shaft depth

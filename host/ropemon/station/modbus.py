@@ -417,8 +417,8 @@ def start(view: StationView, config: ModbusConfig) -> ModbusFace:
             raise StationConfigError(f"modbus: hoist {h.id} has {len(nodes)} nodes; the map holds {MAX_NODES} per hoist")
     index = {hid: i for i, hid in enumerate(face.hoist_ids)}
     view.add_listeners(lambda h: ModbusValues(face, index[h.id], h.id, sorted(h.keys),
-                                              list(getattr(h.site, "stroke_m", None) or ()),
-                                              getattr(h.site, "stroke_margin_m", None)))
+                                              list(getattr(h.figures, "stroke_m", None) or ()),
+                                              getattr(h.figures, "stroke_margin_m", None)))
     face.start()
     return face
 

@@ -43,7 +43,7 @@ from ropemon.station.link import DEFAULT_BAUDRATE, Received
 from ropemon.station.pipeline import (AcceptRewound, Acknowledge, AlarmState, Listener, Shelve, HoistPipeline,
                                       StationStatus, Unshelve)
 from ropemon.station.protocol import DAN_TO_N, Frame, L, keys_from_options
-from ropemon.station.sitefigures import SiteFigures, alarm_settings, site_from_configs
+from ropemon.station.nodefigures import NodeFigures, alarm_settings, figures_from_configs
 from ropemon.station.uncertainty import DeviationBand
 from ropemon.station.views import (STALE_S, alarm_text, has_positions, is_warning, link_figures,
                                    merge_figures, piston)
@@ -99,8 +99,8 @@ class MonitorView(Listener):
 
     name = "terminal view"
 
-    def __init__(self, site: SiteFigures | None = None, trend_len: int = TREND_LEN) -> None:
-        self.site = site or SiteFigures()
+    def __init__(self, figures: NodeFigures | None = None, trend_len: int = TREND_LEN) -> None:
+        self.figures = figures or NodeFigures()
         self.nodes: dict[int, NodeView] = {}
         self.shown: int | None = None
         self.trend_len = trend_len
@@ -194,7 +194,7 @@ class MonitorView(Listener):
     # -- figures ------------------------------------------------------------
     def raw_n(self, rope: int, raw_kpa: int) -> float | None:
         """Uncompensated tension p_tap x A, None without the cylinder area."""
-        a = self.site.cylinder_area_m2
+        a = self.figures.cylinder_area_m2
         if rope < len(a):
             return raw_kpa * 1000.0 * a[rope]
         return None
@@ -258,7 +258,7 @@ class MonitorView(Listener):
         t.append(f" node {f.node} seq {f.seq} t {f.time_ms / 1000:.1f}s")
         t.append(f"  depth {f.depth_mm / 1000:6.1f} m  speed {f.speed_mm_s / 1000:+5.2f} m/s")
         bat_v = f.battery_mv / 1000
-        low = self.site.battery_low_v is not None and bat_v < self.site.battery_low_v
+        low = self.figures.battery_low_v is not None and bat_v < self.figures.battery_low_v
         t.append("\n")
         t.append(f" battery {bat_v:.2f} V", style="bold red" if low else "")
         temp = f.oil_temp_c
@@ -307,11 +307,11 @@ class MonitorView(Listener):
         comp = [r.mean_dan * DAN_TO_N if good else 0 for r, good in zip(f.ropes, ok)]
         used = [c for c, good in zip(comp, ok) if good]
         mean = sum(used) / len(used) if used else 0.0
-        lim = self.site.imbalance_frac
+        lim = self.figures.imbalance_frac
         bands = self.bands.get(f.node, [])
         # Each rope on its own scale (the shape of its last seconds), but never
         # finer than 1 % of rated, so sensor noise does not look like a swing.
-        min_span = 0.01 * (self.site.rated_rope_tension_n or max(comp) or 1.0)
+        min_span = 0.01 * (self.figures.rated_rope_tension_n or max(comp) or 1.0)
         raw_sum = 0.0
         raw_ok = True
         held = f.held_back
@@ -340,7 +340,7 @@ class MonitorView(Listener):
                           f"{r.min_dan * DAN_TO_N / 1000:.1f}..{r.max_dan * DAN_TO_N / 1000:.1f}",
                           self._spark(i, min_span), style="dim" if stale else None)
         total = sum(used)
-        rated = self.site.rated_load_n
+        rated = self.figures.rated_load_n
         load = Text(f"load of rated {rated / 1000:.0f} kN: {total / rated * 100:.0f} %" if rated else "")
         if rated and total > rated:
             load.stylize("bold red reverse")
@@ -363,9 +363,9 @@ class MonitorView(Listener):
             return Text("FAULT: displacement", style="bold red")
         if pos is None:
             return Text("no position", style="yellow")
-        strokes = self.site.stroke_m
+        strokes = self.figures.stroke_m
         stroke = strokes[rope] if rope < len(strokes) else None
-        margin = self.site.stroke_margin_m
+        margin = self.figures.stroke_margin_m
         bar = stroke_gauge(pos, stroke, margin)
         if stroke:
             m = margin or 0.0
@@ -650,10 +650,10 @@ class JsonAlarmLines(Listener):
 def spec_from_args(args: argparse.Namespace) -> HoistSpec:
     """The one hoist `ropemon monitor` watches, from its command line. ValueError says why not."""
     keys = keys_from_options(args.key_file, args.config, args.accept_rewound)
-    site = site_from_configs(args.config)
+    figures = figures_from_configs(args.config)
     # The nodes it has keys for are the nodes it must hear: silent until heard.
-    settings = dataclasses.replace(alarm_settings(site, args.silent_s), nodes=tuple(sorted(keys or ())))
-    return HoistSpec("monitor", site, keys, settings, receivers=tuple(receiver_names(args.port)), baud=args.baud,
+    settings = dataclasses.replace(alarm_settings(figures, args.silent_s), nodes=tuple(sorted(keys or ())))
+    return HoistSpec("monitor", figures, keys, settings, receivers=tuple(receiver_names(args.port)), baud=args.baud,
                      rs485=args.rs485, accept_rewound=tuple(args.accept_rewound))
 
 
@@ -673,7 +673,7 @@ def run(args: argparse.Namespace) -> int:
         except StoreError as e:
             print(f"ropemon monitor: {e}", file=sys.stderr)
             return 2
-    view: Listener = JsonAlarmLines(sys.stdout) if args.headless else MonitorView(spec.site)
+    view: Listener = JsonAlarmLines(sys.stdout) if args.headless else MonitorView(spec.figures)
     # Wall-clock time, like frames.rx_time: alarm raise/clear/ack times in the log must be
     # readable as times of day (a hoist-room PC slews its clock with NTP, it does not jump).
     hoist = assembly.build_hoist(spec, time.time, store=store, views=[view])

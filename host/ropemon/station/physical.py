@@ -13,7 +13,7 @@ id and key are not here: they are `node.node_id` and `node.key` (`node_identity`
 
 Everything that writes or reads `physical` goes through here: `ropemon config`
 (`commission.site.physical_from_site` builds one), the node section's builder
-(`commission.nodejson`), the station (`station.sitefigures.SiteFigures`: the monitor's view
+(`commission.nodejson`), the station (`station.nodefigures.NodeFigures`: the monitor's view
 and its alarm thresholds, the report) and the lab's evaluation. Checked here is what is physical;
 what the node's fixed point can represent is `commission.nodejson`'s to check when
 it builds the integer `node` section.

@@ -360,8 +360,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def stroke_from(args: argparse.Namespace) -> tuple[list[float] | None, float | None]:
     """Each cylinder's stroke and the stroke margin (m): from --config, else --site, else unknown."""
     if args.config:
-        from ropemon.station.sitefigures import SiteFigures
-        f = SiteFigures.from_node_json(args.config)
+        from ropemon.station.nodefigures import NodeFigures
+        f = NodeFigures.from_node_json(args.config)
         return (list(f.stroke_m) or None), f.stroke_margin_m
     if args.site:
         from ropemon.commission.site import SiteError, in_file, load_site
@@ -375,8 +375,8 @@ def stroke_from(args: argparse.Namespace) -> tuple[list[float] | None, float | N
 
 def areas_from(args: argparse.Namespace) -> list[float]:
     if args.config:
-        from ropemon.station.sitefigures import SiteFigures
-        return SiteFigures.from_node_json(args.config).cylinder_area_m2
+        from ropemon.station.nodefigures import NodeFigures
+        return NodeFigures.from_node_json(args.config).cylinder_area_m2
     if args.area_m2:
         return [args.area_m2] * 4
     raise ValueError("the raw tension needs the piston area: give --config node.json or --area-m2")

@@ -364,8 +364,8 @@ class OpcuaFace(_Conditions):
                 receivers[name] = await self._variable(robj, f"{hid}.Receivers.{name}.Connected", "Connected",
                                                        "Boolean", description="the receiver's port is open")
             nodes = {}
-            areas = list(h.site.cylinder_area_m2)
-            strokes = list(getattr(h.site, "stroke_m", None) or ())
+            areas = list(h.figures.cylinder_area_m2)
+            strokes = list(getattr(h.figures, "stroke_m", None) or ())
             for n in sorted(h.keys):
                 base = f"{hid}.n{n}"
                 nobj = await self._object(hobj, base, f"Node{n}", f"{h.name}: node {n}")
@@ -525,12 +525,12 @@ def _ranges(h: Any) -> list[tuple[float, float]]:
     """Per rope: 0 to the pressure transmitter's full scale times the cylinder area, in kN (from
     the hoist's first node.json); else 0 to twice the rated rope tension; else none."""
     from ropemon.station.physical import load_node_json
-    areas = list(h.site.cylinder_area_m2)
+    areas = list(h.figures.cylinder_area_m2)
     try:
         p = load_node_json(h.config.configs[0])[0]
         return [(0.0, round(p.sensor_p_max_Pa * a / 1000.0, 1)) for a in areas]
     except (ValueError, OSError, IndexError, AttributeError):
         pass
-    if h.site.rated_rope_tension_n:
-        return [(0.0, 2.0 * h.site.rated_rope_tension_n / 1000.0)] * len(areas)
+    if h.figures.rated_rope_tension_n:
+        return [(0.0, 2.0 * h.figures.rated_rope_tension_n / 1000.0)] * len(areas)
     return []

@@ -447,7 +447,7 @@ async def _trip(request: Request) -> tuple[WebListener, dict]:
     h = c.station.hoists[lst.hoist_id]
     config = getattr(h, "config", None)
     try:
-        detail = await c.readers[lst.hoist_id].call(logread.trip_detail, int(text), h.site.cylinder_area_m2,
+        detail = await c.readers[lst.hoist_id].call(logread.trip_detail, int(text), h.figures.cylinder_area_m2,
                                                     getattr(config, "shaft_m", None))
     except StoreError as e:
         raise HTTPException(404, str(e)) from None

@@ -188,22 +188,22 @@ class WebListener(Listener):
     def __init__(self, hoist: Any, trend_s: float = TREND_S) -> None:
         self.hoist_id: str = hoist.id
         self.hoist_name: str = hoist.name
-        site = hoist.site
-        self.area_m2 = list(site.cylinder_area_m2)
-        self.rated_load_n: float | None = site.rated_load_n
-        self.battery_low_v: float | None = site.battery_low_v
+        figures = hoist.figures
+        self.area_m2 = list(figures.cylinder_area_m2)
+        self.rated_load_n: float | None = figures.rated_load_n
+        self.battery_low_v: float | None = figures.battery_low_v
         config = getattr(hoist, "config", None)
         self.site = {
-            "rated_load_kN": _r(site.rated_load_n / 1000 if site.rated_load_n else None),
-            "rated_rope_kN": _r(site.rated_rope_tension_n / 1000 if site.rated_rope_tension_n else None),
-            "imbalance_frac": site.imbalance_frac,
-            "battery_low_v": site.battery_low_v,
+            "rated_load_kN": _r(figures.rated_load_n / 1000 if figures.rated_load_n else None),
+            "rated_rope_kN": _r(figures.rated_rope_tension_n / 1000 if figures.rated_rope_tension_n else None),
+            "imbalance_frac": figures.imbalance_frac,
+            "battery_low_v": figures.battery_low_v,
             "shaft_m": getattr(config, "shaft_m", None),
             "stale_s": STALE_S,
-            "ropes": len(site.cylinder_area_m2) or None,
+            "ropes": len(figures.cylinder_area_m2) or None,
             # each cylinder's stroke (end stops at +-stroke/2 from mid-stroke) and the margin, mm
-            "stroke_mm": [_r(x * 1000, 1) for x in site.stroke_m] or None,
-            "margin_mm": _r(site.stroke_margin_m * 1000, 1) if site.stroke_margin_m else None,
+            "stroke_mm": [_r(x * 1000, 1) for x in figures.stroke_m] or None,
+            "margin_mm": _r(figures.stroke_margin_m * 1000, 1) if figures.stroke_margin_m else None,
         }
         self.trend_s = trend_s
         self._lock = threading.RLock()

@@ -1,8 +1,8 @@
-"""The station's figures of a hoist from its node.json: what the monitor's view, the alarms
-and the report need to know beyond the frames.
+"""A hoist's figures from its node configs (node.json): what the monitor's view, the alarms,
+the faces and the report need to know beyond the frames.
 
-`SiteFigures` holds them (from a checked `physical` section, `ropemon.station.physical`, or
-from a node.json through its `load_node_json`); `site_from_configs` reads the node.json files
+`NodeFigures` holds them (from a checked `physical` section, `ropemon.station.physical`, or
+from a node.json through its `load_node_json`); `figures_from_configs` reads the node.json files
 of one hoist and refuses ones that disagree; `alarm_settings` and `equalizer_settings` turn the
 figures into the alarm engine's thresholds (`ropemon.station.alarms`, `ropemon.station.equalizer`).
 """
@@ -19,7 +19,7 @@ from ropemon.station.protocol import DAN_TO_N
 from ropemon.station.uncertainty import BandParams
 
 @dataclass
-class SiteFigures:
+class NodeFigures:
     """What the monitor's view and alarms need to know about the hoist beyond the frames."""
 
     cylinder_area_m2: list[float] = field(default_factory=list)  # per rope; empty: raw shown in kPa
@@ -38,7 +38,7 @@ class SiteFigures:
     samples_per_frame: int | None = None     # sample_hz / frame_hz
 
     @classmethod
-    def from_physical(cls, p: Physical) -> "SiteFigures":
+    def from_physical(cls, p: Physical) -> "NodeFigures":
         """The figures of a checked `physical` section."""
         return cls(
             cylinder_area_m2=list(p.cylinder_area_m2),
@@ -58,40 +58,40 @@ class SiteFigures:
         )
 
     @classmethod
-    def from_node_json(cls, path: str | Path) -> "SiteFigures":
+    def from_node_json(cls, path: str | Path) -> "NodeFigures":
         """The figures from a node.json's `physical` section (docs/config.md); ValueError names
         the file, the field and the reason."""
         return cls.from_physical(load_node_json(path)[0])
 
 
-def site_from_configs(paths: list[str]) -> SiteFigures:
+def figures_from_configs(paths: list[str]) -> NodeFigures:
     """The hoist's figures from its node.json files (defaults without any). The view and the
     alarms use one set of figures: node configs that disagree on them are refused."""
-    figures = [(p, SiteFigures.from_node_json(p)) for p in paths]
+    figures = [(p, NodeFigures.from_node_json(p)) for p in paths]
     for p, f in figures[1:]:
         if f != figures[0][1]:
             raise ValueError(f"{p} and {figures[0][0]} describe different hoists (cylinder areas, rated "
                              "tension, loads or thresholds differ): run one monitor per hoist")
-    return figures[0][1] if figures else SiteFigures()
+    return figures[0][1] if figures else NodeFigures()
 
 
-def equalizer_settings(site: SiteFigures) -> EqualizerSettings:
+def equalizer_settings(figures: NodeFigures) -> EqualizerSettings:
     """The equalizer alarms' figures from the node config (`ropemon.station.equalizer`): the cylinder
     areas, the stroke and its margin, and where the figures carry them the hydraulic compliance,
     the displacement channel's noise and the samples per frame; the thresholds' defaults."""
-    kw: dict[str, Any] = {"areas_m2": tuple(site.cylinder_area_m2),
-                          "stroke_m": tuple(site.stroke_m),
-                          "margin_m": site.stroke_margin_m}
-    if site.hydraulic_compliance_m_per_pa:
-        kw["compliance_m_per_pa"] = tuple(site.hydraulic_compliance_m_per_pa)
-    if site.displacement_noise_m:
-        kw["displacement_noise_m"] = site.displacement_noise_m
-    if site.samples_per_frame:
-        kw["samples_per_frame"] = int(site.samples_per_frame)
+    kw: dict[str, Any] = {"areas_m2": tuple(figures.cylinder_area_m2),
+                          "stroke_m": tuple(figures.stroke_m),
+                          "margin_m": figures.stroke_margin_m}
+    if figures.hydraulic_compliance_m_per_pa:
+        kw["compliance_m_per_pa"] = tuple(figures.hydraulic_compliance_m_per_pa)
+    if figures.displacement_noise_m:
+        kw["displacement_noise_m"] = figures.displacement_noise_m
+    if figures.samples_per_frame:
+        kw["samples_per_frame"] = int(figures.samples_per_frame)
     return EqualizerSettings(**kw)
 
 
-def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
+def alarm_settings(figures: NodeFigures, silent_s: float = 5.0) -> AlarmSettings:
     """Alarm thresholds from the node config's figures (regulation defaults otherwise).
 
     With the empty conveyance's weight (`physical.conveyance_weight_N`, written by `ropemon config`)
@@ -100,17 +100,17 @@ def alarm_settings(site: SiteFigures, silent_s: float = 5.0) -> AlarmSettings:
     (the imbalance the seals can hide). The equalizer's alarms (stroke limit, not equalizing, oil
     loss, rope adjustment) from the areas, stroke and compliance (`equalizer_settings`)."""
     kw: dict[str, Any] = dict(
-        deviation_frac=site.imbalance_frac,
-        battery_low_mv=int(site.battery_low_v * 1000) if site.battery_low_v else None,
+        deviation_frac=figures.imbalance_frac,
+        battery_low_mv=int(figures.battery_low_v * 1000) if figures.battery_low_v else None,
         silent_s=silent_s,
-        overload_frac=site.overload_frac,
-        band=site.band,
-        equalizer=equalizer_settings(site),
+        overload_frac=figures.overload_frac,
+        band=figures.band,
+        equalizer=equalizer_settings(figures),
     )
-    rated_dan = int(site.rated_load_n / DAN_TO_N) if site.rated_load_n else None
-    n_ropes = len(site.cylinder_area_m2)
-    if site.conveyance_weight_n and rated_dan and n_ropes:
-        return AlarmSettings.from_loads(rated_dan, round(site.conveyance_weight_n / DAN_TO_N), n_ropes,
-                                        slack_frac_of_empty=site.slack_frac, **kw)
+    rated_dan = int(figures.rated_load_n / DAN_TO_N) if figures.rated_load_n else None
+    n_ropes = len(figures.cylinder_area_m2)
+    if figures.conveyance_weight_n and rated_dan and n_ropes:
+        return AlarmSettings.from_loads(rated_dan, round(figures.conveyance_weight_n / DAN_TO_N), n_ropes,
+                                        slack_frac_of_empty=figures.slack_frac, **kw)
     return AlarmSettings(rated_load_dan=rated_dan, **kw)
 
