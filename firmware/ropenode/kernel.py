@@ -1,3 +1,4 @@
+# GENERATED from tools/kernel_src.py by tools/gen_kernel_viper.py (its helpers expanded inline): do not edit.
 """The per-sample hot path: one function over flat int arrays (docs/model.md).
 
     P = pack(cfg)           # config: array('i'), layout below
@@ -18,12 +19,16 @@ array read and written most.
 
 It is written in the subset of Python that @micropython.viper compiles with
 the same meaning (ints only, no calls, no `not`/`~`/ternaries, arrays read by
-index). kernel_viper.py is generated from this file
-(tools/gen_kernel_viper.py): the same `step` decorated for viper,
-with each int32 array read sign-extended (viper reads ptr32 zero-extended on
-64-bit ports). This plain version runs where there is no native emitter
-(WebAssembly port, CPython) and is the reference the viper one is tested
-equal to.
+index). Its source is tools/kernel_src.py, where the fixed-point idioms `step`
+repeats are helpers, each written once: `_q14mul` (a product rounded at 14 bits,
+the factor split so neither product is large), `_clamp` and `_divround` (a
+rounded quotient split so no intermediate reaches 2**30). tools/gen_kernel_viper.py
+expands every call of them inline into this module, the plain build, and into
+kernel_viper.py: the same `step` decorated for viper, with each int32 array read
+sign-extended (viper reads ptr32 zero-extended on 64-bit ports). Neither build
+calls a helper: each sample is still one call of straight-line integer code.
+This plain version runs where there is no native emitter (WebAssembly port,
+CPython) and is the reference the viper one is tested equal to.
 """
 import array
 
@@ -434,7 +439,7 @@ def step(S, P, rec, n):
                     S[_NLREM + i] = e & ((1 << nsh) - 1)
                     if lv > nref + nref:
                         lv = nref + nref
-                    elif lv < (nref >> 1):
+                    elif lv < nref >> 1:
                         lv = nref >> 1
                     S[_NL + i] = lv
                 else:
