@@ -119,7 +119,7 @@ def replay(sensors: str | Path, out: str | Path, config: str | Path = DEFAULT_CO
             "stream_s": samples / head["sample_hz"]}
 
 
-class NodeClock:
+class ReplayClock:
     """The station's clock during a replay: the node's time of the frame being fed, in s."""
 
     def __init__(self) -> None:
@@ -176,7 +176,7 @@ def replay_to_store(frames_bin: str | Path, config: str | Path, db: str | Path) 
         store = Store(db, batch_frames=1000, synchronous="NORMAL")
     except StoreError as e:
         raise ReplayError(str(e)) from None
-    clock = NodeClock()
+    clock = ReplayClock()
     hoist = assembly.build_hoist(spec, clock, wall=clock, store=store, db_path=db)
     session = hoist.pipeline
     offset = 0.0                       # added after a restart of the node's clock

@@ -46,7 +46,7 @@ class SiteError(ValueError):
 
 
 @dataclass(frozen=True)
-class Hoist:
+class SiteHoist:
     ropes: int
     shaft_depth_m: float
     cage_mass_kg: float
@@ -121,7 +121,7 @@ class PipePath:
 
 
 @dataclass(frozen=True)
-class Oil:
+class SiteOil:
     iso_vg: int | None                       # ISO 3448 grade, or None when given by its two viscosities
     viscosity_40C_cSt: float
     viscosity_100C_cSt: float
@@ -131,19 +131,19 @@ class Oil:
 
     def properties(self):
         """Viscosity and density against temperature (ropemon.commission.oil.Oil: one model of oil for all)."""
-        from ropemon.commission.oil import Oil as OilModel
-        return OilModel(self.viscosity_40C_cSt, self.viscosity_100C_cSt, self.density_15C_kg_m3)
+        from ropemon.commission.oil import Oil
+        return Oil(self.viscosity_40C_cSt, self.viscosity_100C_cSt, self.density_15C_kg_m3)
 
 
 @dataclass(frozen=True)
-class PressureChannel:
+class SitePressureChannel:
     counts_4mA: int
     counts_20mA: int
     range_MPa: tuple[float, float]
 
 
 @dataclass(frozen=True)
-class DisplacementChannel:
+class SiteDisplacementChannel:
     counts_lo: int
     counts_hi: int
     range_m: tuple[float, float]   # the transmitter's reading at counts_lo and counts_hi
@@ -157,7 +157,7 @@ class DisplacementChannel:
 
 
 @dataclass(frozen=True)
-class TemperatureChannel:
+class SiteTemperatureChannel:
     counts_at_0C: float
     counts_per_C: float
 
@@ -165,12 +165,12 @@ class TemperatureChannel:
 @dataclass(frozen=True)
 class Sensors:
     adc_bits: int
-    pressure: tuple[PressureChannel, ...]
-    displacement: tuple[DisplacementChannel, ...]
+    pressure: tuple[SitePressureChannel, ...]
+    displacement: tuple[SiteDisplacementChannel, ...]
     speed_m_per_pulse: float
     hall_marks_m: tuple[float, ...]
     battery_V_per_count: float
-    temperature: TemperatureChannel | None
+    temperature: SiteTemperatureChannel | None
 
 
 @dataclass(frozen=True)
@@ -186,11 +186,11 @@ class Site:
     name: str
     node_id: int
     key_hex: str
-    hoist: Hoist
+    hoist: SiteHoist
     alarms: Alarms
     cylinders: tuple[Cylinder, ...]          # one per rope
     pipes: tuple[PipePath, ...]              # one per rope
-    oil: Oil
+    oil: SiteOil
     sensors: Sensors
     rates: Rates
     friction_path: Path | None               # friction.json from `ropemon fit-friction`
@@ -257,14 +257,14 @@ def _pair(t: _Table, key: str) -> tuple[float, float]:
 # ---------------------------------------------------------------- sections
 
 
-def _hoist(t: _Table) -> Hoist:
+def _hoist(t: _Table) -> SiteHoist:
     # No default for the start depth: a node that counts from a guessed depth reports a wrong
     # one all shaft long (a Hall mark only corrects a count within hall_snap_m of it).
     if "start_depth_m" not in t.data:
         raise SiteError(f"{t.field('start_depth_m')}: missing (the depth in m of the landing where the "
                         "cage stands when the node is started, e.g. the loading landing)")
     shaft = t.number("shaft_depth_m", gt=0)
-    h = Hoist(
+    h = SiteHoist(
         ropes=t.integer("ropes", lo=1, hi=4),
         shaft_depth_m=shaft,
         cage_mass_kg=t.number("cage_mass_kg", gt=0),
@@ -366,7 +366,7 @@ def _pipe(t: _Table) -> PipePath:
     return PipePath(segments=segments, fittings=fittings)
 
 
-def _oil(t: _Table) -> Oil:
+def _oil(t: _Table) -> SiteOil:
     from ropemon.commission.oil import VG_CST_100C
 
     iso_vg: int | None = None
@@ -403,17 +403,17 @@ def _oil(t: _Table) -> Oil:
     if len(temps) > 8:
         raise SiteError(f"{name}: at most 8 temperatures including temp_assumed_C, got {len(temps)}")
     t.finish()
-    return Oil(iso_vg=iso_vg, viscosity_40C_cSt=nu40, viscosity_100C_cSt=nu100, density_15C_kg_m3=density,
-               temp_assumed_C=assumed, table_temps_C=tuple(temps))
+    return SiteOil(iso_vg=iso_vg, viscosity_40C_cSt=nu40, viscosity_100C_cSt=nu100, density_15C_kg_m3=density,
+                   temp_assumed_C=assumed, table_temps_C=tuple(temps))
 
 
 def _counts(t: _Table, key: str, full: int) -> int:
     return t.integer(key, lo=0, hi=full)
 
 
-def _pressure_channel(t: _Table, full: int) -> PressureChannel:
-    c = PressureChannel(counts_4mA=_counts(t, "counts_4mA", full), counts_20mA=_counts(t, "counts_20mA", full),
-                        range_MPa=_pair(t, "range_MPa"))
+def _pressure_channel(t: _Table, full: int) -> SitePressureChannel:
+    c = SitePressureChannel(counts_4mA=_counts(t, "counts_4mA", full), counts_20mA=_counts(t, "counts_20mA", full),
+                            range_MPa=_pair(t, "range_MPa"))
     t.finish()
     if not c.counts_20mA > c.counts_4mA:
         raise SiteError(f"{t.field('counts_20mA')}: must be > counts_4mA = {c.counts_4mA}, got {c.counts_20mA}")
@@ -427,7 +427,7 @@ def _pressure_channel(t: _Table, full: int) -> PressureChannel:
     return c
 
 
-def _displacement_channel(t: _Table, full: int, stroke_m: float) -> DisplacementChannel:
+def _displacement_channel(t: _Table, full: int, stroke_m: float) -> SiteDisplacementChannel:
     lo_hi = dict(counts_lo=_counts(t, "counts_lo", full), counts_hi=_counts(t, "counts_hi", full),
                  range_m=_pair(t, "range_m"))
     rng = lo_hi["range_m"]
@@ -436,7 +436,7 @@ def _displacement_channel(t: _Table, full: int, stroke_m: float) -> Displacement
         raise SiteError(f"{t.field('zero_m')}: the channel's reading at mid-stroke must be within its range_m "
                         f"{rng[0]:g}..{rng[1]:g} m, got {zero:g}")
     tol = t.number("travel_tolerance_m", TRAVEL_TOLERANCE_M, ge=0, le=stroke_m / 2)
-    c = DisplacementChannel(**lo_hi, zero_m=zero, travel_tolerance_m=tol)
+    c = SiteDisplacementChannel(**lo_hi, zero_m=zero, travel_tolerance_m=tol)
     t.finish()
     if c.counts_hi == c.counts_lo:
         raise SiteError(f"{t.field('counts_hi')}: must differ from counts_lo")
@@ -471,8 +471,8 @@ def _sensors(t: _Table, ropes: int, cylinders: tuple[Cylinder, ...]) -> Sensors:
     temperature = None
     if t.has("temperature"):
         tt = t.table("temperature")
-        temperature = TemperatureChannel(counts_at_0C=tt.number("counts_at_0C", ge=0, le=full),
-                                         counts_per_C=tt.number("counts_per_C", gt=0))
+        temperature = SiteTemperatureChannel(counts_at_0C=tt.number("counts_at_0C", ge=0, le=full),
+                                             counts_per_C=tt.number("counts_per_C", gt=0))
         tt.finish()
     s = Sensors(adc_bits=bits, pressure=pressure, displacement=displacement,
                 speed_m_per_pulse=t.number("speed_m_per_pulse", gt=0, le=1.0),

@@ -165,7 +165,9 @@ class StoredFrame:
 
 
 @dataclass(frozen=True)
-class Trip:
+class StoredTrip:
+    """A trip as the log holds it (`Store.trips`): its frames are the ids between first and last."""
+
     id: int
     node: int
     start_time: float
@@ -413,7 +415,7 @@ class Store:
     # -- reading --------------------------------------------------------------
 
     def frames(self, node: int | None = None, t0: float | None = None, t1: float | None = None,
-               trip: Trip | None = None) -> list[StoredFrame]:
+               trip: StoredTrip | None = None) -> list[StoredFrame]:
         """Frames in rx_time order, optionally of one node, a time range, or a trip."""
         where: list[str] = []
         args: list[float] = []
@@ -531,7 +533,7 @@ class Store:
         return [sf.frame for sf in self._stored(rows[::-1])]
 
     def trips(self, node: int | None = None, *, newest_first: bool = False,
-              limit: int | None = None) -> list[Trip]:
+              limit: int | None = None) -> list[StoredTrip]:
         """Trips in start_time order (newest first with `newest_first`), optionally of one node,
         at most `limit`."""
         sql = f"SELECT {_TRIP_SQL} FROM trips"
@@ -544,12 +546,12 @@ class Store:
         if limit is not None:
             sql += " LIMIT ?"
             args.append(limit)
-        return [Trip(*r) for r in self.db.execute(sql, args)]
+        return [StoredTrip(*r) for r in self.db.execute(sql, args)]
 
-    def trip(self, trip_id: int) -> Trip | None:
+    def trip(self, trip_id: int) -> StoredTrip | None:
         """The trip with this id, None if there is none."""
         row = self.db.execute(f"SELECT {_TRIP_SQL} FROM trips WHERE id = ?", (trip_id,)).fetchone()
-        return Trip(*row) if row else None
+        return StoredTrip(*row) if row else None
 
     def depth_span(self, node: int, first_id: int, last_id: int | None = None) -> int:
         """How far `node`'s depth ranged (highest minus lowest depth_mm) over its frames with

@@ -206,7 +206,7 @@ class DeviationBand(NamedTuple):
 
 
 @dataclass
-class _Rope:
+class _RopeRun:
     anchor: float | None = None
     run_sign: int = 0              # side of the current saturated run (0: none)
     run_travel: float = 0.0        # p A moved in the run's sliding direction since it began (N)
@@ -223,7 +223,7 @@ class SealBandTracker:
 
     def __init__(self, params: BandParams) -> None:
         self.p = params
-        self._ropes: list[_Rope] = []
+        self._ropes: list[_RopeRun] = []
         self._last_ms: int | None = None
         self._last_boot: int | None = None
         self.last: list[RopeInterval] = []
@@ -239,7 +239,7 @@ class SealBandTracker:
             return []
         n = len(frame.ropes)
         while len(self._ropes) < n:
-            self._ropes.append(_Rope())
+            self._ropes.append(_RopeRun())
         boot = frame.seq >> SEQ_BOOT_SHIFT
         if self._last_ms is not None:
             gap_s = ((frame.time_ms - self._last_ms) % (1 << 32)) / 1000.0
@@ -284,7 +284,7 @@ class SealBandTracker:
         self.last = out
         return [r.u for r in out]
 
-    def _follow(self, st: _Rope, f_hat: float, pa: float, s: float, fc: float) -> None:
+    def _follow(self, st: _RopeRun, f_hat: float, pa: float, s: float, fc: float) -> None:
         """The anchor: a saturated estimate the pressure drove there (module doc)."""
         sat = abs(f_hat) >= self.p.saturation * fc and f_hat != 0.0
         sign = (1 if f_hat > 0 else -1) if sat else 0

@@ -75,7 +75,7 @@ class OpcuaListener(Listener):
 
 
 @dataclass
-class _Rope:
+class _RopeVariables:
     tension: Any
     raw: Any
     deviation: Any
@@ -90,7 +90,7 @@ class _Rope:
 @dataclass
 class _Node:
     obj: Any
-    ropes: list[_Rope]
+    ropes: list[_RopeVariables]
     sum: Any
     depth: Any
     speed: Any
@@ -374,7 +374,7 @@ class OpcuaFace(_Conditions):
                     rb = f"{base}.r{k + 1}"
                     robj = await self._object(nobj, rb, f"Rope{k + 1}", f"{h.name}: node {n} rope {k + 1}")
                     rng = ranges[k] if k < len(ranges) else None
-                    r = _Rope(
+                    r = _RopeVariables(
                         await self._variable(robj, f"{rb}.Tension", "Tension", "Double", "kN", rng, history=True,
                                              description="compensated rope tension (window mean)"),
                         await self._variable(robj, f"{rb}.RawTension", "RawTension", "Double", "kN", rng,

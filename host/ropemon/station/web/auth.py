@@ -36,7 +36,7 @@ def user_stamp(user: User) -> str:
 
 
 @dataclass
-class Session:
+class LoginSession:
     name: str
     stamp: str
     seen: float       # the clock at its last use
@@ -50,7 +50,7 @@ class Sessions:
     def __init__(self, users: Users, idle_s: float, clock: Any = time.monotonic, cap: int = MAX_SESSIONS) -> None:
         self.users, self.idle_s, self.clock, self.cap = users, idle_s, clock, cap
         self._lock = threading.Lock()
-        self._s: dict[str, Session] = {}
+        self._s: dict[str, LoginSession] = {}
 
     def new(self, user: User) -> str:
         sid = secrets.token_urlsafe(32)
@@ -59,7 +59,7 @@ class Sessions:
             self._prune(now)
             while len(self._s) >= self.cap:          # the least recently used goes
                 del self._s[min(self._s, key=lambda k: self._s[k].seen)]
-            self._s[sid] = Session(user.name, user_stamp(user), now)
+            self._s[sid] = LoginSession(user.name, user_stamp(user), now)
         return sid
 
     def user(self, sid: Any, touch: bool = True) -> User | None:

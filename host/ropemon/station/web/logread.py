@@ -22,7 +22,7 @@ import numpy as np
 from ropemon.station.protocol import DAN_TO_N
 from ropemon.station.report import MIN_TRAVEL_M, FrameTable, Rest, Trip, rest_of
 from ropemon.station.store import Store, StoreError
-from ropemon.station.store import Trip as StoredTrip
+from ropemon.station.store import StoredTrip
 
 MAX_POINTS = 1500          # points per series of a history trend
 REST_WINDOW_S = 120.0      # frames read before and after a trip for its rests
