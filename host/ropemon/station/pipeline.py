@@ -1,4 +1,4 @@
-"""The station's data path: receivers -> decode and merge -> listeners.
+"""One hoist's data path, `HoistPipeline`: receivers -> decode and merge -> listeners.
 
     receivers          one reader thread per port (`link.SerialReceiver`)       transport
       -> FrameHub      a decoder per receiver, one merger, a queue (`link`)     protocol
@@ -117,7 +117,7 @@ class Listener:
 
 
 class HoistPipeline:
-    """Receivers -> `FrameHub` -> listeners, on one consumer thread (module docstring).
+    """One hoist's receivers -> `FrameHub` -> listeners, on one consumer thread (module docstring).
 
     `clock` is the listeners' time (alarm timing, status); `wall` stamps the station's own
     events and, through the hub, the frames' rx times; `wake` is set whenever the hub queues
