@@ -4,44 +4,22 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import json
+from pathlib import Path
 
 import pytest
 
-from ropemon.commission.nodejson import example_physical, make_node_json
 from ropemon.station import faces
 from ropemon.station.hoists import Station
 from ropemon.station.stationfile import StationConfigError, load_station_file
 
-STATION = """
-[station]
-name = "faces"
-
-[[hoist]]
-id = "north"
-configs = ["north.json"]
-receivers = { pithead = "loop://" }
-
-[web]
-port = 8099
-
-[opcua]
-endpoint = "opc.tcp://127.0.0.1:4840/ropemon"
-allow_anonymous = true
-
-[modbus]
-port = 0
-
-[mqtt]
-group_id = "mine"
-edge_node_id = "shaft-2"
-"""
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "examples" / "station.toml"     # every face's table
 
 #: face -> (a line of its table, that line made bad, the field the refusal names)
 BAD = {
-    "web": ("port = 8099", "port = 70000", "web.port"),
+    "web": ("port = 8080 ", "port = 70000 ", "web.port"),
     "opcua": ('endpoint = "opc.tcp://127.0.0.1:4840/ropemon"', 'endpoint = "http://127.0.0.1/"', "opcua.endpoint"),
-    "modbus": ("port = 0\n\n[mqtt]", "port = 70000\n\n[mqtt]", "modbus.port"),
+    "modbus": ("port = 5020 ", "port = 70000 ", "modbus.port"),
     "mqtt": ('edge_node_id = "shaft-2"', 'edge_node_id = "shaft/2"', "mqtt.edge_node_id"),
 }
 
@@ -68,14 +46,8 @@ def started(monkeypatch) -> list:
     return calls
 
 
-def write(tmp_path, text: str):
-    p = tmp_path / "station.toml"
-    p.write_text(text)
-    return p
-
-
-def test_every_face_is_started_with_its_table_checked_into_a_frozen_config(tmp_path, started):
-    sf = load_station_file(write(tmp_path, STATION))
+def test_every_face_is_started_with_its_table_checked_into_a_frozen_config(started):
+    sf = load_station_file(EXAMPLE)
     got = faces.start_faces(object(), sf)
     assert [f.describe() for f in got] == list(faces.FACES)
     assert [name for name, _ in started] == list(faces.FACES)
@@ -88,18 +60,17 @@ def test_every_face_is_started_with_its_table_checked_into_a_frozen_config(tmp_p
 @pytest.mark.parametrize("face", list(BAD))
 def test_a_bad_table_of_each_face_is_refused_with_its_field_before_any_face_starts(tmp_path, started, face):
     good, bad, field = BAD[face]
-    text = STATION.replace(good, bad, 1)
-    assert text != STATION
+    text = EXAMPLE.read_text()
+    assert text.count(good) == 1
+    (tmp_path / "station.toml").write_text(text.replace(good, bad))
     with pytest.raises(StationConfigError, match=field.replace(".", r"\.")):
-        sf = load_station_file(write(tmp_path, text))     # [web]: refused with the station file
+        sf = load_station_file(tmp_path / "station.toml")   # [web]: refused with the station file
         faces.start_faces(object(), sf)                   # the others: before any face starts
     assert started == []
 
 
-def test_the_station_is_the_view_the_faces_use(tmp_path):
-    (tmp_path / "north.json").write_text(json.dumps(make_node_json(example_physical(), node_id=1,
-                                                                   key=bytes(range(16)))))
-    station = Station(load_station_file(write(tmp_path, STATION)), open_stores=False)
+def test_the_station_is_the_view_the_faces_use():
+    station = Station(load_station_file(EXAMPLE), open_stores=False)
     try:
         assert isinstance(station, faces.StationView)
         assert all(isinstance(h, faces.HoistView) for h in station.hoists.values())
