@@ -433,9 +433,9 @@ class OpcuaFace(_Conditions):
         # the Server object emits the alarm conditions' events
         await server.get_node(ua.NodeId(ua.ObjectIds.Server)).set_event_notifier(
             [ua.EventNotifier.SubscribeToEvents, ua.EventNotifier.HistoryRead])
-        for h in self.hoists.values():     # a hoist's own event history (no live events there)
-            if h.db_path is not None:
-                await server.get_node(h.obj).set_event_notifier([ua.EventNotifier.HistoryRead])
+        for model in self.hoists.values():     # a hoist's own event history (no live events there)
+            if model.db_path is not None:
+                await server.get_node(model.obj).set_event_notifier([ua.EventNotifier.HistoryRead])
 
     # -- values -----------------------------------------------------------------------
 
