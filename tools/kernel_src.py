@@ -417,6 +417,11 @@ def step(S, P, rec, n):
     if s0s > 0:
         s0h = 1 << (s0s - 1)
     hp = P[_HPLAY]
+    # where the model is right zm still parts from zf: its elastic step follows x_f's noise (sigma0
+    # times it, within sigma0 hp) and its dissipation waits for x_f to cross the play (sigma0 hp
+    # more), so within twice sigma0 hp of zm the channels do not contradict the model (N/16;
+    # hp <= dx_max, so < 2**20)
+    ht = ((hp * s0m + s0h) >> s0s) << 1
     c1m = P[_C1M]
     c1s10 = P[_C1S10]
     c1half = (1 << c1s10) >> 1
@@ -825,14 +830,14 @@ def step(S, P, rec, n):
             if rest != 0:
                 e = 0
                 if f > 0:
-                    w = zm
+                    w = zm + ht
                     if w < 0:
                         w = 0
                     if f > w:
                         e = f - w
                         f = w
                 elif f < 0:
-                    w = zm
+                    w = zm - ht
                     if w > 0:
                         w = 0
                     if f < w:

@@ -322,6 +322,7 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
     if s0s > 0:
         s0h = 1 << s0s - 1
     hp = (P[_HPLAY] ^ s31) - s31
+    ht = hp * s0m + s0h >> s0s << 1
     c1m = (P[_C1M] ^ s31) - s31
     c1s10 = (P[_C1S10] ^ s31) - s31
     c1half = 1 << c1s10 >> 1
@@ -732,14 +733,14 @@ def step(S: ptr32, P: ptr32, rec: ptr16, n: int) -> int:
             if rest != 0:
                 e = 0
                 if f > 0:
-                    w = zm
+                    w = zm + ht
                     if w < 0:
                         w = 0
                     if f > w:
                         e = f - w
                         f = w
                 elif f < 0:
-                    w = zm
+                    w = zm - ht
                     if w > 0:
                         w = 0
                     if f < w:

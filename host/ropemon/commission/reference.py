@@ -175,12 +175,17 @@ def do_no_harm(f: np.ndarray, gv: np.ndarray, dx: np.ndarray, rest: np.ndarray, 
     """The node's do-no-harm limit (docs/model.md, "Do no harm") on one rope's friction F (N):
     zm, the seal state the piston's own travel gives (the velocity filter's x_f through a play
     of half-width `play`, in the LuGre steps of zf with the same g; kept across a loop fault,
-    its play re-anchored at each start), and at rest F keeps only what zm holds the same way.
+    its play re-anchored at each start), and at rest F keeps only what zm holds the same way,
+    give or take twice sigma0 times the play.
     Returns (F limited, the cut per sample, N); `play` 0: no limit."""
     out = np.array(f, dtype=float)
     cut = np.zeros(len(out))
     if play <= 0:
         return out, cut
+    # where the model is right zm still parts from zf: its elastic step follows x_f's noise (sigma0
+    # times it, within sigma0 play) and its dissipation waits for x_f to cross the play (sigma0 play
+    # more), so within twice sigma0 play of zm the channels do not contradict the model
+    tol = 2.0 * sigma0 * play
     zm = xm = xp = 0.0
     started = False
     for j, (fj, gj, xj, rj, okj) in enumerate(zip(f.tolist(), gv.tolist(), dx.tolist(), rest.tolist(),
@@ -197,7 +202,7 @@ def do_no_harm(f: np.ndarray, gv: np.ndarray, dx: np.ndarray, rest: np.ndarray, 
         zm = (zm + sigma0 * xj) * gj / (gj + sigma0 * abs(dp))
         zm = min(max(zm, -gj), gj)
         if rj:
-            lim = max(zm, 0.0) if fj > 0 else min(zm, 0.0)
+            lim = max(zm + tol, 0.0) if fj > 0 else min(zm - tol, 0.0)
             if (fj > 0 and fj > lim) or (fj < 0 and fj < lim):
                 cut[j] = abs(fj - lim)
                 out[j] = lim
