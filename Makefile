@@ -113,7 +113,7 @@ bench: $(STAMP) $(BROWSER_STAMP) $(BROKER_STAMP)
 # go to docs/evaluation/ (generated: each file's first line names the command that made it).
 evaluate: $(STAMP)
 	$(BIN)/ropemon evaluate --out out/evaluate
-	$(BIN)/ropemon evaluate --population 100 --seeds scoring --faults --duty-cycles 1 --out out/evaluate
+	$(BIN)/ropemon evaluate --population 50 --seeds scoring --faults --duty-cycles 1 --out out/evaluate
 	$(BIN)/ropemon evaluate --leave-one-family-out 4 --seeds scoring --rescore --out out/evaluate
 	mkdir -p docs/evaluation
 	cp out/evaluate/accuracy.md docs/evaluation/scenarios.md

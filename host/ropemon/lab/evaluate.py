@@ -1013,12 +1013,18 @@ def default_scenarios() -> list[str]:
     return list(DEFAULT_SCENARIOS)
 
 
+#: Scenarios run without the diagnostics (six more float-reference runs, here over 50 winds);
+#: the single-wind scenarios locate the error.
+NO_DIAGNOSTICS = frozenset({"duty-cycle-50"})
+
+
 def evaluate_one(name: str, work: Path, seed: int = 1, firmware: bool = True,
                  plots: Path | None = None, bed: dict | None = None) -> dict:
     """One scenario's results (`build_case`, `score`, its plots); an error is reported in them."""
     t0 = time.monotonic()
     try:
-        case = build_case(name, work / Path(name).stem, seed, firmware, bed)
+        case = build_case(name, work / Path(name).stem, seed, firmware, bed,
+                          diagnostics=name not in NO_DIAGNOSTICS)
         if variant(name) is not None:
             case.notes.insert(0, f"{FIELD_TRIP} variant: {variant(name)[0]}")
         res = score(case)
