@@ -435,6 +435,19 @@ def test_config_puts_the_compliance_in_the_node_section(site_dir, capsys):
     assert "config: error: compliance.pressure_noise_Pa: must be > 0, got -1" in capsys.readouterr().err
 
 
+def test_config_keeps_a_fit_the_observer_does_not_take_for_the_oil_balance(site_dir, capsys):
+    out = site_dir / "node.json"
+    assert ropemon(["config", str(with_compliance(site_dir, dict(FIT, observer_compliance=False))),
+                    "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["physical"]["observer_compliance"] is False
+    assert doc["physical"]["hydraulic_compliance_m_per_Pa"] == FIT["hydraulic_compliance_m_per_Pa"]
+    assert doc["node"]["friction"]["compliance_q"] == [0, 0, 0, 0]
+    assert doc["node"]["friction"]["warmup_samples"] != 400   # not the compliance defaults
+    assert node_module("config").parse(doc).ropes == 4
+    assert "for the oil balance only: the seal observer runs without it" in capsys.readouterr().out
+
+
 def test_uncertain_k_is_refused(ph):
     """A pressure change just above the minimum, under a noisy position, over a short
     recording: k would be uncertain by several per cent on every rope, and so would the
@@ -569,12 +582,46 @@ def test_fit_compliance_accepts_a_wind_with_strokes(ph):
     # the strokes and the creep were left out, and the fit says how much of the wind it used
     assert res.left_out_s > 5 and 0.2 < res.used_fraction < 0.97
     # the oil's volume is kept: sum A x follows sum A k p over the whole wind, strokes included
-    assert res.volume_ratio == pytest.approx(1.0, abs=0.02) and res.warnings == []
+    assert res.volume_ratio == pytest.approx(1.0, abs=0.02)
+    # off their lines over most of the wind: k is for the oil balance, not for the seal observer
+    assert res.used_fraction < compliance.OBSERVER_MIN_USED and not res.observer
+    assert res.as_dict()["observer_compliance"] is False
+    assert len(res.warnings) == 1 and "the node's seal observer runs without k" in res.warnings[0]
     # the same wind without strokes: nothing left out beyond the noise's few false alarms
     clean = compliance.fit(ph, stroke_wind(ph, strokes=False))
-    assert clean.used_fraction > 0.97
+    assert clean.used_fraction > 0.97 and clean.observer and clean.warnings == []
+    assert clean.as_dict()["observer_compliance"] is True
     for got, want in zip(clean.k_m_per_pa, K_TRUE):
         assert got == pytest.approx(want, rel=0.01)
+
+
+def test_a_fit_the_observer_does_not_take_reaches_the_oil_balance_only(ph):
+    """observer_compliance false: the node's observer (its node section, the float reference's
+    parameters) runs as without a compliance, while the station's oil balance keeps k."""
+    from ropemon.commission.nodejson import physical_params
+    from ropemon.commission.site import check_compliance
+    from ropemon.station.nodefigures import NodeFigures, alarm_settings
+    from ropemon.station.physical import Physical
+
+    res = compliance.fit(ph, stroke_wind(ph))
+    off = compliance.with_fit(ph, res)
+    assert off["observer_compliance"] is False and off["hydraulic_compliance_m_per_Pa"] == res.k_m_per_pa
+    on = dict(off, observer_compliance=True)
+    none = compliance.with_fit(ph, None)
+    assert not compliance.has_compliance(off) and compliance.has_compliance(on)
+    node = {name: make_node_json(d)["node"] for name, d in (("off", off), ("on", on), ("none", none))}
+    assert node["off"]["friction"]["compliance_q"] == [0] * 4 and any(node["on"]["friction"]["compliance_q"])
+    # the observer's settings are those of a node without a compliance (no tracker, no rest hold)
+    keys = ("tracker_b_shift", "tracker_k_q14", "rest_q16um", "alpha_z_q14", "warmup_samples")
+    assert all(node["off"]["friction"][k] == node["none"]["friction"][k] for k in keys)
+    assert any(node["on"]["friction"][k] != node["none"]["friction"][k] for k in keys)
+    assert physical_params(Physical.from_dict(off))["compliance"] == [0.0] * 4
+    # the oil balance still takes the oil's compression
+    eq = alarm_settings(NodeFigures.from_physical(Physical.from_dict(off))).equalizer
+    assert eq.compliance_m_per_pa == pytest.approx(res.k_m_per_pa)
+    # a fit file's flag must be a boolean
+    with pytest.raises(SiteError, match=r"fit\.observer_compliance: must be true or false, got 0"):
+        check_compliance(dict(res.as_dict(), observer_compliance=0), 4, "fit")
 
 
 def test_command_fits_a_wind_with_strokes(tmp_path, ph, capsys):

@@ -224,6 +224,9 @@ def describe(site: Site, doc: dict[str, Any]) -> str:
                      if "displacement_noise_m" in ph else "")
                   + (f", bounce at the pithead {ph['bounce_hz']:.2f} Hz" if "bounce_hz" in ph
                      else ", bounce not measured (the node's default)")
+                  + (", for the oil balance only: the seal observer runs without it (the pistons kept their "
+                     "lines over too little of the commissioning wind)" if ph.get("observer_compliance") is False
+                     else "")
                   + (f", play {ph['friction_play_sigmas']:g} sigma (SITE.toml)" if site.play_sigmas is not None
                      else "")
                   + ((", noise following off (SITE.toml)" if site.noise_follow_s == 0 else

@@ -692,7 +692,8 @@ def check_compliance(fit: Any, ropes: int, name: str = "compliance") -> dict[str
     """Validate a compliance fit (the JSON of `ropemon fit-compliance`) for a site of `ropes` ropes.
 
     Returns the keys the `physical` section takes from it: the hydraulic compliance
-    k per rope (0..1e-6 m/Pa), the rms pressure noise (> 0 Pa) and, when the fit has
+    k per rope (0..1e-6 m/Pa), whether the node's seal observer takes it (`observer_compliance`,
+    when the fit says), the rms pressure noise (> 0 Pa) and, when the fit has
     them (fits before they were measured do not; `bounce_hz` null: not measured), the rms
     displacement noise (> 0 m) and the cage's bounce at the pithead (0.5 .. 125 Hz).
     """
@@ -708,6 +709,10 @@ def check_compliance(fit: Any, ropes: int, name: str = "compliance") -> dict[str
     noise = _check_number(fit.get("pressure_noise_Pa"), f"{name}.pressure_noise_Pa", gt=0,
                           le=PRESSURE_NOISE_MAX_PA)
     out = {key: ks, "pressure_noise_Pa": noise}
+    if "observer_compliance" in fit:  # fits before it was judged do not have it: the observer takes k
+        if not isinstance(fit["observer_compliance"], bool):
+            raise SiteError(f"{name}.observer_compliance: must be true or false, got {fit['observer_compliance']!r}")
+        out["observer_compliance"] = fit["observer_compliance"]
     if "displacement_noise_m" in fit:
         out["displacement_noise_m"] = _check_number(fit["displacement_noise_m"], f"{name}.displacement_noise_m",
                                                     gt=0, le=DISPLACEMENT_NOISE_MAX_M)

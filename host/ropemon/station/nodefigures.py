@@ -33,7 +33,7 @@ class NodeFigures:
     band: BandParams | None = None           # the seal's friction lines: each rope's band (ropemon.station.uncertainty)
     stroke_m: list[float] = field(default_factory=list)  # per rope, end stops at +-stroke/2; empty: unknown
     stroke_margin_m: float | None = None     # the stroke-limit band within this of an end; None: no stroke
-    hydraulic_compliance_m_per_pa: list[float] = field(default_factory=list)  # k per rope; empty: none fitted
+    hydraulic_compliance_m_per_pa: list[float] = field(default_factory=list)  # k per rope (the oil's compression); empty: none fitted
     displacement_noise_m: float | None = None  # rms per sample of the displacement channels
     samples_per_frame: int | None = None     # sample_hz / frame_hz
 
@@ -52,7 +52,7 @@ class NodeFigures:
             band=p.band(),
             stroke_m=list(p.stroke_m or ()),
             stroke_margin_m=p.stroke_margin,
-            hydraulic_compliance_m_per_pa=list(p.compliance) if p.has_compliance else [],
+            hydraulic_compliance_m_per_pa=list(p.oil_compliance) if any(p.oil_compliance) else [],
             displacement_noise_m=p.setting("displacement_noise_m"),
             samples_per_frame=p.sample_hz // p.frame_hz,
         )

@@ -295,6 +295,7 @@ class Physical:
     displacement_noise_m: float | None = None
     friction_play_sigmas: float | None = None
     hydraulic_compliance_m_per_Pa: tuple[float, ...] | None = None
+    observer_compliance: bool | None = None    # False: the seal observer runs without k (the oil balance keeps it)
     pressure_noise_Pa: float | None = None
     bounce_hz: float | None = None
     bounce_filter_damping: float | None = None
@@ -337,7 +338,16 @@ class Physical:
     # -- derived figures ----------------------------------------------------------------
     @property
     def compliance(self) -> tuple[float, ...]:
-        """k per rope (m/Pa); zeros without a compliance."""
+        """k per rope (m/Pa) the node's seal observer takes; zeros without a compliance, or with
+        `observer_compliance` false."""
+        if self.observer_compliance is False:
+            return (0.0,) * self.ropes
+        return self.oil_compliance
+
+    @property
+    def oil_compliance(self) -> tuple[float, ...]:
+        """k per rope (m/Pa) as fitted, whether the observer takes it or not: the oil's compression
+        for the equalizer's oil balance; zeros without a compliance."""
         return self.hydraulic_compliance_m_per_Pa or (0.0,) * self.ropes
 
     @property
@@ -588,7 +598,9 @@ def _parse(d: Any, where: str) -> Physical:
     if t.raw("hydraulic_compliance_m_per_Pa", None) is not None:
         kw["hydraulic_compliance_m_per_Pa"] = _numbers(t, "hydraulic_compliance_m_per_Pa", n,
                                                        what="k in m/Pa, one per rope", ge=0, le=COMPLIANCE_K_MAX)
-    k_on = any(kw.get("hydraulic_compliance_m_per_Pa") or ())
+    if t.has("observer_compliance"):
+        kw["observer_compliance"] = t.boolean("observer_compliance")
+    k_on = any(kw.get("hydraulic_compliance_m_per_Pa") or ()) and kw.get("observer_compliance") is not False
     for key, (lo, hi) in SETTING_RANGES.items():
         if t.has(key):
             kw[key] = t.number(key, ge=lo, le=_limit(hi, kw))
