@@ -167,8 +167,9 @@ def test_a_fit_that_makes_the_rest_total_worse_is_refused_with_the_figures(wind,
     rows = figures(cap.err)
     assert len(rows) == 2  # the empty cage at the bottom before loading and at the pithead after unloading
     assert pct(rows[-1], "with the fit") == pct(msg, "it reads") and pct(rows[-1], "without") == pct(msg, "with the fit,")
-    # the bottom rest before loading is better with the fit: the worst rest decides
-    assert abs(pct(rows[0], "with the fit")) < 0.2 and pct(rows[0], "without") < -1.0
+    # the bottom rest before loading, where the node started at rest, reads well either way: the
+    # worst rest decides
+    assert abs(pct(rows[0], "with the fit")) < 0.2 and abs(pct(rows[0], "without")) < 0.3
 
 
 def test_a_good_fit_is_accepted_and_its_check_recorded(wind, tmp_path, capsys):

@@ -849,3 +849,39 @@ def test_do_no_harm_leaves_a_friction_the_pistons_travel_agrees_with():
     assert np.abs(ten - ref.tension_n)[good].max() <= _tolerance_n(doc)
     decoded = [protocol.decode_raw(protocol.decode_wire(b[:-1])) for b in frames]
     assert not any(f.held_back for f in decoded)
+
+
+def test_a_node_booted_at_rest_reads_no_friction_from_its_first_samples():
+    """At rest with the displacement's 20 um rms noise, the position filters start from one noisy
+    sample. Without a compliance b then settles to the mean position within a fraction of a second;
+    without the warm-up that settling is seal travel, and a stiff seal's state (sigma0 1e8 N/m, as
+    on a drawn hoist) goes to kilonewtons: a friction no seal holds, read as a rope deviation of
+    10 % and more. With the 0.5 s warm-up (the default) the largest friction of a rope over the
+    first 3 s is, in the median over ropes and noise draws, under 800 N (what the noise moves the
+    state by at rest) and under half of it without; in the node as in the reference."""
+    ph = example_physical()
+    ph["friction"] = dict(ph["friction"], sigma0=1e8, sigma1=1e5)
+    ph["piston_speed_max_m_s"] = 0.05
+    fs = int(ph["sample_hz"])
+    p_pa = np.full(3 * fs, 4e6)
+    med = {}
+    for warm in (None, 0.0):
+        doc = make_node_json(ph if warm is None else dict(ph, friction_warmup_s=warm))
+        assert doc["node"]["friction"]["warmup_samples"] == (fs // 2 if warm is None else 0)
+        dc = doc["physical"]["displacement_channels"][0]
+        per_m = (dc["counts_hi"] - dc["counts_lo"]) / (dc["range_m"][1] - dc["range_m"][0])
+        f = []
+        for seed in range(4):
+            recs = _compression_records(doc["physical"], p_pa, 0.0)
+            rng = np.random.default_rng(100 + seed)
+            x = recs[:, 4:8].astype(float) + rng.normal(0, 2e-5 * per_m, (len(p_pa), 4))
+            recs[:, 4:8] = np.round(x).astype(np.uint16)
+            ref = reference.compensate(doc["physical"], recs)
+            f += list(np.abs(ref.friction_n).max(axis=0))
+            if warm is None and seed == 0:
+                ten, good, _ = run_node(Node(config.parse(doc)), recs)
+                assert good.all()
+                assert np.abs(ten - ref.tension_n).max() <= _tolerance_n(doc)
+        med[warm] = float(np.median(f))
+    assert med[None] < 800 and med[None] < 0.5 * med[0.0], med
+    assert med[0.0] > 1200, med  # the failure the warm-up removes

@@ -71,7 +71,10 @@ NODE_DEFAULTS: dict[str, Any] = {
     "creep_q_Pa2_s3": 3e9,
     "bounce_q_Pa2_s3": 3e9,
     "pressure_noise_Pa": 5e3,      # rms noise of the pressure channel (transmitter + ADC)
-    "friction_warmup_s": 0.0,      # b a running mean this long after the start: 0 s without, 2 s with
+    # b a running mean this long after the start (its settling from the first samples' noise is no
+    # seal travel: without it a node booted at rest reads a friction the seals do not hold; the
+    # piston's travel in it is not seal travel either): 0.5 s without a compliance, 2 s with
+    "friction_warmup_s": 0.5,
     # balancing strokes (docs/model.md), tracked with a compliance and 2 or more ropes: the
     # low-pass of each rope's x_f - x_h and of the common motion, the threshold on the
     # former in its rms noise, the common speed below which it has no direction, and how
