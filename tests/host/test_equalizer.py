@@ -277,6 +277,35 @@ def test_a_closed_valve_towards_the_manifold_departs_in_pressure():
     assert "its pressure departs" in r.message
 
 
+def test_a_departure_after_a_long_wind_is_judged_against_the_change_since_a_still_frame():
+    """The ropes' pressure climbs 4 MPa over a minute's wind while the pistons stay (stiff oil), then
+    rope 3's valve closes and a 0.4 MPa stop follows: its tap departs 150 kPa, 37 % of that change
+    but under 5 % of the 4.4 MPa since the wind's start. The reference taken again on a still frame
+    judges it within the stop; one kept from the start of the wind would not."""
+    x0 = 0.72e-3   # off the frame's 0.1 mm rounding edges
+
+    def run(eq):
+        def held(i, p, x):
+            return p, x0
+        s = Stream(engine(eq)).feed([2500] * 4, [x0] * 4, n=30)
+        hoist(s, 2500, 6500, 60.0, rule=held)
+        s.feed([6500] * 4, [x0] * 4, n=30)
+        t_stop = s.t
+
+        def shut(i, p, x):
+            return (6500 + (p - 6500) * 0.625 if i == 2 else p), x0
+        hoist(s, 6500, 6900, 1.0, rule=shut)
+        s.feed([6900, 6900, 6750, 6900], [x0] * 4, n=40)
+        return s, t_stop
+
+    s, t_stop = run(EQ)
+    (r,) = [e for e in s.events if e.action == "raise"]
+    assert r.alarm == "not_equalizing:n1:r2" and r.time_s <= t_stop + 1.0 + 2.5, (r.time_s, t_stop)
+    assert "its pressure departs" in r.message
+    stale, _ = run(dataclasses.replace(EQ, quiet_anchor_s=1e9))
+    assert not [e for e in stale.events if e.action == "raise"]
+
+
 def test_a_blocked_hose_follows_in_pressure_but_its_piston_does_not_share_the_oil():
     def rule(i, p, x):
         return (p, K * 2.5e6 + 0.3 * K * (p - 2500) * 1000.0) if i == 0 else (p, x)

@@ -80,6 +80,10 @@ class EqualizerSettings:
     departure_frac: float = 0.05                 # max(this kPa, this share of their change)
     reanchor_m: float = 1e-3                     # the others moved this far: a new reference
     anchor_max_s: float = 300.0                  # or after this long (a lagging rope judged afresh)
+    # or on a quiet frame this long after the last reference while every tap's departure stays
+    # within a third of departure_kpa: a departure is then judged against the pressure change
+    # since a recent still frame, not since the start of a long wind
+    quiet_anchor_s: float = 10.0
     # a piston lagging while its pressure follows the others' (a seized seal, a valve closed on the
     # cylinder's side of the tap, a blocked hose) raises only with position_lag: a healthy seal at
     # rest holds its piston the same way through a load change (its static friction takes the
@@ -383,14 +387,30 @@ class EqualizingTracker:
             for i in range(n):
                 if self._first[i] is not None:
                     self._first[i] = None
-            if now_s - self._ref_s >= s.anchor_max_s:
+            if now_s - self._ref_s >= s.anchor_max_s or self._settled(quiet, idx, off, now_s):
                 self._anchor(xs, ps, usable, now_s)
             return self.last
         out, moved_all, any_lag = self._participation(n, usable, idx, dx, dp, ops, departing, flowing_of)
         self.last = out
-        if (moved_all >= s.reanchor_m and not any_lag) or now_s - self._ref_s >= s.anchor_max_s:
+        if ((moved_all >= s.reanchor_m or self._settled(quiet, idx, off, now_s)) and not any_lag) \
+                or now_s - self._ref_s >= s.anchor_max_s:
             self._anchor(xs, ps, usable, now_s)
         return out
+
+    def _settled(self, quiet: bool, idx, off, now_s: float) -> bool:
+        """A quiet frame `quiet_anchor_s` or more after the reference with every judged tap within a
+        third of `departure_kpa` of its reference offset: a new reference loses no evidence (a
+        departure building slowly holds the old one until it is judged)."""
+        s = self.s
+        if not quiet or self._ref_s is None or now_s - self._ref_s < s.quiet_anchor_s:
+            return False
+        lim = s.departure_kpa / 3.0
+        ref_off = self._ref_off
+        for i in idx:
+            o, r = off[i], ref_off[i] if i < len(ref_off) else None
+            if o is None or r is None or abs(o - r) >= lim:
+                return False
+        return True
 
     def _motion(self, n: int, xs, usable, idx, now_s: float) -> tuple[bool, list[bool], list[bool]]:
         """The pistons' motion over the last QUIET_S (the history `_xhist` taken this frame): whether
