@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ropemon.lab.plant import friction as friction_mod
-from ropemon.lab.plant.model import LEAK_KNEE_PA, TAU_VALVE_S, VALVE_CLOSING_S, leak_flow
+from ropemon.lab.plant.model import LEAK_KNEE_PA, SEIZE_RAMP_S, TAU_VALVE_S, VALVE_CLOSING_S, leak_flow
 from ropemon.lab.plant.output import write_outputs
 from ropemon.lab.plant.run import simulate
 from ropemon.lab.plant.scenario import build, load_scenario
@@ -254,12 +254,18 @@ def test_a_healthy_seal_moves_in_the_same_case(scenarios_dir):
 
 
 def test_seal_seizing_mid_run_scales_from_its_onset(scenarios_dir):
+    """Mid-run the seal's force rises from its own to the factor over SEIZE_RAMP_S (1 s), in
+    proportion to the time since the onset: a sliding seal's force is not multiplied at once."""
     doc = _doc(scenarios_dir, "fault-seized-seal")
     doc["faults"][0].update(at_s=20.0, factor=5.0)
     doc["plant"]["friction"]["force_scale"] = [1.1, 1.0, 0.9, 1.0]
     res = _run(doc, scenarios_dir)
     sc, t = res.truth["seal_scale"], res.t
-    assert np.all(sc[t <= 20.0, 0] == 1.1) and np.all(sc[t >= 20.05, 0] == 5.0)   # the type's x 5
+    assert SEIZE_RAMP_S == 1.0
+    assert np.all(sc[t <= 20.0, 0] == 1.1) and np.all(sc[t >= 21.0, 0] == 5.0)   # the type's x 5
+    mid = (t > 20.0) & (t < 21.0)
+    assert mid.sum() > 10 and np.all(np.diff(sc[mid, 0]) > 0)
+    np.testing.assert_allclose(sc[mid, 0], 1.1 + (5.0 - 1.1) * (t[mid] - 20.0), rtol=1e-9)
     assert np.all(sc[:, 2] == 0.9)
 
 

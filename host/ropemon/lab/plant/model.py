@@ -70,6 +70,7 @@ class Inputs:
 END_STOP_STIFFNESS_N_M = 2.0e8    # steel on steel through the piston, rod and end cap, lumped
 END_STOP_DAMPING_N_S_M = 2.0e5    # with a 40 kg piston: damping ratio ~1.1 (no bounce off the stop)
 TAU_VALVE_S = 1.0e-3              # a closed valve's pipe flow relaxes to 0 with this time constant
+SEIZE_RAMP_S = 1.0                # a seal seizing mid-run: its force multiplier rises to the factor over this time
 VALVE_CLOSING_S = 0.01            # a valve closing mid-run goes from open to closed over this time
 LEAK_KNEE_PA = 0.2e6              # a leak's flow falls linearly to 0 below this gauge pressure
 
@@ -133,7 +134,8 @@ class Faults:
         """Times the faults' inputs change: onsets, and the end of a valve's closing (step points)."""
         ev = [at for at in self.valve_at if at is not None and at > 0.0]
         ev += [at + VALVE_CLOSING_S for at in ev]
-        ev += [at for _, _, at in self.leaks if at > 0.0] + [s[0] for s in self.seize if s is not None and s[0] > 0.0]
+        ev += [at for _, _, at in self.leaks if at > 0.0]
+        ev += [a for s in self.seize if s is not None and s[0] > 0.0 for a in (s[0], s[0] + SEIZE_RAMP_S)]
         return sorted(set(ev))
 
     def leak_rates(self, t):
@@ -153,15 +155,18 @@ class Faults:
 
     def seal_mult(self, t, base):
         """Seal force multiplier on the law's output at times t (shape t.shape + (N,)): a seized
-        rope's factor over its own force_scale (base) for t > at_s (at_s = 0: from the start), 1
-        elsewhere."""
+        rope's factor over its own force_scale (base), from the start where at_s = 0, else rising
+        from 1 to it over SEIZE_RAMP_S after at_s; 1 elsewhere."""
         t = np.asarray(t, dtype=float)[..., None]
         out = np.ones(t.shape[:-1] + (self.n,))
         for i, s in enumerate(self.seize):
             if s is not None:
                 at, factor = s
-                on = t[..., 0] >= 0.0 if at <= 0.0 else t[..., 0] > at
-                out[..., i] = np.where(on, factor / base[i], 1.0)
+                if at <= 0.0:
+                    out[..., i] = np.where(t[..., 0] >= 0.0, factor / base[i], 1.0)
+                else:
+                    ramp = np.clip((t[..., 0] - at) / SEIZE_RAMP_S, 0.0, 1.0)
+                    out[..., i] = 1.0 + (factor / base[i] - 1.0) * ramp
         return out
 
 
