@@ -3,6 +3,7 @@ without one, or where the position does not follow the pressure, is refused; SIT
 [compliance] file reaches physical and the node section."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -268,6 +269,15 @@ def test_recheck_of_the_bounce():
         "bounce +0.16 Hz (2.75 Hz, was 2.59; tolerance 0.1 Hz)", True)
     assert compliance.recheck(dict(ph, bounce_hz=2.70), fit)[-1][1] is False
     assert compliance.recheck({"hydraulic_compliance_m_per_Pa": [3e-10] * 3}, fit) == []  # another hoist
+    # the observer's flag: a line only where this wind's pistons say otherwise than the config
+    assert not any("seal observer" in line for line, _ in compliance.recheck(ph, fit))
+    off = dict(ph, observer_compliance=False)
+    assert (f"the pistons kept their lines over 100 % of this wind (needs 90 %): the seal observer now takes k, "
+            "node.json's does not take it; rebuild the config from this fit", True) in compliance.recheck(off, fit)
+    lost = dataclasses.replace(fit, used_fraction=0.3)
+    assert ("the pistons kept their lines over 30 % of this wind (needs 90 %): the seal observer now runs without "
+            "k, node.json's takes it; rebuild the config from this fit", True) in compliance.recheck(ph, lost)
+    assert not any("seal observer" in line for line, _ in compliance.recheck(off, lost))
 
 
 # ---------------------------------------------------------------- SITE.toml [compliance]

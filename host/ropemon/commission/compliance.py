@@ -476,8 +476,9 @@ def _white_noise(p: np.ndarray, step: float) -> float:
 
 def recheck(ph: dict, res: ComplianceFit) -> list[tuple[str, bool]]:
     """(line, beyond its tolerance) per value NODE.json's `physical` took from an earlier fit:
-    k (the rope farthest off; for a common fit, K = sum A_i k_i), the pressure noise, the
-    bounce. Empty when it took none."""
+    k (the rope farthest off; for a common fit, K = sum A_i k_i), whether the seal observer
+    takes k (a line only where this wind says otherwise), the pressure noise, the bounce. Empty
+    when it took none."""
     k_was = ph.get("hydraulic_compliance_m_per_Pa")
     if not isinstance(k_was, list) or not any(k_was) or len(k_was) != len(res.k_m_per_pa):
         return []
@@ -495,6 +496,13 @@ def recheck(ph: dict, res: ComplianceFit) -> list[tuple[str, bool]]:
         i = max(range(len(rel)), key=lambda j: abs(rel[j]))
         out.append((f"k {rel[i] * 100:+.1f} % on rope {i + 1}, the farthest ({res.k_m_per_pa[i]:.4g} m/Pa, "
                     f"was {k_was[i]:.4g}; tolerance {RECHECK_K_REL * 100:g} %)", abs(rel[i]) > RECHECK_K_REL))
+    # whether the seal observer takes k: the pistons' lines over this wind against the config's flag
+    was_on = ph.get("observer_compliance", True) is not False
+    if res.observer != was_on:
+        now = "takes k" if res.observer else "runs without k"
+        out.append((f"the pistons kept their lines over {res.used_fraction * 100:.0f} % of this wind (needs "
+                    f"{OBSERVER_MIN_USED * 100:.0f} %): the seal observer now {now}, node.json's "
+                    f"{'takes' if was_on else 'does not take'} it; rebuild the config from this fit", True))
     was = ph.get("pressure_noise_Pa")
     if isinstance(was, (int, float)) and was > 0:
         r = res.pressure_noise_pa / was - 1
