@@ -68,6 +68,7 @@ from ropemon.station.protocol import L
 from ropemon.commission.reference import read_rsens
 from ropemon.commission.site import G_M_S2
 from ropemon.station import files
+from ropemon.station.physical import as_physical
 
 MIN_SPAN_PA = 0.3e6   # the pressure must change at least this much over the recording
 MIN_R = 0.5           # correlation of position and pressure below which the fit is refused
@@ -605,9 +606,8 @@ def with_fit(ph: dict, res: "ComplianceFit | None") -> dict:
 
 
 def has_compliance(ph: dict) -> bool:
-    """Whether `physical` ph gives the node's seal observer a compliance."""
-    k = ph.get("hydraulic_compliance_m_per_Pa")
-    return isinstance(k, list) and any(k) and ph.get("observer_compliance", True) is not False
+    """Whether `physical` ph gives the node's seal observer a compliance (`Physical.has_compliance`)."""
+    return as_physical(ph).has_compliance
 
 
 def rests(ph: dict, records: np.ndarray) -> list[tuple[int, int, float]]:
